@@ -1,0 +1,39 @@
+# Every command the README shows. `make run` and `make test` set everything up by themselves.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+MAP ?= maps/map-1.yaml
+
+.PHONY: setup run test lint format type bench clean
+
+$(BIN)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --upgrade pip
+	$(BIN)/python -m pip install -q -e '.[dev]'
+	touch $@
+
+setup: $(BIN)/.installed
+
+run: setup  ## the main job on the shipped default map
+	$(BIN)/smorphi-rl evaluate --map $(MAP) --angles 95 59 103 --plot logs/evaluate-map-1.png
+
+test: setup  ## lint, format check and the whole suite
+	$(BIN)/ruff check smorphi_rl tests scripts
+	$(BIN)/ruff format --check smorphi_rl tests scripts
+	$(BIN)/python -m pytest -q
+
+lint: setup
+	$(BIN)/ruff check smorphi_rl tests scripts
+
+format: setup
+	$(BIN)/ruff format smorphi_rl tests scripts
+	$(BIN)/ruff check --fix smorphi_rl tests scripts
+
+type: setup
+	$(BIN)/mypy smorphi_rl
+
+bench: setup
+	$(BIN)/python scripts/bench_fbcpp.py
+
+clean:
+	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

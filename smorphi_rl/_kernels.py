@@ -1,0 +1,371 @@
+"""Compiled fast path of FBCPP (numba): footprint rasterisation and the coverage planner.
+
+The arithmetic follows `geometry.py` and `coverage_reference.py` step for step, so results are
+identical; tests check that. Two exact shortcuts keep it fast:
+- a move between neighbouring tiles stamps one precomputed *swept* mask (the union of the
+  footprint shifted by 0..w or 0..l cells) instead of w or l separate stamps;
+- each tile edge is swept once, however often the path crosses it.
+Only this module imports numba; compiled code is cached on disk (first call compiles, ~10 s).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+FREE = 0
+# Columns of the per-morphology result rows written by the batch kernels.
+COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS = range(10)
+N_COLS = 10
+STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE = 0, 1, 2
+START_AUTO, START_TILE, START_CELL = 0, 1, 2
+
+_HINGE_X = np.array([1.0, 1.0, 1.0])
+_HINGE_Y = np.array([0.0, 1.0, 0.0])
+_HINGE_SIGN = np.array([-1.0, 1.0, -1.0])
+_UNIT_U = np.array([0.0, 1.0, 1.0, 0.0])
+_UNIT_V = np.array([0.0, 0.0, 1.0, 1.0])
+_NON_ADJACENT = ((0, 2), (0, 3), (1, 3))  # hinged neighbours touch only along an edge or corner
+_DR = np.array([0, 1, 0, -1])  # east, north, west, south as (d row, d col)
+_DC = np.array([1, 0, -1, 0])
+
+
+def buffer_side(block_side_m: float, resolution_m: float) -> int:
+    """Cells per side of a buffer that holds any footprint: 4 block diagonals plus margin."""
+    return math.ceil(4.0 * math.sqrt(2.0) * block_side_m / resolution_m) + 3
+
+
+@njit(cache=True)
+def _poses(t1: float, t2: float, t3: float, s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    ox, oy, phi = np.zeros(4), np.zeros(4), np.zeros(4)
+    theta = (t1, t2, t3)
+    for i in range(3):
+        c, sn = math.cos(math.radians(phi[i])), math.sin(math.radians(phi[i]))
+        px, py = ox[i] + (c * s - sn * 0.0), oy[i] + (sn * s + c * 0.0)
+        hx, hy = _HINGE_X[i] * s, _HINGE_Y[i] * s
+        hpx, hpy = ox[i] + (c * hx - sn * hy), oy[i] + (sn * hx + c * hy)
+        a = _HINGE_SIGN[i] * theta[i]
+        ca, sa = math.cos(math.radians(a)), math.sin(math.radians(a))
+        dx, dy = px - hpx, py - hpy
+        ox[i + 1], oy[i + 1] = hpx + (ca * dx - sa * dy), hpy + (sa * dx + ca * dy)
+        phi[i + 1] = phi[i] + a
+    return ox, oy, phi
+
+
+@njit(cache=True)
+def _clip_area(ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray) -> float:
+    """Area of square a clipped by counter-clockwise square b (Sutherland-Hodgman)."""
+    px, py = np.empty(16), np.empty(16)
+    qx, qy = np.empty(16), np.empty(16)
+    n = 4
+    for m in range(4):
+        px[m], py[m] = ax[m], ay[m]
+    for k in range(4):
+        if n == 0:
+            break
+        cx, cy = bx[k], by[k]
+        ex, ey = bx[(k + 1) % 4] - cx, by[(k + 1) % 4] - cy
+        out = 0
+        for m in range(n):
+            x0, y0 = px[m], py[m]
+            x1, y1 = px[(m + 1) % n], py[(m + 1) % n]
+            dp = ex * (y0 - cy) - ey * (x0 - cx)
+            dq = ex * (y1 - cy) - ey * (x1 - cx)
+            if dp >= 0.0:
+                qx[out], qy[out] = x0, y0
+                out += 1
+            if (dp >= 0.0) != (dq >= 0.0):
+                f = dp / (dp - dq)
+                qx[out], qy[out] = x0 + f * (x1 - x0), y0 + f * (y1 - y0)
+                out += 1
+        n = out
+        for m in range(n):
+            px[m], py[m] = qx[m], qy[m]
+    twice = 0.0
+    for m in range(n):
+        twice += px[m] * py[(m + 1) % n] - px[(m + 1) % n] * py[m]
+    return abs(twice) / 2.0
+
+
+@njit(cache=True)
+def footprint_into(
+    t1: float, t2: float, t3: float, s: float, r: float, buf: np.ndarray
+) -> tuple[bool, int, int, float, float]:
+    """Rasterise and trim F into buf[:l, :w] (buf zeroed first).
+
+    Returns (feasible, l, w, w_fp_m, l_fp_m); l = w = 0 when buf is too small."""
+    ox, oy, phi = _poses(t1, t2, t3, s)
+    cs, sn = np.empty(4), np.empty(4)
+    cx, cy = np.empty((4, 4)), np.empty((4, 4))
+    min_x, min_y, max_x, max_y = np.inf, np.inf, -np.inf, -np.inf
+    for k in range(4):
+        cs[k], sn[k] = math.cos(math.radians(phi[k])), math.sin(math.radians(phi[k]))
+        for m in range(4):
+            u, v = _UNIT_U[m] * s, _UNIT_V[m] * s
+            x, y = ox[k] + (cs[k] * u - sn[k] * v), oy[k] + (sn[k] * u + cs[k] * v)
+            cx[k, m], cy[k, m] = x, y
+            min_x, max_x = min(min_x, x), max(max_x, x)
+            min_y, max_y = min(min_y, y), max(max_y, y)
+    w_m, l_m = max_x - min_x, max_y - min_y
+    feasible = True
+    limit = 1e-9 * s * s
+    for i, j in _NON_ADJACENT:
+        if _clip_area(cx[i], cy[i], cx[j], cy[j]) > limit:
+            feasible = False
+    buf[:, :] = 0
+    rows, cols = math.ceil(l_m / r) + 1, math.ceil(w_m / r) + 1
+    if rows > buf.shape[0] or cols > buf.shape[1]:
+        return feasible, 0, 0, w_m, l_m
+    lo, hi = -1e-9, s + 1e-9
+    r_min, r_max, c_min, c_max = rows, -1, cols, -1
+    for i in range(rows):
+        py = min_y + (i + 0.5) * r
+        for j in range(cols):
+            px = min_x + (j + 0.5) * r
+            for k in range(4):
+                dx, dy = px - ox[k], py - oy[k]
+                u, v = cs[k] * dx + sn[k] * dy, -sn[k] * dx + cs[k] * dy
+                if lo <= u <= hi and lo <= v <= hi:
+                    buf[i, j] = 1
+                    r_min, r_max = min(r_min, i), max(r_max, i)
+                    c_min, c_max = min(c_min, j), max(c_max, j)
+                    break
+    if r_max < 0:
+        return feasible, 0, 0, w_m, l_m
+    l, w = r_max - r_min + 1, c_max - c_min + 1
+    if r_min > 0 or c_min > 0:
+        for i in range(l):
+            for j in range(w):
+                buf[i, j] = buf[i + r_min, j + c_min]
+        for i in range(rows):
+            for j in range(cols):
+                if i >= l or j >= w:
+                    buf[i, j] = 0
+    return feasible, l, w, w_m, l_m
+
+
+@njit(cache=True)
+def _stamp(mask: np.ndarray, y0: int, x0: int, cells: np.ndarray, covered: np.ndarray) -> int:
+    """Mark the free cells under `mask` placed at (y0, x0); return how many were new."""
+    h, w = cells.shape
+    new = 0
+    for i in range(min(mask.shape[0], h - y0)):
+        for j in range(min(mask.shape[1], w - x0)):
+            if mask[i, j] and cells[y0 + i, x0 + j] == FREE and not covered[y0 + i, x0 + j]:
+                covered[y0 + i, x0 + j] = 1
+                new += 1
+    return new
+
+
+@njit(cache=True)
+def plan_into(
+    cells: np.ndarray,
+    prefix: np.ndarray,
+    f: np.ndarray,
+    start_kind: int,
+    sp: int,
+    sq: int,
+    covered: np.ndarray,
+    path: np.ndarray,
+) -> tuple[int, int, int, int, int, int]:
+    """FBCPP sections 4-6 for footprint f (l x w) on `cells` (prefix: 2-D cumulative free counts).
+
+    Fills `covered` and up to len(path) tiles of the path. Returns
+    (status, covered free cells, P_len, east/west moves, north/south moves, path tiles)."""
+    h, wd = cells.shape
+    l, w = f.shape
+    nr, nc = (h + l - 1) // l, (wd + w - 1) // w
+    n = nr * nc
+    trav = np.zeros(n, np.bool_)
+    for a in range(nr):
+        r0, r1 = a * l, min(a * l + l, h)
+        for b in range(nc):
+            c0, c1 = b * w, min(b * w + w, wd)
+            trav[a * nc + b] = prefix[r1, c1] - prefix[r0, c1] - prefix[r1, c0] + prefix[r0, c0] > 0
+    start = -1
+    if start_kind == START_AUTO:
+        for t in range(n):
+            if trav[t]:
+                start = t
+                break
+    else:
+        sa, sb = (sp, sq) if start_kind == START_TILE else (sp // l, sq // w)
+        if not (0 <= sa < nr and 0 <= sb < nc):
+            return STATUS_START_OUTSIDE, 0, 0, 0, 0, 0
+        start = sa * nc + sb
+    if start < 0 or not trav[start]:
+        return STATUS_START_BLOCKED, 0, 0, 0, 0, 0
+    # distance transform from the start
+    dist = np.full(n, -1, np.int32)
+    queue = np.empty(n, np.int32)
+    dist[start] = 0
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        t = queue[head]
+        head += 1
+        a, b = t // nc, t % nc
+        for k in range(4):
+            na, nb = a + _DR[k], b + _DC[k]
+            if 0 <= na < nr and 0 <= nb < nc:
+                u = na * nc + nb
+                if trav[u] and dist[u] < 0:
+                    dist[u] = dist[t] + 1
+                    queue[tail] = u
+                    tail += 1
+    reachable = tail
+    # swept masks: F shifted by 0..w columns (east/west moves) and by 0..l rows (north/south)
+    swept_x = np.zeros((l, 2 * w), np.bool_)
+    swept_y = np.zeros((2 * l, w), np.bool_)
+    for i in range(l):
+        for j in range(w):
+            if f[i, j]:
+                for k in range(w + 1):
+                    swept_x[i, j + k] = True
+                for k in range(l + 1):
+                    swept_y[i + k, j] = True
+    covered[:, :] = 0
+    n_cov = _stamp(f, (start // nc) * l, (start % nc) * w, cells, covered)
+    swept_ew = np.zeros(n, np.bool_)  # edge (a, b)-(a, b+1) stored at a*nc + b
+    swept_ns = np.zeros(n, np.bool_)  # edge (a, b)-(a+1, b) stored at a*nc + b
+    visited = np.zeros(n, np.bool_)
+    parent = np.empty(n, np.int32)
+    seen = np.zeros(n, np.int32)  # generation stamp of the dead-end searches
+    route = np.empty(n, np.int32)
+    visited[start] = True
+    n_visited, p_len, n_ew, n_ns, n_path = 1, 0, 0, 0, 1
+    if path.shape[0] > 0:
+        path[0, 0], path[0, 1] = start // nc, start % nc
+    cur, generation = start, 0
+    while n_visited < reachable:
+        a, b = cur // nc, cur % nc
+        best, best_d = -1, -1
+        for k in range(4):
+            na, nb = a + _DR[k], b + _DC[k]
+            if 0 <= na < nr and 0 <= nb < nc:
+                u = na * nc + nb
+                if trav[u] and not visited[u] and dist[u] > best_d:
+                    best, best_d = u, dist[u]
+        n_route = 0
+        if best >= 0:
+            route[0] = best
+            n_route = 1
+        else:  # dead end: breadth-first to the nearest unvisited tile
+            generation += 1
+            seen[cur] = generation
+            queue[0] = cur
+            head, tail, target = 0, 1, -1
+            while head < tail and target < 0:
+                t = queue[head]
+                head += 1
+                ta, tb = t // nc, t % nc
+                for k in range(4):
+                    na, nb = ta + _DR[k], tb + _DC[k]
+                    if 0 <= na < nr and 0 <= nb < nc:
+                        u = na * nc + nb
+                        if trav[u] and seen[u] != generation:
+                            seen[u] = generation
+                            parent[u] = t
+                            queue[tail] = u
+                            tail += 1
+                            if not visited[u]:  # first enqueued = first dequeued (FIFO)
+                                target = u
+                                break
+            t = target
+            while t != cur:
+                route[n_route] = t
+                n_route += 1
+                t = parent[t]
+            route[:n_route] = route[:n_route][::-1].copy()
+        for m in range(n_route):
+            nxt = route[m]
+            pa, pb, qa, qb = cur // nc, cur % nc, nxt // nc, nxt % nc
+            if pa == qa:
+                n_ew += 1
+                e = pa * nc + min(pb, qb)
+                if not swept_ew[e]:
+                    swept_ew[e] = True
+                    n_cov += _stamp(swept_x, pa * l, min(pb, qb) * w, cells, covered)
+            else:
+                n_ns += 1
+                e = min(pa, qa) * nc + pb
+                if not swept_ns[e]:
+                    swept_ns[e] = True
+                    n_cov += _stamp(swept_y, min(pa, qa) * l, pb * w, cells, covered)
+            if n_path < path.shape[0]:
+                path[n_path, 0], path[n_path, 1] = qa, qb
+            n_path += 1
+            p_len += 1
+            cur = nxt
+            if not visited[cur]:
+                visited[cur] = True
+                n_visited += 1
+    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
+
+
+@njit(cache=True)
+def evaluate_batch(
+    thetas: np.ndarray,
+    s: float,
+    r: float,
+    cells: np.ndarray,
+    prefix: np.ndarray,
+    start_kind: int,
+    sp: int,
+    sq: int,
+    side: int,
+) -> np.ndarray:
+    """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*)."""
+    out = np.zeros((thetas.shape[0], N_COLS))
+    buf = np.zeros((side, side), np.uint8)
+    covered = np.zeros(cells.shape, np.uint8)
+    no_path = np.zeros((0, 2), np.int32)
+    for i in range(thetas.shape[0]):
+        feasible, l, w, w_m, l_m = footprint_into(thetas[i, 0], thetas[i, 1], thetas[i, 2], s, r, buf)
+        out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
+        out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
+        if feasible and l > 0:
+            res = plan_into(cells, prefix, buf[:l, :w], start_kind, sp, sq, covered, no_path)
+            out[i, COL_STATUS] = res[0]
+            out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
+    return out
+
+
+@njit(cache=True)
+def footprints_batch(thetas: np.ndarray, s: float, r: float, side: int) -> tuple[np.ndarray, np.ndarray]:
+    """F of every row of `thetas`: (result rows with the geometry columns, F bits N x side*side)."""
+    out = np.zeros((thetas.shape[0], N_COLS))
+    bits = np.zeros((thetas.shape[0], side * side), np.uint8)
+    buf = np.zeros((side, side), np.uint8)
+    for i in range(thetas.shape[0]):
+        feasible, l, w, w_m, l_m = footprint_into(thetas[i, 0], thetas[i, 1], thetas[i, 2], s, r, buf)
+        out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
+        out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
+        bits[i, :] = buf.ravel()
+    return out, bits
+
+
+@njit(cache=True)
+def plan_batch(
+    bits: np.ndarray,
+    shapes: np.ndarray,
+    cells: np.ndarray,
+    prefix: np.ndarray,
+    start_kind: int,
+    sp: int,
+    sq: int,
+    side: int,
+) -> np.ndarray:
+    """Plan every footprint (bits rows, shapes rows (l, w)); result rows with the plan columns."""
+    out = np.zeros((bits.shape[0], N_COLS))
+    covered = np.zeros(cells.shape, np.uint8)
+    no_path = np.zeros((0, 2), np.int32)
+    for i in range(bits.shape[0]):
+        l, w = shapes[i, 0], shapes[i, 1]
+        f = bits[i].reshape((side, side))[:l, :w]
+        res = plan_into(cells, prefix, f, start_kind, sp, sq, covered, no_path)
+        out[i, COL_STATUS] = res[0]
+        out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
+    return out

@@ -1,0 +1,217 @@
+"""Cached, batched FBCPP evaluation: the entry point of the env, the searches and the CLI.
+
+The result of a morphology depends on its hinge angles only through the footprint matrix F
+(FBCPP.md section 7), so results are cached exactly under F's bits. Batches are rasterised
+in one compiled call, deduplicated by F, and only unseen footprints are planned.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from dataclasses import dataclass
+
+import numpy as np
+
+from smorphi_rl import _kernels as k
+from smorphi_rl.coverage import (
+    CoverageResult,
+    Footprint,
+    PreparedMap,
+    Start,
+    StartKind,
+    plan_coverage,
+    raise_for_status,
+)
+from smorphi_rl.errors import MorphologyError, SmorphiError
+from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.maps import Map
+
+_PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_STATUS]
+
+
+@dataclass(frozen=True, eq=False)
+class BatchResult:
+    """Metrics of N morphologies as arrays, in input order."""
+
+    theta: np.ndarray  # (N, 3) degrees
+    feasible: np.ndarray  # (N,) bool
+    P_c: np.ndarray
+    coverage_free_pct: np.ndarray
+    P_len: np.ndarray  # (N,) int
+    path_length_m: np.ndarray
+    path_length_cells: np.ndarray  # (N,) int
+    footprint_cells: np.ndarray  # (N, 2) int: l, w
+    footprint_m: np.ndarray  # (N, 2): w_fp, l_fp
+
+    def __len__(self) -> int:
+        return int(self.theta.shape[0])
+
+    def result(self, i: int) -> CoverageResult:
+        """Row i as a CoverageResult (without path)."""
+        l, w = (int(v) for v in self.footprint_cells[i])
+        return CoverageResult(
+            theta=(float(self.theta[i, 0]), float(self.theta[i, 1]), float(self.theta[i, 2])),
+            feasible=bool(self.feasible[i]),
+            P_c=float(self.P_c[i]),
+            coverage_free_pct=float(self.coverage_free_pct[i]),
+            P_len=int(self.P_len[i]),
+            path_length_m=float(self.path_length_m[i]),
+            path_length_cells=int(self.path_length_cells[i]),
+            footprint_m=(float(self.footprint_m[i, 0]), float(self.footprint_m[i, 1])),
+            footprint_cells=(l, w),
+        )
+
+    def __iter__(self) -> Iterator[CoverageResult]:
+        return (self.result(i) for i in range(len(self)))
+
+
+def validate_thetas(thetas: np.ndarray) -> np.ndarray:
+    """(N, 3) float64 array of finite angles in [0, 180], or a MorphologyError naming row and value."""
+    arr = np.asarray(thetas, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != 3:
+        raise MorphologyError(f"expected an (N, 3) array of hinge angles, got shape {arr.shape}")
+    bad = ~np.isfinite(arr) | (arr < ANGLE_MIN_DEG) | (arr > ANGLE_MAX_DEG)
+    if bad.any():
+        i, j = (int(v) for v in np.argwhere(bad)[0])
+        raise MorphologyError(f"row {i}: hinge angle t{j + 1}={arr[i, j]} is outside [0, 180] degrees")
+    return np.ascontiguousarray(arr)
+
+
+class Evaluator:
+    """FBCPP metrics of morphologies on one map, cached by footprint matrix.
+
+    One instance per map (and block side, start); the env keeps one per map for its lifetime."""
+
+    def __init__(
+        self,
+        grid_map: Map,
+        block_side_m: float = DEFAULT_BLOCK_SIDE_M,
+        start: Start = Start(),
+        cache: bool = True,
+    ) -> None:
+        if not block_side_m > 0:
+            raise SmorphiError(f"block side must be > 0 m, got {block_side_m}")
+        self.prepared = PreparedMap(grid_map)
+        self.block_side_m = float(block_side_m)
+        self.start = start
+        self.use_cache = cache
+        self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
+        self._buf = np.zeros((self._side, self._side), dtype=np.uint8)
+        self._cache: dict[bytes, np.ndarray] = {}
+        self.hits = 0
+        self.misses = 0
+
+    @property
+    def grid_map(self) -> Map:
+        return self.prepared.grid_map
+
+    def cache_size(self) -> int:
+        return len(self._cache)
+
+    def footprint(self, morphology: Morphology) -> Footprint:
+        """F and the footprint size of one morphology (compiled rasteriser)."""
+        feasible, l, w, w_m, l_m = self._rasterise(morphology)
+        return Footprint(self._buf[:l, :w].astype(bool), w_m, l_m, bool(feasible))
+
+    def _rasterise(self, morphology: Morphology) -> tuple[bool, int, int, float, float]:
+        t1, t2, t3 = (float(t) for t in morphology.angles)
+        r = self.grid_map.resolution_m
+        return k.footprint_into(t1, t2, t3, self.block_side_m, r, self._buf)
+
+    def evaluate(self, morphology: Morphology) -> CoverageResult:
+        """Metrics of one morphology (no path): the env's per-step call."""
+        feasible, l, w, w_m, l_m = self._rasterise(morphology)
+        row = np.zeros(k.N_COLS)
+        row[k.COL_FEASIBLE], row[k.COL_L], row[k.COL_W], row[k.COL_W_M], row[k.COL_L_M] = feasible, l, w, w_m, l_m
+        if feasible:
+            key = self._buf.tobytes()
+            cached = self._cache.get(key) if self.use_cache else None
+            if cached is None:
+                self.misses += 1
+                res = k.plan_into(
+                    self.grid_map.cells,
+                    self.prepared.free_prefix,
+                    self._buf[:l, :w],
+                    int(self.start.kind),
+                    self.start.row,
+                    self.start.col,
+                    np.zeros(self.grid_map.cells.shape, np.uint8),
+                    np.zeros((0, 2), np.int32),
+                )
+                cached = np.array(res[1:5] + res[:1], dtype=np.float64)
+                raise_for_status(int(cached[4]), self.start, (l, w), self.grid_map)
+                if self.use_cache:
+                    self._cache[key] = cached
+            else:
+                self.hits += 1
+            row[_PLAN_COLS] = cached
+        return self._to_batch(np.array([morphology.angles], dtype=np.float64), row[None, :]).result(0)
+
+    def plan(self, morphology: Morphology) -> CoverageResult:
+        """Metrics plus path tiles and covered mask, for plots and replays (not cached)."""
+        return plan_coverage(self.prepared, self.footprint(morphology), morphology.angles, self.start)
+
+    def evaluate_many(self, thetas: np.ndarray) -> BatchResult:
+        """Metrics of every row of an (N, 3) array of hinge angles, in order."""
+        arr = validate_thetas(thetas)
+        cells, prefix = self.grid_map.cells, self.prepared.free_prefix
+        s, r, kind, sp, sq = self.block_side_m, self.grid_map.resolution_m, int(self.start.kind), *self._start_rc()
+        if not self.use_cache:
+            out = k.evaluate_batch(arr, s, r, cells, prefix, kind, sp, sq, self._side)
+            self.misses += int(out[:, k.COL_FEASIBLE].sum())
+            self._check_statuses(out)
+            return self._to_batch(arr, out)
+        out, bits = k.footprints_batch(arr, s, r, self._side)
+        feasible = out[:, k.COL_FEASIBLE] > 0
+        keys = np.ascontiguousarray(bits).view(np.dtype((np.void, bits.shape[1])))[:, 0]
+        unique_keys, first, inverse = np.unique(keys[feasible], return_index=True, return_inverse=True)
+        plans = np.zeros((unique_keys.shape[0], len(_PLAN_COLS)))
+        missing = []
+        for u, key in enumerate(unique_keys):
+            cached = self._cache.get(key.tobytes())
+            if cached is None:
+                missing.append(u)
+            else:
+                plans[u] = cached
+        self.hits += len(unique_keys) - len(missing)
+        self.misses += len(missing)
+        if missing:
+            rows = np.flatnonzero(feasible)[first[missing]]
+            shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
+            fresh = k.plan_batch(bits[rows], shapes, cells, prefix, kind, sp, sq, self._side)
+            fresh[:, [k.COL_L, k.COL_W]] = shapes
+            self._check_statuses(fresh)
+            plans[missing] = fresh[:, _PLAN_COLS]
+            for u, plan in zip(missing, plans[missing], strict=True):
+                self._cache[unique_keys[u].tobytes()] = plan.copy()
+        out[np.flatnonzero(feasible)[:, None], _PLAN_COLS] = plans[inverse.ravel()]
+        return self._to_batch(arr, out)
+
+    def _start_rc(self) -> tuple[int, int]:
+        return (self.start.row, self.start.col) if self.start.kind != StartKind.AUTO else (0, 0)
+
+    def _check_statuses(self, out: np.ndarray) -> None:
+        bad = np.flatnonzero(out[:, k.COL_STATUS] != k.STATUS_OK)
+        if bad.size:
+            i = int(bad[0])
+            shape = (int(out[i, k.COL_L]), int(out[i, k.COL_W]))
+            raise_for_status(int(out[i, k.COL_STATUS]), self.start, shape, self.grid_map)
+
+    def _to_batch(self, thetas: np.ndarray, out: np.ndarray) -> BatchResult:
+        feasible = out[:, k.COL_FEASIBLE] > 0
+        n_cov = np.where(feasible, out[:, k.COL_COVERED], 0.0)
+        p_c, cov_free = self.prepared.coverage_pct(n_cov)
+        l, w = out[:, k.COL_L], out[:, k.COL_W]
+        r = self.grid_map.resolution_m
+        path_cells = out[:, k.COL_EW] * w + out[:, k.COL_NS] * l
+        return BatchResult(
+            theta=thetas,
+            feasible=feasible,
+            P_c=np.where(feasible, p_c, 0.0),
+            coverage_free_pct=np.where(feasible, cov_free, 0.0),
+            P_len=out[:, k.COL_PLEN].astype(np.int64),
+            path_length_m=path_cells * r,
+            path_length_cells=path_cells.astype(np.int64),
+            footprint_cells=np.column_stack([l, w]).astype(np.int64),
+            footprint_m=out[:, [k.COL_W_M, k.COL_L_M]],
+        )

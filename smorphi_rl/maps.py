@@ -1,0 +1,312 @@
+"""Floor maps: the Map value, ROS map_server / nav2 YAML + PGM/PNG loading and saving, a generator.
+
+Cells are free, occupied or unknown (FBCPP.md section 3); row 0 is the lowest y, as nav2
+stores it after flipping the image.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from smorphi_rl.errors import MapError
+
+
+class Cell(enum.IntEnum):
+    """State of one map cell."""
+
+    FREE = 0
+    OCCUPIED = 1
+    UNKNOWN = 2
+
+
+class MapMode(enum.Enum):
+    """How image pixels become cells (nav2 map_server's `mode`)."""
+
+    TRINARY = "trinary"
+    SCALE = "scale"
+    RAW = "raw"
+
+
+# What `map_saver` writes for each state, and the thresholds we write beside it. free_thresh
+# 0.196 keeps 205 (p = 0.19608) unknown under both nav2 (<=) and ROS 1 (<) semantics.
+SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
+SAVED_OCCUPIED_THRESH = 0.65
+SAVED_FREE_THRESH = 0.196
+IMAGE_SUFFIXES = (".pgm", ".png")
+
+
+@dataclass(frozen=True, eq=False)
+class Map:
+    """An occupancy grid: `cells[row, col]` holds a `Cell` value, row 0 at the lowest y."""
+
+    cells: np.ndarray
+    resolution_m: float
+    origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    name: str = "map"
+    counts: dict[Cell, int] = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if not (isinstance(self.resolution_m, int | float) and math.isfinite(self.resolution_m)):
+            raise MapError(f"map {self.name}: resolution {self.resolution_m!r} is not a number")
+        if self.resolution_m <= 0:
+            raise MapError(f"map {self.name}: resolution must be > 0, got {self.resolution_m}")
+        cells = np.ascontiguousarray(self.cells, dtype=np.uint8)
+        if cells.ndim != 2 or cells.size == 0:
+            raise MapError(f"map {self.name}: the grid must be a non-empty 2-D array")
+        if cells.max() > Cell.UNKNOWN:
+            raise MapError(f"map {self.name}: cell values must be 0 (free), 1 (occupied) or 2 (unknown)")
+        cells.setflags(write=False)
+        object.__setattr__(self, "cells", cells)
+        counts = np.bincount(cells.ravel(), minlength=3)
+        object.__setattr__(self, "counts", {c: int(counts[c]) for c in Cell})
+        if self.counts[Cell.FREE] == 0:
+            raise MapError(f"map {self.name}: has no free cell, nothing to cover")
+
+    @property
+    def height(self) -> int:
+        return int(self.cells.shape[0])
+
+    @property
+    def width(self) -> int:
+        return int(self.cells.shape[1])
+
+    def fraction(self, cell: Cell) -> float:
+        return self.counts[cell] / self.cells.size
+
+    def cell_of(self, x_m: float, y_m: float) -> tuple[int, int]:
+        """(row, col) of the cell holding a point in the map frame (yaw ignored, as nav2 does)."""
+        col = math.floor((x_m - self.origin[0]) / self.resolution_m)
+        row = math.floor((y_m - self.origin[1]) / self.resolution_m)
+        if not (0 <= row < self.height and 0 <= col < self.width):
+            raise MapError(f"map {self.name}: point ({x_m}, {y_m}) m lies outside the map")
+        return row, col
+
+    @classmethod
+    def from_text(cls, text: str, resolution_m: float, name: str = "map") -> Map:
+        """A map drawn top row first: '.' free, '#' occupied, '?' unknown (as in FBCPP.md)."""
+        symbols = {".": Cell.FREE, "#": Cell.OCCUPIED, "?": Cell.UNKNOWN}
+        lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
+        if len({len(ln) for ln in lines}) != 1:
+            raise MapError(f"map {name}: rows of the text map differ in length")
+        try:
+            rows = [[symbols[ch] for ch in ln] for ln in lines]
+        except KeyError as exc:
+            raise MapError(f"map {name}: unknown symbol {exc.args[0]!r} (use . # ?)") from None
+        return cls(np.array(rows[::-1], dtype=np.uint8), resolution_m, name=name)
+
+
+def _require(meta: dict[str, Any], key: str, path: Path) -> Any:
+    if key not in meta:
+        raise MapError(f"{path}: missing key '{key}'")
+    return meta[key]
+
+
+def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
+    value = meta.get(key, default) if default is not None else _require(meta, key, path)
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise MapError(f"{path}: '{key}' must be a number, got {value!r}")
+    return float(value)
+
+
+def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """(mean colour per pixel, alpha or None, maximum value) of a PGM or PNG image."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            img.load()
+            if img.mode == "P":
+                img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+            elif img.mode == "1":
+                img = img.convert("L")
+            data = np.asarray(img)
+            mode = img.mode
+    except FileNotFoundError:
+        raise MapError(f"map image not found: {path}") from None
+    except (UnidentifiedImageError, OSError, ValueError) as exc:
+        raise MapError(f"{path}: not a readable PGM/PNG image ({exc})") from None
+    max_value = 65535.0 if data.dtype == np.uint16 or mode.startswith("I") else 255.0
+    alpha = None
+    if mode in ("RGBA", "LA"):
+        alpha, data = data[..., -1], data[..., :-1]
+    gray = data.astype(np.float64)
+    if gray.ndim == 3:
+        gray = gray.mean(axis=2)  # map_server averages the colour channels
+    if gray.ndim != 2 or gray.size == 0:
+        raise MapError(f"{path}: image has no pixels")
+    return gray, alpha, max_value
+
+
+def cells_from_image(
+    gray: np.ndarray,
+    alpha: np.ndarray | None,
+    max_value: float,
+    mode: MapMode,
+    negate: bool,
+    occupied_thresh: float,
+    free_thresh: float,
+) -> np.ndarray:
+    """nav2 semantics: p = (max - v) / max (v / max if negate); p >= occupied is occupied,
+    p <= free is free. Scale-mode values in between are known but not free: occupied here.
+    A cell is free only where nav2's OccupancyGrid would hold 0."""
+    cells = np.full(gray.shape, Cell.UNKNOWN, dtype=np.uint8)
+    if mode is MapMode.RAW:
+        cells[gray == 0] = Cell.FREE
+        cells[(gray > 0) & (gray <= 100)] = Cell.OCCUPIED
+    else:
+        p = gray / max_value if negate else (max_value - gray) / max_value
+        occupied, free = p >= occupied_thresh, p <= free_thresh
+        if mode is MapMode.SCALE:
+            cells[:] = Cell.OCCUPIED
+        cells[occupied] = Cell.OCCUPIED
+        cells[free & ~occupied] = Cell.FREE
+        if mode is MapMode.SCALE and alpha is not None:
+            cells[alpha < (255 if alpha.dtype == np.uint8 else 65535)] = Cell.UNKNOWN
+    return np.flipud(cells)  # image row 0 is the top of the map
+
+
+def load_map(yaml_path: str | Path) -> Map:
+    """Load a ROS map_server / nav2 map: YAML with `image` (relative to it), `resolution`, ..."""
+    path = Path(yaml_path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise MapError(f"map file not found: {path}") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MapError(f"{path}: cannot read map YAML ({exc})") from None
+    try:
+        meta = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise MapError(f"{path}: malformed YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(meta, dict):
+        raise MapError(f"{path}: not a map_server YAML (expected a mapping with 'image' and 'resolution')")
+    image = _require(meta, "image", path)
+    if not isinstance(image, str) or not image:
+        raise MapError(f"{path}: 'image' must be a file name, got {image!r}")
+    resolution = _number(meta, "resolution", path)
+    if resolution <= 0:
+        raise MapError(f"{path}: 'resolution' must be > 0, got {resolution}")
+    origin = meta.get("origin", [0.0, 0.0, 0.0])
+    if (
+        not isinstance(origin, list)
+        or len(origin) != 3
+        or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in origin)
+    ):
+        raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
+    mode_name = meta.get("mode", MapMode.TRINARY.value)
+    try:
+        mode = MapMode(mode_name)
+    except ValueError:
+        raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {mode_name!r}") from None
+    negate = meta.get("negate", 0)
+    if negate not in (0, 1, True, False):
+        raise MapError(f"{path}: 'negate' must be 0 or 1, got {negate!r}")
+    occupied_thresh = _number(meta, "occupied_thresh", path, 0.65)
+    free_thresh = _number(meta, "free_thresh", path, 0.25)
+    if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
+        raise MapError(
+            f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}"
+        )
+    gray, alpha, max_value = _read_image(path.parent / image)
+    cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)
+    origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
+    return Map(cells, resolution, origin_t, name=path.stem)
+
+
+def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") -> Path:
+    """Write `NAME.yaml` and `NAME.pgm|png` as map_saver does (trinary: 254/0/205)."""
+    from PIL import Image
+
+    path = Path(yaml_path)
+    if image_format not in ("pgm", "png"):
+        raise MapError(f"image format must be pgm or png, got {image_format!r}")
+    pixels = np.zeros(grid_map.cells.shape, dtype=np.uint8)
+    for cell, value in SAVED_PIXEL.items():
+        pixels[grid_map.cells == cell] = value
+    image_path = path.with_suffix(f".{image_format}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    Image.fromarray(np.flipud(pixels), mode="L").save(image_path)
+    meta = {
+        "image": image_path.name,
+        "mode": MapMode.TRINARY.value,
+        "resolution": grid_map.resolution_m,
+        "origin": list(grid_map.origin),
+        "negate": 0,
+        "occupied_thresh": SAVED_OCCUPIED_THRESH,
+        "free_thresh": SAVED_FREE_THRESH,
+    }
+    path.write_text(yaml.safe_dump(meta, sort_keys=False, default_flow_style=None))
+    return path
+
+
+def _free_is_connected(occupied: np.ndarray) -> bool:
+    """True when the free cells form one 4-connected region."""
+    free = ~occupied
+    start = np.argwhere(free)
+    if start.size == 0:
+        return False
+    seen = np.zeros_like(free)
+    r0, c0 = start[0]
+    seen[r0, c0] = True
+    queue = deque([(int(r0), int(c0))])
+    h, w = free.shape
+    while queue:
+        r, c = queue.popleft()
+        for nr, nc in ((r, c + 1), (r + 1, c), (r, c - 1), (r - 1, c)):
+            if 0 <= nr < h and 0 <= nc < w and free[nr, nc] and not seen[nr, nc]:
+                seen[nr, nc] = True
+                queue.append((nr, nc))
+    return int(seen.sum()) == int(free.sum())
+
+
+def generate_map(
+    rng: np.random.Generator,
+    width_m: float = 5.0,
+    height_m: float = 5.0,
+    resolution_m: float = 0.1,
+    obstacle_density: float = 0.2,
+    min_obstacle_m: float = 0.2,
+    max_obstacle_m: float = 1.2,
+    name: str = "generated",
+) -> Map:
+    """An indoor-like map: axis-aligned rectangular obstacles (furniture) added until the
+    occupied fraction reaches `obstacle_density`, never cutting the free space in two."""
+    if not 0.0 <= obstacle_density < 0.9:
+        raise MapError(f"obstacle density must be in [0, 0.9), got {obstacle_density}")
+    if width_m <= 0 or height_m <= 0 or resolution_m <= 0:
+        raise MapError("map width, height and resolution must be > 0")
+    if not 0 < min_obstacle_m <= max_obstacle_m:
+        raise MapError("need 0 < min obstacle size <= max obstacle size")
+    h, w = round(height_m / resolution_m), round(width_m / resolution_m)
+    if h < 2 or w < 2:
+        raise MapError("the map must be at least 2 x 2 cells")
+    lo = max(1, round(min_obstacle_m / resolution_m))
+    hi = max(lo, min(round(max_obstacle_m / resolution_m), h - 1, w - 1))
+    occupied = np.zeros((h, w), dtype=bool)
+    target = round(obstacle_density * h * w)
+    count = 0
+    for _ in range(20_000):
+        if count >= target:
+            break
+        rh, rw = (int(v) for v in rng.integers(lo, hi + 1, size=2))
+        remaining = target - count
+        if rh * rw > remaining:  # shrink the last pieces to land on the target
+            rw = max(1, min(rw, remaining // rh))
+            rh = max(1, min(rh, remaining // rw))
+        r, c = int(rng.integers(0, h - rh + 1)), int(rng.integers(0, w - rw + 1))
+        trial = occupied.copy()
+        trial[r : r + rh, c : c + rw] = True
+        added = int(trial.sum()) - count
+        if added == 0 or count + added > target or not _free_is_connected(trial):
+            continue
+        occupied, count = trial, count + added
+    cells = np.where(occupied, Cell.OCCUPIED, Cell.FREE).astype(np.uint8)
+    return Map(cells, resolution_m, name=name)
