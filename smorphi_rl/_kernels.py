@@ -15,11 +15,10 @@ import math
 import numpy as np
 from numba import njit
 
-FREE = 0
 # Columns of the per-morphology result rows written by the batch kernels.
 COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS = range(10)
 N_COLS = 10
-STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE = 0, 1, 2
+STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE, STATUS_PAD_TOO_SMALL = 0, 1, 2, 3
 START_AUTO, START_TILE, START_CELL = 0, 1, 2
 
 _HINGE_X = np.array([1.0, 1.0, 1.0])
@@ -147,21 +146,32 @@ def footprint_into(
 
 
 @njit(cache=True)
-def _stamp(mask: np.ndarray, y0: int, x0: int, cells: np.ndarray, covered: np.ndarray) -> int:
-    """Mark the free cells under `mask` placed at (y0, x0); return how many were new."""
-    h, w = cells.shape
+def _offsets(mask: np.ndarray, row_stride: int) -> np.ndarray:
+    """Flat offsets of the true cells of `mask` in a grid with `row_stride` columns."""
+    out = np.empty(mask.shape[0] * mask.shape[1], np.int64)
+    n = 0
+    for i in range(mask.shape[0]):
+        for j in range(mask.shape[1]):
+            if mask[i, j]:
+                out[n] = i * row_stride + j
+                n += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def _stamp(offsets: np.ndarray, base: int, work: np.ndarray) -> int:
+    """Mark free cells (0) under the mask at flat position `base` as covered (2); count new ones."""
     new = 0
-    for i in range(min(mask.shape[0], h - y0)):
-        for j in range(min(mask.shape[1], w - x0)):
-            if mask[i, j] and cells[y0 + i, x0 + j] == FREE and not covered[y0 + i, x0 + j]:
-                covered[y0 + i, x0 + j] = 1
-                new += 1
+    for o in offsets:
+        if work[base + o] == 0:
+            work[base + o] = 2
+            new += 1
     return new
 
 
 @njit(cache=True)
 def plan_into(
-    cells: np.ndarray,
+    padded: np.ndarray,
     prefix: np.ndarray,
     f: np.ndarray,
     start_kind: int,
@@ -170,12 +180,17 @@ def plan_into(
     covered: np.ndarray,
     path: np.ndarray,
 ) -> tuple[int, int, int, int, int, int]:
-    """FBCPP sections 4-6 for footprint f (l x w) on `cells` (prefix: 2-D cumulative free counts).
+    """FBCPP sections 4-6 for footprint f (l x w).
 
-    Fills `covered` and up to len(path) tiles of the path. Returns
+    `padded` is the map as 0 (free) / 1 (not free), padded below and right with 1s by at least
+    twice the footprint; `prefix` the (H+1) x (W+1) cumulative free counts of the map. Fills
+    `covered` (H x W, or 0 x 0 to skip) and up to len(path) tiles of the path. Returns
     (status, covered free cells, P_len, east/west moves, north/south moves, path tiles)."""
-    h, wd = cells.shape
+    h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
     l, w = f.shape
+    stride = padded.shape[1]
+    if padded.shape[0] < h + 2 * l or stride < wd + 2 * w:
+        return STATUS_PAD_TOO_SMALL, 0, 0, 0, 0, 0
     nr, nc = (h + l - 1) // l, (wd + w - 1) // w
     n = nr * nc
     trav = np.zeros(n, np.bool_)
@@ -226,8 +241,9 @@ def plan_into(
                     swept_x[i, j + k] = True
                 for k in range(l + 1):
                     swept_y[i + k, j] = True
-    covered[:, :] = 0
-    n_cov = _stamp(f, (start // nc) * l, (start % nc) * w, cells, covered)
+    off_f, off_x, off_y = _offsets(f, stride), _offsets(swept_x, stride), _offsets(swept_y, stride)
+    work = padded.ravel().copy()
+    n_cov = _stamp(off_f, (start // nc) * l * stride + (start % nc) * w, work)
     swept_ew = np.zeros(n, np.bool_)  # edge (a, b)-(a, b+1) stored at a*nc + b
     swept_ns = np.zeros(n, np.bool_)  # edge (a, b)-(a+1, b) stored at a*nc + b
     visited = np.zeros(n, np.bool_)
@@ -287,13 +303,13 @@ def plan_into(
                 e = pa * nc + min(pb, qb)
                 if not swept_ew[e]:
                     swept_ew[e] = True
-                    n_cov += _stamp(swept_x, pa * l, min(pb, qb) * w, cells, covered)
+                    n_cov += _stamp(off_x, pa * l * stride + min(pb, qb) * w, work)
             else:
                 n_ns += 1
                 e = min(pa, qa) * nc + pb
                 if not swept_ns[e]:
                     swept_ns[e] = True
-                    n_cov += _stamp(swept_y, min(pa, qa) * l, pb * w, cells, covered)
+                    n_cov += _stamp(off_y, min(pa, qa) * l * stride + pb * w, work)
             if n_path < path.shape[0]:
                 path[n_path, 0], path[n_path, 1] = qa, qb
             n_path += 1
@@ -302,6 +318,10 @@ def plan_into(
             if not visited[cur]:
                 visited[cur] = True
                 n_visited += 1
+    if covered.shape[0] == h and covered.shape[1] == wd:
+        for y in range(h):
+            for x in range(wd):
+                covered[y, x] = work[y * stride + x] == 2
     return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
 
 
@@ -310,7 +330,7 @@ def evaluate_batch(
     thetas: np.ndarray,
     s: float,
     r: float,
-    cells: np.ndarray,
+    padded: np.ndarray,
     prefix: np.ndarray,
     start_kind: int,
     sp: int,
@@ -320,14 +340,14 @@ def evaluate_batch(
     """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*)."""
     out = np.zeros((thetas.shape[0], N_COLS))
     buf = np.zeros((side, side), np.uint8)
-    covered = np.zeros(cells.shape, np.uint8)
+    no_covered = np.zeros((0, 0), np.uint8)
     no_path = np.zeros((0, 2), np.int32)
     for i in range(thetas.shape[0]):
         feasible, l, w, w_m, l_m = footprint_into(thetas[i, 0], thetas[i, 1], thetas[i, 2], s, r, buf)
         out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
         out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
         if feasible and l > 0:
-            res = plan_into(cells, prefix, buf[:l, :w], start_kind, sp, sq, covered, no_path)
+            res = plan_into(padded, prefix, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
             out[i, COL_STATUS] = res[0]
             out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
     return out
@@ -351,7 +371,7 @@ def footprints_batch(thetas: np.ndarray, s: float, r: float, side: int) -> tuple
 def plan_batch(
     bits: np.ndarray,
     shapes: np.ndarray,
-    cells: np.ndarray,
+    padded: np.ndarray,
     prefix: np.ndarray,
     start_kind: int,
     sp: int,
@@ -360,12 +380,12 @@ def plan_batch(
 ) -> np.ndarray:
     """Plan every footprint (bits rows, shapes rows (l, w)); result rows with the plan columns."""
     out = np.zeros((bits.shape[0], N_COLS))
-    covered = np.zeros(cells.shape, np.uint8)
+    no_covered = np.zeros((0, 0), np.uint8)
     no_path = np.zeros((0, 2), np.int32)
     for i in range(bits.shape[0]):
         l, w = shapes[i, 0], shapes[i, 1]
         f = bits[i].reshape((side, side))[:l, :w]
-        res = plan_into(cells, prefix, f, start_kind, sp, sq, covered, no_path)
+        res = plan_into(padded, prefix, f, start_kind, sp, sq, no_covered, no_path)
         out[i, COL_STATUS] = res[0]
         out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
     return out

@@ -56,16 +56,22 @@ class Start:
 
 @dataclass(frozen=True, eq=False)
 class PreparedMap:
-    """A map with what every plan on it reuses: cell counts and a 2-D prefix sum of free cells."""
+    """A map with what every plan on it reuses: a 2-D prefix sum of free cells and the map as
+    0 (free) / 1 (not free) padded below and right by `pad_cells`, so stamps need no clipping."""
 
     grid_map: Map
+    pad_cells: int
     free_prefix: np.ndarray = field(init=False, repr=False)
+    padded: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        free = (self.grid_map.cells == Cell.FREE).astype(np.int32)
+        free = self.grid_map.cells == Cell.FREE
         prefix = np.zeros((free.shape[0] + 1, free.shape[1] + 1), dtype=np.int32)
-        prefix[1:, 1:] = free.cumsum(axis=0).cumsum(axis=1)
+        prefix[1:, 1:] = free.astype(np.int32).cumsum(axis=0).cumsum(axis=1)
+        padded = np.ones((free.shape[0] + self.pad_cells, free.shape[1] + self.pad_cells), dtype=np.uint8)
+        padded[: free.shape[0], : free.shape[1]] = ~free
         object.__setattr__(self, "free_prefix", prefix)
+        object.__setattr__(self, "padded", padded)
 
     @property
     def n_free(self) -> int:
@@ -138,6 +144,8 @@ def raise_for_status(status: int, start: Start, footprint_cells: tuple[int, int]
         return
     l, w = footprint_cells
     tiles = f"{-(-grid_map.height // l)} x {-(-grid_map.width // w)}"
+    if status == k.STATUS_PAD_TOO_SMALL:
+        raise SmorphiError(f"footprint {l}x{w} is larger than the planner's buffer; raise PreparedMap.pad_cells")
     if status == k.STATUS_START_OUTSIDE:
         raise SmorphiError(f"start {start.describe()} is outside the {tiles} tiles of footprint {l}x{w}")
     raise SmorphiError(f"start {start.describe()} is not traversable for footprint {l}x{w} on map {grid_map.name}")
@@ -162,7 +170,7 @@ def plan_coverage(
     while True:
         path = np.zeros((capacity, 2), dtype=np.int32)
         status, n_cov, p_len, n_ew, n_ns, n_path = k.plan_into(
-            grid_map.cells, prepared.free_prefix, f, int(start.kind), start.row, start.col, covered, path
+            prepared.padded, prepared.free_prefix, f, int(start.kind), start.row, start.col, covered, path
         )
         raise_for_status(status, start, (l, w), grid_map)
         if n_path <= capacity:

@@ -18,7 +18,6 @@ from smorphi_rl.coverage import (
     Footprint,
     PreparedMap,
     Start,
-    StartKind,
     plan_coverage,
     raise_for_status,
 )
@@ -26,7 +25,7 @@ from smorphi_rl.errors import MorphologyError, SmorphiError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Map
 
-_PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_STATUS]
+_PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS]  # what the cache holds per F
 
 
 @dataclass(frozen=True, eq=False)
@@ -91,13 +90,15 @@ class Evaluator:
     ) -> None:
         if not block_side_m > 0:
             raise SmorphiError(f"block side must be > 0 m, got {block_side_m}")
-        self.prepared = PreparedMap(grid_map)
         self.block_side_m = float(block_side_m)
         self.start = start
         self.use_cache = cache
         self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
+        self.prepared = PreparedMap(grid_map, pad_cells=2 * self._side)
         self._buf = np.zeros((self._side, self._side), dtype=np.uint8)
-        self._cache: dict[bytes, np.ndarray] = {}
+        self._covered = np.zeros((0, 0), dtype=np.uint8)
+        self._no_path = np.zeros((0, 2), dtype=np.int32)
+        self._cache: dict[bytes, tuple[float, ...]] = {}
         self.hits = 0
         self.misses = 0
 
@@ -121,31 +122,42 @@ class Evaluator:
     def evaluate(self, morphology: Morphology) -> CoverageResult:
         """Metrics of one morphology (no path): the env's per-step call."""
         feasible, l, w, w_m, l_m = self._rasterise(morphology)
-        row = np.zeros(k.N_COLS)
-        row[k.COL_FEASIBLE], row[k.COL_L], row[k.COL_W], row[k.COL_W_M], row[k.COL_L_M] = feasible, l, w, w_m, l_m
-        if feasible:
-            key = self._buf.tobytes()
-            cached = self._cache.get(key) if self.use_cache else None
-            if cached is None:
-                self.misses += 1
-                res = k.plan_into(
-                    self.grid_map.cells,
-                    self.prepared.free_prefix,
-                    self._buf[:l, :w],
-                    int(self.start.kind),
-                    self.start.row,
-                    self.start.col,
-                    np.zeros(self.grid_map.cells.shape, np.uint8),
-                    np.zeros((0, 2), np.int32),
-                )
-                cached = np.array(res[1:5] + res[:1], dtype=np.float64)
-                raise_for_status(int(cached[4]), self.start, (l, w), self.grid_map)
-                if self.use_cache:
-                    self._cache[key] = cached
-            else:
-                self.hits += 1
-            row[_PLAN_COLS] = cached
-        return self._to_batch(np.array([morphology.angles], dtype=np.float64), row[None, :]).result(0)
+        if not feasible:
+            return CoverageResult(morphology.angles, False, 0.0, 0.0, 0, 0.0, 0, (w_m, l_m), (l, w))
+        key = self._buf.tobytes()
+        counts = self._cache.get(key) if self.use_cache else None
+        if counts is None:
+            self.misses += 1
+            status, *plan = k.plan_into(
+                self.prepared.padded,
+                self.prepared.free_prefix,
+                self._buf[:l, :w],
+                int(self.start.kind),
+                self.start.row,
+                self.start.col,
+                self._covered,
+                self._no_path,
+            )
+            raise_for_status(status, self.start, (l, w), self.grid_map)
+            counts = tuple(float(v) for v in plan[:4])
+            if self.use_cache:
+                self._cache[key] = counts
+        else:
+            self.hits += 1
+        n_cov, p_len, n_ew, n_ns = counts
+        p_c, cov_free = self.prepared.coverage_pct(n_cov)
+        path_cells = int(n_ew * w + n_ns * l)
+        return CoverageResult(
+            theta=morphology.angles,
+            feasible=True,
+            P_c=float(p_c),
+            coverage_free_pct=float(cov_free),
+            P_len=int(p_len),
+            path_length_m=path_cells * self.grid_map.resolution_m,
+            path_length_cells=path_cells,
+            footprint_m=(w_m, l_m),
+            footprint_cells=(l, w),
+        )
 
     def plan(self, morphology: Morphology) -> CoverageResult:
         """Metrics plus path tiles and covered mask, for plots and replays (not cached)."""
@@ -154,10 +166,10 @@ class Evaluator:
     def evaluate_many(self, thetas: np.ndarray) -> BatchResult:
         """Metrics of every row of an (N, 3) array of hinge angles, in order."""
         arr = validate_thetas(thetas)
-        cells, prefix = self.grid_map.cells, self.prepared.free_prefix
-        s, r, kind, sp, sq = self.block_side_m, self.grid_map.resolution_m, int(self.start.kind), *self._start_rc()
+        padded, prefix = self.prepared.padded, self.prepared.free_prefix
+        s, r, kind, sp, sq = self.block_side_m, self.grid_map.resolution_m, int(self.start.kind), self.start.row, self.start.col
         if not self.use_cache:
-            out = k.evaluate_batch(arr, s, r, cells, prefix, kind, sp, sq, self._side)
+            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side)
             self.misses += int(out[:, k.COL_FEASIBLE].sum())
             self._check_statuses(out)
             return self._to_batch(arr, out)
@@ -178,17 +190,14 @@ class Evaluator:
         if missing:
             rows = np.flatnonzero(feasible)[first[missing]]
             shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
-            fresh = k.plan_batch(bits[rows], shapes, cells, prefix, kind, sp, sq, self._side)
+            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side)
             fresh[:, [k.COL_L, k.COL_W]] = shapes
             self._check_statuses(fresh)
             plans[missing] = fresh[:, _PLAN_COLS]
             for u, plan in zip(missing, plans[missing], strict=True):
-                self._cache[unique_keys[u].tobytes()] = plan.copy()
+                self._cache[unique_keys[u].tobytes()] = tuple(float(v) for v in plan)
         out[np.flatnonzero(feasible)[:, None], _PLAN_COLS] = plans[inverse.ravel()]
         return self._to_batch(arr, out)
-
-    def _start_rc(self) -> tuple[int, int]:
-        return (self.start.row, self.start.col) if self.start.kind != StartKind.AUTO else (0, 0)
 
     def _check_statuses(self, out: np.ndarray) -> None:
         bad = np.flatnonzero(out[:, k.COL_STATUS] != k.STATUS_OK)
