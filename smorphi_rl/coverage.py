@@ -54,6 +54,9 @@ class Start:
         }[self.kind]
 
 
+AUTO_START = Start()
+
+
 @dataclass(frozen=True, eq=False)
 class PreparedMap:
     """A map with what every plan on it reuses: a 2-D prefix sum of free cells and the map as
@@ -81,7 +84,7 @@ class PreparedMap:
     def n_occupied(self) -> int:
         return self.grid_map.counts[Cell.OCCUPIED]
 
-    def coverage_pct(self, n_covered: np.ndarray | int) -> tuple[np.ndarray | float, np.ndarray | float]:
+    def coverage_pct(self, n_covered: np.ndarray | float) -> tuple[np.ndarray | float, np.ndarray | float]:
         """(P_c, coverage_free_pct) from counts of covered free cells (FBCPP.md section 6)."""
         known = self.n_free + self.n_occupied
         return 100.0 * (n_covered + self.n_occupied) / known, 100.0 * n_covered / self.n_free
@@ -152,7 +155,7 @@ def raise_for_status(status: int, start: Start, footprint_cells: tuple[int, int]
 
 
 def plan_coverage(
-    prepared: PreparedMap, footprint: Footprint, theta: tuple[float, float, float], start: Start = Start()
+    prepared: PreparedMap, footprint: Footprint, theta: tuple[float, float, float], start: Start = AUTO_START
 ) -> CoverageResult:
     """Full plan with path tiles and covered mask; an infeasible footprint plans nothing."""
     from smorphi_rl import _kernels as k

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections import deque
 from dataclasses import dataclass
+from itertools import pairwise
 
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, footprint_matrix, footprint_size, is_feasible
 from smorphi_rl.maps import Cell, Map
@@ -97,7 +98,7 @@ def plan_reference(cells: list[list[int]], f: list[list[bool]], start: Tile | No
     a0, b0 = path[0]
     stamp(a0 * l, b0 * w)
     n_ew = n_ns = 0
-    for (pa, pb), (qa, qb) in zip(path, path[1:], strict=False):
+    for (pa, pb), (qa, qb) in pairwise(path):
         if pa == qa:
             n_ew += 1
             for k in range(1, w + 1):
@@ -133,4 +134,3 @@ def evaluate_reference(
         "path_length_cells": plan.n_ew * w + plan.n_ns * l,
         "path": plan.path,
     }
-

@@ -14,6 +14,7 @@ import numpy as np
 
 from smorphi_rl import _kernels as k
 from smorphi_rl.coverage import (
+    AUTO_START,
     CoverageResult,
     Footprint,
     PreparedMap,
@@ -85,7 +86,7 @@ class Evaluator:
         self,
         grid_map: Map,
         block_side_m: float = DEFAULT_BLOCK_SIDE_M,
-        start: Start = Start(),
+        start: Start = AUTO_START,
         cache: bool = True,
     ) -> None:
         if not block_side_m > 0:
@@ -167,7 +168,13 @@ class Evaluator:
         """Metrics of every row of an (N, 3) array of hinge angles, in order."""
         arr = validate_thetas(thetas)
         padded, prefix = self.prepared.padded, self.prepared.free_prefix
-        s, r, kind, sp, sq = self.block_side_m, self.grid_map.resolution_m, int(self.start.kind), self.start.row, self.start.col
+        s, r, kind, sp, sq = (
+            self.block_side_m,
+            self.grid_map.resolution_m,
+            int(self.start.kind),
+            self.start.row,
+            self.start.col,
+        )
         if not self.use_cache:
             out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side)
             self.misses += int(out[:, k.COL_FEASIBLE].sum())

@@ -152,9 +152,7 @@ def is_feasible(morphology: Morphology, block_side_m: float = DEFAULT_BLOCK_SIDE
     """False when two blocks overlap with area above 1e-9 s^2 (a self-colliding robot)."""
     blocks = all_corners(morphology, block_side_m)
     limit = OVERLAP_TOLERANCE * block_side_m * block_side_m
-    return all(
-        overlap_area(blocks[i], blocks[j]) <= limit for i in range(4) for j in range(i + 1, 4)
-    )
+    return all(overlap_area(blocks[i], blocks[j]) <= limit for i in range(4) for j in range(i + 1, 4))
 
 
 def _inside(px: float, py: float, pose: BlockPose, block_side_m: float) -> bool:

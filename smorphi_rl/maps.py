@@ -121,8 +121,9 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as img:
-            img.load()
+        with Image.open(path) as opened:
+            opened.load()
+            img: Image.Image = opened
             if img.mode == "P":
                 img = img.convert("RGBA" if "transparency" in img.info else "RGB")
             elif img.mode == "1":
@@ -212,9 +213,7 @@ def load_map(yaml_path: str | Path) -> Map:
     occupied_thresh = _number(meta, "occupied_thresh", path, 0.65)
     free_thresh = _number(meta, "free_thresh", path, 0.25)
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
-        raise MapError(
-            f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}"
-        )
+        raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))

@@ -1,0 +1,124 @@
+"""Matplotlib figures (the only module that imports matplotlib): maps, footprints, coverage."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.colors import ListedColormap
+from matplotlib.patches import Polygon, Rectangle
+
+from smorphi_rl.coverage import CoverageResult, path_points_m
+from smorphi_rl.geometry import Morphology, all_corners
+from smorphi_rl.maps import Cell, Map
+
+BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
+# free, occupied, unknown, covered free
+MAP_COLOURS = ListedColormap(["#ffffff", "#202020", "#b0b0b0", "#7bd389"])
+
+
+def _extent(grid_map: Map) -> tuple[float, float, float, float]:
+    x0, y0 = grid_map.origin[0], grid_map.origin[1]
+    r = grid_map.resolution_m
+    return (x0, x0 + grid_map.width * r, y0, y0 + grid_map.height * r)
+
+
+def draw_map(ax: plt.Axes, grid_map: Map, covered: np.ndarray | None = None) -> None:
+    """Free white, occupied black, unknown grey and, if given, covered free cells green."""
+    image = grid_map.cells.astype(np.int8).copy()
+    if covered is not None:
+        image[covered & (grid_map.cells == Cell.FREE)] = 3
+    ax.imshow(image, cmap=MAP_COLOURS, vmin=0, vmax=3, origin="lower", extent=_extent(grid_map), interpolation="none")
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_aspect("equal")
+
+
+def draw_morphology(
+    ax: plt.Axes, morphology: Morphology, block_side_m: float, offset: tuple[float, float] = (0.0, 0.0)
+) -> None:
+    """The four blocks B1..B4 with their hinge order, shifted so the footprint's corner is `offset`."""
+    blocks = all_corners(morphology, block_side_m)
+    xs = [p[0] for b in blocks for p in b]
+    ys = [p[1] for b in blocks for p in b]
+    dx, dy = offset[0] - min(xs), offset[1] - min(ys)
+    for n, (corners, colour) in enumerate(zip(blocks, BLOCK_COLOURS, strict=True)):
+        pts = [(x + dx, y + dy) for x, y in corners]
+        ax.add_patch(Polygon(pts, closed=True, facecolor=colour, edgecolor="black", alpha=0.75, lw=1))
+        cx, cy = float(np.mean([p[0] for p in pts])), float(np.mean([p[1] for p in pts]))
+        ax.text(cx, cy, f"B{n + 1}", ha="center", va="center", fontsize=8, color="white", weight="bold")
+    ax.add_patch(
+        Rectangle((offset[0], offset[1]), max(xs) - min(xs), max(ys) - min(ys), fill=False, ls="--", lw=1, ec="#555555")
+    )
+
+
+def plot_footprint(ax: plt.Axes, result: CoverageResult, morphology: Morphology, block_side_m: float, r: float) -> None:
+    """Paper Figure 4a: the blocks, the footprint box w x l, and the cells of F."""
+    l, w = result.footprint_cells
+    draw_morphology(ax, morphology, block_side_m)
+    ax.set_xlim(-0.05, max(result.footprint_m[0], w * r) + 0.05)
+    ax.set_ylim(-0.05, max(result.footprint_m[1], l * r) + 0.05)
+    ax.set_aspect("equal")
+    t = ", ".join(f"{v:g}" for v in result.theta)
+    ax.set_title(
+        f"θ = ({t})\nfootprint {result.footprint_m[0]:.3f} × {result.footprint_m[1]:.3f} m, F {l} × {w} cells",
+        fontsize=9,
+    )
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+
+
+def plot_coverage(
+    result: CoverageResult, grid_map: Map, morphology: Morphology, block_side_m: float, out: str | Path
+) -> Path:
+    """Paper Figures 4 and 6: the footprint beside the map with covered area, tiles and path."""
+    fig, (ax_fp, ax_map) = plt.subplots(1, 2, figsize=(11, 5.2), gridspec_kw={"width_ratios": [1, 2]})
+    r = grid_map.resolution_m
+    plot_footprint(ax_fp, result, morphology, block_side_m, r)
+    draw_map(ax_map, grid_map, result.covered)
+    if result.feasible and result.path_tiles is not None and len(result.path_tiles):
+        l, w = result.footprint_cells
+        x0, x1, y0, y1 = _extent(grid_map)
+        for x in np.arange(x0, x1 + 1e-9, w * r):
+            ax_map.axvline(x, color="#4a90d9", lw=0.4, alpha=0.5)
+        for y in np.arange(y0, y1 + 1e-9, l * r):
+            ax_map.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
+        pts = path_points_m(result, grid_map)
+        ax_map.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=1.4, label="coverage path")
+        ax_map.plot(pts[0, 0], pts[0, 1], "o", color="#d62728", ms=6, label="start")
+        a, b = (int(v) for v in result.path_tiles[0])
+        draw_morphology(ax_map, morphology, block_side_m, (x0 + b * w * r, y0 + a * l * r))
+        ax_map.legend(loc="upper right", fontsize=8, framealpha=0.9)
+    status = "" if result.feasible else "  (infeasible: blocks overlap)"
+    ax_map.set_title(
+        f"{grid_map.name}: P_c = {result.P_c:.2f} %, free covered = {result.coverage_free_pct:.2f} %, "
+        f"P_len = {result.P_len} ({result.path_length_m:.1f} m){status}",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def plot_map(grid_map: Map, out: str | Path) -> Path:
+    """The map alone, with its size and cell fractions in the title."""
+    fig, ax = plt.subplots(figsize=(6, 6))
+    draw_map(ax, grid_map)
+    ax.set_title(
+        f"{grid_map.name}: {grid_map.width} × {grid_map.height} cells at {grid_map.resolution_m:g} m, "
+        f"occupied {100 * grid_map.fraction(Cell.OCCUPIED):.1f} %",
+        fontsize=9,
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def _save(fig: plt.Figure, out: str | Path) -> Path:
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
