@@ -1,0 +1,61 @@
+"""Shared fixtures: the golden maps of FBCPP.md section 8 and hypothesis settings."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, settings
+
+from smorphi_rl.maps import Cell, Map
+
+settings.register_profile(
+    "ci", max_examples=60, deadline=None, derandomize=True, suppress_health_check=[HealthCheck.too_slow]
+)
+settings.load_profile("ci")
+
+ROOM12 = """
+............
+............
+...##.......
+...##.......
+............
+.......###..
+.......###..
+............
+..#.........
+..#.........
+............
+............
+"""
+
+CORRIDOR = """
+##############
+#............#
+#.##########.#
+#.#........#.#
+#.#.######.#.#
+#...#....#...#
+######..######
+######..######
+"""
+
+GOLDEN_THETAS = [(0, 0, 0), (0, 180, 0), (90, 90, 90), (95, 59, 103), (15, 15, 39)]
+
+
+@pytest.fixture(scope="session")
+def room12() -> Map:
+    return Map.from_text(ROOM12, 0.1, name="room12")
+
+
+@pytest.fixture(scope="session")
+def corridor() -> Map:
+    return Map.from_text(CORRIDOR, 0.1, name="corridor")
+
+
+def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_unknown: float = 0.0) -> Map:
+    """A map of independent random cells with at least one free cell."""
+    u = rng.random((h, w))
+    cells = np.where(u < p_occupied, Cell.OCCUPIED, Cell.FREE).astype(np.uint8)
+    cells[(u >= p_occupied) & (u < p_occupied + p_unknown)] = Cell.UNKNOWN
+    cells[rng.integers(h), rng.integers(w)] = Cell.FREE
+    return Map(cells, 0.1, name="random")

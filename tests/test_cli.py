@@ -1,0 +1,189 @@
+"""The command line: outputs, JSON shape, batch files, plots, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from smorphi_rl.cli import main
+
+ROOT = Path(__file__).resolve().parent.parent
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+JSON_KEYS = {"theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "footprint_cells"}
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    code = main(list(argv))
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_evaluate_prints_every_metric(capsys):
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "95", "59", "103")
+    assert code == 0
+    for label in ("P_c", "coverage", "P_len", "path length", "footprint", "feasible"):
+        assert f"\n{label}" in out
+    assert "F 8 x 4 cells" in out and "feasible     yes" in out
+
+
+def test_evaluate_json(capsys):
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--json")
+    doc = json.loads(out)
+    assert code == 0 and JSON_KEYS <= doc.keys()
+    assert doc["theta"] == [0, 180, 0] and doc["footprint_cells"] == [3, 3] and doc["feasible"] is True
+    assert doc["P_c"] == 100.0  # the O-shape fills its tile
+
+
+def test_angles_file_json_lines_in_input_order(capsys, tmp_path):
+    rows = [(95, 59, 103), (0, 180, 0), (12.5, 33, 170), (95, 59, 103)]
+    f = tmp_path / "angles.csv"
+    f.write_text("t1,t2,t3\n" + "\n".join(",".join(map(str, r)) for r in rows) + "\n\n")
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(f), "--json")
+    docs = [json.loads(line) for line in out.splitlines()]
+    assert code == 0 and [tuple(d["theta"]) for d in docs] == rows
+    _, single, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "12.5", "33", "170", "--json")
+    assert docs[2] == json.loads(single)
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(f))
+    lines = out.splitlines()
+    assert lines[0].startswith("t1,t2,t3,P_c") and len(lines) == 5 and lines[1] == lines[4]
+
+
+def test_plot_writes_a_png(capsys, tmp_path):
+    png = tmp_path / "sub" / "cov.png"
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "95", "59", "103", "--plot", str(png))
+    assert code == 0 and str(png) in out
+    with Image.open(png) as img:
+        assert img.format == "PNG" and img.size[0] > 600
+
+
+def test_start_and_block_side_options(capsys):
+    base = ["evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--json"]
+    _, a, _ = run(capsys, *base)
+    _, b, _ = run(capsys, *base, "--start", "tile:5,5")
+    _, c, _ = run(capsys, *base, "--block-side", "0.25")
+    _, d, _ = run(capsys, *base, "--start", "xy:2.55,2.55")
+    da, db, dc = json.loads(a), json.loads(b), json.loads(c)
+    assert da["P_len"] != db["P_len"] or da["path_length_m"] != db["path_length_m"]
+    assert dc["footprint_cells"] == [5, 5]
+    assert json.loads(d)["feasible"]
+
+
+def test_maps_generate_and_show(capsys, tmp_path):
+    out_yaml = tmp_path / "gen.yaml"
+    code, out, _ = run(capsys, "maps", "generate", "--out", str(out_yaml), "--density", "0.3", "--seed", "4")
+    assert code == 0 and "occupied 30.00 %" in out and (tmp_path / "gen.pgm").exists()
+    png = tmp_path / "gen.png"
+    code, out, _ = run(capsys, "maps", "show", str(out_yaml), "--png", str(png))
+    assert code == 0 and "occupied    30.00 %" in out and png.exists()
+    before = out_yaml.read_bytes()
+    code, _, err = run(capsys, "maps", "generate", "--out", str(out_yaml), "--seed", "5")
+    assert code != 0 and "--force" in err and out_yaml.read_bytes() == before  # nothing overwritten
+
+
+def _bad_files(tmp_path: Path) -> dict[str, Path]:
+    files = {
+        "malformed.yaml": "image: [oops",
+        "nores.yaml": "image: m.pgm\n",
+        "zero.yaml": "image: m.pgm\nresolution: 0\n",
+        "noimage.yaml": "image: gone.pgm\nresolution: 0.1\n",
+        "black.yaml": "image: black.pgm\nresolution: 0.1\n",
+        "empty.csv": "t1,t2,t3\n\n",
+        "short.csv": "1,2,3\n4,5\n",
+        "words.csv": "1,2,3\na,b,c\n",
+    }
+    for name, text in files.items():
+        (tmp_path / name).write_text(text)
+    Image.fromarray(np.full((5, 5), 254, np.uint8)).save(tmp_path / "m.pgm")
+    Image.fromarray(np.zeros((5, 5), np.uint8)).save(tmp_path / "black.pgm")
+    return {name: tmp_path / name for name in files}
+
+
+@pytest.mark.parametrize(
+    ("args", "message"),
+    [
+        (["--map", "{missing.yaml}", "--angles", "1", "2", "3"], "map file not found"),
+        (["--map", "{malformed.yaml}", "--angles", "1", "2", "3"], "malformed YAML"),
+        (["--map", "{nores.yaml}", "--angles", "1", "2", "3"], "missing key 'resolution'"),
+        (["--map", "{zero.yaml}", "--angles", "1", "2", "3"], "'resolution' must be > 0"),
+        (["--map", "{noimage.yaml}", "--angles", "1", "2", "3"], "map image not found"),
+        (["--map", "{black.yaml}", "--angles", "1", "2", "3"], "has no free cell"),
+        (["--angles", "1", "2", "181"], "outside [0, 180]"),
+        (["--angles", "-5", "2", "3"], "outside [0, 180]"),
+        (["--angles", "x", "2", "3"], "is not a number"),
+        (["--angles", "nan", "2", "3"], "not a finite number"),
+        (["--angles-file", "{empty.csv}"], "no angles in the file"),
+        (["--angles-file", "{short.csv}"], "line 2: expected three numbers"),
+        (["--angles-file", "{words.csv}"], "line 2: expected three numbers"),
+        (["--angles-file", "{nothere.csv}"], "angles file not found"),
+        ([], "give either --angles"),
+        (["--angles", "1", "2", "3", "--block-side", "0"], "--block-side must be > 0"),
+        (["--angles", "1", "2", "3", "--start", "tile:x,1"], "tile indices must be integers"),
+        (["--angles", "1", "2", "3", "--start", "corner"], "use tile:A,B or xy:X,Y"),
+        (["--angles", "1", "2", "3", "--start", "tile:99,0"], "outside the"),
+    ],
+)
+def test_bad_input_one_line_nonzero(capsys, tmp_path, args, message):
+    files = _bad_files(tmp_path)
+    argv = ["evaluate"]
+    for a in args:
+        if a.startswith("{"):
+            name = a.strip("{}")
+            a = str(files.get(name, tmp_path / name))
+        argv.append(a)
+    if "--map" not in argv:
+        argv += ["--map", MAP_1]
+    code, out, err = run(capsys, *argv)
+    assert code != 0 and out == ""
+    assert err.count("\n") == 1 and err.startswith("smorphi-rl") and message in err
+
+
+def test_usage_errors_are_one_line(capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--angles", "1", "2"])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--angles" in err
+
+
+def test_installed_command_reports_errors_without_traceback(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "smorphi_rl.cli",
+            "evaluate",
+            "--map",
+            str(tmp_path / "no.yaml"),
+            "--angles",
+            "1",
+            "2",
+            "3",
+        ],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == f"smorphi-rl: error: map file not found: {tmp_path / 'no.yaml'}"
+
+
+def test_default_map_runs_from_any_directory(tmp_path):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(
+        [sys.executable, "-m", "smorphi_rl.cli", "evaluate", "--angles", "95", "59", "103", "--json"],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads(proc.stdout)["footprint_cells"] == [8, 4]

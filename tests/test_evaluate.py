@@ -1,0 +1,96 @@
+"""Evaluator: the cache by F is exact; batches equal single evaluations; bad batches are refused."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.errors import MorphologyError, SmorphiError
+from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.geometry import Morphology
+from smorphi_rl.maps import load_map
+
+MAP_1 = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
+
+
+@pytest.fixture(scope="module")
+def map_1():
+    return load_map(MAP_1)
+
+
+@pytest.fixture(scope="module")
+def thetas():
+    rng = np.random.default_rng(0)
+    t = rng.integers(0, 181, size=(400, 3)).astype(float)
+    return np.vstack([t, t[:50], rng.uniform(0, 180, size=(50, 3))])  # repeats and non-integers
+
+
+def _fields(batch):
+    return (batch.feasible, batch.P_c, batch.coverage_free_pct, batch.P_len, batch.path_length_m, batch.footprint_cells)
+
+
+def test_cached_equals_uncached(map_1, thetas):
+    cached = Evaluator(map_1)
+    first, second = cached.evaluate_many(thetas), cached.evaluate_many(thetas)
+    plain = Evaluator(map_1, cache=False).evaluate_many(thetas)
+    for a, b, c in zip(_fields(first), _fields(second), _fields(plain), strict=True):
+        assert np.array_equal(a, c) and np.array_equal(b, c)
+    assert cached.cache_size() < len(thetas)  # distinct footprints are fewer than morphologies
+    assert cached.hits >= cached.cache_size()  # the second pass was served from the cache
+
+
+def test_single_equals_batch(map_1, thetas):
+    ev = Evaluator(map_1)
+    batch = ev.evaluate_many(thetas[:60])
+    fresh = Evaluator(map_1, cache=False)
+    for i, theta in enumerate(thetas[:60]):
+        m = Morphology.of(theta)
+        for single in (ev.evaluate(m), fresh.evaluate(m)):
+            row = batch.result(i)
+            assert single.to_dict() == row.to_dict()
+            assert single.path_length_cells == row.path_length_cells
+
+
+def test_plan_agrees_with_evaluate(map_1):
+    ev = Evaluator(map_1)
+    m = Morphology.of((95, 59, 103))
+    full, quick = ev.plan(m), ev.evaluate(m)
+    assert full.to_dict() == quick.to_dict()
+    assert full.covered.sum() == round(full.coverage_free_pct / 100 * map_1.counts[0])
+
+
+def test_same_footprint_same_result_cache_hit(map_1):
+    ev = Evaluator(map_1)
+    a = ev.evaluate(Morphology.of((0, 0, 0)))
+    b = ev.evaluate(Morphology.of((0.4, 0.3, 0.2)))  # a hair off straight: same F at 0.1 m
+    assert ev.hits == 1 and ev.misses == 1
+    assert a.P_c == b.P_c and a.P_len == b.P_len
+
+
+@pytest.mark.parametrize("bad", [np.zeros((3, 2)), np.array([[0, 0, 181.0]]), np.array([[np.nan, 0, 0]])])
+def test_bad_batches(map_1, bad):
+    with pytest.raises(MorphologyError):
+        Evaluator(map_1).evaluate_many(bad)
+
+
+def test_bad_block_side(map_1):
+    with pytest.raises(SmorphiError, match="block side"):
+        Evaluator(map_1, block_side_m=0.0)
+
+
+def test_other_block_sides_and_resolutions_agree_with_reference():
+    from smorphi_rl.coverage_reference import evaluate_reference
+    from smorphi_rl.maps import Map
+
+    rng = np.random.default_rng(5)
+    cells = (rng.random((60, 45)) < 0.2).astype(np.uint8)
+    cells[0, 0] = 0
+    for side, res in ((0.25, 0.05), (0.1, 0.1), (0.17, 0.033)):
+        grid_map = Map(cells, res)
+        ev = Evaluator(grid_map, block_side_m=side)
+        for theta in rng.integers(0, 181, size=(4, 3)):
+            got = ev.evaluate(Morphology.of(theta))
+            ref = evaluate_reference(grid_map, tuple(theta), side)
+            assert (got.P_c, got.P_len, got.footprint_cells) == (ref["P_c"], ref["P_len"], ref["footprint_cells"])

@@ -1,0 +1,155 @@
+"""Map loading (nav2 semantics), saving, the generator, and map errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from PIL import Image
+
+from smorphi_rl.errors import MapError
+from smorphi_rl.maps import Cell, Map, generate_map, load_map, save_map
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+
+
+def write_map(tmp_path: Path, pixels: np.ndarray, name: str = "m", suffix: str = "pgm", **meta) -> Path:
+    mode = "LA" if pixels.ndim == 3 and pixels.shape[2] == 2 else None
+    Image.fromarray(pixels.astype(np.uint8), mode=mode).save(tmp_path / f"{name}.{suffix}")
+    doc = {"image": f"{name}.{suffix}", "resolution": 0.05, "origin": [1.0, -2.0, 0.0]} | meta
+    path = tmp_path / f"{name}.yaml"
+    path.write_text(yaml.safe_dump(doc))
+    return path
+
+
+def test_first_image_row_is_highest_y(tmp_path):
+    pixels = np.full((3, 4), 254)
+    pixels[0, 0] = 0  # top-left pixel of the image
+    m = load_map(write_map(tmp_path, pixels))
+    assert m.cells.shape == (3, 4)
+    assert m.cells[2, 0] == Cell.OCCUPIED and m.counts[Cell.OCCUPIED] == 1
+    assert m.resolution_m == 0.05 and m.origin == (1.0, -2.0, 0.0)
+    assert m.cell_of(1.0 + 0.01, -2.0 + 2 * 0.05 + 0.01) == (2, 0)
+
+
+def test_trinary_thresholds_are_inclusive_like_nav2(tmp_path):
+    # p = (255 - v) / 255: v=89 -> p=0.65098 (>= 0.65 occupied); v=90 -> 0.647 (unknown);
+    # v=192 -> p=0.24706 (<= 0.25 free); v=191 -> 0.25098 (unknown)
+    pixels = np.array([[89, 90, 191, 192, 0, 255]])
+    m = load_map(write_map(tmp_path, pixels, occupied_thresh=0.65, free_thresh=0.25))
+    assert m.cells[0].tolist() == [Cell.OCCUPIED, Cell.UNKNOWN, Cell.UNKNOWN, Cell.FREE, Cell.OCCUPIED, Cell.FREE]
+    # exactly at the threshold: p = 51/255 = 0.2 with free_thresh 0.2 is free
+    m = load_map(write_map(tmp_path, np.array([[204, 0]]), name="edge", free_thresh=0.2))
+    assert m.cells[0, 0] == Cell.FREE
+
+
+def test_negate_flips_the_probability(tmp_path):
+    m = load_map(write_map(tmp_path, np.array([[0, 255]]), negate=1))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
+
+
+def test_map_saver_unknown_205_stays_unknown(tmp_path):
+    m = load_map(write_map(tmp_path, np.array([[254, 0, 205]]), free_thresh=0.196))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.UNKNOWN]
+
+
+def test_scale_mode_uses_alpha_and_keeps_partial_cells_not_free(tmp_path):
+    gray = np.array([[255, 0, 128, 255]])
+    alpha = np.array([[255, 255, 255, 0]])
+    m = load_map(write_map(tmp_path, np.stack([gray, alpha], axis=-1), suffix="png", mode="scale"))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.OCCUPIED, Cell.UNKNOWN]
+
+
+def test_raw_mode_reads_occupancy_values(tmp_path):
+    m = load_map(write_map(tmp_path, np.array([[0, 100, 50, 255]]), mode="raw"))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.OCCUPIED, Cell.UNKNOWN]
+
+
+def test_rgb_png_averages_channels(tmp_path):
+    rgb = np.zeros((1, 2, 3), np.uint8)
+    rgb[0, 0] = (255, 255, 255)
+    rgb[0, 1] = (255, 0, 0)  # mean 85 -> p = 0.667 -> occupied
+    Image.fromarray(rgb).save(tmp_path / "c.png")
+    (tmp_path / "c.yaml").write_text("image: c.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    assert load_map(tmp_path / "c.yaml").cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
+
+
+@pytest.mark.parametrize("fmt", ["pgm", "png"])
+def test_save_load_round_trip(tmp_path, fmt):
+    rng = np.random.default_rng(3)
+    cells = rng.integers(0, 3, size=(17, 23)).astype(np.uint8)
+    cells[0, 0] = Cell.FREE
+    original = Map(cells, 0.05, origin=(0.5, -1.5, 0.0), name="rt")
+    path = save_map(original, tmp_path / "rt.yaml", image_format=fmt)
+    loaded = load_map(path)
+    assert np.array_equal(loaded.cells, original.cells)
+    assert loaded.resolution_m == original.resolution_m and loaded.origin == original.origin
+
+
+@pytest.mark.parametrize(
+    ("name", "density"), [("map-1", 0.188), ("map-2", 0.222), ("val-1", 0.15), ("val-2", 0.20), ("val-3", 0.26)]
+)
+def test_shipped_maps(name, density):
+    m = load_map(MAPS / f"{name}.yaml")
+    assert (m.width, m.height, m.resolution_m) == (50, 50, 0.1)
+    assert m.fraction(Cell.OCCUPIED) == pytest.approx(density, abs=0.002)
+    assert m.counts[Cell.UNKNOWN] == 0
+
+
+def test_generator_is_seeded_dense_as_asked_and_connected():
+    a = generate_map(np.random.default_rng(7), obstacle_density=0.25)
+    b = generate_map(np.random.default_rng(7), obstacle_density=0.25)
+    c = generate_map(np.random.default_rng(8), obstacle_density=0.25)
+    assert np.array_equal(a.cells, b.cells) and not np.array_equal(a.cells, c.cells)
+    assert a.fraction(Cell.OCCUPIED) == pytest.approx(0.25, abs=0.005)
+    from smorphi_rl.maps import _free_is_connected
+
+    assert _free_is_connected(a.cells == Cell.OCCUPIED)
+
+
+def test_map_from_text_orientation(room12):
+    assert room12.cells.shape == (12, 12)
+    assert room12.cells[0, 2] == Cell.FREE and room12.cells[2, 2] == Cell.OCCUPIED  # '#' at text rows 9-10
+    assert room12.counts[Cell.OCCUPIED] == 4 + 6 + 2
+
+
+@pytest.mark.parametrize(
+    ("yaml_text", "message"),
+    [
+        ("image: [unclosed", "malformed YAML"),
+        ("- just\n- a list\n", "not a map_server YAML"),
+        ("resolution: 0.1\n", "missing key 'image'"),
+        ("image: m.pgm\n", "missing key 'resolution'"),
+        ("image: m.pgm\nresolution: 0\n", "'resolution' must be > 0"),
+        ("image: m.pgm\nresolution: -0.1\n", "'resolution' must be > 0"),
+        ("image: m.pgm\nresolution: fine\n", "'resolution' must be a number"),
+        ("image: m.pgm\nresolution: 0.1\nmode: fancy\n", "'mode' must be trinary"),
+        ("image: m.pgm\nresolution: 0.1\norigin: [0, 0]\n", "'origin' must be"),
+        ("image: m.pgm\nresolution: 0.1\nfree_thresh: 0.9\n", "free_thresh < occupied_thresh"),
+        ("image: missing.pgm\nresolution: 0.1\n", "map image not found"),
+        ("image: bad.pgm\nresolution: 0.1\n", "not a readable PGM/PNG image"),
+        ("image: black.pgm\nresolution: 0.1\n", "has no free cell"),
+    ],
+)
+def test_bad_maps_raise_one_clear_error(tmp_path, yaml_text, message):
+    Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
+    Image.fromarray(np.zeros((4, 4), np.uint8)).save(tmp_path / "black.pgm")
+    (tmp_path / "bad.pgm").write_bytes(b"P5 this is not an image")
+    path = tmp_path / "x.yaml"
+    path.write_text(yaml_text)
+    with pytest.raises(MapError, match=message):
+        load_map(path)
+
+
+def test_missing_yaml(tmp_path):
+    with pytest.raises(MapError, match="map file not found"):
+        load_map(tmp_path / "nope.yaml")
+
+
+def test_map_rejects_bad_resolution_and_values():
+    with pytest.raises(MapError, match="resolution must be > 0"):
+        Map(np.zeros((2, 2), np.uint8), 0.0)
+    with pytest.raises(MapError, match="cell values"):
+        Map(np.full((2, 2), 7, np.uint8), 0.1)
