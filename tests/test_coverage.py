@@ -9,7 +9,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from smorphi_rl import _kernels as k
-from smorphi_rl.coverage import Footprint, PreparedMap, Start, plan_coverage, path_points_m
+from smorphi_rl.coverage import Footprint, PreparedMap, Start, path_points_m, plan_coverage
 from smorphi_rl.coverage_reference import evaluate_reference, plan_reference
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
