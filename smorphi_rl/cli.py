@@ -10,6 +10,7 @@ import csv
 import json
 import math
 import sys
+import warnings
 from collections.abc import Sequence
 from pathlib import Path
 from typing import NoReturn
@@ -57,7 +58,24 @@ def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
 
 
 def read_angles_file(path: Path) -> np.ndarray:
-    """(N, 3) angles from a CSV file of three columns with an optional header row."""
+    """(N, 3) angles from a CSV file of three columns with an optional header row.
+
+    numpy reads well-formed files fast; anything it refuses is re-read row by row to name the line."""
+    try:
+        with path.open() as fh:
+            first = fh.readline()
+        header = 0 if _is_numeric_row(first.split(",")) else 1
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # an empty file: reported below, with its name
+            values = np.loadtxt(path, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
+        if values.shape[0] > 0 and values.shape[1] == 3 and np.isfinite(values).all():
+            return values
+    except (ValueError, UnicodeDecodeError):
+        pass
+    except FileNotFoundError:
+        raise SmorphiError(f"angles file not found: {path}") from None
+    except OSError as exc:
+        raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
     try:
         with path.open(newline="") as fh:
             rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1) if any(c.strip() for c in row)]
@@ -119,7 +137,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if thetas is not None:
         batch = evaluator.evaluate_many(thetas)
         if args.json:
-            lines = [json.dumps(r.to_dict()) for r in batch]
+            lines = [json.dumps(r) for r in batch.records()]
         else:
             header = "t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w"
             lines = [header, *(_csv_row(r) for r in batch)]

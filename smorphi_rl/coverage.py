@@ -124,7 +124,7 @@ class CoverageResult:
     def to_dict(self) -> dict[str, object]:
         """The JSON form printed by `smorphi-rl evaluate --json`."""
         return {
-            "theta": [_plain_number(t) for t in self.theta],
+            "theta": [plain_number(t) for t in self.theta],
             "P_c": self.P_c,
             "coverage_free_pct": self.coverage_free_pct,
             "P_len": self.P_len,
@@ -135,7 +135,8 @@ class CoverageResult:
         }
 
 
-def _plain_number(value: float) -> float | int:
+def plain_number(value: float) -> float | int:
+    """An angle as JSON shows it: 95 rather than 95.0, 12.5 as is."""
     return int(value) if float(value).is_integer() else float(value)
 
 
