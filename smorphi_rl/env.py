@@ -1,0 +1,289 @@
+"""The morphology MDP (ENV.md) as a gymnasium environment, registered as `smorphi_rl/Morphology-v0`.
+
+## Description
+The agent reshapes a Smorphi robot one hinge step at a time; every new shape is scored by
+FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
+
+## Action Space
+`MultiDiscrete([3, 3, 3])`: per hinge 0, 1, 2 means -1, 0, +1 `angle_step_deg`, clipped to [0, 180].
+
+## Observation Space
+`Dict`, the same shape for every map so one policy transfers between maps:
+- `map`: `Box(0, 1, (2, S, S))`, the fraction of occupied (channel 0) and unknown (channel 1)
+  cells of the map resampled to S x S (`obs_size`, default 64);
+- `angles`: `Box(0, 1, (3,))`, theta / 180;
+- `metrics`: `Box(0, 1, (2,))`, P_c / 100 and P_len / (P_len + 100) of the current shape.
+
+## Rewards
+`R = R1 + R2`, `R1 = w1 P_c - w2 P_len` of the new shape, `R2 = -beta` when the action leaves
+all three angles unchanged. Infeasible shapes score P_c = P_len = 0.
+
+## Starting State
+A map drawn from `maps`, and theta uniform on the `angle_step_deg` lattice (or `start_theta`),
+both from the env's seeded generator.
+
+## Episode End
+Terminated when P_c >= `coverage_threshold` (off unless set); truncated after `max_steps`.
+
+## Version History
+- v0: first version.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.maps import Cell, Map, load_map
+
+ENV_ID = "smorphi_rl/Morphology-v0"
+DEFAULT_MAPS = (str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"),)
+
+
+class EnvConfigError(SmorphiError):
+    """An `env_config` key that is unknown or has a bad value."""
+
+
+@dataclass(frozen=True)
+class EnvConfig:
+    """Everything the env takes, validated once; the only place its defaults live."""
+
+    maps: tuple[str, ...] = DEFAULT_MAPS
+    """map_server YAML paths; one is drawn per episode."""
+    angle_step_deg: float = 1.0
+    """Hinge step per action (the paper's 1-degree design space); must divide 180."""
+    w1: float = 1.0
+    """Weight of P_c (percent) in R1."""
+    w2: float = 0.1
+    """Weight of P_len (tile moves) in R1: 10 moves cost as much as 1 % of coverage."""
+    beta: float = 1.0
+    """Penalty R2 for an action that leaves the shape unchanged."""
+    coverage_threshold: float | None = None
+    """End the episode once P_c reaches this percentage (off by default)."""
+    max_steps: int = 200
+    """Episode length (truncation)."""
+    obs_size: int = 64
+    """Side of the resampled map in the observation."""
+    start_theta: tuple[float, float, float] | None = None
+    """Fixed start morphology; random on the lattice when None."""
+    block_side_m: float = DEFAULT_BLOCK_SIDE_M
+    """Side of one block in metres."""
+
+    def __post_init__(self) -> None:
+        if not self.maps:
+            raise EnvConfigError("env_config 'maps': give at least one map")
+        step = self.angle_step_deg
+        if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
+            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
+        if self.max_steps < 1:
+            raise EnvConfigError(f"env_config 'max_steps' must be >= 1, got {self.max_steps}")
+        if self.obs_size < 4:
+            raise EnvConfigError(f"env_config 'obs_size' must be >= 4, got {self.obs_size}")
+        if self.coverage_threshold is not None and not 0 < self.coverage_threshold <= 100:
+            raise EnvConfigError(f"env_config 'coverage_threshold' must be in (0, 100], got {self.coverage_threshold}")
+        if self.block_side_m <= 0:
+            raise EnvConfigError(f"env_config 'block_side_m' must be > 0, got {self.block_side_m}")
+        if self.start_theta is not None:
+            try:
+                Morphology.of(self.start_theta)
+            except SmorphiError as exc:
+                raise EnvConfigError(f"env_config 'start_theta': {exc}") from None
+
+    @classmethod
+    def from_dict(cls, raw: dict[str, Any] | None) -> EnvConfig:
+        """From the plain dict RLlib passes (extra RLlib attributes such as worker_index ignored)."""
+        raw = dict(raw or {})
+        known = {f.name: f for f in fields(cls)}
+        unknown = sorted(set(raw) - set(known))
+        if unknown:
+            raise EnvConfigError(f"env_config: unknown key '{unknown[0]}' (known: {', '.join(known)})")
+        values: dict[str, Any] = {}
+        for name, value in raw.items():
+            values[name] = _coerce(name, value)
+        return cls(**values)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+def _coerce(name: str, value: Any) -> Any:
+    """Check one env_config value's type; lists become tuples, numbers floats or ints."""
+    try:
+        if name == "maps":
+            items = [value] if isinstance(value, str | Path) else list(value)
+            return tuple(str(Path(v).resolve()) for v in items)
+        if name == "start_theta":
+            return None if value is None else tuple(float(v) for v in value)
+        if name == "coverage_threshold":
+            return None if value is None else _real(value)
+        if name in ("max_steps", "obs_size"):
+            if isinstance(value, bool) or int(value) != value:
+                raise TypeError
+            return int(value)
+        return _real(value)
+    except (TypeError, ValueError):
+        raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
+
+
+def _real(value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise TypeError
+    return float(value)
+
+
+def resample(mask: np.ndarray, size: int) -> np.ndarray:
+    """Fraction of true cells of `mask` under each cell of a size x size grid (area average;
+    each output cell covers at least one input cell, so small maps are upsampled by nearest)."""
+    h, w = mask.shape
+    prefix = np.zeros((h + 1, w + 1))
+    prefix[1:, 1:] = mask.astype(np.float64).cumsum(0).cumsum(1)
+
+    def bounds(n: int) -> tuple[np.ndarray, np.ndarray]:
+        lo = np.minimum((np.arange(size) * n) // size, n - 1)
+        hi = np.maximum(lo + 1, ((np.arange(size) + 1) * n) // size)
+        return lo, hi
+
+    r0, r1 = bounds(h)
+    c0, c1 = bounds(w)
+    total = prefix[r1][:, c1] - prefix[r0][:, c1] - prefix[r1][:, c0] + prefix[r0][:, c0]
+    area = (r1 - r0)[:, None] * (c1 - c0)[None, :]
+    return (total / area).astype(np.float32)
+
+
+@dataclass
+class _EpisodeBest:
+    """The best morphology of the episode so far, by R1."""
+
+    r1: float = -math.inf
+    info: dict[str, Any] = field(default_factory=dict)
+
+
+class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
+    """Smorphi morphology design as an MDP (module docstring has the full spec)."""
+
+    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 (gymnasium's convention)
+
+    def __init__(self, env_config: dict[str, Any] | None = None, **kwargs: Any) -> None:
+        self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
+        self._maps: list[Map] = [load_map(p) for p in self.config.maps]
+        self._evaluators: dict[int, Evaluator] = {}
+        self._map_obs = [self._map_channels(m) for m in self._maps]
+        self._lattice_max = round(180 / self.config.angle_step_deg)
+        size = self.config.obs_size
+        self.action_space = spaces.MultiDiscrete([3, 3, 3])
+        self.observation_space = spaces.Dict(
+            {
+                "map": spaces.Box(0.0, 1.0, (2, size, size), np.float32),
+                "angles": spaces.Box(0.0, 1.0, (3,), np.float32),
+                "metrics": spaces.Box(0.0, 1.0, (2,), np.float32),
+            }
+        )
+        self._map_index = 0
+        self._idx = np.zeros(3, dtype=np.int64)  # theta = idx * angle_step_deg
+        self._steps = 0
+        self._last: dict[str, Any] = {}
+        self._best = _EpisodeBest()
+
+    # -- helpers ---------------------------------------------------------------------------
+    def _map_channels(self, grid_map: Map) -> np.ndarray:
+        size = self.config.obs_size
+        channels = np.stack([resample(grid_map.cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
+        channels.setflags(write=False)  # shared by every observation of this map
+        return channels
+
+    def _evaluator(self) -> Evaluator:
+        if self._map_index not in self._evaluators:
+            self._evaluators[self._map_index] = Evaluator(self._maps[self._map_index], self.config.block_side_m)
+        return self._evaluators[self._map_index]
+
+    @property
+    def theta(self) -> tuple[float, float, float]:
+        step = self.config.angle_step_deg
+        return (float(self._idx[0] * step), float(self._idx[1] * step), float(self._idx[2] * step))
+
+    def _score(self) -> dict[str, Any]:
+        result = self._evaluator().evaluate(Morphology.of(self.theta))
+        r1 = self.config.w1 * result.P_c - self.config.w2 * result.P_len
+        return {
+            "theta": self.theta,
+            "P_c": result.P_c,
+            "coverage_free_pct": result.coverage_free_pct,
+            "P_len": result.P_len,
+            "path_length_m": result.path_length_m,
+            "feasible": result.feasible,
+            "R1": r1,
+            "map": self._maps[self._map_index].name,
+        }
+
+    def _observe(self) -> dict[str, np.ndarray]:
+        p_c, p_len = self._last["P_c"], self._last["P_len"]
+        return {
+            "map": self._map_obs[self._map_index],
+            "angles": np.asarray(self.theta, dtype=np.float32) / np.float32(180.0),
+            "metrics": np.array([p_c / 100.0, p_len / (p_len + 100.0)], dtype=np.float32),
+        }
+
+    def _info(self) -> dict[str, Any]:
+        best = self._best.info
+        return self._last | {
+            "best_theta": best["theta"],
+            "best_P_c": best["P_c"],
+            "best_P_len": best["P_len"],
+            "best_R1": best["R1"],
+            "best_coverage_free_pct": best["coverage_free_pct"],
+            "best_path_length_m": best["path_length_m"],
+        }
+
+    def _record(self, scored: dict[str, Any]) -> None:
+        self._last = scored
+        if scored["R1"] > self._best.r1:
+            self._best = _EpisodeBest(scored["R1"], scored)
+
+    # -- gymnasium API ---------------------------------------------------------------------
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        super().reset(seed=seed)
+        self._map_index = int(self.np_random.integers(len(self._maps)))
+        if self.config.start_theta is not None:
+            self._idx = np.rint(np.asarray(self.config.start_theta) / self.config.angle_step_deg).astype(np.int64)
+        else:
+            self._idx = self.np_random.integers(0, self._lattice_max + 1, size=3).astype(np.int64)
+        self._steps = 0
+        self._best = _EpisodeBest()
+        self._record(self._score())
+        return self._observe(), self._info()
+
+    def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        delta = np.asarray(action, dtype=np.int64) - 1
+        if delta.shape != (3,) or (np.abs(delta) > 1).any():
+            raise SmorphiError(f"action must be three values in {{0, 1, 2}}, got {action!r}")
+        new_idx = np.clip(self._idx + delta, 0, self._lattice_max)
+        unchanged = bool((new_idx == self._idx).all())
+        self._idx = new_idx
+        self._steps += 1
+        scored = self._score()
+        self._record(scored)
+        reward = scored["R1"] - (self.config.beta if unchanged else 0.0)
+        threshold = self.config.coverage_threshold
+        terminated = threshold is not None and scored["P_c"] >= threshold
+        truncated = self._steps >= self.config.max_steps
+        return self._observe(), float(reward), bool(terminated), bool(truncated), self._info()
+
+
+def register() -> None:
+    """Register with gymnasium under ENV_ID (idempotent)."""
+    if ENV_ID not in gym.registry:
+        gym.register(id=ENV_ID, entry_point="smorphi_rl.env:MorphologyEnv")
+
+
+register()

@@ -1,0 +1,144 @@
+"""The morphology MDP (ENV.md): gymnasium contract, determinism, rewards, episode end, config."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import gymnasium as gym
+import numpy as np
+import pytest
+from gymnasium.utils.env_checker import check_env
+
+from smorphi_rl.env import ENV_ID, EnvConfig, EnvConfigError, MorphologyEnv, resample
+from smorphi_rl.errors import SmorphiError
+
+MAPS = Path(__file__).resolve().parent.parent / "maps"
+NOOP = np.array([1, 1, 1])
+
+
+def test_passes_gymnasium_check_env_unmodified():
+    check_env(MorphologyEnv(), skip_render_check=True)
+
+
+def test_registered_with_gymnasium():
+    env = gym.make(ENV_ID, env_config={"max_steps": 3})
+    obs, info = env.reset(seed=1)
+    assert env.observation_space.contains(obs)
+    assert info["map"] == "map-1"
+
+
+def _rollout(seed: int, actions: np.ndarray, config: dict | None = None):
+    env = MorphologyEnv(config)
+    obs, info = env.reset(seed=seed)
+    trace = [(obs, 0.0, info)]
+    for a in actions:
+        obs, reward, terminated, truncated, info = env.step(a)
+        trace.append((obs, reward, info))
+        if terminated or truncated:
+            break
+    return trace
+
+
+def test_same_seed_same_episode():
+    actions = np.random.default_rng(0).integers(0, 3, size=(60, 3))
+    config = {"maps": [str(MAPS / "map-1.yaml"), str(MAPS / "map-2.yaml")]}
+    a, b = _rollout(7, actions, config), _rollout(7, actions, config)
+    c = _rollout(8, actions, config)
+    for (oa, ra, ia), (ob, rb, ib) in zip(a, b, strict=True):
+        assert ra == rb and ia == ib
+        for key in oa:
+            assert np.array_equal(oa[key], ob[key])
+    assert a[0][2]["theta"] != c[0][2]["theta"] or a[0][2]["map"] != c[0][2]["map"]
+
+
+def test_reward_is_r1_minus_beta_for_unchanged_shape():
+    env = MorphologyEnv({"start_theta": [90, 90, 180], "beta": 2.5, "w1": 1.0, "w2": 0.1})
+    env.reset(seed=0)
+    _, moved, *_rest, info = env.step(np.array([2, 0, 1]))
+    assert info["theta"] == (91.0, 89.0, 180.0)
+    assert moved == pytest.approx(info["P_c"] - 0.1 * info["P_len"]) and moved == info["R1"]
+    _, still, *_rest, info = env.step(NOOP)
+    assert still == pytest.approx(info["R1"] - 2.5)
+    _, clipped, *_rest, info = env.step(np.array([1, 1, 2]))  # t3 is already 180
+    assert info["theta"] == (91.0, 89.0, 180.0) and clipped == pytest.approx(info["R1"] - 2.5)
+
+
+def test_angle_step_and_lattice_start():
+    env = MorphologyEnv({"angle_step_deg": 15})
+    for seed in range(5):
+        _, info = env.reset(seed=seed)
+        assert all(t % 15 == 0 and 0 <= t <= 180 for t in info["theta"])
+    before = env.theta
+    _, _, _, _, info = env.step(np.array([0, 2, 1]))
+    expected = (max(before[0] - 15, 0), min(before[1] + 15, 180), before[2])
+    assert info["theta"] == expected
+
+
+def test_truncation_and_threshold_termination():
+    env = MorphologyEnv({"max_steps": 4})
+    env.reset(seed=0)
+    ends = [env.step(NOOP)[2:4] for _ in range(4)]
+    assert ends == [(False, False)] * 3 + [(False, True)]
+    env = MorphologyEnv({"start_theta": [0, 179, 0], "coverage_threshold": 99.0})
+    env.reset(seed=0)
+    _, _, terminated, _, info = env.step(np.array([1, 2, 1]))  # to the O-shape, P_c = 100
+    assert info["P_c"] == 100.0 and terminated
+
+
+def test_info_tracks_the_best_shape_of_the_episode():
+    env = MorphologyEnv()
+    _, info = env.reset(seed=3)
+    best = info["best_R1"]
+    for a in np.random.default_rng(1).integers(0, 3, size=(40, 3)):
+        *_, info = env.step(a)
+        assert info["best_R1"] >= max(best, info["R1"])
+        best = info["best_R1"]
+    keys = {"theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "map", "best_theta"}
+    assert keys <= info.keys()
+
+
+def test_observation_has_one_shape_for_every_map():
+    shapes = set()
+    for name in ("map-1", "val-3"):
+        obs, _ = MorphologyEnv({"maps": str(MAPS / f"{name}.yaml"), "obs_size": 32}).reset(seed=0)
+        shapes.add(tuple((k, v.shape) for k, v in sorted(obs.items())))
+    assert len(shapes) == 1
+
+
+def test_resample_keeps_fractions():
+    mask = np.zeros((50, 50), bool)
+    mask[:25] = True
+    out = resample(mask, 64)
+    assert out.shape == (64, 64) and out.mean() == pytest.approx(0.5, abs=0.02)
+    big = np.random.default_rng(0).random((300, 200)) < 0.3
+    assert resample(big, 64).mean() == pytest.approx(big.mean(), abs=0.02)
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        ({"colour": 1}, "unknown key 'colour'"),
+        ({"angle_step_deg": 7}, "must divide 180"),
+        ({"max_steps": 0}, "'max_steps' must be >= 1"),
+        ({"max_steps": 2.5}, "'max_steps': bad value"),
+        ({"w1": "big"}, "'w1': bad value"),
+        ({"start_theta": [0, 0, 200]}, "'start_theta'"),
+        ({"coverage_threshold": 150}, "'coverage_threshold'"),
+        ({"maps": []}, "at least one map"),
+    ],
+)
+def test_bad_config_names_the_key(config, message):
+    with pytest.raises(EnvConfigError, match=message):
+        EnvConfig.from_dict(config)
+
+
+def test_missing_map_file_is_a_clear_error(tmp_path):
+    with pytest.raises(SmorphiError, match="map file not found"):
+        MorphologyEnv({"maps": [str(tmp_path / "nope.yaml")]})
+
+
+def test_bad_action():
+    env = MorphologyEnv()
+    env.reset(seed=0)
+    with pytest.raises(SmorphiError, match="action"):
+        env.step(np.array([3, 0, 0]))
