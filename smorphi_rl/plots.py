@@ -99,7 +99,6 @@ def plot_coverage(
         f"P_len = {result.P_len} ({result.path_length_m:.1f} m){status}",
         fontsize=9,
     )
-    fig.tight_layout()
     return _save(fig, out)
 
 
@@ -112,11 +111,12 @@ def plot_map(grid_map: Map, out: str | Path) -> Path:
         f"occupied {100 * grid_map.fraction(Cell.OCCUPIED):.1f} %",
         fontsize=9,
     )
-    fig.tight_layout()
     return _save(fig, out)
 
 
 def _save(fig: plt.Figure, out: str | Path) -> Path:
+    """Lay out, write the PNG (making its folder) and free the figure."""
+    fig.tight_layout()
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
