@@ -123,16 +123,21 @@ class CoverageResult:
 
     def to_dict(self) -> dict[str, object]:
         """The JSON form printed by `smorphi-rl evaluate --json`."""
-        return {
-            "theta": [plain_number(t) for t in self.theta],
-            "P_c": self.P_c,
-            "coverage_free_pct": self.coverage_free_pct,
-            "P_len": self.P_len,
-            "path_length_m": self.path_length_m,
-            "feasible": self.feasible,
-            "footprint_cells": list(self.footprint_cells),
-            "footprint_m": list(self.footprint_m),
-        }
+        return result_dict(
+            list(self.theta), self.P_c, self.coverage_free_pct, self.P_len, self.path_length_m,
+            self.feasible, list(self.footprint_cells), list(self.footprint_m),
+        )  # fmt: skip
+
+
+RESULT_KEYS = (
+    "theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "footprint_cells", "footprint_m",
+)  # fmt: skip
+"""Keys of an evaluation's JSON form, in the order `result_dict` takes its values."""
+
+
+def result_dict(theta: list[float], *values: object) -> dict[str, object]:
+    """One evaluation as JSON-ready dict: the single definition of `evaluate --json`'s shape."""
+    return dict(zip(RESULT_KEYS, ([plain_number(t) for t in theta], *values), strict=True))
 
 
 def plain_number(value: float) -> float | int:

@@ -32,7 +32,7 @@ Terminated when P_c >= `coverage_threshold` (off unless set); truncated after `m
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -159,14 +159,6 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
     return (total / area).astype(np.float32)
 
 
-@dataclass
-class _EpisodeBest:
-    """The best morphology of the episode so far, by R1."""
-
-    r1: float = -math.inf
-    info: dict[str, Any] = field(default_factory=dict)
-
-
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     """Smorphi morphology design as an MDP (module docstring has the full spec)."""
 
@@ -191,7 +183,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._idx = np.zeros(3, dtype=np.int64)  # theta = idx * angle_step_deg
         self._steps = 0
         self._last: dict[str, Any] = {}
-        self._best = _EpisodeBest()
+        self._best: dict[str, Any] = {}
 
     # -- helpers ---------------------------------------------------------------------------
     def _map_channels(self, grid_map: Map) -> np.ndarray:
@@ -233,7 +225,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         }
 
     def _info(self) -> dict[str, Any]:
-        best = self._best.info
+        best = self._best
         return self._last | {
             "best_theta": best["theta"],
             "best_P_c": best["P_c"],
@@ -245,8 +237,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def _record(self, scored: dict[str, Any]) -> None:
         self._last = scored
-        if scored["R1"] > self._best.r1:
-            self._best = _EpisodeBest(scored["R1"], scored)
+        if not self._best or scored["R1"] > self._best["R1"]:
+            self._best = scored
 
     # -- gymnasium API ---------------------------------------------------------------------
     def reset(
@@ -259,7 +251,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         else:
             self._idx = self.np_random.integers(0, self._lattice_max + 1, size=3).astype(np.int64)
         self._steps = 0
-        self._best = _EpisodeBest()
+        self._best = {}
         self._record(self._score())
         return self._observe(), self._info()
 

@@ -19,9 +19,9 @@ from smorphi_rl.coverage import (
     Footprint,
     PreparedMap,
     Start,
-    plain_number,
     plan_coverage,
     raise_for_status,
+    result_dict,
 )
 from smorphi_rl.errors import MorphologyError, SmorphiError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
@@ -67,20 +67,20 @@ class BatchResult:
 
     def records(self) -> Iterator[dict[str, object]]:
         """Rows as `CoverageResult.to_dict()` dicts, built straight from the columns (fast)."""
-        columns = zip(
-            self.theta.tolist(),
-            self.P_c.tolist(),
-            self.coverage_free_pct.tolist(),
-            self.P_len.tolist(),
-            self.path_length_m.tolist(),
-            self.feasible.tolist(),
-            self.footprint_cells.tolist(),
-            self.footprint_m.tolist(),
-            strict=True,
+        return (
+            result_dict(*row)
+            for row in zip(
+                self.theta.tolist(),
+                self.P_c.tolist(),
+                self.coverage_free_pct.tolist(),
+                self.P_len.tolist(),
+                self.path_length_m.tolist(),
+                self.feasible.tolist(),
+                self.footprint_cells.tolist(),
+                self.footprint_m.tolist(),
+                strict=True,
+            )
         )
-        keys = ("theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "footprint_cells")
-        for theta, *rest in columns:
-            yield dict(zip((*keys, "footprint_m"), ([plain_number(t) for t in theta], *rest), strict=True))
 
 
 def validate_thetas(thetas: np.ndarray) -> np.ndarray:
@@ -115,7 +115,7 @@ class Evaluator:
         self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
         self.prepared = PreparedMap(grid_map, pad_cells=2 * self._side)
         self._buf = np.zeros((self._side, self._side), dtype=np.uint8)
-        self._covered = np.zeros((0, 0), dtype=np.uint8)
+        self._no_covered = np.zeros((0, 0), dtype=np.uint8)
         self._no_path = np.zeros((0, 2), dtype=np.int32)
         self._cache: dict[bytes, tuple[float, ...]] = {}
         self.hits = 0
@@ -154,7 +154,7 @@ class Evaluator:
                 int(self.start.kind),
                 self.start.row,
                 self.start.col,
-                self._covered,
+                self._no_covered,
                 self._no_path,
             )
             raise_for_status(status, self.start, (l, w), self.grid_map)
