@@ -9,6 +9,8 @@ MAP ?= maps/map-1.yaml
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
+	# torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
+	$(BIN)/python -m pip install -q torch==2.13.0
 	$(BIN)/python -m pip install -q -e '.[dev]'
 	touch $@
 

@@ -231,6 +231,85 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _map_paths(value: object) -> list[str]:
+    return [str(v) for v in value] if isinstance(value, list) else [str(value)]
+
+
+def cmd_train(args: argparse.Namespace) -> int:
+    """Train PPO, IMPALA or APPO through Ray Tune; print a progress line, then where everything is."""
+    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.training.config import TrainConfig
+
+    cfg = TrainConfig(
+        algo=args.algo,
+        env=EnvConfig.from_dict({"maps": _map_paths(args.map)}),
+        timesteps=args.timesteps,
+        seed=args.seed,
+        preset=args.preset,
+        checkpoint_every=args.checkpoint_every,
+    )
+    from smorphi_rl.training.run import format_summary, train
+
+    summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address)
+    print(format_summary(summary))
+    if summary.interrupted:
+        print(f"{PROG}: interrupted: checkpoints written so far are kept", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return 0
+
+
+def _theta_text(theta: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
+
+
+def _scored_text(d: dict[str, object]) -> str:
+    return f"{_theta_text(d['theta'])} P_c {d['P_c']:.2f} %, P_len {d['P_len']}, R1 {d['R1']:.2f}"  # type: ignore[arg-type]
+
+
+def cmd_evaluate_policy(args: argparse.Namespace) -> int:
+    """Roll a trained policy out greedily; report where it settles and the best shape it visited."""
+    if args.episodes < 1:
+        raise SmorphiError(f"--episodes must be >= 1, got {args.episodes}")
+    from smorphi_rl.training.checkpoints import find_checkpoint
+
+    checkpoint = find_checkpoint(args.checkpoint)
+    maps = _map_paths(args.map) if args.map is not None else None
+    if maps:
+        for path in maps:
+            load_map(path)
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.training.checkpoints import load_module
+    from smorphi_rl.training.policy import check_fits, env_config_of, rollout
+
+    module = load_module(checkpoint)
+    env = MorphologyEnv(env_config_of(module, maps).to_dict())
+    check_fits(module, env)
+    rollouts = [rollout(module, env, args.seed + i) for i in range(args.episodes)]
+    if args.json:
+        for i, r in enumerate(rollouts):
+            record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
+                      "return": r.episode_return, "start": r.start, "settled": r.settled, "best": r.best}  # fmt: skip
+            print(json.dumps(record, default=float))
+    else:
+        print(f"policy      {checkpoint}")
+        for i, r in enumerate(rollouts):
+            print(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
+                  f"return {r.episode_return:.1f})")  # fmt: skip
+            print(f"  start     {_scored_text(r.start)}")
+            print(f"  settled   {_scored_text(r.settled)}")
+            print(f"  best      {_scored_text(r.best)}")
+    if args.plot:
+        from smorphi_rl.geometry import Morphology
+        from smorphi_rl.plots import plot_coverage
+
+        settled = rollouts[0].settled
+        morphology = Morphology.of(settled["theta"])
+        result = env._evaluator().plan(morphology)
+        path = plot_coverage(result, env._maps[env._map_index], morphology, env.config.block_side_m, args.plot)
+        print(f"plot        {path}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="Find the best Smorphi morphology for a floor map.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -261,12 +340,37 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("map", help="map_server YAML")
     show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
     show.set_defaults(func=cmd_maps_show)
+
+    from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
+
+    tr = sub.add_parser("train", help="train PPO / IMPALA / APPO on maps through Ray Tune (the main job)")
+    tr.add_argument("--algo", choices=ALGORITHMS, default="ppo", help="algorithm (IMPALA serves the paper's A3C)")
+    tr.add_argument(
+        "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
+    )
+    tr.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="env steps to train for")
+    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--preset", choices=tuple(PRESETS), default="fast", help="fast (2 cores) or paper (Table 1)")
+    tr.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto); default: a local Ray")
+    tr.add_argument("--name", help="run name: results go to LOG_DIR/NAME (default: ALGO-MAP-TIMESTAMP)")
+    tr.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
+    tr.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints (and at the end)")
+    tr.set_defaults(func=cmd_train)
+
+    ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
+    ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
+    ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
+    ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
+    ep.add_argument("--seed", type=int, default=0, help="seed of the first episode's start morphology")
+    ep.add_argument("--json", action="store_true", help="one JSON object per episode")
+    ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
+    ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
     return parser
 
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if getattr(args, "map", "") is None:
+    if getattr(args, "map", "") is None and getattr(args, "map_default", None) is None:
         args.map = default_map()
     try:
         return int(args.func(args))

@@ -202,11 +202,12 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         step = self.config.angle_step_deg
         return (float(self._idx[0] * step), float(self._idx[1] * step), float(self._idx[2] * step))
 
-    def _score(self) -> dict[str, Any]:
-        result = self._evaluator().evaluate(Morphology.of(self.theta))
+    def score(self, theta: tuple[float, float, float]) -> dict[str, Any]:
+        """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""
+        result = self._evaluator().evaluate(Morphology.of(theta))
         r1 = self.config.w1 * result.P_c - self.config.w2 * result.P_len
         return {
-            "theta": self.theta,
+            "theta": tuple(float(t) for t in theta),
             "P_c": result.P_c,
             "coverage_free_pct": result.coverage_free_pct,
             "P_len": result.P_len,
@@ -252,7 +253,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             self._idx = self.np_random.integers(0, self._lattice_max + 1, size=3).astype(np.int64)
         self._steps = 0
         self._best = {}
-        self._record(self._score())
+        self._record(self.score(self.theta))
         return self._observe(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
@@ -263,7 +264,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         unchanged = bool((new_idx == self._idx).all())
         self._idx = new_idx
         self._steps += 1
-        scored = self._score()
+        scored = self.score(self.theta)
         self._record(scored)
         reward = scored["R1"] - (self.config.beta if unchanged else 0.0)
         threshold = self.config.coverage_threshold

@@ -72,26 +72,36 @@ def plot_footprint(ax: plt.Axes, result: CoverageResult, morphology: Morphology,
     ax.set_ylabel("y [m]")
 
 
+def draw_coverage(
+    ax: plt.Axes, result: CoverageResult, grid_map: Map, morphology: Morphology, block_side_m: float, tiles: bool = True
+) -> None:
+    """The map with the covered area, (optionally) the tile grid, the coverage path and the robot at its start."""
+    draw_map(ax, grid_map, result.covered)
+    if not (result.feasible and result.path_tiles is not None and len(result.path_tiles)):
+        return
+    r = grid_map.resolution_m
+    l, w = result.footprint_cells
+    x0, x1, y0, y1 = _extent(grid_map)
+    if tiles:
+        for x in np.arange(x0, x1 + 1e-9, w * r):
+            ax.axvline(x, color="#4a90d9", lw=0.4, alpha=0.5)
+        for y in np.arange(y0, y1 + 1e-9, l * r):
+            ax.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
+    pts = path_points_m(result, grid_map)
+    ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=1.4, label="coverage path")
+    ax.plot(pts[0, 0], pts[0, 1], "o", color="#d62728", ms=6, label="start")
+    a, b = (int(v) for v in result.path_tiles[0])
+    draw_morphology(ax, morphology, block_side_m, (x0 + b * w * r, y0 + a * l * r))
+
+
 def plot_coverage(
     result: CoverageResult, grid_map: Map, morphology: Morphology, block_side_m: float, out: str | Path
 ) -> Path:
     """Paper Figures 4 and 6: the footprint beside the map with covered area, tiles and path."""
     fig, (ax_fp, ax_map) = plt.subplots(1, 2, figsize=(11, 5.2), gridspec_kw={"width_ratios": [1, 2]})
-    r = grid_map.resolution_m
-    plot_footprint(ax_fp, result, morphology, block_side_m, r)
-    draw_map(ax_map, grid_map, result.covered)
-    if result.feasible and result.path_tiles is not None and len(result.path_tiles):
-        l, w = result.footprint_cells
-        x0, x1, y0, y1 = _extent(grid_map)
-        for x in np.arange(x0, x1 + 1e-9, w * r):
-            ax_map.axvline(x, color="#4a90d9", lw=0.4, alpha=0.5)
-        for y in np.arange(y0, y1 + 1e-9, l * r):
-            ax_map.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
-        pts = path_points_m(result, grid_map)
-        ax_map.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=1.4, label="coverage path")
-        ax_map.plot(pts[0, 0], pts[0, 1], "o", color="#d62728", ms=6, label="start")
-        a, b = (int(v) for v in result.path_tiles[0])
-        draw_morphology(ax_map, morphology, block_side_m, (x0 + b * w * r, y0 + a * l * r))
+    plot_footprint(ax_fp, result, morphology, block_side_m, grid_map.resolution_m)
+    draw_coverage(ax_map, result, grid_map, morphology, block_side_m)
+    if result.feasible:
         ax_map.legend(loc="upper right", fontsize=8, framealpha=0.9)
     status = "" if result.feasible else "  (infeasible: blocks overlap)"
     ax_map.set_title(
@@ -99,6 +109,46 @@ def plot_coverage(
         f"P_len = {result.P_len} ({result.path_length_m:.1f} m){status}",
         fontsize=9,
     )
+    return _save(fig, out)
+
+
+def plot_top_morphologies(
+    items: list[tuple[str, CoverageResult, Morphology]], grid_map: Map, block_side_m: float, out: str | Path
+) -> Path:
+    """Paper Figure 6: the best morphologies side by side, each with its coverage and path on the map."""
+    n = max(1, len(items))
+    cols = min(n, 4)
+    rows = -(-n // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.4 * rows), squeeze=False)
+    for ax in axes.flat[len(items) :]:
+        ax.axis("off")
+    for ax, (label, result, morphology) in zip(axes.flat, items, strict=False):
+        draw_coverage(ax, result, grid_map, morphology, block_side_m, tiles=False)
+        t = ", ".join(f"{v:g}" for v in result.theta)
+        ax.set_title(f"{label}: ({t})\nP_c {result.P_c:.2f} %, P_len {result.P_len}", fontsize=9)
+    fig.suptitle(f"Top morphologies on {grid_map.name}", fontsize=11)
+    return _save(fig, out)
+
+
+def plot_learning_curves(
+    curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None
+) -> Path:
+    """Mean episode return and the iteration's best R1 against env steps (paper Figure 5), one line a run.
+
+    `curves[label]` has lists `env_steps`, `episode_return_mean` and `best_R1`."""
+    fig, (ax_ret, ax_r1) = plt.subplots(1, 2, figsize=(12, 4.4))
+    for label, c in curves.items():
+        ax_ret.plot(c["env_steps"], c["episode_return_mean"], lw=1.4, label=label)
+        ax_r1.plot(c["env_steps"], c["best_R1"], lw=1.4, label=label)
+    if optimum_r1 is not None:
+        ax_r1.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")
+        ax_r1.axhline(0.99 * optimum_r1, color="grey", ls=":", lw=1, label="99 % of optimum")
+    ax_ret.set_title("mean episode return", fontsize=10)
+    ax_r1.set_title("best R1 of the episodes in each iteration", fontsize=10)
+    for ax in (ax_ret, ax_r1):
+        ax.set_xlabel("env steps")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
     return _save(fig, out)
 
 

@@ -1,0 +1,202 @@
+"""Benchmark learning on map-1: PPO and IMPALA against the exact optimum and a random-policy yardstick.
+
+For each algorithm (fixed seed, `smorphi-rl train`'s own code path, 2 env runners on a local Ray):
+- env steps and wall time until the episode-best R1 first reaches 99 % of the best R1 over every
+  triple on the 2-degree lattice;
+- env-runner sampling throughput (env steps/s over the whole run) against the bare env's stepping
+  rate in this process (the yardstick for sampling overhead);
+- mean episode R1 in the first and last 10 iterations, and the greedy policy's settled R1 over 10
+  seeded episodes against a uniform random policy's (the yardstick for learning);
+- peak memory of the whole run (the driver and every Ray process below it, summed RSS).
+Targets (2-core machine): PPO within 99 % in <= 100,000 env steps and <= 10 minutes; peak < 3 GiB.
+
+    .venv/bin/python scripts/bench_training.py [--algos ppo impala] [--timesteps 100000] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.evaluate import Evaluator, best_on_lattice
+from smorphi_rl.maps import load_map
+from smorphi_rl.training.checkpoints import load_module
+from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.policy import rollout
+from smorphi_rl.training.run import train
+
+TARGET_STEPS = 100_000
+TARGET_WALL_S = 600.0
+TARGET_PEAK_GIB = 3.0
+EVAL_EPISODES = 10
+
+
+def _rss_kib(pid: int) -> int:
+    try:
+        with open(f"/proc/{pid}/status") as fh:
+            for line in fh:
+                if line.startswith("VmRSS:"):
+                    return int(line.split()[1])
+    except OSError:
+        pass
+    return 0
+
+
+def _tree_rss_bytes(root: int) -> int:
+    """Summed RSS of `root` and all its descendants (Linux /proc)."""
+    children: dict[int, list[int]] = {}
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            with open(f"/proc/{entry}/stat") as fh:
+                ppid = int(fh.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            continue
+        children.setdefault(ppid, []).append(int(entry))
+    total, stack = 0, [root]
+    while stack:
+        pid = stack.pop()
+        total += _rss_kib(pid)
+        stack.extend(children.get(pid, []))
+    return total * 1024
+
+
+class PeakMemory:
+    """Samples the process tree's RSS every 0.5 s in a thread; `.peak` in bytes."""
+
+    def __init__(self) -> None:
+        self.peak = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            self.peak = max(self.peak, _tree_rss_bytes(os.getpid()))
+            self._stop.wait(0.5)
+
+    def __enter__(self) -> PeakMemory:
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def random_policy_episode(env: MorphologyEnv, seed: int) -> tuple[float, float, float]:
+    """(mean R1 over the episode, best R1, final R1) of uniform random actions from the seeded start."""
+    _, info = env.reset(seed=seed)
+    rng = np.random.default_rng(seed)
+    r1, done = [], False
+    while not done:
+        _, _, terminated, truncated, info = env.step(rng.integers(0, 3, size=3))
+        r1.append(info["R1"])
+        done = terminated or truncated
+    return float(np.mean(r1)), float(info["best_R1"]), float(info["R1"])
+
+
+def env_step_rate(env: MorphologyEnv, steps: int = 20_000) -> float:
+    rng = np.random.default_rng(1)
+    actions = rng.integers(0, 3, size=(steps, 3))
+    env.reset(seed=1)
+    t0 = time.perf_counter()
+    for a in actions:
+        _, _, terminated, truncated, _ = env.step(a)
+        if terminated or truncated:
+            env.reset()
+    return steps / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--map", default=str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"))
+    parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
+    parser.add_argument("--timesteps", type=int, default=TARGET_STEPS)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+
+    cfg0 = TrainConfig().with_env(maps=(str(Path(args.map).resolve()),))
+    grid_map = load_map(args.map)
+    t0 = time.perf_counter()
+    optimum = best_on_lattice(Evaluator(grid_map), cfg0.env.w1, cfg0.env.w2)
+    target = 0.99 * optimum.R1
+    print(f"{grid_map.name}: best R1 on the 2-degree lattice {optimum.R1:.2f} at {optimum.theta} "
+          f"({optimum.evaluated:,} shapes, {time.perf_counter() - t0:.1f} s); 99 % = {target:.2f}")  # fmt: skip
+
+    env = MorphologyEnv(cfg0.env.to_dict())
+    bare_rate = env_step_rate(env)
+    randoms = [random_policy_episode(env, s) for s in range(EVAL_EPISODES)]
+    rand_mean, rand_best, rand_final = (float(np.mean(c)) for c in zip(*randoms, strict=True))
+    reach = sum(b >= target for _, b, _ in randoms)
+    print(f"yardsticks: bare env {bare_rate:,.0f} steps/s in this process; random policy: episode mean R1 "
+          f"{rand_mean:.2f}, final R1 {rand_final:.2f}, episode best R1 {rand_best:.2f} "
+          f"({reach}/{EVAL_EPISODES} episodes reach 99 %)")  # fmt: skip
+
+    with tempfile.TemporaryDirectory(prefix="bench-training-") as tmp:
+        for algo in args.algos:
+            cfg = TrainConfig(algo=algo, env=cfg0.env, timesteps=args.timesteps, seed=args.seed, checkpoint_every=1000)
+            with PeakMemory() as mem, open(os.devnull, "w") as quiet:
+                summary = train(cfg, name=algo, log_dir=tmp, out=quiet)
+            curve = summary_curve(summary.run_dir)
+            hit = first_reach(curve, target)
+            sampling = summary.env_steps / summary.wall_s
+            first = float(np.nanmean(curve["R1_mean"][:10]))
+            last = float(np.nanmean(curve["R1_mean"][-10:]))
+            module = load_module(summary.checkpoint) if summary.checkpoint else None
+            greedy = [rollout(module, env, s).settled["R1"] for s in range(EVAL_EPISODES)] if module else [np.nan]
+            print(f"\n{algo.upper()}: {summary.env_steps:,} env steps, {summary.iterations} iterations, "
+                  f"{summary.wall_s:.0f} s wall (Ray start and stop included)")  # fmt: skip
+            if hit is None:
+                print(f"  99 % of optimum: not reached in {summary.env_steps:,} steps")
+            else:
+                steps, wall, r1 = hit
+                ok = "meets" if steps <= TARGET_STEPS and wall <= TARGET_WALL_S else "misses"
+                print(f"  99 % of optimum: first reached at {steps:,.0f} env steps, {wall:.0f} s "
+                      f"(episode best R1 {r1:.2f}; {ok} the {TARGET_STEPS:,}-step / {TARGET_WALL_S:.0f} s target)")  # fmt: skip
+            best = summary.best
+            if best is not None:
+                print(f"  best found: {best.angles} P_c {best.P_c:.2f} % P_len {best.P_len} R1 {best.R1:.2f} "
+                      f"= {100 * best.R1 / optimum.R1:.2f} % of optimum")  # fmt: skip
+            print(f"  sampling: {sampling:,.0f} env steps/s over the run "
+                  f"({sampling / bare_rate:.2f}x the bare env in one process)")  # fmt: skip
+            print(f"  learning: episode mean R1 {first:.2f} (first 10 iterations) -> {last:.2f} (last 10); "
+                  f"greedy settled R1 {np.mean(greedy):.2f} vs random final R1 {rand_final:.2f} "
+                  f"({100 * np.mean(greedy) / optimum.R1:.2f} % vs {100 * rand_final / optimum.R1:.2f} % of optimum)")  # fmt: skip
+            gib = mem.peak / 2**30
+            print(f"  peak memory (driver + Ray processes, summed RSS): {gib:.2f} GiB "
+                  f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the {TARGET_PEAK_GIB:g} GiB target)")  # fmt: skip
+
+
+def summary_curve(run_dir: Path) -> dict[str, np.ndarray]:
+    """Per-iteration env steps, wall time, episode-best R1 (max this iteration) and episode mean R1."""
+    import json
+
+    (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").exists()]
+    rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
+    ours = [r["env_runners"].get("smorphi", {}) for r in rows]
+    return {
+        "steps": np.array([r["num_env_steps_sampled_lifetime"] for r in rows], dtype=float),
+        "wall": np.array([r["time_total_s"] for r in rows], dtype=float),
+        "best_R1": np.array([o.get("best_R1_max", np.nan) for o in ours], dtype=float),
+        "R1_mean": np.array([o.get("R1_mean", np.nan) for o in ours], dtype=float),
+    }
+
+
+def first_reach(curve: dict[str, np.ndarray], target: float) -> tuple[float, float, float] | None:
+    hits = np.flatnonzero(curve["best_R1"] >= target)
+    if not hits.size:
+        return None
+    i = int(hits[0])
+    return float(curve["steps"][i]), float(curve["wall"][i]), float(curve["best_R1"][i])
+
+
+if __name__ == "__main__":
+    main()

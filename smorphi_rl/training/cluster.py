@@ -1,0 +1,79 @@
+"""Starting a local Ray for one run, or attaching to an existing cluster, with a clear error if it is not there."""
+
+from __future__ import annotations
+
+import logging
+import os
+import socket
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+from smorphi_rl.errors import SmorphiError
+
+CONNECT_TIMEOUT_S = 3.0
+MIN_LOCAL_CPUS = 2
+"""A trial asks for 2 CPUs (1 for its own process, 0.5 per env runner); a 1-core machine still runs it."""
+
+
+class ClusterError(SmorphiError):
+    """The Ray cluster named by --address cannot be reached."""
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a `host:port` address; None for `auto` and `ray://` client addresses."""
+    if address == "auto" or "://" in address:
+        return None
+    host, sep, port = address.rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ClusterError(f"--address must be HOST:PORT, 'auto' or ray://HOST:PORT, got '{address}'")
+    return host, int(port)
+
+
+def check_reachable(address: str | None) -> None:
+    """Fail fast, before Ray starts, when a `host:port` cluster address does not answer."""
+    if address is None:
+        return
+    target = _host_port(address)
+    if target is None:
+        return
+    try:
+        with socket.create_connection(target, timeout=CONNECT_TIMEOUT_S):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or type(exc).__name__
+        raise ClusterError(f"cannot reach a Ray cluster at {address} ({reason})") from None
+
+
+def quiet_worker() -> None:
+    """worker_process_setup_hook: keep RLlib's deprecation chatter out of the workers' logs."""
+    for name in ("ray._common.deprecation", "ray.rllib.algorithms.algorithm_config", "ray.rllib"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+@contextmanager
+def ray_session(address: str | None) -> Iterator[None]:
+    """A local Ray started for this run (address None), or a connection to an existing cluster."""
+    import ray
+
+    if address is None:
+        os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
+    # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
+    # cluster started without a token aborts the process inside Ray's C++ core.
+    kwargs: dict[str, object] = {
+        "include_dashboard": False,
+        "log_to_driver": False,
+        "logging_level": logging.ERROR,
+        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.training.cluster.quiet_worker"},
+    }
+    if address is None:
+        kwargs["num_cpus"] = max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
+    try:
+        ray.init(address=address, **kwargs)
+    except (ConnectionError, RuntimeError, ValueError) as exc:
+        where = "a local Ray" if address is None else f"the Ray cluster at {address}"
+        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+        raise ClusterError(f"cannot start or reach {where}: {message}") from None
+    try:
+        yield
+    finally:
+        ray.shutdown()

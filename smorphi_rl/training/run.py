@@ -1,0 +1,319 @@
+"""`smorphi-rl train`: one RLlib algorithm through Ray Tune, on a local Ray or an existing cluster.
+
+Everything lands under `logs/<run>/`: the resolved configuration, Tune's trial directory
+(TensorBoard events, result.json, checkpoints), the top-k tables and figures, and summary.json.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.evaluate import Evaluator, LatticeBest, best_on_lattice
+from smorphi_rl.geometry import Morphology
+from smorphi_rl.maps import load_map
+from smorphi_rl.training import cluster
+from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
+from smorphi_rl.training.checkpoints import checkpoints_under
+from smorphi_rl.training.config import TrainConfig, algorithm_config, default_run_name, register_env
+from smorphi_rl.training.topk import Found, TopMorphologies, write_tables
+
+STEPS_KEY = "num_env_steps_sampled_lifetime"
+TOP_PLOT = 4
+"""Morphologies drawn in top_morphologies.png (the paper's Figure 6 shows 2 per algorithm)."""
+
+
+class TrainingError(SmorphiError):
+    """The run could not start or a trial failed."""
+
+
+@dataclass
+class Curve:
+    """What the driver keeps of each iteration: enough for the progress line, plots and the summary."""
+
+    env_steps: list[float] = field(default_factory=list)
+    episode_return_mean: list[float] = field(default_factory=list)
+    best_R1: list[float] = field(default_factory=list)
+    wall_s: list[float] = field(default_factory=list)
+
+    def as_dict(self) -> dict[str, list[float]]:
+        return {"env_steps": self.env_steps, "episode_return_mean": self.episode_return_mean, "best_R1": self.best_R1}
+
+
+@dataclass
+class RunSummary:
+    """The outcome of `train`, as printed and written to summary.json."""
+
+    run_dir: Path
+    algorithm: str
+    env_steps: int
+    iterations: int
+    wall_s: float
+    interrupted: bool
+    best: Found | None
+    optimum: dict[str, LatticeBest]
+    checkpoint: Path | None
+    files: dict[str, Path]
+
+    def to_dict(self) -> dict[str, Any]:
+        best = None
+        if self.best is not None:
+            b = self.best
+            best = {"map": b.map, "theta": list(b.theta), "P_c": b.P_c, "P_len": b.P_len, "R1": b.R1,
+                    "first_seen_env_steps": b.env_steps}  # fmt: skip
+        return {
+            "run_dir": str(self.run_dir),
+            "algorithm": self.algorithm,
+            "env_steps": self.env_steps,
+            "iterations": self.iterations,
+            "wall_s": round(self.wall_s, 2),
+            "interrupted": self.interrupted,
+            "best": best,
+            "lattice_optimum": {m: asdict(o) for m, o in self.optimum.items()},
+            "checkpoint": None if self.checkpoint is None else str(self.checkpoint),
+            "files": {k: str(v) for k, v in self.files.items()},
+        }
+
+
+def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
+    """logs/<run>/, created and proven writable before Ray starts; an existing run is never overwritten."""
+    root = Path(log_dir).resolve()
+    run_dir = root / name
+    if run_dir.exists() and any(run_dir.iterdir()):
+        raise TrainingError(f"run directory {run_dir} already exists: choose another --name")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / ".write-test"
+        probe.write_text("ok")
+        probe.unlink()
+    except OSError as exc:
+        raise TrainingError(f"log directory {root} is not writable ({exc.strerror or exc})") from None
+    return run_dir
+
+
+def _fmt_duration(seconds: float) -> str:
+    m, s = divmod(round(seconds), 60)
+    return f"{m}m {s:02d}s" if m else f"{s}s"
+
+
+class _Progress:
+    """Driver-side Tune callback: collects episode bests and curves, and shows one progress line."""
+
+    def __init__(self, cfg: TrainConfig, out: Any = sys.stderr) -> None:
+        self.cfg = cfg
+        self.top = TopMorphologies()
+        self.curve = Curve()
+        self.out = out
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.t0 = time.monotonic()
+        self._last_print = -math.inf
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Tune pickles its callbacks with the experiment state: leave the output stream behind."""
+        return {k: v for k, v in self.__dict__.items() if k != "out"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state, out=sys.stderr)
+
+    def on_result(self, result: dict[str, Any]) -> None:
+        steps = int(result.get(STEPS_KEY) or 0)
+        rows = json.loads(result.get(EPISODE_BEST_KEY) or "[]")
+        self.top.add_episode_bests(self.cfg.algo, rows, steps)
+        runners = result.get("env_runners", {})
+        ret = runners.get("episode_return_mean", math.nan)
+        best_iter = max((r[-1] for r in rows), default=math.nan)
+        self.curve.env_steps.append(steps)
+        self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
+        self.curve.best_R1.append(float(best_iter))
+        self.curve.wall_s.append(time.monotonic() - self.t0)
+        self._show(steps, runners.get(METRIC_PREFIX, {}), done=steps >= self.cfg.timesteps)
+
+    def _show(self, steps: int, ours: dict[str, Any], done: bool) -> None:
+        now = time.monotonic()
+        if not self.tty and not done and now - self._last_print < 10:
+            return
+        self._last_print = now
+        budget = self.cfg.timesteps
+        frac = min(1.0, steps / budget)
+        bar = "#" * int(24 * frac) + "-" * (24 - int(24 * frac))
+        best = self.top.top(1)
+        best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
+        mean_r1 = ours.get("R1_mean")
+        mean_txt = f"episode mean R1 {mean_r1:.2f}" if isinstance(mean_r1, int | float) else ""
+        line = (f"{self.cfg.algo.upper()} [{bar}] {steps:,}/{budget:,} steps  {_fmt_duration(now - self.t0)}  "
+                f"{best_txt}  {mean_txt}")  # fmt: skip
+        if self.tty:
+            self.out.write("\r" + line[:160].ljust(160) + ("\n" if done else ""))
+        else:
+            self.out.write(line + "\n")
+        self.out.flush()
+
+    def finish(self) -> None:
+        if self.tty:
+            self.out.write("\n")
+            self.out.flush()
+
+
+def _tune_callback(progress: _Progress) -> Any:
+    from ray import tune
+
+    class _Callback(tune.Callback):
+        def on_trial_result(self, iteration: int, trials: list[Any], trial: Any, result: dict[str, Any], **info: Any):
+            progress.on_result(result)
+
+    return _Callback()
+
+
+def _quiet_logs() -> None:
+    """Silence RLlib's deprecation chatter and Tune's own progress table (we print our own line)."""
+    for name in ("ray", "ray.rllib", "ray.tune", "ray._common.deprecation", "ray.rllib.algorithms.algorithm_config"):
+        logging.getLogger(name).setLevel(logging.ERROR)
+
+
+def write_outputs(
+    run_dir: Path, cfg: TrainConfig, progress: _Progress
+) -> tuple[dict[str, Path], dict[str, LatticeBest]]:
+    """Top-k CSV/Markdown/PNG and the learning curves, with every map's lattice optimum as yardstick."""
+    from smorphi_rl.plots import plot_learning_curves, plot_top_morphologies
+
+    files: dict[str, Path] = {}
+    optimum: dict[str, LatticeBest] = {}
+    rows = [f for m in progress.top.maps() for f in progress.top.top(cfg.top_k, m)]
+    if rows:
+        files["top_csv"], files["top_md"] = run_dir / "top_morphologies.csv", run_dir / "top_morphologies.md"
+        write_tables(rows, files["top_csv"], files["top_md"])
+    for path in cfg.env.maps:
+        grid_map = load_map(path)
+        evaluator = Evaluator(grid_map, cfg.env.block_side_m)
+        optimum[grid_map.name] = best_on_lattice(evaluator, cfg.env.w1, cfg.env.w2)
+        top = progress.top.top(TOP_PLOT, grid_map.name)
+        if top:
+            items = []
+            for rank, f in enumerate(top, 1):
+                morphology = Morphology.of(f.theta)
+                items.append((f"#{rank}", evaluator.plan(morphology), morphology))
+            key = "top_png" if len(cfg.env.maps) == 1 else f"top_png_{grid_map.name}"
+            files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, run_dir / f"{key}.png".replace(
+                "top_png", "top_morphologies"))  # fmt: skip
+    if progress.curve.env_steps:
+        reference = next(iter(optimum.values())).R1 if len(optimum) == 1 else None
+        files["curves_png"] = plot_learning_curves(
+            {cfg.algo.upper(): progress.curve.as_dict()}, run_dir / "learning_curves.png", reference
+        )
+    return files, optimum
+
+
+def train(
+    cfg: TrainConfig,
+    name: str | None = None,
+    log_dir: str | Path = "logs",
+    address: str | None = None,
+    out: Any = sys.stderr,
+) -> RunSummary:
+    """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
+    name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
+    for path in cfg.env.maps:  # fails here, before Ray starts, with the map named
+        load_map(path)
+    run_dir = prepare_run_dir(log_dir, name)
+    cluster.check_reachable(address)
+    (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address}, indent=2))
+    _quiet_logs()
+    with cluster.ray_session(address):
+        from ray import tune
+
+        register_env()
+        config = algorithm_config(cfg)
+        progress = _Progress(cfg, out)
+        stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
+        if cfg.max_iterations is not None:
+            stop["training_iteration"] = cfg.max_iterations
+        tuner = tune.Tuner(
+            config.algo_class,
+            param_space=config,
+            tune_config=tune.TuneConfig(trial_dirname_creator=lambda trial: f"{cfg.algo}-{trial.trial_id}"),
+            run_config=tune.RunConfig(
+                name=name,
+                storage_path=str(run_dir.parent),
+                stop=stop,
+                checkpoint_config=tune.CheckpointConfig(
+                    checkpoint_frequency=cfg.checkpoint_every, checkpoint_at_end=True
+                ),
+                callbacks=[_tune_callback(progress)],
+                verbose=0,
+            ),
+        )
+        t0 = time.monotonic()
+        results = tuner.fit()
+        wall = time.monotonic() - t0
+        progress.finish()
+    errors = list(results.errors)
+    if errors:
+        first = str(errors[0]).strip().splitlines()
+        raise TrainingError(f"training failed: {first[-1] if first else type(errors[0]).__name__} "
+                            f"(full error under {run_dir})")  # fmt: skip
+    files, optimum = write_outputs(run_dir, cfg, progress)
+    steps = int(progress.curve.env_steps[-1]) if progress.curve.env_steps else 0
+    checkpoints = checkpoints_under(run_dir)
+    best = progress.top.top(1)
+    summary = RunSummary(
+        run_dir=run_dir,
+        algorithm=cfg.algo,
+        env_steps=steps,
+        iterations=len(progress.curve.env_steps),
+        wall_s=wall,
+        interrupted=steps < cfg.timesteps and len(progress.curve.env_steps) != cfg.max_iterations,
+        best=best[0] if best else None,
+        optimum=optimum,
+        checkpoint=checkpoints[-1] if checkpoints else None,
+        files=files,
+    )
+    files["summary"] = run_dir / "summary.json"
+    files["summary"].write_text(json.dumps(summary.to_dict(), indent=2))
+    return summary
+
+
+def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
+    """The end-of-run text: best shape against the optimum, where everything is, how to look at it."""
+
+    def rel(p: Path) -> str:
+        base = cwd or Path.cwd()
+        try:
+            return str(p.relative_to(base))
+        except ValueError:
+            return str(p)
+
+    state = "interrupted after" if s.interrupted else "trained for"
+    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {_fmt_duration(s.wall_s)} "
+             f"({s.iterations} iterations)"]  # fmt: skip
+    if s.best is not None:
+        b = s.best
+        lines.append(f"best morphology: {b.angles} on {b.map}: P_c {b.P_c:.2f} %, P_len {b.P_len}, R1 {b.R1:.2f} "
+                     f"(first found at {b.env_steps:,} env steps)")  # fmt: skip
+        opt = s.optimum.get(b.map)
+        if opt is not None:
+            t = "(" + ", ".join(f"{v:g}" for v in opt.theta) + ")"
+            pct = 100 * b.R1 / opt.R1 if opt.R1 else math.nan
+            lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
+                         f"(best found is {pct:.2f} % of it)")  # fmt: skip
+    if s.checkpoint is not None:
+        lines.append(f"checkpoint: {rel(s.checkpoint)}")
+    for key, label in (("top_md", "top morphologies"), ("top_png", "top morphologies plot"),
+                       ("curves_png", "learning curves"), ("summary", "summary")):  # fmt: skip
+        if key in s.files:
+            lines.append(f"{label}: {rel(s.files[key])}")
+    lines.append(f"logs: {rel(s.run_dir)}")
+    lines.append(f"tensorboard --logdir {rel(s.run_dir)}")
+    return "\n".join(lines)
+
+
+def local_cpus() -> int:
+    return os.cpu_count() or 1

@@ -1,0 +1,55 @@
+"""Training configuration: validation before Ray starts, presets, the critic's normalisation."""
+
+from __future__ import annotations
+
+import pytest
+
+from smorphi_rl.env import EnvConfig
+from smorphi_rl.training.config import TrainConfig, TrainConfigError, default_run_name, value_normalisation
+from smorphi_rl.training.presets import ALGORITHMS, PRESETS
+
+
+def test_every_preset_covers_every_algorithm():
+    for name, presets in PRESETS.items():
+        assert set(presets) == set(ALGORITHMS), name
+
+
+def test_paper_preset_is_table_1():
+    ppo, a3c = PRESETS["paper"]["ppo"], PRESETS["paper"]["impala"]
+    assert (ppo.lr, ppo.train_batch_size, ppo.gamma, ppo.lambda_, ppo.num_epochs) == (3e-4, 4096, 0.99, 0.95, 15)
+    assert (ppo.grad_clip, ppo.entropy_coeff, ppo.vf_loss_coeff) == (0.5, 0.01, 0.5)
+    assert (a3c.lr, a3c.train_batch_size, a3c.gamma, a3c.grad_clip) == (7e-4, 32, 0.99, 0.5)
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"algo": "a3c"}, "unknown algorithm 'a3c'"),
+        ({"preset": "huge"}, "unknown preset 'huge'"),
+        ({"timesteps": 0}, "timesteps must be a positive integer"),
+        ({"timesteps": -5}, "timesteps must be a positive integer"),
+        ({"seed": -1}, "seed must be a non-negative integer"),
+        ({"max_iterations": 0}, "max_iterations must be a positive integer"),
+    ],
+)
+def test_bad_options_are_named(changes, message):
+    with pytest.raises(TrainConfigError, match=message):
+        TrainConfig(**changes)
+
+
+def test_resolved_config_records_hyperparameters():
+    doc = TrainConfig(algo="impala", preset="paper").to_dict()
+    assert doc["algo"] == "impala" and doc["hyperparameters"]["lr"] == 7e-4
+    assert doc["env"]["maps"][0].endswith("map-1.yaml")
+
+
+def test_default_run_name_is_a_safe_directory_name():
+    cfg = TrainConfig(env=EnvConfig(maps=("/x/my map (v2).yaml",)))
+    assert default_run_name(cfg, "20260101-000000") == "ppo-my_map_v2_-20260101-000000"
+
+
+def test_value_normalisation_brackets_random_returns():
+    env = EnvConfig()
+    offset, scale = value_normalisation(env, gamma=0.99)
+    # R1 of random shapes on map-1 lies around 60..91, over an effective horizon of 100 steps.
+    assert 6_000 < offset < 9_100 and 100 < scale < 10_000

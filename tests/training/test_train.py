@@ -1,0 +1,216 @@
+"""Real Ray Tune runs: PPO through the public command, IMPALA and APPO through `train()`, reload, cluster, Ctrl-C."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.geometry import Morphology
+from smorphi_rl.maps import load_map
+from smorphi_rl.training.checkpoints import find_checkpoint, load_module
+from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.policy import rollout
+from smorphi_rl.training.run import train
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+OUR_TAGS = [f"ray/tune/env_runners/smorphi/{m}" for m in (
+    "P_c_mean", "P_len_mean", "R1_mean", "best_P_c", "best_P_len", "best_R1", "best_theta1", "best_theta2",
+    "best_theta3")]  # fmt: skip
+pytestmark = pytest.mark.slow
+
+
+def cli(*argv: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    return subprocess.run(
+        [sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd, env=env,
+        timeout=timeout,
+    )  # fmt: skip
+
+
+def trial_dir(run_dir: Path) -> Path:
+    (found,) = [p for p in run_dir.iterdir() if p.is_dir() and (p / "result.json").exists()]
+    return found
+
+
+def last_result(run_dir: Path) -> dict:
+    lines = (trial_dir(run_dir) / "result.json").read_text().splitlines()
+    return json.loads(lines[-1])
+
+
+def tensorboard_tags(run_dir: Path) -> set[str]:
+    acc = EventAccumulator(str(trial_dir(run_dir)))
+    acc.Reload()
+    return set(acc.Tags()["scalars"])
+
+
+@pytest.fixture(scope="module")
+def ppo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess[str]]:
+    """`smorphi-rl train` for 2 iterations of 1,000 steps, checkpointing each."""
+    work = tmp_path_factory.mktemp("ppo")
+    proc = cli("train", "--map", MAP_1, "--timesteps", "2000", "--name", "smoke", "--checkpoint-every", "1", cwd=work)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return work / "logs" / "smoke", proc
+
+
+def test_train_prints_where_everything_is(ppo_run):
+    run_dir, proc = ppo_run
+    out = proc.stdout
+    assert "PPO trained for 2,000 env steps" in out and "(2 iterations)" in out
+    assert "best morphology: (" in out and "exact optimum on the 2-degree lattice" in out
+    assert "tensorboard --logdir logs/smoke" in out
+    for name in ("config.json", "summary.json", "top_morphologies.csv", "top_morphologies.md",
+                 "top_morphologies.png", "learning_curves.png"):  # fmt: skip
+        assert (run_dir / name).is_file(), name
+    config = json.loads((run_dir / "config.json").read_text())
+    assert config["algo"] == "ppo" and config["env"]["maps"] == [MAP_1] and config["hyperparameters"]["lr"] > 0
+
+
+def test_metrics_exist_and_are_finite(ppo_run):
+    run_dir, _ = ppo_run
+    result = last_result(run_dir)
+    assert result["training_iteration"] == 2 and result["num_env_steps_sampled_lifetime"] >= 2000
+    ours = result["env_runners"]["smorphi"]
+    for key in ("P_c_mean", "P_len_mean", "R1_mean", "best_P_c", "best_P_len", "best_R1", "best_theta1"):
+        assert math.isfinite(ours[key]), key
+    assert 0 < ours["best_P_c"] <= 100 and 0 <= ours["best_theta1"] <= 180
+    assert ours["best_R1"] >= ours["R1_mean"]  # the best shape of an episode is at least its mean
+    assert math.isfinite(result["env_runners"]["episode_return_mean"])
+
+
+def test_tensorboard_holds_our_tags(ppo_run):
+    run_dir, _ = ppo_run
+    tags = tensorboard_tags(run_dir)
+    assert "ray/tune/env_runners/episode_return_mean" in tags
+    missing = [t for t in OUR_TAGS if t not in tags]
+    assert not missing
+
+
+def test_top_k_table_holds_real_fbcpp_figures(ppo_run):
+    run_dir, _ = ppo_run
+    rows = list(csv.DictReader((run_dir / "top_morphologies.csv").open()))
+    assert 1 <= len(rows) <= 8
+    r1 = [float(r["R1"]) for r in rows]
+    assert r1 == sorted(r1, reverse=True)
+    assert len({(r["theta1"], r["theta2"], r["theta3"]) for r in rows}) == len(rows)
+    evaluator = Evaluator(load_map(MAP_1))
+    for row in rows:
+        result = evaluator.evaluate(Morphology.of((float(row["theta1"]), float(row["theta2"]), float(row["theta3"]))))
+        assert float(row["P_c"]) == pytest.approx(result.P_c, abs=1e-3) and int(row["P_len"]) == result.P_len
+        assert float(row["R1"]) == pytest.approx(result.P_c - 0.1 * result.P_len, abs=1e-3)
+
+
+def test_checkpoint_reloads_and_rolls_out_deterministically(ppo_run):
+    run_dir, _ = ppo_run
+    checkpoint = find_checkpoint(run_dir)
+    assert checkpoint.name == "checkpoint_000001"  # the newest of the two
+    module = load_module(checkpoint)
+    env = MorphologyEnv(module.model_config["env_config"])
+    first, second = rollout(module, env, seed=3), rollout(module, env, seed=3)
+    assert first.thetas == second.thetas and first.steps == EnvConfig().max_steps
+    assert first.best["R1"] >= first.settled["R1"] - 1e-9 or first.best["R1"] >= max(
+        env.score(t)["R1"] for t in first.thetas
+    )
+
+
+def test_evaluate_policy_command(ppo_run, tmp_path):
+    run_dir, _ = ppo_run
+    proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--episodes", "2", "--json", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    docs = [json.loads(line) for line in proc.stdout.splitlines()]
+    assert [d["seed"] for d in docs] == [0, 1] and all(d["map"] == "map-1" for d in docs)
+    for d in docs:
+        assert d["best"]["R1"] >= d["start"]["R1"] and d["best"]["R1"] >= d["settled"]["R1"] - 1e-9
+    png = tmp_path / "settled.png"
+    proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--map", MAP_1, "--plot", str(png), cwd=tmp_path)
+    assert proc.returncode == 0 and "settled" in proc.stdout and png.stat().st_size > 10_000
+
+
+def test_evaluate_policy_refuses_a_map_of_another_observation_size(ppo_run, tmp_path):
+    run_dir, _ = ppo_run
+    module = load_module(find_checkpoint(run_dir))
+    env = MorphologyEnv({"maps": [MAP_1], "obs_size": 32})
+    from smorphi_rl.training.checkpoints import CheckpointError
+    from smorphi_rl.training.policy import check_fits
+
+    with pytest.raises(CheckpointError, match=r"expects map observations of shape \(2, 64, 64\)"):
+        check_fits(module, env)
+
+
+@pytest.mark.parametrize("algo", ["impala", "appo"])
+def test_async_learners_run_two_iterations(algo, tmp_path):
+    cfg = TrainConfig(algo=algo, timesteps=1_000_000, max_iterations=2, checkpoint_every=1)
+    summary = train(cfg, name=algo, log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
+    assert summary.iterations == 2 and not summary.interrupted and summary.env_steps > 0
+    assert summary.best is not None and summary.checkpoint is not None
+    result = last_result(summary.run_dir)
+    assert math.isfinite(result["env_runners"]["smorphi"]["best_R1"])
+    assert not [t for t in OUR_TAGS if t not in tensorboard_tags(summary.run_dir)]
+    load_module(summary.checkpoint)
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def test_attaches_to_a_running_cluster(tmp_path):
+    ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
+    port = _free_port()
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_AUTH_MODE")}
+    start = [
+        ray,
+        "start",
+        "--head",
+        "--num-cpus=2",
+        f"--port={port}",
+        "--include-dashboard=false",
+        "--disable-usage-stats",
+    ]
+    subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
+    try:
+        proc = cli("train", "--address", f"127.0.0.1:{port}", "--timesteps", "1000", "--name", "attached",
+                   "--map", MAP_1, cwd=tmp_path)  # fmt: skip
+        assert proc.returncode == 0, proc.stderr[-3000:]
+        assert "PPO trained for 1,000 env steps" in proc.stdout
+        assert (
+            json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == f"127.0.0.1:{port}"
+        )
+    finally:
+        subprocess.run([ray, "stop", "--force"], capture_output=True, env=env, timeout=120)
+
+
+def test_ctrl_c_stops_cleanly_and_keeps_checkpoints(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "smorphi_rl.cli", "train", "--map", MAP_1, "--timesteps", "1000000", "--name", "stopped",
+         "--checkpoint-every", "1"],
+        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    run_dir = tmp_path / "logs" / "stopped"
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and not list(run_dir.glob("*/checkpoint_000000")):
+        time.sleep(0.5)
+    assert list(run_dir.glob("*/checkpoint_000000")), "no checkpoint was written"
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err and "interrupted" in err
+    assert "interrupted after" in out
+    load_module(find_checkpoint(run_dir))  # what was written is intact

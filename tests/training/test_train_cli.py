@@ -1,0 +1,65 @@
+"""`train` and `evaluate-policy` refuse bad input with one line, before Ray starts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from smorphi_rl.cli import main
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+def run(capsys, *argv: str) -> tuple[int, str]:
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # argparse usage errors
+        code = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1, err  # exactly one line
+    return code, err
+
+
+@pytest.mark.parametrize(
+    ("argv", "code", "message"),
+    [
+        (["--algo", "a3c"], 2, "invalid choice: 'a3c'"),
+        (["--preset", "huge"], 2, "invalid choice: 'huge'"),
+        (["--timesteps", "0"], 1, "timesteps must be a positive integer, got 0"),
+        (["--timesteps", "-10"], 1, "timesteps must be a positive integer, got -10"),
+        (["--timesteps", "ten"], 2, "invalid int value: 'ten'"),
+        (["--map", "/no/such/map.yaml"], 1, "map file not found: /no/such/map.yaml"),
+        (["--address", "127.0.0.1:1"], 1, "cannot reach a Ray cluster at 127.0.0.1:1"),
+        (["--address", "nonsense"], 1, "--address must be HOST:PORT, 'auto' or ray://HOST:PORT"),
+    ],
+)
+def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
+    got, err = run(capsys, "train", "--log-dir", str(tmp_path), *argv)
+    assert got == code and message in err and err.startswith("smorphi-rl")
+    assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written by a refused run
+
+
+def test_train_rejects_an_unwritable_log_dir(capsys, tmp_path):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    code, err = run(capsys, "train", "--log-dir", str(blocker / "logs"))
+    assert code == 1 and f"log directory {blocker / 'logs'} is not writable" in err
+
+
+def test_train_never_overwrites_a_run(capsys, tmp_path):
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "summary.json").write_text("{}")
+    code, err = run(capsys, "train", "--log-dir", str(tmp_path), "--name", "mine")
+    assert code == 1 and "already exists: choose another --name" in err
+    assert (tmp_path / "mine" / "summary.json").read_text() == "{}"
+
+
+def test_evaluate_policy_rejects_bad_checkpoints(capsys, tmp_path):
+    code, err = run(capsys, "evaluate-policy", "--checkpoint", str(tmp_path / "none"))
+    assert code == 1 and "checkpoint not found" in err
+    code, err = run(capsys, "evaluate-policy", "--checkpoint", str(tmp_path))
+    assert code == 1 and "holds no RLlib checkpoint of ours" in err
+    code, err = run(capsys, "evaluate-policy", "--checkpoint", str(tmp_path), "--episodes", "0")
+    assert code == 1 and "--episodes must be >= 1" in err
