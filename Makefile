@@ -4,20 +4,20 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 
-.PHONY: setup run test lint format type bench clean
+.PHONY: setup run test lint format type bench bench-training clean
 
+# torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	# torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 	$(BIN)/python -m pip install -q torch==2.13.0
 	$(BIN)/python -m pip install -q -e '.[dev]'
 	touch $@
 
 setup: $(BIN)/.installed
 
-run: setup  ## the main job on the shipped default map
-	$(BIN)/smorphi-rl evaluate --map $(MAP) --angles 95 59 103 --plot logs/evaluate-map-1.png
+run: setup  ## the main job: PPO on the shipped default map, on a local Ray started for it
+	$(BIN)/smorphi-rl train --map $(MAP)
 
 test: setup  ## lint, format check and the whole suite
 	$(BIN)/ruff check smorphi_rl tests scripts
@@ -36,6 +36,9 @@ type: setup
 
 bench: setup
 	$(BIN)/python scripts/bench_fbcpp.py
+
+bench-training: setup
+	$(BIN)/python scripts/bench_training.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

@@ -7,7 +7,7 @@ For each algorithm (fixed seed, `smorphi-rl train`'s own code path, 2 env runner
   rate in this process (the yardstick for sampling overhead);
 - mean episode R1 in the first and last 10 iterations, and the greedy policy's settled R1 over 10
   seeded episodes against a uniform random policy's (the yardstick for learning);
-- peak memory of the whole run (the driver and every Ray process below it, summed RSS).
+- peak memory of the whole run (the driver and every Ray process below it, summed PSS).
 Targets (2-core machine): PPO within 99 % in <= 100,000 env steps and <= 10 minutes; peak < 3 GiB.
 
     .venv/bin/python scripts/bench_training.py [--algos ppo impala] [--timesteps 100000] [--seed 0]
@@ -38,19 +38,23 @@ TARGET_PEAK_GIB = 3.0
 EVAL_EPISODES = 10
 
 
-def _rss_kib(pid: int) -> int:
+def _memory_kib(pid: int) -> tuple[int, int]:
+    """(RSS, PSS) of one process in KiB: PSS splits shared pages (torch, Ray's libraries) among their users."""
+    rss = pss = 0
     try:
-        with open(f"/proc/{pid}/status") as fh:
+        with open(f"/proc/{pid}/smaps_rollup") as fh:
             for line in fh:
-                if line.startswith("VmRSS:"):
-                    return int(line.split()[1])
+                if line.startswith("Rss:"):
+                    rss = int(line.split()[1])
+                elif line.startswith("Pss:"):
+                    pss = int(line.split()[1])
     except OSError:
         pass
-    return 0
+    return rss, pss
 
 
-def _tree_rss_bytes(root: int) -> int:
-    """Summed RSS of `root` and all its descendants (Linux /proc)."""
+def _tree_memory_bytes(root: int) -> tuple[int, int]:
+    """Summed (RSS, PSS) of `root` and all its descendants (Linux /proc)."""
     children: dict[int, list[int]] = {}
     for entry in os.listdir("/proc"):
         if not entry.isdigit():
@@ -61,25 +65,28 @@ def _tree_rss_bytes(root: int) -> int:
         except (OSError, ValueError, IndexError):
             continue
         children.setdefault(ppid, []).append(int(entry))
-    total, stack = 0, [root]
+    rss = pss = 0
+    stack = [root]
     while stack:
         pid = stack.pop()
-        total += _rss_kib(pid)
+        r, p = _memory_kib(pid)
+        rss, pss = rss + r, pss + p
         stack.extend(children.get(pid, []))
-    return total * 1024
+    return rss * 1024, pss * 1024
 
 
 class PeakMemory:
-    """Samples the process tree's RSS every 0.5 s in a thread; `.peak` in bytes."""
+    """Samples the process tree's memory every 0.5 s in a thread; `.peak_pss` and `.peak_rss` in bytes."""
 
     def __init__(self) -> None:
-        self.peak = 0
+        self.peak_pss = self.peak_rss = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
 
     def _run(self) -> None:
         while not self._stop.is_set():
-            self.peak = max(self.peak, _tree_rss_bytes(os.getpid()))
+            rss, pss = _tree_memory_bytes(os.getpid())
+            self.peak_rss, self.peak_pss = max(self.peak_rss, rss), max(self.peak_pss, pss)
             self._stop.wait(0.5)
 
     def __enter__(self) -> PeakMemory:
@@ -147,7 +154,8 @@ def main() -> None:
                 summary = train(cfg, name=algo, log_dir=tmp, out=quiet)
             curve = summary_curve(summary.run_dir)
             hit = first_reach(curve, target)
-            sampling = summary.env_steps / summary.wall_s
+            overall = summary.env_steps / summary.wall_s
+            sampling = float(curve["runner_rate"][-1])
             first = float(np.nanmean(curve["R1_mean"][:10]))
             last = float(np.nanmean(curve["R1_mean"][-10:]))
             module = load_module(summary.checkpoint) if summary.checkpoint else None
@@ -159,20 +167,30 @@ def main() -> None:
             else:
                 steps, wall, r1 = hit
                 ok = "meets" if steps <= TARGET_STEPS and wall <= TARGET_WALL_S else "misses"
+                goal = f"{TARGET_STEPS:,}-step / {TARGET_WALL_S:.0f} s target"
                 print(f"  99 % of optimum: first reached at {steps:,.0f} env steps, {wall:.0f} s "
-                      f"(episode best R1 {r1:.2f}; {ok} the {TARGET_STEPS:,}-step / {TARGET_WALL_S:.0f} s target)")  # fmt: skip
+                      f"(episode best R1 {r1:.2f}; {ok} the {goal})")  # fmt: skip
             best = summary.best
             if best is not None:
                 print(f"  best found: {best.angles} P_c {best.P_c:.2f} % P_len {best.P_len} R1 {best.R1:.2f} "
                       f"= {100 * best.R1 / optimum.R1:.2f} % of optimum")  # fmt: skip
-            print(f"  sampling: {sampling:,.0f} env steps/s over the run "
-                  f"({sampling / bare_rate:.2f}x the bare env in one process)")  # fmt: skip
+            print(f"  sampling: the 2 env runners {sampling:,.0f} env steps/s (RLlib's lifetime throughput; "
+                  f"{sampling / bare_rate:.3f}x the bare env in one process); {overall:,.0f} env steps/s "
+                  f"over the whole run, start-up included")  # fmt: skip
+            busy = curve["sampling_s"]
+            if algo == "ppo" and np.nansum(busy) > 0:
+                rate = float(np.nansum(np.diff(curve["steps"], prepend=0.0)) / np.nansum(busy))
+                learn = float(np.nanmean(curve["learn_s"]))
+                print(f"  PPO samples then learns: {rate:,.0f} env steps/s while sampling, "
+                      f"{np.nanmean(busy):.2f} s sampling and {learn:.2f} s learning an iteration")  # fmt: skip
+            g = float(np.mean(greedy))
             print(f"  learning: episode mean R1 {first:.2f} (first 10 iterations) -> {last:.2f} (last 10); "
-                  f"greedy settled R1 {np.mean(greedy):.2f} vs random final R1 {rand_final:.2f} "
-                  f"({100 * np.mean(greedy) / optimum.R1:.2f} % vs {100 * rand_final / optimum.R1:.2f} % of optimum)")  # fmt: skip
-            gib = mem.peak / 2**30
-            print(f"  peak memory (driver + Ray processes, summed RSS): {gib:.2f} GiB "
-                  f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the {TARGET_PEAK_GIB:g} GiB target)")  # fmt: skip
+                  f"greedy settled R1 {g:.2f} vs random final R1 {rand_final:.2f} "
+                  f"({100 * g / optimum.R1:.2f} % vs {100 * rand_final / optimum.R1:.2f} % of optimum)")  # fmt: skip
+            gib = mem.peak_pss / 2**30
+            print(f"  peak memory (driver + every Ray process, summed PSS): {gib:.2f} GiB "
+                  f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the {TARGET_PEAK_GIB:g} GiB target; "
+                  f"summed RSS, shared libraries counted per process: {mem.peak_rss / 2**30:.2f} GiB)")  # fmt: skip
 
 
 def summary_curve(run_dir: Path) -> dict[str, np.ndarray]:
@@ -187,6 +205,16 @@ def summary_curve(run_dir: Path) -> dict[str, np.ndarray]:
         "wall": np.array([r["time_total_s"] for r in rows], dtype=float),
         "best_R1": np.array([o.get("best_R1_max", np.nan) for o in ours], dtype=float),
         "R1_mean": np.array([o.get("R1_mean", np.nan) for o in ours], dtype=float),
+        "sampling_s": np.array([r.get("timers", {}).get("env_runner_sampling_timer", np.nan) for r in rows]),
+        "learn_s": np.array([r.get("timers", {}).get("learner_update_timer", np.nan) for r in rows]),
+        "runner_rate": np.array(
+            [
+                r["env_runners"]
+                .get("num_env_steps_sampled_lifetime_throughput", {})
+                .get("throughput_since_last_restore", np.nan)
+                for r in rows
+            ]
+        ),
     }
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from smorphi_rl.env import EnvConfig
-from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
 
 
@@ -29,8 +29,7 @@ def main() -> None:
     parser.add_argument("--w2", type=float, default=defaults.w2)
     args = parser.parse_args()
     grid_map = load_map(args.map)
-    g = np.arange(0.0, 180.0 + 1e-9, args.step)
-    thetas = np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
+    thetas = lattice_thetas(args.step)
     evaluator = Evaluator(grid_map)
     t0 = time.perf_counter()
     batch = evaluator.evaluate_many(thetas)

@@ -302,10 +302,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         from smorphi_rl.geometry import Morphology
         from smorphi_rl.plots import plot_coverage
 
-        settled = rollouts[0].settled
-        morphology = Morphology.of(settled["theta"])
-        result = env._evaluator().plan(morphology)
-        path = plot_coverage(result, env._maps[env._map_index], morphology, env.config.block_side_m, args.plot)
+        theta = rollouts[0].settled["theta"]
+        env.reset(seed=args.seed)  # back to the first episode's map
+        path = plot_coverage(env.plan(theta), env.grid_map, Morphology.of(theta), env.config.block_side_m, args.plot)
         print(f"plot        {path}")
     return 0
 

@@ -40,6 +40,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from smorphi_rl.coverage import CoverageResult
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
@@ -201,6 +202,15 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def theta(self) -> tuple[float, float, float]:
         step = self.config.angle_step_deg
         return (float(self._idx[0] * step), float(self._idx[1] * step), float(self._idx[2] * step))
+
+    @property
+    def grid_map(self) -> Map:
+        """The current episode's map."""
+        return self._maps[self._map_index]
+
+    def plan(self, theta: tuple[float, float, float]) -> CoverageResult:
+        """The full FBCPP plan (path and covered cells) of `theta` on the current map, for figures."""
+        return self._evaluator().plan(Morphology.of(theta))
 
     def score(self, theta: tuple[float, float, float]) -> dict[str, Any]:
         """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from smorphi_rl.errors import MorphologyError, SmorphiError
-from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.evaluate import Evaluator, best_on_lattice, lattice_thetas
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 
@@ -94,3 +94,19 @@ def test_other_block_sides_and_resolutions_agree_with_reference():
             got = ev.evaluate(Morphology.of(theta))
             ref = evaluate_reference(grid_map, tuple(theta), side)
             assert (got.P_c, got.P_len, got.footprint_cells) == (ref["P_c"], ref["P_len"], ref["footprint_cells"])
+
+
+def test_lattice_covers_every_triple_once():
+    thetas = lattice_thetas(90.0)
+    assert thetas.shape == (27, 3)
+    assert len({tuple(t) for t in thetas}) == 27 and thetas.min() == 0 and thetas.max() == 180
+
+
+def test_best_on_lattice_is_the_brute_force_argmax(room12):
+    evaluator = Evaluator(room12)
+    best = best_on_lattice(evaluator, w1=1.0, w2=0.5, step_deg=30.0)
+    scores = [
+        (r.P_c - 0.5 * r.P_len, r.theta) for r in (evaluator.evaluate(Morphology.of(t)) for t in lattice_thetas(30.0))
+    ]
+    assert abs(best.R1 - max(s for s, _ in scores)) < 1e-9 and best.evaluated == 7**3
+    assert best.theta == tuple(float(v) for v in max(scores, key=lambda s: s[0])[1])

@@ -47,9 +47,11 @@ def load_module(checkpoint: Path) -> Any:
     from ray.rllib.core.rl_module.rl_module import RLModule
 
     from smorphi_rl.training.module import MorphologyModule
+    from smorphi_rl.training.quiet import quiet
 
+    quiet()
     try:
-        module = RLModule.from_checkpoint(str(checkpoint / MODULE_SUBDIR))
+        module = RLModule.from_checkpoint(str((checkpoint / MODULE_SUBDIR).resolve()))
     except Exception as exc:  # a damaged or foreign checkpoint: say which, in one line
         raise CheckpointError(f"{checkpoint}: cannot load the policy ({type(exc).__name__}: {exc})") from None
     if not isinstance(module, MorphologyModule):

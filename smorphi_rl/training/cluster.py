@@ -44,12 +44,6 @@ def check_reachable(address: str | None) -> None:
         raise ClusterError(f"cannot reach a Ray cluster at {address} ({reason})") from None
 
 
-def quiet_worker() -> None:
-    """worker_process_setup_hook: keep RLlib's deprecation chatter out of the workers' logs."""
-    for name in ("ray._common.deprecation", "ray.rllib.algorithms.algorithm_config", "ray.rllib"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-
-
 @contextmanager
 def ray_session(address: str | None) -> Iterator[None]:
     """A local Ray started for this run (address None), or a connection to an existing cluster."""
@@ -63,7 +57,7 @@ def ray_session(address: str | None) -> Iterator[None]:
         "include_dashboard": False,
         "log_to_driver": False,
         "logging_level": logging.ERROR,
-        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.training.cluster.quiet_worker"},
+        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.training.quiet.quiet"},
     }
     if address is None:
         kwargs["num_cpus"] = max(MIN_LOCAL_CPUS, os.cpu_count() or 1)

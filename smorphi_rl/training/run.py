@@ -7,9 +7,7 @@ Everything lands under `logs/<run>/`: the resolved configuration, Tune's trial d
 from __future__ import annotations
 
 import json
-import logging
 import math
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -25,6 +23,7 @@ from smorphi_rl.training import cluster
 from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
 from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import TrainConfig, algorithm_config, default_run_name, register_env
+from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import Found, TopMorphologies, write_tables
 
 STEPS_KEY = "num_env_steps_sampled_lifetime"
@@ -173,12 +172,6 @@ def _tune_callback(progress: _Progress) -> Any:
     return _Callback()
 
 
-def _quiet_logs() -> None:
-    """Silence RLlib's deprecation chatter and Tune's own progress table (we print our own line)."""
-    for name in ("ray", "ray.rllib", "ray.tune", "ray._common.deprecation", "ray.rllib.algorithms.algorithm_config"):
-        logging.getLogger(name).setLevel(logging.ERROR)
-
-
 def write_outputs(
     run_dir: Path, cfg: TrainConfig, progress: _Progress
 ) -> tuple[dict[str, Path], dict[str, LatticeBest]]:
@@ -226,7 +219,7 @@ def train(
     run_dir = prepare_run_dir(log_dir, name)
     cluster.check_reachable(address)
     (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address}, indent=2))
-    _quiet_logs()
+    quiet()
     with cluster.ray_session(address):
         from ray import tune
 
@@ -313,7 +306,3 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
     lines.append(f"logs: {rel(s.run_dir)}")
     lines.append(f"tensorboard --logdir {rel(s.run_dir)}")
     return "\n".join(lines)
-
-
-def local_cpus() -> int:
-    return os.cpu_count() or 1

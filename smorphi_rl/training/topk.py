@@ -1,17 +1,20 @@
 """The distinct morphologies training found, best first (the paper's Tables 2-3). No Ray here.
 
-Each finished episode reports its best shape; the table keeps every distinct shape per map with
-the env step at which it was first found.
+Each finished episode reports its best shape. Shapes with the same P_c and P_len on a map (in
+practice: the same footprint F, so the same coverage plan) count as one morphology; the table
+keeps the first found and how many distinct angle triples reached it.
 """
 
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-CSV_FIELDS = ("rank", "algorithm", "map", "theta1", "theta2", "theta3", "P_c", "P_len", "R1", "first_seen_env_steps")
+CSV_FIELDS = (
+    "rank", "algorithm", "map", "theta1", "theta2", "theta3", "P_c", "P_len", "R1", "first_seen_env_steps", "variants",
+)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -25,6 +28,8 @@ class Found:
     P_len: int
     R1: float
     env_steps: int
+    variants: int = 1
+    """Distinct angle triples seen with these same metrics."""
 
     @property
     def angles(self) -> str:
@@ -35,7 +40,8 @@ class TopMorphologies:
     """Accumulates episode bests; `top(k)` gives the best distinct ones by R1 (ties: higher P_c)."""
 
     def __init__(self) -> None:
-        self._found: dict[tuple[str, str, tuple[float, float, float]], Found] = {}
+        self._found: dict[tuple[str, str, float, int], Found] = {}
+        self._thetas: dict[tuple[str, str, float, int], set[tuple[float, float, float]]] = {}
 
     def __len__(self) -> int:
         return len(self._found)
@@ -44,9 +50,12 @@ class TopMorphologies:
         """Rows as the callbacks send them: [map, t1, t2, t3, P_c, P_len, R1]."""
         for map_name, t1, t2, t3, p_c, p_len, r1 in rows:
             theta = (float(t1), float(t2), float(t3))
-            key = (algorithm, str(map_name), theta)
+            key = (algorithm, str(map_name), round(float(p_c), 9), int(p_len))
+            seen = self._thetas.setdefault(key, set())
+            seen.add(theta)
             if key not in self._found:
                 self._found[key] = Found(algorithm, str(map_name), theta, float(p_c), int(p_len), float(r1), env_steps)
+            self._found[key] = replace(self._found[key], variants=len(seen))
 
     def top(self, k: int, map_name: str | None = None) -> list[Found]:
         found = [f for f in self._found.values() if map_name is None or f.map == map_name]
@@ -68,13 +77,13 @@ def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
         writer.writerow(CSV_FIELDS)
         for rank, f in enumerate(rows, 1):
             writer.writerow([rank, f.algorithm, f.map, *(f"{t:g}" for t in f.theta), f"{f.P_c:.4f}", f.P_len,
-                             f"{f.R1:.4f}", f.env_steps])  # fmt: skip
+                             f"{f.R1:.4f}", f.env_steps, f.variants])  # fmt: skip
     lines = [
         "| # | Algorithm | Map | Hinge angles (θ1, θ2, θ3) (deg) | Area covered P_c (%) | Path length P_len | R1 "
-        "| First found (env steps) |",
-        "|---:|---|---|---|---:|---:|---:|---:|",
+        "| First found (env steps) | Angle triples with these metrics |",
+        "|---:|---|---|---|---:|---:|---:|---:|---:|",
     ]
     for rank, f in enumerate(rows, 1):
         lines.append(f"| {rank} | {f.algorithm.upper()} | {f.map} | {f.angles} | {f.P_c:.2f} | {f.P_len} "
-                     f"| {f.R1:.2f} | {f.env_steps:,} |")  # fmt: skip
+                     f"| {f.R1:.2f} | {f.env_steps:,} | {f.variants} |")  # fmt: skip
     md_path.write_text("\n".join(lines) + "\n")

@@ -11,9 +11,10 @@ def test_distinct_shapes_ranked_by_r1_and_first_sighting_kept():
     top = TopMorphologies()
     top.add_episode_bests("ppo", [["m", 1, 2, 3, 90.0, 50, 85.0], ["m", 4, 5, 6, 95.0, 60, 89.0]], env_steps=1000)
     top.add_episode_bests("ppo", [["m", 1, 2, 3, 90.0, 50, 85.0], ["m", 7, 8, 9, 96.0, 60, 90.0]], env_steps=2000)
+    top.add_episode_bests("ppo", [["m", 1, 2, 4, 90.0, 50, 85.0]], env_steps=3000)  # same metrics: same morphology
     ranked = top.top(5)
     assert [f.theta for f in ranked] == [(7.0, 8.0, 9.0), (4.0, 5.0, 6.0), (1.0, 2.0, 3.0)]
-    assert ranked[2].env_steps == 1000  # first seen, not last
+    assert ranked[2].env_steps == 1000 and ranked[2].variants == 2  # first seen kept; two triples reached it
     assert top.first_reaching(89.0).theta == (4.0, 5.0, 6.0)
     assert top.first_reaching(99.0) is None
     assert len(top.top(2)) == 2
@@ -33,4 +34,4 @@ def test_tables_round_trip(tmp_path):
     rows = list(csv.DictReader((tmp_path / "t.csv").open()))
     assert tuple(rows[0]) == CSV_FIELDS and rows[0]["theta1"] == "95" and rows[0]["P_len"] == "99"
     md = (tmp_path / "t.md").read_text()
-    assert "| 1 | IMPALA | m | (95, 59, 103) | 98.50 | 99 | 88.60 | 3,000 |" in md
+    assert "| 1 | IMPALA | m | (95, 59, 103) | 98.50 | 99 | 88.60 | 3,000 | 1 |" in md

@@ -152,10 +152,12 @@ def test_evaluate_policy_refuses_a_map_of_another_observation_size(ppo_run, tmp_
 
 
 @pytest.mark.parametrize("algo", ["impala", "appo"])
-def test_async_learners_run_two_iterations(algo, tmp_path):
-    cfg = TrainConfig(algo=algo, timesteps=1_000_000, max_iterations=2, checkpoint_every=1)
+def test_async_learners_train_and_report(algo, tmp_path):
+    # Asynchronous: the first iteration or two report no samples while the runners start, so run
+    # to a step budget (at least 2 iterations) rather than a fixed number of iterations.
+    cfg = TrainConfig(algo=algo, timesteps=1000, checkpoint_every=1)
     summary = train(cfg, name=algo, log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
-    assert summary.iterations == 2 and not summary.interrupted and summary.env_steps > 0
+    assert summary.iterations >= 2 and not summary.interrupted and summary.env_steps >= 1000
     assert summary.best is not None and summary.checkpoint is not None
     result = last_result(summary.run_dir)
     assert math.isfinite(result["env_runners"]["smorphi"]["best_R1"])
