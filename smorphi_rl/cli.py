@@ -10,8 +10,9 @@ import csv
 import json
 import math
 import sys
+import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import NoReturn
 
@@ -309,6 +310,88 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     return 0
 
 
+def _progress_line(label: str) -> Callable[[int, int], None]:
+    """A progress bar on stderr: rewritten in place on a terminal, every 10 % otherwise."""
+    tty = sys.stderr.isatty()
+    t0 = time.monotonic()
+    shown = [-1]
+
+    def show(done: int, total: int) -> None:
+        frac = done / total
+        tenth = int(10 * frac)
+        if not tty and tenth == shown[0] and done < total:
+            return
+        shown[0] = tenth
+        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+        line = f"{label} [{bar}] {done:,}/{total:,} {time.monotonic() - t0:5.1f} s"
+        sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
+        sys.stderr.flush()
+
+    return show
+
+
+def cmd_search(args: argparse.Namespace) -> int:
+    """Random shapes, NSGA-II or the exhaustive lattice on a map; results, front and plot under logs/<run>/."""
+    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.search.results import save
+
+    weights = EnvConfig()
+    load_map(args.map)  # a bad map fails here, before anything is written
+    if args.method == "exhaustive":
+        from smorphi_rl.search.exhaustive import check_step, run_exhaustive
+
+        check_step(args.step)
+        name = args.name or f"exhaustive-{Path(str(args.map)).stem}-step{args.step:g}"
+        run_dir = prepare_run_dir(args.log_dir, name)
+        result = run_exhaustive(str(args.map), args.step, progress=_progress_line("exhaustive"))
+    elif args.method == "random":
+        from smorphi_rl.search.random import run_random
+
+        if args.samples < 1:
+            raise SmorphiError(f"--samples must be >= 1, got {args.samples}")
+        run_dir = prepare_run_dir(args.log_dir, args.name or f"random-{Path(str(args.map)).stem}-seed{args.seed}")
+        result = run_random(str(args.map), args.samples, args.seed)
+    else:
+        from smorphi_rl.search.nsga2 import run_nsga2
+
+        if args.pop < 2 or args.generations < 1:
+            raise SmorphiError(f"--pop must be >= 2 and --generations >= 1, got {args.pop} and {args.generations}")
+        run_dir = prepare_run_dir(args.log_dir, args.name or f"nsga2-{Path(str(args.map)).stem}-seed{args.seed}")
+        result = run_nsga2(str(args.map), args.pop, args.generations, args.seed)
+    files = save(result, run_dir, weights.w1, weights.w2)
+    front_rows = result.front_records(weights.w1, weights.w2)
+    from smorphi_rl.plots import plot_pareto
+
+    ok = np.flatnonzero(result.feasible)
+    b = result.best(weights.w1, weights.w2)
+    files["plot"] = plot_pareto(
+        {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
+        run_dir / "pareto.png",
+        f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
+        best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
+    )
+    if args.json:
+        for row in front_rows:
+            print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
+        return 0
+    extra = result.params.get("distinct_footprints")
+    footprints = f", {extra:,} distinct footprints" if extra is not None else ""
+    print(f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
+          f"{result.wall_s:.1f} s ({len(ok):,} feasible)")  # fmt: skip
+    print(f"Pareto front ({len(front_rows)} points, max P_c / min P_len):")
+    for row in front_rows:
+        print(
+            f"  {_theta_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
+        )
+    r1_best = weights.w1 * result.P_c[b] - weights.w2 * result.P_len[b]
+    print(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:g}): {_theta_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
+          f"P_len {result.P_len[b]}, R1 {r1_best:.2f}")  # fmt: skip
+    for key in ("results", "front", "summary", "plot"):
+        print(f"{key + ':':<9} {files[key]}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="Find the best Smorphi morphology for a floor map.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -364,6 +447,27 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
+
+    se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")
+    se_sub = se.add_subparsers(dest="method", required=True, parser_class=_Parser)
+    for method, text in (("random", "uniformly random integer shapes (paper Table 4)"),
+                         ("nsga2", "NSGA-II over integer angles (paper Table 6, Figure 7)"),
+                         ("exhaustive", "every triple on the lattice: the exact front and best R1")):  # fmt: skip
+        m = se_sub.add_parser(method, help=text)
+        m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
+        m.add_argument("--name", help="run name: results go to LOG_DIR/NAME")
+        m.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
+        m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
+        if method == "random":
+            m.add_argument("--samples", type=int, default=1000, help="shapes to draw")
+        if method == "nsga2":
+            m.add_argument("--pop", type=int, default=40, help="population size")
+            m.add_argument("--generations", type=int, default=50)
+        if method in ("random", "nsga2"):
+            m.add_argument("--seed", type=int, default=0)
+        if method == "exhaustive":
+            m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
+        m.set_defaults(func=cmd_search)
     return parser
 
 

@@ -128,6 +128,10 @@ class Evaluator:
     def cache_size(self) -> int:
         return len(self._cache)
 
+    def cached_footprints(self) -> list[bytes]:
+        """The bits of every distinct feasible F planned so far (the cache keys)."""
+        return list(self._cache)
+
     def footprint(self, morphology: Morphology) -> Footprint:
         """F and the footprint size of one morphology (compiled rasteriser)."""
         feasible, l, w, w_m, l_m = self._rasterise(morphology)

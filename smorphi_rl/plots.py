@@ -172,3 +172,28 @@ def _save(fig: plt.Figure, out: str | Path) -> Path:
     fig.savefig(path, dpi=120)
     plt.close(fig)
     return path
+
+
+def plot_pareto(
+    methods: dict[str, tuple[np.ndarray, np.ndarray]],
+    out: str | Path,
+    title: str,
+    front: tuple[np.ndarray, np.ndarray] | None = None,
+    best: dict[str, tuple[float, float]] | None = None,
+) -> Path:
+    """P_c against P_len (paper Figure 7): each method's non-dominated points, the exact front as a
+    step line, and each method's best-R1 shape as a star."""
+    fig, ax = plt.subplots(figsize=(7.5, 5.2))
+    if front is not None:
+        ax.step(front[0], front[1], where="post", color="black", lw=1.2, label="exact front", zorder=1)
+    for n, (label, (p_len, p_c)) in enumerate(methods.items()):
+        colour = f"C{n}"
+        ax.scatter(p_len, p_c, s=22, color=colour, alpha=0.85, label=label, zorder=2)
+        if best and label in best:
+            ax.scatter(*best[label], s=160, marker="*", color=colour, edgecolor="black", zorder=3)
+    ax.set_xlabel("P_len (tile moves)")
+    ax.set_ylabel("P_c (%)")
+    ax.set_title(title, fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower right")
+    return _save(fig, out)

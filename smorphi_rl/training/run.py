@@ -19,6 +19,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator, LatticeBest, best_on_lattice
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
+from smorphi_rl.rundir import prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
 from smorphi_rl.training.checkpoints import checkpoints_under
@@ -81,22 +82,6 @@ class RunSummary:
             "checkpoint": None if self.checkpoint is None else str(self.checkpoint),
             "files": {k: str(v) for k, v in self.files.items()},
         }
-
-
-def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
-    """logs/<run>/, created and proven writable before Ray starts; an existing run is never overwritten."""
-    root = Path(log_dir).resolve()
-    run_dir = root / name
-    if run_dir.exists() and any(run_dir.iterdir()):
-        raise TrainingError(f"run directory {run_dir} already exists: choose another --name")
-    try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
-    except OSError as exc:
-        raise TrainingError(f"log directory {root} is not writable ({exc.strerror or exc})") from None
-    return run_dir
 
 
 def _fmt_duration(seconds: float) -> str:

@@ -1,0 +1,1 @@
+"""Baselines and ground truth beside the env: random shapes, NSGA-II, the exhaustive design space."""

@@ -1,0 +1,26 @@
+"""Pareto fronts of (maximise P_c, minimise P_len), shared by every search method and the comparison."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def pareto_front(p_c: np.ndarray, p_len: np.ndarray) -> np.ndarray:
+    """Indices of the non-dominated points, sorted by P_len (then P_c descending); one index per
+    distinct (P_c, P_len) point. A point is dominated when another has P_c >= and P_len <= with
+    at least one strict."""
+    p_c = np.asarray(p_c, dtype=np.float64)
+    p_len = np.asarray(p_len, dtype=np.float64)
+    order = np.lexsort((-p_c, p_len))
+    front: list[int] = []
+    best = -np.inf
+    for i in order:
+        if p_c[i] > best:
+            front.append(int(i))
+            best = p_c[i]
+    return np.asarray(front, dtype=np.int64)
+
+
+def r1(p_c: np.ndarray, p_len: np.ndarray, w1: float, w2: float) -> np.ndarray:
+    """The env's R1 = w1 P_c - w2 P_len for arrays of results."""
+    return w1 * np.asarray(p_c, dtype=np.float64) - w2 * np.asarray(p_len, dtype=np.float64)

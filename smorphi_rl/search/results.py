@@ -1,0 +1,99 @@
+"""What every search method produces, and how it is written to and read back from its run directory."""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.search.pareto import pareto_front, r1
+
+RESULTS_FILE = "results.npz"
+
+
+@dataclass(frozen=True)
+class SearchResult:
+    """Every shape a method evaluated (in its order) with its FBCPP metrics."""
+
+    method: str
+    map_name: str
+    thetas: np.ndarray
+    P_c: np.ndarray
+    P_len: np.ndarray
+    feasible: np.ndarray
+    evaluations: int
+    """FBCPP evaluations the method asked for (repeats included)."""
+    wall_s: float
+    params: dict[str, Any] = field(default_factory=dict)
+
+    def front(self) -> np.ndarray:
+        """Indices of the non-dominated shapes (max P_c, min P_len), sorted by P_len."""
+        ok = np.flatnonzero(self.feasible)
+        return ok[pareto_front(self.P_c[ok], self.P_len[ok])]
+
+    def best(self, w1: float, w2: float) -> int:
+        """Index of the best R1 (the first among ties)."""
+        scores = np.where(self.feasible, r1(self.P_c, self.P_len, w1, w2), -np.inf)
+        return int(np.argmax(scores))
+
+    def front_records(self, w1: float, w2: float) -> list[dict[str, Any]]:
+        """The front as JSON-ready rows: theta, P_c, P_len, R1."""
+        return [
+            {
+                "theta": [float(t) for t in self.thetas[i]],
+                "P_c": float(self.P_c[i]),
+                "P_len": int(self.P_len[i]),
+                "R1": float(r1(self.P_c[i], self.P_len[i], w1, w2)),
+            }
+            for i in self.front()
+        ]
+
+
+def save(result: SearchResult, run_dir: Path, w1: float, w2: float) -> dict[str, Path]:
+    """results.npz (every evaluation, compressed), front.csv and summary.json; returns the paths."""
+    files = {"results": run_dir / RESULTS_FILE, "front": run_dir / "front.csv", "summary": run_dir / "summary.json"}
+    np.savez_compressed(
+        files["results"], thetas=result.thetas.astype(np.float32), P_c=result.P_c, P_len=result.P_len.astype(np.int32),
+        feasible=result.feasible,
+    )  # fmt: skip
+    front = result.front_records(w1, w2)
+    with files["front"].open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["theta1", "theta2", "theta3", "P_c", "P_len", "R1"])
+        for row in front:
+            writer.writerow([*(f"{t:g}" for t in row["theta"]), f"{row['P_c']:.4f}", row["P_len"], f"{row['R1']:.4f}"])
+    b = result.best(w1, w2)
+    summary = {
+        "method": result.method,
+        "map": result.map_name,
+        "params": result.params,
+        "evaluations": result.evaluations,
+        "distinct_shapes": len(result.thetas),
+        "wall_s": round(result.wall_s, 3),
+        "weights": {"w1": w1, "w2": w2},
+        "best": {"theta": [float(t) for t in result.thetas[b]], "P_c": float(result.P_c[b]),
+                 "P_len": int(result.P_len[b]), "R1": float(r1(result.P_c[b], result.P_len[b], w1, w2))},
+        "front_size": len(front),
+    }  # fmt: skip
+    files["summary"].write_text(json.dumps(summary, indent=2))
+    return files
+
+
+def load(run_dir: str | Path) -> SearchResult:
+    """A search run written by `save` (for `compare`)."""
+    root = Path(run_dir)
+    try:
+        summary = json.loads((root / "summary.json").read_text())
+        with np.load(root / RESULTS_FILE) as data:
+            arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
+    except (OSError, ValueError, KeyError) as exc:
+        raise SmorphiError(f"{root}: holds no search results ({exc})") from None
+    return SearchResult(
+        summary["method"], summary["map"], arrays["thetas"].astype(np.float64), arrays["P_c"], arrays["P_len"],
+        arrays["feasible"], int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),
+    )  # fmt: skip

@@ -1,0 +1,103 @@
+"""Search baselines and ground truth: exhaustive equals brute force, fronts are non-dominated, seeds repeat."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.cli import main
+from smorphi_rl.evaluate import Evaluator, lattice_thetas
+from smorphi_rl.maps import load_map
+from smorphi_rl.search.exhaustive import run_exhaustive
+from smorphi_rl.search.nsga2 import run_nsga2
+from smorphi_rl.search.pareto import pareto_front
+from smorphi_rl.search.random import run_random
+from smorphi_rl.search.results import load, save
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+def dominated(p_c: np.ndarray, p_len: np.ndarray, i: int) -> bool:
+    return bool(np.any((p_c >= p_c[i]) & (p_len <= p_len[i]) & ((p_c > p_c[i]) | (p_len < p_len[i]))))
+
+
+def test_pareto_front_is_exactly_the_non_dominated_set():
+    rng = np.random.default_rng(3)
+    p_c = rng.integers(80, 100, 300).astype(float)
+    p_len = rng.integers(50, 200, 300)
+    front = pareto_front(p_c, p_len)
+    assert all(not dominated(p_c, p_len, i) for i in front)
+    others = set(range(300)) - set(front.tolist())
+    on_front = {(p_c[i], p_len[i]) for i in front}
+    assert all(dominated(p_c, p_len, i) or (p_c[i], p_len[i]) in on_front for i in others)
+    assert np.all(np.diff(p_len[front]) > 0) and np.all(np.diff(p_c[front]) > 0)
+
+
+def test_exhaustive_equals_brute_force_on_a_coarse_lattice():
+    result = run_exhaustive(MAP_1, step_deg=15.0, workers=2)
+    thetas = lattice_thetas(15.0)
+    evaluator = Evaluator(load_map(MAP_1))
+    batch = evaluator.evaluate_many(thetas)
+    assert np.array_equal(result.thetas, thetas) and result.evaluations == 13**3
+    assert np.array_equal(result.P_c, batch.P_c) and np.array_equal(result.P_len, batch.P_len)
+    assert result.params["distinct_footprints"] == evaluator.cache_size()
+
+
+def test_front_is_non_dominated_and_holds_the_best_r1():
+    result = run_exhaustive(MAP_1, step_deg=6.0, workers=2)
+    front = result.front()
+    assert all(not dominated(result.P_c, result.P_len, i) for i in front)
+    best = result.best(1.0, 0.1)
+    assert (result.P_c[best], result.P_len[best]) in {(result.P_c[i], result.P_len[i]) for i in front}
+
+
+def test_nsga2_and_random_are_seeded():
+    a, b = run_nsga2(MAP_1, pop=12, generations=4, seed=5), run_nsga2(MAP_1, pop=12, generations=4, seed=5)
+    assert np.array_equal(a.thetas, b.thetas) and np.array_equal(a.P_c, b.P_c) and a.evaluations == len(a.thetas)
+    assert not np.array_equal(a.thetas, run_nsga2(MAP_1, pop=12, generations=4, seed=6).thetas)
+    assert np.all(a.thetas == np.rint(a.thetas)) and a.thetas.min() >= 0 and a.thetas.max() <= 180
+    r = run_random(MAP_1, samples=50, seed=1)
+    assert np.array_equal(r.thetas, run_random(MAP_1, samples=50, seed=1).thetas) and r.evaluations == 50
+
+
+def test_results_round_trip(tmp_path):
+    result = run_random(MAP_1, samples=30, seed=2)
+    save(result, tmp_path, 1.0, 0.1)
+    back = load(tmp_path)
+    assert back.method == "random" and np.array_equal(back.P_len, result.P_len)
+    assert np.array_equal(back.thetas, result.thetas) and np.array_equal(back.P_c, result.P_c)
+
+
+def test_exhaustive_command_prints_the_front_as_json(capsys, tmp_path):
+    code = main(["search", "exhaustive", "--map", MAP_1, "--step", "10", "--json", "--log-dir", str(tmp_path)])
+    out = capsys.readouterr().out
+    rows = [json.loads(line) for line in out.splitlines()]
+    assert code == 0 and rows and set(rows[0]) == {"theta", "P_c", "P_len"}
+    assert [r["P_len"] for r in rows] == sorted(r["P_len"] for r in rows)
+    run = tmp_path / "exhaustive-map-1-step10"
+    assert {p.name for p in run.iterdir()} >= {"results.npz", "front.csv", "summary.json", "pareto.png"}
+
+
+@pytest.mark.parametrize(
+    ("argv", "code", "message"),
+    [
+        (["search", "exhaustive", "--step", "7"], 1, "--step 7 does not divide 180"),
+        (["search", "exhaustive", "--step", "0"], 1, "--step must be in (0, 180]"),
+        (["search", "random", "--samples", "0"], 1, "--samples must be >= 1, got 0"),
+        (["search", "nsga2", "--pop", "1"], 1, "--pop must be >= 2"),
+        (["search", "annealing"], 2, "invalid choice: 'annealing'"),
+        (["search", "random", "--map", "/no/map.yaml"], 1, "map file not found"),
+    ],
+)
+def test_search_rejects_bad_input(capsys, tmp_path, argv, code, message):
+    try:
+        got = main([*argv, "--log-dir", str(tmp_path)] if argv[1] != "annealing" else argv)
+    except SystemExit as exc:
+        got = int(exc.code or 0)
+    err = capsys.readouterr().err
+    assert got == code and message in err and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())
