@@ -392,6 +392,33 @@ def cmd_search(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
+    from smorphi_rl.compare import points_of_run, score_methods, write_report
+    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.search.exhaustive import run_exhaustive
+    from smorphi_rl.search.results import load
+
+    dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or [])]]
+    if not dirs:
+        raise SmorphiError("give at least one run to compare: --runs, --nsga2 or --random")
+    grid_map = load_map(args.map)
+    runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
+    exact = load(args.exhaustive) if args.exhaustive else None
+    if exact is not None and exact.map_name != grid_map.name:
+        raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
+    weights = EnvConfig()
+    run_dir = prepare_run_dir(args.log_dir, args.name or f"compare-{grid_map.name}")
+    if exact is None:
+        exact = run_exhaustive(str(args.map), args.step, progress=_progress_line("exact front"))
+    exact_score, methods = score_methods(exact, runs, weights.w1, weights.w2)
+    files = write_report(exact_score, methods, grid_map.name, weights.w1, weights.w2, run_dir)
+    print(files["report"].read_text().split("\n\n![")[0])
+    print(f"\nreport: {files['report']}\nplot:   {files['plot']}")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="Find the best Smorphi morphology for a floor map.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -468,6 +495,17 @@ def build_parser() -> argparse.ArgumentParser:
         if method == "exhaustive":
             m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
         m.set_defaults(func=cmd_search)
+
+    co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
+    co.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
+    co.add_argument("--runs", nargs="+", help="training run directories (logs/<run>)")
+    co.add_argument("--nsga2", nargs="+", help="`search nsga2` run directories")
+    co.add_argument("--random", nargs="+", help="`search random` run directories")
+    co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
+    co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
+    co.add_argument("--name", help="run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
+    co.add_argument("--log-dir", default="logs")
+    co.set_defaults(func=cmd_compare)
     return parser
 
 

@@ -25,7 +25,7 @@ from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
 from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import TrainConfig, algorithm_config, default_run_name, register_env
 from smorphi_rl.training.quiet import quiet
-from smorphi_rl.training.topk import Found, TopMorphologies, write_tables
+from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, write_csv, write_tables
 
 STEPS_KEY = "num_env_steps_sampled_lifetime"
 TOP_PLOT = 4
@@ -169,6 +169,8 @@ def write_outputs(
     if rows:
         files["top_csv"], files["top_md"] = run_dir / "top_morphologies.csv", run_dir / "top_morphologies.md"
         write_tables(rows, files["top_csv"], files["top_md"])
+        files["found_csv"] = run_dir / FOUND_CSV  # every distinct morphology found, for `compare`
+        write_csv(progress.top.top(len(progress.top)), files["found_csv"])
     for path in cfg.env.maps:
         grid_map = load_map(path)
         evaluator = Evaluator(grid_map, cfg.env.block_side_m)

@@ -12,6 +12,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+FOUND_CSV = "morphologies.csv"
+"""Every distinct morphology a training run found, best first (next to the top-k tables)."""
 CSV_FIELDS = (
     "rank", "algorithm", "map", "theta1", "theta2", "theta3", "P_c", "P_len", "R1", "first_seen_env_steps", "variants",
 )  # fmt: skip
@@ -72,12 +74,7 @@ class TopMorphologies:
 
 def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
     """CSV for tools and Markdown for people, both ranked best first."""
-    with csv_path.open("w", newline="") as fh:
-        writer = csv.writer(fh)
-        writer.writerow(CSV_FIELDS)
-        for rank, f in enumerate(rows, 1):
-            writer.writerow([rank, f.algorithm, f.map, *(f"{t:g}" for t in f.theta), f"{f.P_c:.4f}", f.P_len,
-                             f"{f.R1:.4f}", f.env_steps, f.variants])  # fmt: skip
+    write_csv(rows, csv_path)
     lines = [
         "| # | Algorithm | Map | Hinge angles (θ1, θ2, θ3) (deg) | Area covered P_c (%) | Path length P_len | R1 "
         "| First found (env steps) | Angle triples with these metrics |",
@@ -87,3 +84,31 @@ def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
         lines.append(f"| {rank} | {f.algorithm.upper()} | {f.map} | {f.angles} | {f.P_c:.2f} | {f.P_len} "
                      f"| {f.R1:.2f} | {f.env_steps:,} | {f.variants} |")  # fmt: skip
     md_path.write_text("\n".join(lines) + "\n")
+
+
+def write_csv(rows: list[Found], csv_path: Path) -> None:
+    """Ranked rows as CSV (CSV_FIELDS)."""
+    with csv_path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(CSV_FIELDS)
+        for rank, f in enumerate(rows, 1):
+            writer.writerow([rank, f.algorithm, f.map, *(f"{t:g}" for t in f.theta), f"{f.P_c:.4f}", f.P_len,
+                             f"{f.R1:.4f}", f.env_steps, f.variants])  # fmt: skip
+
+
+def read_csv(csv_path: Path) -> list[Found]:
+    """Rows written by `write_csv` (for `compare`)."""
+    with csv_path.open(newline="") as fh:
+        return [
+            Found(
+                row["algorithm"],
+                row["map"],
+                (float(row["theta1"]), float(row["theta2"]), float(row["theta3"])),
+                float(row["P_c"]),
+                int(row["P_len"]),
+                float(row["R1"]),
+                int(row["first_seen_env_steps"]),
+                int(row["variants"]),
+            )
+            for row in csv.DictReader(fh)
+        ]

@@ -73,7 +73,7 @@ def test_train_prints_where_everything_is(ppo_run):
     assert "PPO trained for 2,000 env steps" in out and "(2 iterations)" in out
     assert "best morphology: (" in out and "exact optimum on the 2-degree lattice" in out
     assert "tensorboard --logdir logs/smoke" in out
-    for name in ("config.json", "summary.json", "top_morphologies.csv", "top_morphologies.md",
+    for name in ("config.json", "summary.json", "top_morphologies.csv", "top_morphologies.md", "morphologies.csv",
                  "top_morphologies.png", "learning_curves.png"):  # fmt: skip
         assert (run_dir / name).is_file(), name
     config = json.loads((run_dir / "config.json").read_text())
@@ -138,6 +138,15 @@ def test_evaluate_policy_command(ppo_run, tmp_path):
     png = tmp_path / "settled.png"
     proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--map", MAP_1, "--plot", str(png), cwd=tmp_path)
     assert proc.returncode == 0 and "settled" in proc.stdout and png.stat().st_size > 10_000
+
+
+def test_compare_takes_a_training_run(ppo_run, tmp_path):
+    run_dir, _ = ppo_run
+    proc = cli("compare", "--map", MAP_1, "--runs", str(run_dir), "--step", "10", "--log-dir", str(tmp_path),
+               cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    report = (tmp_path / "compare-map-1" / "report.md").read_text()
+    assert "| PPO (smoke) | 2,000 env steps |" in report
 
 
 def test_evaluate_policy_refuses_a_map_of_another_observation_size(ppo_run, tmp_path):

@@ -1,0 +1,138 @@
+"""`smorphi-rl compare`: every method against the exact Pareto front of the design space.
+
+For each method: its best R1 and the gap to the exact optimum, the hypervolume of its
+non-dominated set as a fraction of the exact front's, and the budget it used (FBCPP
+evaluations or env steps). The hypervolume is measured in (P_len, P_c) against the nadir of the
+whole lattice: the longest path and the lowest coverage of any feasible shape on it, so every
+method's set is measured against the same point and the exact front scores 1.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.search.pareto import pareto_front, r1
+from smorphi_rl.search.results import SearchResult, load
+from smorphi_rl.training.topk import FOUND_CSV, read_csv
+
+
+@dataclass(frozen=True)
+class MethodScore:
+    """One method's non-dominated set and its figures against the exact optimum."""
+
+    label: str
+    budget: str
+    best_theta: tuple[float, float, float]
+    best_P_c: float
+    best_P_len: int
+    best_R1: float
+    gap_R1: float
+    hv_fraction: float
+    front_len: np.ndarray
+    front_pc: np.ndarray
+
+
+def hypervolume(p_len: np.ndarray, p_c: np.ndarray, ref_len: float, ref_pc: float) -> float:
+    """Area dominated by the points (minimise P_len, maximise P_c) up to the reference point."""
+    keep = (np.asarray(p_len) <= ref_len) & (np.asarray(p_c) >= ref_pc)
+    x, y = np.asarray(p_len, dtype=float)[keep], np.asarray(p_c, dtype=float)[keep]
+    if not x.size:
+        return 0.0
+    front = pareto_front(y, x)
+    area, prev_y = 0.0, ref_pc
+    for i in front:  # P_len and P_c both increase along the front
+        area += (ref_len - x[i]) * (y[i] - prev_y)
+        prev_y = y[i]
+    return area
+
+
+Points = tuple[str, str, np.ndarray, np.ndarray, np.ndarray]
+"""(label, budget, thetas, P_c, P_len) of one method's run."""
+
+
+def points_of_run(run_dir: Path, map_name: str) -> Points:
+    """What a training run directory or a search run directory found on `map_name`."""
+    if not run_dir.is_dir():
+        raise SmorphiError(f"run directory not found: {run_dir}")
+    if (run_dir / FOUND_CSV).is_file():
+        rows = [f for f in read_csv(run_dir / FOUND_CSV) if f.map == map_name]
+        if not rows:
+            raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
+        steps = json.loads((run_dir / "summary.json").read_text()).get("env_steps", 0)
+        thetas = np.array([f.theta for f in rows], dtype=float)
+        label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
+        return (label, f"{steps:,} env steps", thetas, np.array([f.P_c for f in rows]),
+                np.array([f.P_len for f in rows]))  # fmt: skip
+    if not (run_dir / "results.npz").is_file():
+        raise SmorphiError(
+            f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"
+        )
+    result = load(run_dir)
+    if result.map_name != map_name:
+        raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
+    ok = result.feasible
+    return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
+            result.P_c[ok], result.P_len[ok])  # fmt: skip
+
+
+def score_methods(
+    exact: SearchResult, runs: list[Points], w1: float, w2: float
+) -> tuple[MethodScore, list[MethodScore]]:
+    """The exact front's own score and every run's, all against the same optimum and reference point."""
+    ok = exact.feasible
+    ref_len, ref_pc = float(exact.P_len[ok].max()), float(exact.P_c[ok].min())
+    exact_front = exact.front()
+    hv_exact = hypervolume(exact.P_len[exact_front], exact.P_c[exact_front], ref_len, ref_pc)
+    optimum = float(r1(exact.P_c[exact.best(w1, w2)], exact.P_len[exact.best(w1, w2)], w1, w2))
+
+    def score(label: str, budget: str, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray) -> MethodScore:
+        scores = r1(p_c, p_len, w1, w2)
+        b = int(np.argmax(scores))
+        front = pareto_front(p_c, p_len)
+        hv = hypervolume(p_len[front], p_c[front], ref_len, ref_pc)
+        t1, t2, t3 = (float(t) for t in thetas[b])
+        return MethodScore(label, budget, (t1, t2, t3), float(p_c[b]), int(p_len[b]), float(scores[b]),
+                           optimum - float(scores[b]), hv / hv_exact if hv_exact else float("nan"),
+                           p_len[front].astype(float), p_c[front])  # fmt: skip
+
+    step = exact.params.get("step_deg")
+    label = f"exact ({step:g}-degree lattice)" if isinstance(step, int | float) else "exact"
+    budget = f"{exact.evaluations:,} FBCPP evaluations"
+    exact_score = score(label, budget, exact.thetas[ok], exact.P_c[ok], exact.P_len[ok])
+    return exact_score, [score(*points) for points in runs]
+
+
+def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float,
+                 run_dir: Path) -> dict[str, Path]:  # fmt: skip
+    """report.md and compare.png under `run_dir`."""
+    from smorphi_rl.plots import plot_pareto
+
+    lines = [
+        f"# Every method against the exact optimum on {map_name}",
+        "",
+        f"R1 = {w1:g} P_c - {w2:g} P_len. Hypervolume in (P_len, P_c) against the lattice nadir "
+        "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
+        "",
+        "| Method | Budget | Best shape (θ1, θ2, θ3) | P_c (%) | P_len | R1 | Gap to optimum | Hypervolume |",
+        "|---|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for m in [exact, *methods]:
+        theta = "(" + ", ".join(f"{t:g}" for t in m.best_theta) + ")"
+        lines.append(f"| {m.label} | {m.budget} | {theta} | {m.best_P_c:.2f} | {m.best_P_len} | {m.best_R1:.2f} "
+                     f"| {m.gap_R1:.2f} | {m.hv_fraction:.4f} |")  # fmt: skip
+    files = {"report": run_dir / "report.md"}
+    files["plot"] = plot_pareto(
+        {m.label: (m.front_len, m.front_pc) for m in methods},
+        run_dir / "compare.png",
+        f"Non-dominated shapes of each method on {map_name}, over the exact front",
+        front=(exact.front_len, exact.front_pc),
+        best={m.label: (float(m.best_P_len), m.best_P_c) for m in methods},
+    )
+    lines += ["", f"![Pareto plot]({files['plot'].name})", ""]
+    files["report"].write_text("\n".join(lines))
+    return files

@@ -1,0 +1,66 @@
+"""`compare`: hypervolume arithmetic, the report against the exact front, and its input errors."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.cli import main
+from smorphi_rl.compare import hypervolume
+
+ROOT = Path(__file__).resolve().parent.parent
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+MAP_2 = str(ROOT / "maps" / "map-2.yaml")
+
+
+def test_hypervolume_is_the_union_of_rectangles():
+    # Points (P_len, P_c) = (2, 5) and (4, 8) against reference (10, 0): 8*5 + 6*3 = 58.
+    assert hypervolume(np.array([2, 4]), np.array([5.0, 8.0]), 10, 0) == pytest.approx(58.0)
+    # A dominated point and one beyond the reference add nothing.
+    assert hypervolume(np.array([2, 4, 3, 12]), np.array([5.0, 8.0, 4.0, 9.0]), 10, 0) == pytest.approx(58.0)
+    assert hypervolume(np.array([11]), np.array([5.0]), 10, 0) == 0.0
+
+
+@pytest.fixture(scope="module")
+def searches(tmp_path_factory) -> Path:
+    logs = tmp_path_factory.mktemp("logs")
+    assert main(["search", "random", "--map", MAP_1, "--samples", "200", "--log-dir", str(logs)]) == 0
+    assert main(["search", "nsga2", "--map", MAP_1, "--pop", "10", "--generations", "5", "--log-dir", str(logs)]) == 0
+    assert main(["search", "exhaustive", "--map", MAP_1, "--step", "10", "--log-dir", str(logs)]) == 0
+    return logs
+
+
+def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
+    capsys.readouterr()
+    runs = ["--random", str(searches / "random-map-1-seed0"), "--nsga2", str(searches / "nsga2-map-1-seed0")]
+    code = main(["compare", "--map", MAP_1, *runs, "--step", "10", "--log-dir", str(searches)])
+    out = capsys.readouterr().out
+    assert code == 0
+    report = (searches / "compare-map-1" / "report.md").read_text()
+    rows = [line for line in report.splitlines() if line.startswith("| ") and "---" not in line][1:]
+    assert [r.split("|")[1].strip().split(" ")[0] for r in rows] == ["exact", "nsga2", "random"]
+    exact_row = rows[0].split("|")
+    assert exact_row[-3].strip() == "0.00" and exact_row[-2].strip() == "1.0000"
+    for row in rows[1:]:  # integer-degree shapes may beat the 10-degree lattice, so a fraction may pass 1
+        assert float(row.split("|")[-2]) > 0 and float(row.split("|")[-3]) > -5
+    assert (searches / "compare-map-1" / "compare.png").stat().st_size > 10_000 and "report:" in out
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        ([], "give at least one run to compare"),
+        (["--random", "/no/such/run"], "run directory not found: /no/such/run"),
+        (["--random", "{logs}"], "holds no results"),
+        (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
+    ],
+)
+def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
+    argv = [a.replace("{logs}", str(searches)) for a in argv]
+    capsys.readouterr()
+    code = main(["compare", "--log-dir", str(tmp_path), *argv])
+    err = capsys.readouterr().err
+    assert code == 1 and message in err and err.count("\n") == 1
+    assert not list(tmp_path.iterdir())
