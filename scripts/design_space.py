@@ -18,6 +18,7 @@ import numpy as np
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.search.pareto import pareto_front
 
 
 def main() -> None:
@@ -35,12 +36,7 @@ def main() -> None:
     batch = evaluator.evaluate_many(thetas)
     elapsed = time.perf_counter() - t0
     r1 = args.w1 * batch.P_c - args.w2 * batch.P_len
-    order = np.lexsort((-batch.P_c, batch.P_len))
-    front, best_pc = [], -1.0
-    for i in order:
-        if batch.P_c[i] > best_pc:
-            best_pc = batch.P_c[i]
-            front.append(int(i))
+    front = pareto_front(batch.P_c, batch.P_len)
     print(f"{grid_map.name}: {len(thetas):,} triples at {args.step:g} deg, {evaluator.cache_size():,} distinct F, "
           f"{elapsed:.1f} s")  # fmt: skip
     print(f"Pareto front ({len(front)} points) and R1 = {args.w1:g} P_c - {args.w2:g} P_len:")
