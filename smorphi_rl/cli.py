@@ -248,6 +248,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         seed=args.seed,
         preset=args.preset,
         checkpoint_every=args.checkpoint_every,
+        pretrained=args.pretrained,
     )
     from smorphi_rl.training.run import format_summary, train
 
@@ -464,6 +465,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--name", help="run name: results go to LOG_DIR/NAME (default: ALGO-MAP-TIMESTAMP)")
     tr.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
     tr.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints (and at the end)")
+    tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
     tr.set_defaults(func=cmd_train)
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")

@@ -38,6 +38,8 @@ class TrainConfig:
     checkpoint_every: int = 10
     """Checkpoint every this many iterations (and always at the end)."""
     top_k: int = 8
+    pretrained: str | None = None
+    """Checkpoint (or trial or run directory) to start from: fine-tuning, the paper's transfer."""
     max_iterations: int | None = None
     """Also stop after this many training iterations (tests and smoke runs); None: the env-step budget only."""
 
@@ -105,8 +107,9 @@ def register_env() -> None:
     tune_register(TUNE_ENV_NAME, lambda env_config: MorphologyEnv(dict(env_config)))
 
 
-def algorithm_config(cfg: TrainConfig) -> Any:
-    """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks."""
+def algorithm_config(cfg: TrainConfig, callbacks: type | None = None) -> Any:
+    """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks
+    (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass)."""
     from ray.rllib.algorithms.appo import APPOConfig
     from ray.rllib.algorithms.impala import IMPALAConfig
     from ray.rllib.algorithms.ppo import PPOConfig
@@ -153,7 +156,7 @@ def algorithm_config(cfg: TrainConfig) -> Any:
                 model_config={"value_offset": offset, "value_scale": scale, "env_config": env_dict},
             )
         )
-        .callbacks(MorphologyCallbacks)
+        .callbacks(callbacks or MorphologyCallbacks)
         .reporting(min_time_s_per_iteration=hp.min_time_s_per_iteration or None)
         .debugging(seed=cfg.seed)
     )

@@ -22,10 +22,11 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.rundir import prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
-from smorphi_rl.training.checkpoints import checkpoints_under
+from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
 from smorphi_rl.training.config import TrainConfig, algorithm_config, default_run_name, register_env
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, write_csv, write_tables
+from smorphi_rl.training.transfer import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 
 STEPS_KEY = "num_env_steps_sampled_lifetime"
 TOP_PLOT = 4
@@ -63,6 +64,8 @@ class RunSummary:
     optimum: dict[str, LatticeBest]
     checkpoint: Path | None
     files: dict[str, Path]
+    pretrained: Path | None = None
+    pretrained_in_runners: bool | None = None
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -80,6 +83,8 @@ class RunSummary:
             "best": best,
             "lattice_optimum": {m: asdict(o) for m, o in self.optimum.items()},
             "checkpoint": None if self.checkpoint is None else str(self.checkpoint),
+            "pretrained": None if self.pretrained is None else str(self.pretrained),
+            "pretrained_in_runners": self.pretrained_in_runners,
             "files": {k: str(v) for k, v in self.files.items()},
         }
 
@@ -100,6 +105,8 @@ class _Progress:
         self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
         self._last_print = -math.inf
+        self.pretrained_in_runners: bool | None = None
+        """Fine-tuning: whether every env runner held the checkpoint's policy before the first sample."""
 
     def __getstate__(self) -> dict[str, Any]:
         """Tune pickles its callbacks with the experiment state: leave the output stream behind."""
@@ -119,6 +126,8 @@ class _Progress:
         self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
         self.curve.best_R1.append(float(best_iter))
         self.curve.wall_s.append(time.monotonic() - self.t0)
+        if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
+            self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)
         self._show(steps, runners.get(METRIC_PREFIX, {}), done=steps >= self.cfg.timesteps)
 
     def _show(self, steps: int, ours: dict[str, Any], done: bool) -> None:
@@ -203,6 +212,10 @@ def train(
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     for path in cfg.env.maps:  # fails here, before Ray starts, with the map named
         load_map(path)
+    callbacks, pretrained = None, None
+    if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
+        pretrained = find_checkpoint(cfg.pretrained)
+        callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
     run_dir = prepare_run_dir(log_dir, name)
     cluster.check_reachable(address)
     (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address}, indent=2))
@@ -211,7 +224,7 @@ def train(
         from ray import tune
 
         register_env()
-        config = algorithm_config(cfg)
+        config = algorithm_config(cfg, callbacks)
         progress = _Progress(cfg, out)
         stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
         if cfg.max_iterations is not None:
@@ -255,6 +268,8 @@ def train(
         optimum=optimum,
         checkpoint=checkpoints[-1] if checkpoints else None,
         files=files,
+        pretrained=pretrained,
+        pretrained_in_runners=progress.pretrained_in_runners,
     )
     files["summary"] = run_dir / "summary.json"
     files["summary"].write_text(json.dumps(summary.to_dict(), indent=2))
@@ -284,6 +299,9 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
             pct = 100 * b.R1 / opt.R1 if opt.R1 else math.nan
             lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
+    if s.pretrained is not None:
+        held = {True: "yes", False: "NO", None: "not reported"}[s.pretrained_in_runners]
+        lines.append(f"fine-tuned from: {rel(s.pretrained)} (every env runner held its policy from the start: {held})")
     if s.checkpoint is not None:
         lines.append(f"checkpoint: {rel(s.checkpoint)}")
     for key, label in (("top_md", "top morphologies"), ("top_png", "top morphologies plot"),

@@ -149,6 +149,34 @@ def test_compare_takes_a_training_run(ppo_run, tmp_path):
     assert "| PPO (smoke) | 2,000 env steps |" in report
 
 
+def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_path):
+    from smorphi_rl.training.module import MorphologyModule
+    from smorphi_rl.training.transfer import PRETRAINED_KEY, policy_digest
+
+    run_dir, _ = ppo_run
+    checkpoint = find_checkpoint(run_dir)
+    trained = load_module(checkpoint)
+    fresh = MorphologyModule(
+        observation_space=trained.observation_space, action_space=trained.action_space, model_config={}
+    )
+    assert policy_digest(fresh.get_state()) != policy_digest(trained.get_state())  # the check can fail
+    cfg = TrainConfig(timesteps=1000, pretrained=str(run_dir), checkpoint_every=1)
+    summary = train(cfg, name="tuned", log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
+    assert summary.pretrained == checkpoint and summary.pretrained_in_runners is True
+    first = json.loads((trial_dir(summary.run_dir) / "result.json").read_text().splitlines()[0])
+    assert first["training_iteration"] == 1 and first[PRETRAINED_KEY] == 1.0
+
+
+def test_pretrained_checkpoint_must_fit_the_env(ppo_run, tmp_path):
+    from smorphi_rl.training.checkpoints import CheckpointError
+
+    run_dir, _ = ppo_run
+    cfg = TrainConfig(pretrained=str(run_dir)).with_env(obs_size=32)
+    with pytest.raises(CheckpointError, match=r"expects map observations of shape \(2, 64, 64\)"):
+        train(cfg, name="misfit", log_dir=tmp_path)
+    assert not (tmp_path / "misfit").exists()  # refused before anything was written
+
+
 def test_evaluate_policy_refuses_a_map_of_another_observation_size(ppo_run, tmp_path):
     run_dir, _ = ppo_run
     module = load_module(find_checkpoint(run_dir))

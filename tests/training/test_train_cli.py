@@ -33,6 +33,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--map", "/no/such/map.yaml"], 1, "map file not found: /no/such/map.yaml"),
         (["--address", "127.0.0.1:1"], 1, "cannot reach a Ray cluster at 127.0.0.1:1"),
         (["--address", "nonsense"], 1, "--address must be HOST:PORT, 'auto' or ray://HOST:PORT"),
+        (["--pretrained", "/no/such/checkpoint"], 1, "checkpoint not found: /no/such/checkpoint"),
     ],
 )
 def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
