@@ -260,6 +260,30 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_transfer(args: argparse.Namespace) -> int:
+    """Fine-tune a pretrained policy and train from scratch on each held-out map; the paper's Table 5."""
+    from smorphi_rl.training.config import TrainConfig
+
+    TrainConfig(algo=args.algo, timesteps=args.timesteps, preset=args.preset)  # options checked before anything runs
+    for seed in args.seeds:
+        if seed < 0:
+            raise SmorphiError(f"--seeds must be non-negative integers, got {seed}")
+    for path in args.maps:
+        load_map(path)
+    from smorphi_rl.training.transfer import run_transfer, write_transfer_report
+
+    name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
+    job_dir, runs = run_transfer(args.pretrained, [str(m) for m in args.maps], args.seeds, args.timesteps,
+                                 args.algo, args.preset, name, args.log_dir, args.address)  # fmt: skip
+    files = write_transfer_report(job_dir, runs)
+    print(files["md"].read_text().rstrip())
+    missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
+    if missing:
+        print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
+    print(f"\nruns: {job_dir}\ntable: {files['md']} (and {files['csv'].name})\ncurves: {files['png']}")
+    return 0
+
+
 def _theta_text(theta: Sequence[float]) -> str:
     return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
 
@@ -467,6 +491,18 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints (and at the end)")
     tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
     tr.set_defaults(func=cmd_train)
+
+    tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
+    tf.add_argument("--pretrained", required=True, help="checkpoint, trial or run directory of the pretrained policy")
+    tf.add_argument("--maps", nargs="+", required=True, help="held-out maps (map_server YAML)")
+    tf.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds; each map runs once per seed and mode")
+    tf.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="env-step budget of every run")
+    tf.add_argument("--algo", choices=ALGORITHMS, default="ppo")
+    tf.add_argument("--preset", choices=tuple(PRESETS), default="fast")
+    tf.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
+    tf.add_argument("--name", help="job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
+    tf.add_argument("--log-dir", default="logs")
+    tf.set_defaults(func=cmd_transfer)
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
     ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")

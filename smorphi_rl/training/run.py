@@ -97,8 +97,9 @@ def _fmt_duration(seconds: float) -> str:
 class _Progress:
     """Driver-side Tune callback: collects episode bests and curves, and shows one progress line."""
 
-    def __init__(self, cfg: TrainConfig, out: Any = sys.stderr) -> None:
+    def __init__(self, cfg: TrainConfig, out: Any = sys.stderr, label: str | None = None) -> None:
         self.cfg = cfg
+        self.label = label or cfg.algo.upper()
         self.top = TopMorphologies()
         self.curve = Curve()
         self.out = out
@@ -142,7 +143,7 @@ class _Progress:
         best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
         mean_r1 = ours.get("R1_mean")
         mean_txt = f"episode mean R1 {mean_r1:.2f}" if isinstance(mean_r1, int | float) else ""
-        line = (f"{self.cfg.algo.upper()} [{bar}] {steps:,}/{budget:,} steps  {_fmt_duration(now - self.t0)}  "
+        line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {_fmt_duration(now - self.t0)}  "
                 f"{best_txt}  {mean_txt}")  # fmt: skip
         if self.tty:
             self.out.write("\r" + line[:160].ljust(160) + ("\n" if done else ""))
@@ -207,6 +208,7 @@ def train(
     log_dir: str | Path = "logs",
     address: str | None = None,
     out: Any = sys.stderr,
+    label: str | None = None,
 ) -> RunSummary:
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
@@ -225,7 +227,7 @@ def train(
 
         register_env()
         config = algorithm_config(cfg, callbacks)
-        progress = _Progress(cfg, out)
+        progress = _Progress(cfg, out, label)
         stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
         if cfg.max_iterations is not None:
             stop["training_iteration"] = cfg.max_iterations

@@ -9,7 +9,11 @@ exactly the checkpoint's policy).
 
 from __future__ import annotations
 
+import csv
 import hashlib
+import json
+import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,3 +74,117 @@ def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbac
             result[PRETRAINED_KEY] = self.in_runners
 
     return FineTuneCallbacks
+
+
+@dataclass(frozen=True)
+class TransferRun:
+    """One training run of the transfer job: a held-out map, a seed, fine-tuned or from scratch."""
+
+    map_name: str
+    seed: int
+    mode: str
+    env_steps: int
+    converged_at: float | None
+    plateau: float
+    best_R1: float
+    pretrained_in_runners: bool | None
+    run_dir: Path
+    curve: dict[str, list[float]]
+
+
+def run_transfer(
+    pretrained: str | Path,
+    maps: list[str],
+    seeds: list[int],
+    timesteps: int,
+    algo: str = "ppo",
+    preset: str = "fast",
+    name: str = "transfer",
+    log_dir: str | Path = "logs",
+    address: str | None = None,
+    out: Any = None,
+) -> tuple[Path, list[TransferRun]]:
+    """For every held-out map and seed: fine-tune from `pretrained` and train from scratch, same budget."""
+    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.training.checkpoints import find_checkpoint
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.convergence import convergence
+    from smorphi_rl.training.run import train
+
+    checkpoint = find_checkpoint(pretrained)
+    env = EnvConfig.from_dict(dict(load_module(checkpoint).model_config.get("env_config") or {}))
+    configs = []
+    for path in maps:  # every map and the checkpoint are checked before the first run starts
+        cfg = TrainConfig(algo=algo, env=replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps),
+                          timesteps=timesteps, preset=preset)  # fmt: skip
+        check_pretrained(checkpoint, cfg.env.to_dict())
+        configs.append(cfg)
+    job_dir = prepare_run_dir(log_dir, name)
+    runs: list[TransferRun] = []
+    for cfg in configs:
+        map_name = Path(cfg.env.maps[0]).stem
+        for seed in seeds:
+            for mode in ("fine-tune", "scratch"):
+                run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
+                run_name = f"{map_name}-{mode}-seed{seed}"
+                summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
+                                label=f"{algo.upper()} {run_name}")  # fmt: skip
+                curve = summary_curve(summary.run_dir)
+                at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve["episode_return_mean"]))
+                best = summary.best.R1 if summary.best else float("nan")
+                runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
+                                        summary.pretrained_in_runners, summary.run_dir, curve))  # fmt: skip
+    return job_dir, runs
+
+
+def summary_curve(run_dir: Path) -> dict[str, list[float]]:
+    """Env steps, mean episode return and the iteration's best R1 of a training run, from its result.json."""
+    (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").is_file()]
+    rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
+    return {
+        "env_steps": [float(r.get("num_env_steps_sampled_lifetime") or 0) for r in rows],
+        "episode_return_mean": [float(r["env_runners"].get("episode_return_mean", np.nan)) for r in rows],
+        "best_R1": [float(r["env_runners"].get("smorphi", {}).get("best_R1_max", np.nan)) for r in rows],
+    }
+
+
+def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, Path]:
+    """transfer.csv, transfer.md (the paper's Table 5) and transfer_curves.png."""
+    from smorphi_rl.plots import plot_learning_curves
+
+    files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
+    with files["csv"].open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_return", "best_R1",
+                         "pretrained_in_runners"])  # fmt: skip
+        for r in runs:
+            at = "" if r.converged_at is None else int(r.converged_at)
+            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.2f}", f"{r.best_R1:.4f}",
+                             r.pretrained_in_runners])  # fmt: skip
+    lines = [
+        "| Map | Fine-tuned: env steps to converge (median over seeds) | From scratch | Ratio scratch / fine-tuned "
+        "| Best R1 fine-tuned / scratch |",
+        "|---|---:|---:|---:|---:|",
+    ]
+    for map_name in dict.fromkeys(r.map_name for r in runs):
+        tuned = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
+        scratch = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
+        t, s = _median_steps(tuned), _median_steps(scratch)
+        ratio = f"{s / t:.2f}" if t and s else "-"
+        best = f"{max(r.best_R1 for r in tuned):.2f} / {max(r.best_R1 for r in scratch):.2f}"
+        lines.append(f"| {map_name} | {_steps_text(t)} | {_steps_text(s)} | {ratio} | {best} |")
+    files["md"].write_text("\n".join(lines) + "\n")
+    curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
+    plot_learning_curves(curves, files["png"])
+    return files
+
+
+def _median_steps(runs: list[TransferRun]) -> float | None:
+    """Median convergence step; a run that never settled counts as its whole budget."""
+    values = [r.converged_at if r.converged_at is not None else float(r.env_steps) for r in runs]
+    return float(np.median(values)) if values else None
+
+
+def _steps_text(steps: float | None) -> str:
+    return "-" if steps is None else f"{steps:,.0f}"

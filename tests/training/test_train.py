@@ -167,6 +167,19 @@ def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_pat
     assert first["training_iteration"] == 1 and first[PRETRAINED_KEY] == 1.0
 
 
+def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
+    run_dir, _ = ppo_run
+    val = str(ROOT / "maps" / "val-1.yaml")
+    proc = cli("transfer", "--pretrained", str(run_dir), "--maps", val, "--timesteps", "1000", "--name", "job",
+               cwd=tmp_path)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    rows = list(csv.DictReader((tmp_path / "logs" / "job" / "transfer.csv").open()))
+    assert [(r["map"], r["mode"]) for r in rows] == [("val-1", "fine-tune"), ("val-1", "scratch")]
+    assert rows[0]["pretrained_in_runners"] == "True" and rows[1]["pretrained_in_runners"] == ""
+    assert "| val-1 |" in (tmp_path / "logs" / "job" / "transfer.md").read_text()
+    assert (tmp_path / "logs" / "job" / "transfer_curves.png").is_file() and "warning" not in proc.stdout
+
+
 def test_pretrained_checkpoint_must_fit_the_env(ppo_run, tmp_path):
     from smorphi_rl.training.checkpoints import CheckpointError
 

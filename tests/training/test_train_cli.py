@@ -64,3 +64,19 @@ def test_evaluate_policy_rejects_bad_checkpoints(capsys, tmp_path):
     assert code == 1 and "holds no RLlib checkpoint of ours" in err
     code, err = run(capsys, "evaluate-policy", "--checkpoint", str(tmp_path), "--episodes", "0")
     assert code == 1 and "--episodes must be >= 1" in err
+
+
+@pytest.mark.parametrize(
+    ("argv", "code", "message"),
+    [
+        (["--pretrained", "/no/ckpt", "--maps", MAP_1], 1, "checkpoint not found: /no/ckpt"),
+        (["--pretrained", "/no/ckpt", "--maps", "/no/map.yaml"], 1, "map file not found: /no/map.yaml"),
+        (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--timesteps", "0"], 1, "timesteps must be a positive integer"),
+        (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--algo", "a3c"], 2, "invalid choice: 'a3c'"),
+        (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--seeds", "-1"], 1, "--seeds must be non-negative"),
+    ],
+)
+def test_transfer_rejects_bad_input(capsys, tmp_path, argv, code, message):
+    got, err = run(capsys, "transfer", "--log-dir", str(tmp_path), *argv)
+    assert got == code and message in err
+    assert not list(tmp_path.iterdir())
