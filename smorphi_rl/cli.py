@@ -284,6 +284,16 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_reproduce(args: argparse.Namespace) -> int:
+    """The paper's experiments end to end; report.md with Tables 2-6 and Figures 5-7 analogues and the claims."""
+    from smorphi_rl.reproduce import reproduce
+
+    name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
+    report = reproduce(args.budget, name, args.log_dir)
+    print(f"report: {report}")
+    return 0
+
+
 def _theta_text(theta: Sequence[float]) -> str:
     return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
 
@@ -544,6 +554,14 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--name", help="run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     co.add_argument("--log-dir", default="logs")
     co.set_defaults(func=cmd_compare)
+
+    from smorphi_rl.reproduce import BUDGETS
+
+    rp = sub.add_parser("reproduce", help="the paper's experiments end to end, with a claim-by-claim report")
+    rp.add_argument("--budget", choices=tuple(BUDGETS), default="small", help="small (~25 min), paper (hours), tiny")
+    rp.add_argument("--name", help="run name (default: reproduce-BUDGET-TIMESTAMP)")
+    rp.add_argument("--log-dir", default="logs")
+    rp.set_defaults(func=cmd_reproduce)
     return parser
 
 

@@ -1,0 +1,45 @@
+"""`reproduce` end to end on the tiny budget: every experiment runs and the report links real files."""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import sys
+
+import pytest
+
+from smorphi_rl.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    proc = subprocess.run(
+        [sys.executable, "-m", "smorphi_rl.cli", "reproduce", "--budget", "tiny", "--name", "r"],
+        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=900,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    root = tmp_path / "logs" / "r"
+    report = (root / "report.md").read_text()
+    for heading in ("Tables 2-3", "Tables 4 and 6", "Figure 5", "Table 5", "claims, one by one"):
+        assert heading in report, heading
+    claims = [line for line in report.splitlines() if line.startswith("- ")]
+    assert len(claims) == 5 and all("agree" in c for c in claims)
+    for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report):
+        assert (root / link).is_file(), link
+    for method in ("ppo-map-1", "impala-map-1", "random-map-1", "nsga2-map-1", "exhaustive-map-1", "pretrain"):
+        assert (root / method).is_dir(), method
+    assert "| val-1 |" in report
+
+
+def test_reproduce_refuses_an_unknown_budget_and_an_existing_run(capsys, tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["reproduce", "--budget", "huge"])
+    assert exc.value.code == 2 and "invalid choice: 'huge'" in capsys.readouterr().err
+    (tmp_path / "taken").mkdir()
+    (tmp_path / "taken" / "report.md").write_text("keep me")
+    assert main(["reproduce", "--budget", "tiny", "--name", "taken", "--log-dir", str(tmp_path)]) == 1
+    assert "already exists" in capsys.readouterr().err
+    assert (tmp_path / "taken" / "report.md").read_text() == "keep me"
