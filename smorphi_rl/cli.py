@@ -558,7 +558,7 @@ def build_parser() -> argparse.ArgumentParser:
     from smorphi_rl.reproduce import BUDGETS
 
     rp = sub.add_parser("reproduce", help="the paper's experiments end to end, with a claim-by-claim report")
-    rp.add_argument("--budget", choices=tuple(BUDGETS), default="small", help="small (~25 min), paper (hours), tiny")
+    rp.add_argument("--budget", choices=tuple(BUDGETS), default="small", help="small (~17 min), paper, tiny (smoke)")
     rp.add_argument("--name", help="run name (default: reproduce-BUDGET-TIMESTAMP)")
     rp.add_argument("--log-dir", default="logs")
     rp.set_defaults(func=cmd_reproduce)
