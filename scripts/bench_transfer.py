@@ -32,16 +32,22 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=50_000, help="budget of every fine-tune and scratch run")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--keep", help="write the runs here instead of a temporary directory")
+    parser.add_argument("--pretrained", help="reuse this pretrained run (its pretraining figures are not re-measured)")
     args = parser.parse_args()
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-transfer-"))
     t0 = time.perf_counter()
     env = EnvConfig.from_dict({"maps": [str(MAPS / "map-1.yaml"), str(MAPS / "map-2.yaml")]})
     with open(os.devnull, "w") as quiet:
-        pre = train(TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seed), name="pretrain",
-                    log_dir=root, out=quiet)  # fmt: skip
-        print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
+        if args.pretrained:
+            pretrained = Path(args.pretrained)
+            print(f"reusing the pretrained run {pretrained}")
+        else:
+            pre = train(TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seed), name="pretrain",
+                        log_dir=root, out=quiet)  # fmt: skip
+            pretrained = pre.run_dir
+            print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
         vals = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)]
-        job_dir, runs = run_transfer(pre.run_dir, vals, [args.seed], args.steps, name="transfer", log_dir=root,
+        job_dir, runs = run_transfer(pretrained, vals, [args.seed], args.steps, name="transfer", log_dir=root,
                                      out=quiet)  # fmt: skip
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import json
 import math
@@ -11,6 +12,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -221,19 +223,31 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _stop_cluster(temp_dir: str) -> None:
+    """Stop only the Ray processes of the cluster under `temp_dir` (`ray stop` would stop every Ray here)."""
+    for sig in (signal.SIGTERM, signal.SIGKILL):
+        pids = []
+        for entry in Path("/proc").iterdir():
+            try:
+                if entry.name.isdigit() and temp_dir in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                    pids.append(int(entry.name))
+            except OSError:
+                continue
+        for pid in pids:
+            with contextlib.suppress(OSError):
+                os.kill(pid, sig)
+        if not pids:
+            return
+        time.sleep(3)
+
+
 def test_attaches_to_a_running_cluster(tmp_path):
     ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
     port = _free_port()
+    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_AUTH_MODE")}
-    start = [
-        ray,
-        "start",
-        "--head",
-        "--num-cpus=2",
-        f"--port={port}",
-        "--include-dashboard=false",
-        "--disable-usage-stats",
-    ]
+    start = [ray, "start", "--head", "--num-cpus=2", f"--port={port}", "--include-dashboard=false",
+             "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
     try:
         proc = cli("train", "--address", f"127.0.0.1:{port}", "--timesteps", "1000", "--name", "attached",
@@ -244,7 +258,8 @@ def test_attaches_to_a_running_cluster(tmp_path):
             json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == f"127.0.0.1:{port}"
         )
     finally:
-        subprocess.run([ray, "stop", "--force"], capture_output=True, env=env, timeout=120)
+        _stop_cluster(temp_dir)
+        shutil.rmtree(temp_dir, ignore_errors=True)
 
 
 def test_ctrl_c_stops_cleanly_and_keeps_checkpoints(tmp_path):
