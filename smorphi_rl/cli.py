@@ -232,6 +232,14 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
     return 0
 
 
+def _rel(path: Path) -> str:
+    """`path` relative to the working directory when it lies below it (as the README shows it)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
 def _map_paths(value: object) -> list[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
@@ -280,7 +288,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
     if missing:
         print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
-    print(f"\nruns: {job_dir}\ntable: {files['md']} (and {files['csv'].name})\ncurves: {files['png']}")
+    print(
+        f"\nruns: {_rel(job_dir)}\ntable: {_rel(files['md'])} (and {files['csv'].name})\ncurves: {_rel(files['png'])}"
+    )
     return 0
 
 
@@ -290,7 +300,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
 
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
     report = reproduce(args.budget, name, args.log_dir)
-    print(f"report: {report}")
+    print(f"report: {_rel(report)}")
     return 0
 
 
@@ -423,7 +433,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     print(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:g}): {_theta_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
           f"P_len {result.P_len[b]}, R1 {r1_best:.2f}")  # fmt: skip
     for key in ("results", "front", "summary", "plot"):
-        print(f"{key + ':':<9} {files[key]}")
+        print(f"{key + ':':<9} {_rel(files[key])}")
     return 0
 
 
@@ -450,7 +460,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     exact_score, methods = score_methods(exact, runs, weights.w1, weights.w2)
     files = write_report(exact_score, methods, grid_map.name, weights.w1, weights.w2, run_dir)
     print(files["report"].read_text().split("\n\n![")[0])
-    print(f"\nreport: {files['report']}\nplot:   {files['plot']}")
+    print(f"\nreport: {_rel(files['report'])}\nplot:   {_rel(files['plot'])}")
     return 0
 
 
