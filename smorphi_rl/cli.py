@@ -14,7 +14,7 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import NoReturn
+from typing import TYPE_CHECKING, NoReturn
 
 import numpy as np
 
@@ -22,6 +22,9 @@ from smorphi_rl.coverage import CoverageResult, Start
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Cell, Map, load_map
+
+if TYPE_CHECKING:
+    from smorphi_rl.env import EnvConfig as EnvConfigType
 
 PROG = "smorphi-rl"
 DEFAULT_MAP = Path("maps") / "map-1.yaml"
@@ -377,11 +380,10 @@ def _progress_line(label: str) -> Callable[[int, int], None]:
 
 def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II or the exhaustive lattice on a map; results, front and plot under logs/<run>/."""
-    from smorphi_rl.env import EnvConfig
     from smorphi_rl.rundir import prepare_run_dir
     from smorphi_rl.search.results import save
 
-    weights = EnvConfig()
+    weights = _weights(args)
     load_map(args.map)  # a bad map fails here, before anything is written
     if args.method == "exhaustive":
         from smorphi_rl.search.exhaustive import check_step, run_exhaustive
@@ -440,7 +442,6 @@ def cmd_search(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import points_of_run, score_methods, write_report
-    from smorphi_rl.env import EnvConfig
     from smorphi_rl.rundir import prepare_run_dir
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -449,11 +450,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not dirs:
         raise SmorphiError("give at least one run to compare: --runs, --nsga2 or --random")
     grid_map = load_map(args.map)
+    weights = _weights(args)
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
-    weights = EnvConfig()
     run_dir = prepare_run_dir(args.log_dir, args.name or f"compare-{grid_map.name}")
     if exact is None:
         exact = run_exhaustive(str(args.map), args.step, progress=_progress_line("exact front"))
@@ -462,6 +463,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     print(files["report"].read_text().split("\n\n![")[0])
     print(f"\nreport: {_rel(files['report'])}\nplot:   {_rel(files['plot'])}")
     return 0
+
+
+def _weight_options(parser: argparse.ArgumentParser) -> None:
+    """--w1 / --w2: the reward weights that rank shapes by R1 = w1 P_c - w2 P_len (the env's defaults)."""
+    parser.add_argument("--w1", type=float, help="weight of P_c in R1 (default: the env's)")
+    parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
+
+
+def _weights(args: argparse.Namespace) -> EnvConfigType:
+    """The env configuration with --w1 / --w2 applied (validated there, defaults from there)."""
+    from smorphi_rl.env import EnvConfig
+
+    return EnvConfig.from_dict({k: v for k in ("w1", "w2") if (v := getattr(args, k)) is not None})
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -543,6 +557,7 @@ def build_parser() -> argparse.ArgumentParser:
         m.add_argument("--name", help="run name: results go to LOG_DIR/NAME")
         m.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
         m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
+        _weight_options(m)
         if method == "random":
             m.add_argument("--samples", type=int, default=1000, help="shapes to draw")
         if method == "nsga2":
@@ -563,6 +578,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
     co.add_argument("--name", help="run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     co.add_argument("--log-dir", default="logs")
+    _weight_options(co)
     co.set_defaults(func=cmd_compare)
 
     from smorphi_rl.reproduce import BUDGETS

@@ -101,3 +101,12 @@ def test_search_rejects_bad_input(capsys, tmp_path, argv, code, message):
     err = capsys.readouterr().err
     assert got == code and message in err and err.count("\n") == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_reward_weights_rank_the_best_shape(tmp_path, capsys):
+    for w2 in ("0.1", "0.5"):
+        assert main(["search", "exhaustive", "--map", MAP_1, "--step", "10", "--w2", w2, "--name", f"w{w2}",
+                     "--log-dir", str(tmp_path)]) == 0  # fmt: skip
+    light, heavy = (json.loads((tmp_path / f"w{w2}" / "summary.json").read_text()) for w2 in ("0.1", "0.5"))
+    assert light["weights"]["w2"] == 0.1 and heavy["weights"]["w2"] == 0.5
+    assert heavy["best"]["P_len"] <= light["best"]["P_len"]  # a heavier path weight never favours a longer path
