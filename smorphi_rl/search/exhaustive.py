@@ -39,17 +39,24 @@ def check_step(step_deg: float) -> float:
 _worker: Evaluator | None = None
 
 
+_reported = 0
+"""How many of this worker's cached footprints earlier chunks already reported."""
+
+
 def _init(map_path: str, block_side_m: float) -> None:
     global _worker
     _worker = Evaluator(load_map(map_path), block_side_m)
 
 
 def _chunk(thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
-    """Metrics of one chunk, and short digests of the footprints this worker has planned so far."""
+    """Metrics of one chunk, and short digests of the footprints this worker planned for it (new ones only)."""
+    global _reported
     if _worker is None:  # pragma: no cover (the pool initializer always runs first)
         raise RuntimeError("worker not initialised")
     batch = _worker.evaluate_many(thetas)
-    digests = {hashlib.blake2b(key, digest_size=8).digest() for key in _worker.cached_footprints()}
+    keys = _worker.cached_footprints()[_reported:]  # the cache keeps insertion order
+    _reported += len(keys)
+    digests = {hashlib.blake2b(key, digest_size=8).digest() for key in keys}
     return batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
 
 

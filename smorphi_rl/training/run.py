@@ -191,9 +191,10 @@ def write_outputs(
             for rank, f in enumerate(top, 1):
                 morphology = Morphology.of(f.theta)
                 items.append((f"#{rank}", evaluator.plan(morphology), morphology))
-            key = "top_png" if len(cfg.env.maps) == 1 else f"top_png_{grid_map.name}"
-            files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, run_dir / f"{key}.png".replace(
-                "top_png", "top_morphologies"))  # fmt: skip
+            single = len(cfg.env.maps) == 1
+            key = "top_png" if single else f"top_png_{grid_map.name}"
+            png = run_dir / ("top_morphologies.png" if single else f"top_morphologies_{grid_map.name}.png")
+            files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, png)
     if progress.curve.env_steps:
         reference = next(iter(optimum.values())).R1 if len(optimum) == 1 else None
         files["curves_png"] = plot_learning_curves(
