@@ -59,7 +59,8 @@ def main() -> None:
         ratio = s / t if t else float("inf")
         verdict = "meets" if ratio >= TARGET_RATIO else "misses"
         print(f"{map_name}: fine-tuned {t:,.0f} vs scratch {s:,.0f} env steps to converge: {ratio:.2f}x "
-              f"({verdict} the {TARGET_RATIO:g}x target); plateau {tuned.plateau:,.0f} vs {scratch.plateau:,.0f}; "
+              f"({verdict} the {TARGET_RATIO:g}x target); final-shape R1 plateau {tuned.plateau:.2f} vs "
+              f"{scratch.plateau:.2f}; "
               f"pretrained policy in every runner: {tuned.pretrained_in_runners}")  # fmt: skip
     print(f"total {time.perf_counter() - t0:.0f} s; runs under {root}")
 

@@ -297,6 +297,22 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_sweep(args: argparse.Namespace) -> int:
+    """Run or resume a sweep file as one Ray Tune experiment; print the best trials and where the files are."""
+    from smorphi_rl.training.sweep_config import load_sweep
+
+    sweep = load_sweep(args.config)  # every problem named before Ray starts
+    from smorphi_rl.training.sweep import format_sweep_summary, run_sweep
+
+    summary = run_sweep(sweep, args.log_dir, args.address, args.resume)
+    print(format_sweep_summary(summary, _rel))
+    if summary.interrupted:
+        print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with "
+              f"`{PROG} sweep {args.config} --resume`", file=sys.stderr)  # fmt: skip
+        return EXIT_INTERRUPTED
+    return 0
+
+
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """The paper's experiments end to end; report.md with Tables 2-6 and Figures 5-7 analogues and the claims."""
     from smorphi_rl.reproduce import reproduce
@@ -537,6 +553,13 @@ def build_parser() -> argparse.ArgumentParser:
     tf.add_argument("--name", help="job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
     tf.add_argument("--log-dir", default="logs")
     tf.set_defaults(func=cmd_transfer)
+
+    sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
+    sw.add_argument("config", help="sweep file (schema in the README; examples in tune_configs/)")
+    sw.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
+    sw.add_argument("--resume", action="store_true", help="continue the interrupted experiment of this sweep")
+    sw.add_argument("--log-dir", default="logs", help="the experiment goes to LOG_DIR/<the sweep's name>")
+    sw.set_defaults(func=cmd_sweep)
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
     ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")

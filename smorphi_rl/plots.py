@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import matplotlib
 
@@ -133,22 +134,42 @@ def plot_top_morphologies(
 def plot_learning_curves(
     curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None
 ) -> Path:
-    """Mean episode return and the iteration's best R1 against env steps (paper Figure 5), one line a run.
+    """Mean episode return, the iteration's best R1 and the final-shape R1 against env steps (paper Figure 5).
 
-    `curves[label]` has lists `env_steps`, `episode_return_mean` and `best_R1`."""
-    fig, (ax_ret, ax_r1) = plt.subplots(1, 2, figsize=(12, 4.4))
-    for label, c in curves.items():
-        ax_ret.plot(c["env_steps"], c["episode_return_mean"], lw=1.4, label=label)
-        ax_r1.plot(c["env_steps"], c["best_R1"], lw=1.4, label=label)
-    if optimum_r1 is not None:
-        ax_r1.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")
-        ax_r1.axhline(0.99 * optimum_r1, color="grey", ls=":", lw=1, label="99 % of optimum")
-    ax_ret.set_title("mean episode return", fontsize=10)
-    ax_r1.set_title("best R1 of the episodes in each iteration", fontsize=10)
-    for ax in (ax_ret, ax_r1):
+    `curves[label]` has lists `env_steps`, `episode_return_mean`, `best_R1` and optionally `final_R1`."""
+    panels = [("episode_return_mean", "mean episode return"), ("best_R1", "best R1 of the episodes in each iteration"),
+              ("final_R1", "final-shape R1 (the shape episodes end on; convergence)")]  # fmt: skip
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.4))
+    for ax, (key, title) in zip(axes, panels, strict=True):
+        for label, c in curves.items():
+            if key in c:
+                ax.plot(c["env_steps"], c[key], lw=1.4, label=label)
+        if optimum_r1 is not None and key != "episode_return_mean":
+            ax.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")
+            ax.axhline(0.99 * optimum_r1, color="grey", ls=":", lw=1, label="99 % of optimum")
+        ax.set_title(title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
+    return _save(fig, out)
+
+
+def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | Path) -> Path:
+    """A sweep's Figure 5: per map set (columns), mean episode return and final-shape R1 (rows) against env
+    steps, one line per algorithm and hyperparameters: the mean over seeds, shaded from the lowest to the highest."""
+    cols = max(1, len(groups))
+    fig, axes = plt.subplots(2, cols, figsize=(6 * cols, 8), squeeze=False)
+    for col, (maps, lines) in enumerate(groups.items()):
+        for row, (key, title) in enumerate((("episode_return_mean", "mean episode return"),
+                                            ("final_R1", "final-shape R1"))):  # fmt: skip
+            ax = axes[row][col]
+            for label, c in lines.items():
+                (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, label=label)
+                ax.fill_between(c["env_steps"], c[f"{key}_lo"], c[f"{key}_hi"], color=drawn.get_color(), alpha=0.15)
+            ax.set_title(f"{maps}: {title}", fontsize=10)
+            ax.set_xlabel("env steps")
+            ax.grid(alpha=0.3)
+            ax.legend(fontsize=7)
     return _save(fig, out)
 
 

@@ -30,7 +30,7 @@ def _step_infos(episode: Any, chunks: list[Any] | None) -> list[dict[str, Any]]:
 
 
 class MorphologyCallbacks(RLlibCallback):
-    """Episode mean and best P_c, P_len, R1 and the best shape's hinge angles."""
+    """Episode mean and best P_c, P_len, R1, the R1 of the shape the episode ends on, and the best shape's angles."""
 
     def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
         import torch
@@ -54,6 +54,7 @@ class MorphologyCallbacks(RLlibCallback):
             "P_c_mean": sum(i["P_c"] for i in infos) / n,
             "P_len_mean": sum(i["P_len"] for i in infos) / n,
             "R1_mean": sum(i["R1"] for i in infos) / n,
+            "R1_final": last["R1"],
             "best_P_c": last["best_P_c"],
             "best_P_len": last["best_P_len"],
             "best_R1": last["best_R1"],

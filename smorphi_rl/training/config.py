@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import math
 import re
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from typing import Any
 
 from smorphi_rl.env import EnvConfig, MorphologyEnv
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS, Preset
+from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PPO_ONLY, PRESETS, Preset
 
 TUNE_ENV_NAME = "smorphi_rl_morphology"
 """The env's name in Ray Tune's registry (a Tune config names the env by this string)."""
@@ -42,6 +42,8 @@ class TrainConfig:
     """Checkpoint (or trial or run directory) to start from: fine-tuning, the paper's transfer."""
     max_iterations: int | None = None
     """Also stop after this many training iterations (tests and smoke runs); None: the env-step budget only."""
+    overrides: dict[str, float] = field(default_factory=dict)
+    """Hyperparameters that replace the preset's (a sweep's search space), by Preset field name."""
 
     def __post_init__(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -56,10 +58,12 @@ class TrainConfig:
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        check_overrides(self.algo, self.overrides)
 
     @property
     def hyperparameters(self) -> Preset:
-        return PRESETS[self.preset][self.algo]
+        """The preset's hyperparameters with the overrides applied."""
+        return replace(PRESETS[self.preset][self.algo], **self.overrides)
 
     def with_env(self, **changes: Any) -> TrainConfig:
         return replace(self, env=replace(self.env, **changes))
@@ -69,6 +73,27 @@ class TrainConfig:
         out = asdict(self)
         out["hyperparameters"] = asdict(self.hyperparameters)
         return out
+
+
+def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
+    """Every override names a hyperparameter that `algo` uses, with a positive number (gamma, lambda_ <= 1)."""
+    known = {f.name for f in fields(Preset)} - {"rollout_fragment_length", "min_time_s_per_iteration"}
+    for name, value in overrides.items():
+        if name not in known:
+            raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
+        if name in PPO_ONLY and algo != "ppo":
+            raise TrainConfigError(f"hyperparameter '{name}' applies to ppo only, not {algo}")
+        integer = name in ("train_batch_size", "num_epochs", "minibatch_size")
+        ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
+        if not ok or (name in ("gamma", "lambda_") and not 0 <= value <= 1):
+            kind = (
+                "a non-negative integer"
+                if integer
+                else "a number in [0, 1]"
+                if name in ("gamma", "lambda_")
+                else "a non-negative number"
+            )
+            raise TrainConfigError(f"hyperparameter '{name}' must be {kind}, got {value!r}")
 
 
 def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tuple[float, float]:

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 ALGORITHMS = ("ppo", "impala", "appo")
+PPO_ONLY = ("lambda_", "num_epochs", "minibatch_size")
+"""Hyperparameters only PPO uses (IMPALA and APPO use v-trace and one pass over each batch)."""
 
 
 @dataclass(frozen=True)

@@ -44,10 +44,12 @@ class Curve:
     env_steps: list[float] = field(default_factory=list)
     episode_return_mean: list[float] = field(default_factory=list)
     best_R1: list[float] = field(default_factory=list)
+    final_R1: list[float] = field(default_factory=list)
     wall_s: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, list[float]]:
-        return {"env_steps": self.env_steps, "episode_return_mean": self.episode_return_mean, "best_R1": self.best_R1}
+        return {"env_steps": self.env_steps, "episode_return_mean": self.episode_return_mean, "best_R1": self.best_R1,
+                "final_R1": self.final_R1}  # fmt: skip
 
 
 @dataclass
@@ -126,6 +128,7 @@ class _Progress:
         self.curve.env_steps.append(steps)
         self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
         self.curve.best_R1.append(float(best_iter))
+        self.curve.final_R1.append(float(runners.get(METRIC_PREFIX, {}).get("R1_final", math.nan)))
         self.curve.wall_s.append(time.monotonic() - self.t0)
         if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
             self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)

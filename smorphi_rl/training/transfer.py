@@ -51,6 +51,15 @@ def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
     return policy_digest(module.get_state())
 
 
+def push_module_to_runners(algorithm: Any) -> list[str]:
+    """Copy the learner's module into every remote env runner, waiting for each; returns their policy digests."""
+    state = algorithm.learner_group.get_state(components="learner/rl_module", inference_only=True)
+    runner_state = state["learner"]  # {"rl_module": {module id: module state}}
+    runners = algorithm.env_runner_group
+    runners.foreach_env_runner(lambda r: r.set_state(runner_state), local_env_runner=False)
+    return runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=False)
+
+
 def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbacks]:
     """MorphologyCallbacks that start the algorithm from `checkpoint`'s policy and value networks."""
 
@@ -62,11 +71,7 @@ def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbac
         def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
             super().on_algorithm_init(algorithm=algorithm, **kwargs)
             algorithm.restore_from_path(str(Path(self.pretrained) / MODULE_SUBDIR), component=MODULE_COMPONENT)
-            state = algorithm.learner_group.get_state(components="learner/rl_module", inference_only=True)
-            runner_state = state["learner"]  # {"rl_module": {module id: module state}}
-            runners = algorithm.env_runner_group
-            runners.foreach_env_runner(lambda r: r.set_state(runner_state), local_env_runner=False)
-            digests = runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=False)
+            digests = push_module_to_runners(algorithm)
             self.in_runners = float(bool(digests) and all(d == self.expected for d in digests))
 
         def on_train_result(self, *, algorithm: Any, result: dict[str, Any], **kwargs: Any) -> None:
@@ -109,7 +114,7 @@ def run_transfer(
     from smorphi_rl.rundir import prepare_run_dir
     from smorphi_rl.training.checkpoints import find_checkpoint
     from smorphi_rl.training.config import TrainConfig
-    from smorphi_rl.training.convergence import convergence
+    from smorphi_rl.training.convergence import CURVE_KEY, convergence
     from smorphi_rl.training.run import train
 
     checkpoint = find_checkpoint(pretrained)
@@ -131,7 +136,7 @@ def run_transfer(
                 summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{algo.upper()} {run_name}")  # fmt: skip
                 curve = summary_curve(summary.run_dir)
-                at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve["episode_return_mean"]))
+                at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
                 best = summary.best.R1 if summary.best else float("nan")
                 runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
                                         summary.pretrained_in_runners, summary.run_dir, curve))  # fmt: skip
@@ -139,13 +144,14 @@ def run_transfer(
 
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:
-    """Env steps, mean episode return and the iteration's best R1 of a training run, from its result.json."""
+    """Env steps, mean episode return, the iteration's best R1 and the final-shape R1 of a run, from result.json."""
     (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").is_file()]
     rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
     return {
         "env_steps": [float(r.get("num_env_steps_sampled_lifetime") or 0) for r in rows],
         "episode_return_mean": [float(r["env_runners"].get("episode_return_mean", np.nan)) for r in rows],
         "best_R1": [float(r["env_runners"].get("smorphi", {}).get("best_R1_max", np.nan)) for r in rows],
+        "final_R1": [float(r["env_runners"].get("smorphi", {}).get("R1_final", np.nan)) for r in rows],
     }
 
 
@@ -156,16 +162,16 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
     with files["csv"].open("w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_return", "best_R1",
+        writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_final_R1", "best_R1",
                          "pretrained_in_runners"])  # fmt: skip
         for r in runs:
             at = "" if r.converged_at is None else int(r.converged_at)
-            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.2f}", f"{r.best_R1:.4f}",
+            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
                              r.pretrained_in_runners])  # fmt: skip
     lines = [
         "| Map | Fine-tuned: env steps to converge (median over seeds) | From scratch | Ratio scratch / fine-tuned "
-        "| Best R1 fine-tuned / scratch |",
-        "|---|---:|---:|---:|---:|",
+        "| Plateau final-shape R1 fine-tuned / scratch | Best R1 fine-tuned / scratch |",
+        "|---|---:|---:|---:|---:|---:|",
     ]
     for map_name in dict.fromkeys(r.map_name for r in runs):
         tuned = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
@@ -173,7 +179,8 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         t, s = _median_steps(tuned), _median_steps(scratch)
         ratio = f"{s / t:.2f}" if t and s else "-"
         best = f"{max(r.best_R1 for r in tuned):.2f} / {max(r.best_R1 for r in scratch):.2f}"
-        lines.append(f"| {map_name} | {_steps_text(t)} | {_steps_text(s)} | {ratio} | {best} |")
+        plateau = f"{np.median([r.plateau for r in tuned]):.2f} / {np.median([r.plateau for r in scratch]):.2f}"
+        lines.append(f"| {map_name} | {_steps_text(t)} | {_steps_text(s)} | {ratio} | {plateau} | {best} |")
     files["md"].write_text("\n".join(lines) + "\n")
     curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
     plot_learning_curves(curves, files["png"])

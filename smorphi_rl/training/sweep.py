@@ -1,0 +1,263 @@
+"""`smorphi-rl sweep`: a validated sweep file run as one Ray Tune experiment, resumable after an interruption.
+
+Each trial is a function trainable that builds the RLlib algorithm for its (algorithm, maps, seed,
+hyperparameters), trains to the budget, and checkpoints through Tune, so `Tuner.restore` picks
+every unfinished trial up from its last checkpoint. A trial asks for 1 CPU plus 0.5 per env
+runner, so Tune queues trials to fit the machine or the cluster.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from smorphi_rl.rundir import RunDirError, prepare_run_dir
+from smorphi_rl.training import cluster
+from smorphi_rl.training.checkpoints import find_checkpoint
+from smorphi_rl.training.config import CPUS_PER_ENV_RUNNER, NUM_ENV_RUNNERS, algorithm_config, register_env
+from smorphi_rl.training.quiet import quiet
+from smorphi_rl.training.run import STEPS_KEY, TrainingError, _fmt_duration
+from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
+from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
+from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners
+
+SWEEP_COPY = "sweep.yaml"
+"""The sweep file as it was when the experiment started; --resume checks the file still matches."""
+
+
+@dataclass
+class SweepSummary:
+    """The outcome of `run_sweep`, as printed."""
+
+    experiment_dir: Path
+    rows: list[TrialRow]
+    trials_total: int
+    wall_s: float
+    interrupted: bool
+    files: dict[str, Path]
+
+
+def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
+    """One trial: build the algorithm, restore Tune's checkpoint if resuming, train to the budget, report."""
+    from ray import tune
+    from ray.tune.result import AUTO_RESULT_KEYS
+
+    cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
+    callbacks = None
+    if cfg.pretrained is not None:
+        pretrained = find_checkpoint(cfg.pretrained)
+        callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
+    register_env()
+    algo = algorithm_config(cfg, callbacks).build_algo()
+    try:
+        resume = tune.get_checkpoint()
+        if resume is not None:
+            with resume.as_directory() as path:
+                algo.restore_from_path(path)
+            push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
+        while True:
+            result = algo.train()
+            steps = int(result.get(STEPS_KEY) or 0)
+            done = steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
+            metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
+            metrics[ITERATION_KEY] = algo.iteration
+            if done or algo.iteration % cfg.checkpoint_every == 0:
+                with tempfile.TemporaryDirectory() as path:
+                    algo.save_to_path(path)
+                    tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
+            else:
+                tune.report(metrics)
+            if done:
+                return
+    finally:
+        algo.stop()
+
+
+class _SweepProgress:
+    """One status line for the whole sweep: trials done, the running trial's steps, the best shape so far."""
+
+    def __init__(self, sweep: SweepConfig, total: int, out: Any) -> None:
+        self.sweep, self.total, self.out = sweep, total, out
+        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.t0 = time.monotonic()
+        self.done: set[str] = set()
+        self.best = (float("-inf"), "")
+        self._last = 0.0
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "out"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state, out=sys.stderr)
+
+    def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
+        for row in json.loads(result.get("smorphi_episode_best") or "[]"):
+            if row[-1] > self.best[0]:
+                self.best = (row[-1], f"({row[1]:g}, {row[2]:g}, {row[3]:g}) on {row[0]}")
+        steps = int(result.get(STEPS_KEY) or 0)
+        maps = "+".join(Path(m).stem for m in config.get("maps", []))
+        self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
+                   f"{steps:,}/{self.sweep.timesteps:,} steps")  # fmt: skip
+
+    def complete(self, trial: str) -> None:
+        self.done.add(trial)
+        self._show("", force=True)
+
+    def _show(self, current: str, force: bool = False) -> None:
+        now = time.monotonic()
+        if not self.tty and not force and now - self._last < 10:
+            return
+        self._last = now
+        frac = len(self.done) / max(1, self.total)
+        bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
+        best = f"best R1 {self.best[0]:.2f} {self.best[1]}" if self.best[1] else "best R1 -"
+        line = (f"sweep {self.sweep.name} [{bar}] {len(self.done)}/{self.total} trials  "
+                f"{_fmt_duration(now - self.t0)}  {current}  {best}")  # fmt: skip
+        self.out.write(("\r" + line[:160].ljust(160)) if self.tty else line + "\n")
+        self.out.flush()
+
+    def finish(self) -> None:
+        if self.tty:
+            self.out.write("\n")
+            self.out.flush()
+
+
+def _tune_callback(progress: _SweepProgress) -> Any:
+    from ray import tune
+
+    class _Callback(tune.Callback):
+        def on_trial_result(self, iteration: int, trials: list[Any], trial: Any, result: dict[str, Any], **info: Any):
+            progress.result(trial.trial_id, trial.config, result)
+
+        def on_trial_complete(self, iteration: int, trials: list[Any], trial: Any, **info: Any):
+            progress.complete(trial.trial_id)
+
+    return _Callback()
+
+
+def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) -> Path:
+    """The experiment folder: new (refusing an existing one), or, with resume, an existing one of the same sweep."""
+    exp = Path(log_dir).resolve() / sweep.name
+    if not resume:
+        try:
+            exp = prepare_run_dir(log_dir, sweep.name)
+        except RunDirError as exc:
+            if exp.is_dir():
+                raise RunDirError(f"{exc}, or add --resume to continue it") from None
+            raise
+        shutil.copyfile(sweep.path, exp / SWEEP_COPY)
+        return exp
+    copy = exp / SWEEP_COPY
+    if not copy.is_file():
+        raise RunDirError(f"nothing to resume: {exp} holds no sweep started by smorphi-rl")
+    if load_sweep(copy) != _same_path(load_sweep(sweep.path), copy):
+        raise RunDirError(f"{sweep.path} has changed since {exp} started; resume with the original ({copy})")
+    return exp
+
+
+def _same_path(cfg: SweepConfig, path: Path) -> SweepConfig:
+    from dataclasses import replace
+
+    return replace(cfg, path=path)
+
+
+def run_sweep(
+    sweep: SweepConfig,
+    log_dir: str | Path = "logs",
+    address: str | None = None,
+    resume: bool = False,
+    out: Any = sys.stderr,
+) -> SweepSummary:
+    """Run (or resume) the sweep as one Tune experiment under `log_dir/<name>/`; write the table and curves."""
+    if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
+        check_pretrained(find_checkpoint(sweep.pretrained), sweep.base_config(
+            sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0], {}).env.to_dict())  # fmt: skip
+    cluster.check_reachable(address)
+    exp = prepare_experiment(sweep, log_dir, resume)
+    quiet()
+    progress = _SweepProgress(sweep, sweep.num_grid_trials, out)
+    with cluster.ray_session(address):
+        from ray import tune
+
+        trainable = tune.with_resources(
+            tune.with_parameters(sweep_trainable, sweep=sweep),
+            tune.PlacementGroupFactory([{"CPU": 1}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * NUM_ENV_RUNNERS),
+        )
+        run_config = tune.RunConfig(
+            name=sweep.name,
+            storage_path=str(exp.parent),
+            stop=sweep.stop or None,
+            checkpoint_config=tune.CheckpointConfig(num_to_keep=sweep.checkpoint_keep or None),
+            callbacks=[_tune_callback(progress)],
+            verbose=0,
+        )
+        t0 = time.monotonic()
+        if resume and tune.Tuner.can_restore(str(exp)):
+            tuner = tune.Tuner.restore(str(exp), trainable=trainable, resume_unfinished=True, resume_errored=True)
+        else:
+            tuner = tune.Tuner(
+                trainable,
+                param_space={
+                    "algo": tune.grid_search(list(sweep.algorithms)),
+                    "maps": tune.grid_search([list(m) for m in sweep.map_sets]),
+                    "seed": tune.grid_search(list(sweep.seeds)),
+                    "hp": {k: s.to_tune() for k, s in sweep.search.items()},
+                },
+                tune_config=tune.TuneConfig(num_samples=sweep.num_samples, trial_dirname_creator=_trial_dirname),
+                run_config=run_config,
+            )
+        results = tuner.fit()
+        wall = time.monotonic() - t0
+        progress.finish()
+    rows = read_sweep(exp)
+    files = write_sweep_outputs(exp, rows)
+    errors = list(results.errors)
+    if errors:
+        first = str(errors[0]).strip().splitlines()
+        raise TrainingError(f"{len(errors)} trial(s) failed: {first[-1] if first else type(errors[0]).__name__} "
+                            f"(tables of the rest and the full errors under {exp})")  # fmt: skip
+    finished = sum(1 for r in results if r.metrics and r.metrics.get("done"))
+    return SweepSummary(exp, rows, len(results), wall, finished < len(results), files)
+
+
+def _trial_dirname(trial: Any) -> str:
+    maps = "+".join(Path(m).stem for m in trial.config["maps"])
+    return f"{trial.config['algo']}-{maps}-seed{trial.config['seed']}-{trial.trial_id}"
+
+
+def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:
+    """sweep.csv, sweep.md and sweep_curves.png (the paper's Figure 5 per algorithm and map)."""
+    from smorphi_rl.plots import plot_sweep_curves
+
+    if not rows:
+        return {}
+    files = {"csv": exp / "sweep.csv", "md": exp / "sweep.md", "png": exp / "sweep_curves.png"}
+    write_sweep_tables(rows, files["csv"], files["md"])
+    plot_sweep_curves(group_curves(rows), files["png"])
+    return files
+
+
+def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
+    """The end-of-sweep text: trials, the best of each, and where the files are."""
+    state = "interrupted after" if s.interrupted else "ran"
+    lines = [f"sweep {s.experiment_dir.name}: {state} {len(s.rows)} of {s.trials_total} trials "
+             f"in {_fmt_duration(s.wall_s)}"]  # fmt: skip
+    ranked = sorted((r for r in s.rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
+    for r in ranked[:5]:
+        b = r.best
+        assert b is not None
+        hp = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.hyperparameters.items())
+        lines.append(f"  {r.algo:<6} {r.maps:<14} seed {r.seed} {hp} best R1 {b.R1:.2f} {b.angles} "
+                     f"({r.env_steps:,} steps, {_fmt_duration(r.wall_s)})")  # fmt: skip
+    for key, label in (("md", "table"), ("png", "curves")):
+        if key in s.files:
+            lines.append(f"{label}: {rel(s.files[key])}")
+    lines.append(f"trials: {rel(s.experiment_dir)}")
+    lines.append(f"tensorboard --logdir {rel(s.experiment_dir)}")
+    return "\n".join(lines)

@@ -1,0 +1,157 @@
+"""A sweep's per-trial table and learning curves, read back from the trial folders. No Ray here.
+
+Built from each trial's `result.json` and `params.json` only, so it is the same after `--resume`
+(rows of iterations re-run after a restore are counted once).
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import warnings
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.training.convergence import CURVE_KEY, convergence
+from smorphi_rl.training.topk import Found, TopMorphologies
+
+ITERATION_KEY = "smorphi_iteration"
+"""The algorithm's own iteration count, reported by the sweep trainable; survives restores."""
+CURVE_POINTS = 100
+
+
+@dataclass
+class TrialRow:
+    """One trial of a sweep, as the summary table shows it."""
+
+    trial: str
+    algo: str
+    maps: str
+    seed: int
+    hyperparameters: dict[str, Any]
+    env_steps: int
+    iterations: int
+    wall_s: float
+    best: Found | None
+    converged_at: float | None
+    final_R1: float
+    curve: dict[str, list[float]]
+
+
+def read_trial(trial_dir: Path) -> TrialRow | None:
+    """The row of one trial folder; None before its first result."""
+    params, results = trial_dir / "params.json", trial_dir / "result.json"
+    if not params.is_file() or not results.is_file():
+        return None
+    spec = json.loads(params.read_text())
+    by_iter: dict[int, dict[str, Any]] = {}
+    for line in results.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:  # a line cut short by a kill: the rest is still good
+            continue
+        by_iter[int(row.get(ITERATION_KEY, row.get("training_iteration", 0)))] = row
+    rows = [by_iter[i] for i in sorted(by_iter)]
+    if not rows:
+        return None
+    top = TopMorphologies()
+    curve: dict[str, list[float]] = {"env_steps": [], "episode_return_mean": [], "best_R1": [], CURVE_KEY: []}
+    for r in rows:
+        steps = int(r.get("num_env_steps_sampled_lifetime") or 0)
+        bests = json.loads(r.get("smorphi_episode_best") or "[]")
+        top.add_episode_bests(spec["algo"], bests, steps)
+        runners = r.get("env_runners", {})
+        curve["env_steps"].append(float(steps))
+        curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
+        curve["best_R1"].append(max((b[-1] for b in bests), default=math.nan))
+        curve[CURVE_KEY].append(_num(runners.get("smorphi", {}).get("R1_final")))
+    at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
+    best = top.top(1)
+    return TrialRow(
+        trial=trial_dir.name,
+        algo=spec["algo"],
+        maps="+".join(Path(m).stem for m in spec["maps"]),
+        seed=int(spec["seed"]),
+        hyperparameters=dict(spec.get("hp") or {}),
+        env_steps=int(curve["env_steps"][-1]),
+        iterations=len(rows),
+        wall_s=float(sum(_num(r.get("time_this_iter_s")) for r in rows)),
+        best=best[0] if best else None,
+        converged_at=at,
+        final_R1=plateau,
+        curve=curve,
+    )
+
+
+def read_sweep(experiment_dir: Path) -> list[TrialRow]:
+    """Every trial with at least one result, in folder order."""
+    rows = [read_trial(d) for d in sorted(experiment_dir.iterdir()) if d.is_dir()]
+    return [r for r in rows if r is not None]
+
+
+def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> None:
+    """sweep.csv (every column) and sweep.md (the same, sorted by best R1)."""
+    hp_keys = sorted({k for r in rows for k in r.hyperparameters})
+    header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
+              "best_map", "best_P_c", "best_P_len", "converged_at_env_steps", "final_R1_plateau"]  # fmt: skip
+    table = []
+    for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
+        b = r.best
+        table.append([r.trial, r.algo, r.maps, r.seed, *[_fmt(r.hyperparameters.get(k)) for k in hp_keys],
+                      r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
+                      b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
+                      "" if r.converged_at is None else int(r.converged_at), f"{r.final_R1:.2f}"])  # fmt: skip
+    with csv_path.open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(header)
+        writer.writerows(table)
+    md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    md += ["| " + " | ".join(str(c) for c in row) + " |" for row in table]
+    md_path.write_text("\n".join(md) + "\n")
+
+
+def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarray]]]:
+    """{map set: {algo and hyperparameters: {env_steps, <metric>_mean/_lo/_hi}}}: seeds averaged on a common grid."""
+    groups: dict[str, dict[str, list[TrialRow]]] = {}
+    for r in rows:
+        hp = " ".join(f"{k}={_fmt(v)}" for k, v in sorted(r.hyperparameters.items()))
+        groups.setdefault(r.maps, {}).setdefault(f"{r.algo.upper()} {hp}".strip(), []).append(r)
+    out: dict[str, dict[str, dict[str, np.ndarray]]] = {}
+    for maps, lines in groups.items():
+        for label, trials in lines.items():
+            end = min(max(t.curve["env_steps"]) for t in trials)
+            grid = np.linspace(0, end, CURVE_POINTS)
+            line: dict[str, np.ndarray] = {"env_steps": grid}
+            for key in ("episode_return_mean", CURVE_KEY):
+                ys = np.array([_interp(grid, t.curve["env_steps"], t.curve[key]) for t in trials])
+                with warnings.catch_warnings():  # grid points before any trial's first episode stay NaN
+                    warnings.simplefilter("ignore", RuntimeWarning)
+                    line[f"{key}_mean"] = np.nanmean(ys, axis=0)
+                    line[f"{key}_lo"] = np.nanmin(ys, axis=0)
+                    line[f"{key}_hi"] = np.nanmax(ys, axis=0)
+            out.setdefault(maps, {})[f"{label} ({len(trials)} seed{'s' if len(trials) > 1 else ''})"] = line
+    return out
+
+
+def _interp(grid: np.ndarray, x: list[float], y: list[float]) -> np.ndarray:
+    xs, ys = np.asarray(x, dtype=float), np.asarray(y, dtype=float)
+    ok = np.isfinite(ys)
+    if not ok.any():
+        return np.full(grid.shape, np.nan)
+    values = np.interp(grid, xs[ok], ys[ok])
+    values[grid < xs[ok][0]] = np.nan
+    return values
+
+
+def _num(value: Any) -> float:
+    return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
+
+
+def _fmt(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return "" if value is None else str(value)

@@ -1,0 +1,93 @@
+"""A real sweep through the public command: 2 trials x 3 iterations, interrupted with Ctrl-C, then resumed."""
+
+from __future__ import annotations
+
+import csv
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+from smorphi_rl.training.checkpoints import find_checkpoint, load_module
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+SWEEP = f"""name: tiny
+algorithms: [ppo]
+maps: [{MAP_1}]
+seeds: [0]
+timesteps: 3000
+search:
+  lr: {{grid: [0.001, 0.003]}}
+checkpoint: {{every: 1}}
+"""
+pytestmark = pytest.mark.slow
+
+
+def _env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+
+
+def cli(*argv: str, cwd: Path, timeout: float = 400) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd,
+                          env=_env(), timeout=timeout)  # fmt: skip
+
+
+def results(trial: Path) -> list[dict]:
+    return [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
+
+
+def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
+    config = tmp_path / "tiny.yaml"
+    config.write_text(SWEEP)
+    exp = tmp_path / "logs" / "tiny"
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", "sweep", str(config)], cwd=tmp_path, env=_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and not list(exp.glob("*_00000/checkpoint_000000")):
+        time.sleep(0.5)
+    assert list(exp.glob("*_00000/checkpoint_000000")), "the first trial wrote no checkpoint"
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=180)
+    assert proc.returncode == 130, err[-3000:]
+    assert "Traceback" not in err and f"sweep {config} --resume" in err
+    assert "interrupted after" in out
+    (first,) = exp.glob("*_00000")
+    before = results(first)
+    assert 1 <= len(before) < 3
+
+    again = cli("sweep", str(config), cwd=tmp_path)  # without --resume: refused, nothing touched
+    assert again.returncode == 1 and "add --resume" in again.stderr and "Traceback" not in again.stderr
+    assert results(first) == before
+
+    resumed = cli("sweep", str(config), "--resume", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert "ran 2 of 2 trials" in resumed.stdout and "table: logs/tiny/sweep.md" in resumed.stdout
+
+    after = results(first)
+    assert after[: len(before)] == before  # what was logged before the interruption is kept as it was
+    trials = sorted(p for p in exp.iterdir() if (p / "result.json").is_file())
+    assert len(trials) == 2
+    for trial in trials:
+        rows = results(trial)
+        assert sorted({r["smorphi_iteration"] for r in rows}) == [1, 2, 3]
+        assert rows[-1]["num_env_steps_sampled_lifetime"] == 3000  # the env-step count survived the restore
+        load_module(find_checkpoint(trial))
+        acc = EventAccumulator(str(trial))
+        acc.Reload()
+        assert "ray/tune/env_runners/smorphi/R1_final" in acc.Tags()["scalars"]
+    table = list(csv.DictReader((exp / "sweep.csv").open()))
+    assert sorted(r["lr"] for r in table) == ["0.001", "0.003"]
+    assert all(r["env_steps"] == "3000" and r["iterations"] == "3" and float(r["best_R1"]) > 80 for r in table)
+    assert (exp / "sweep_curves.png").stat().st_size > 10_000
+
+    config.write_text(SWEEP.replace("3000", "4000"))  # another sweep under the same name: refused
+    changed = cli("sweep", str(config), "--resume", cwd=tmp_path)
+    assert changed.returncode == 1 and "has changed since" in changed.stderr

@@ -1,0 +1,112 @@
+"""Sweep files: the shipped ones load; every mistake is named with the file and the key."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from smorphi_rl.training.sweep_config import SweepConfigError, load_sweep
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+MAP_2 = str(ROOT / "maps" / "map-2.yaml")
+
+
+def write(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "s.yaml"
+    path.write_text(text)
+    return path
+
+
+def base(extra: str = "") -> str:
+    return f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\n{extra}"
+
+
+@pytest.mark.parametrize("name", ["paper-ppo-vs-impala", "hparams", "pretrain-multimap"])
+def test_shipped_sweeps_load(name, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    cfg = load_sweep(ROOT / "tune_configs" / f"{name}.yaml")
+    assert cfg.name == name
+    expected = {"paper-ppo-vs-impala": 12, "hparams": 18, "pretrain-multimap": 1}[name]
+    assert cfg.num_grid_trials == expected
+
+
+def test_paper_sweep_is_both_algorithms_on_both_maps_with_three_seeds(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    cfg = load_sweep(ROOT / "tune_configs" / "paper-ppo-vs-impala.yaml")
+    assert cfg.algorithms == ("ppo", "impala") and cfg.seeds == (0, 1, 2)
+    assert [tuple(Path(m).name for m in s) for s in cfg.map_sets] == [("map-1.yaml",), ("map-2.yaml",)]
+
+
+def test_multimap_trains_one_policy_on_both_maps(monkeypatch):
+    monkeypatch.chdir(ROOT)
+    cfg = load_sweep(ROOT / "tune_configs" / "pretrain-multimap.yaml")
+    (maps,) = cfg.map_sets
+    assert [Path(m).name for m in maps] == ["map-1.yaml", "map-2.yaml"]
+    trial = cfg.base_config("ppo", maps, 0, {})
+    assert len(trial.env.maps) == 2
+
+
+def test_search_space_kinds_and_overrides(tmp_path):
+    cfg = load_sweep(write(tmp_path, base(
+        "search:\n  lr: {loguniform: [0.0001, 0.01]}\n  entropy_coeff: {choice: [0.0, 0.01]}\n"
+        "  lambda: {grid: [0.9, 0.95]}\n  gamma: 0.98\nnum_samples: 3\n")))  # fmt: skip
+    assert {k: s.kind for k, s in cfg.search.items()} == {
+        "lr": "loguniform", "entropy_coeff": "choice", "lambda_": "grid", "gamma": "constant"}  # fmt: skip
+    assert cfg.num_grid_trials == 2 * 3
+    trial = cfg.base_config("ppo", cfg.map_sets[0], 0, {"lr": 0.002, "lambda_": 0.9, "gamma": 0.98})
+    hp = trial.hyperparameters
+    assert (hp.lr, hp.lambda_, hp.gamma, hp.num_epochs) == (0.002, 0.9, 0.98, 8)  # the rest from the preset
+
+
+def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
+    (tmp_path / "m").mkdir()
+    for suffix in (".yaml", ".pgm"):
+        (tmp_path / "m" / f"map-1{suffix}").write_bytes((ROOT / "maps" / f"map-1{suffix}").read_bytes())
+    monkeypatch.chdir(ROOT / "scripts")  # not where the map is
+    cfg = load_sweep(write(tmp_path, "algorithms: [ppo]\nmaps: [m/map-1.yaml]\nseeds: [1]\n"))
+    assert cfg.map_sets == ((str((tmp_path / "m" / "map-1.yaml").resolve()),),)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (base("learning_rate: 0.1\n"), "key 'learning_rate': unknown key"),
+        (f"algorithms: [ppo]\nmaps: [{MAP_1}]\n", "key 'seeds': missing"),
+        (f"algorithms: [dqn]\nmaps: [{MAP_1}]\nseeds: [0]\n", "key 'algorithms': unknown algorithm 'dqn'"),
+        (f"algorithms: ppo\nmaps: [{MAP_1}]\nseeds: [0]\n", "key 'algorithms': expected a non-empty list"),
+        (f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [zero]\n", "key 'seeds': expected int items, got 'zero'"),
+        ("algorithms: [ppo]\nmaps: [nowhere.yaml]\nseeds: [0]\n", "key 'maps[0]': map file 'nowhere.yaml' not found"),
+        (base("timesteps: -5\n"), "key 'timesteps': expected a positive integer, got -5"),
+        (base("timesteps: 1e5\n"), "key 'timesteps': expected a positive integer"),
+        (base("preset: slow\n"), "key 'preset': unknown preset 'slow'"),
+        (base("env: {max_step: 10}\n"), "key 'env': env_config: unknown key 'max_step'"),
+        (base("search: {lr: {uniform: [0.1, 0.01]}}\n"), "key 'search.lr': uniform takes [low, high] with low < high"),
+        (base("search: {lr: {normal: [0, 1]}}\n"), "key 'search.lr': expected a number or one of"),
+        (base("search: {lr: {grid: [fast]}}\n"), "key 'search.lr': grid takes a list of numbers"),
+        (base("search: {momentum: 0.9}\n"), "key 'search.momentum': unknown hyperparameter 'momentum'"),
+        (base("search: {gamma: {grid: [0.9, 1.5]}}\n"), "key 'search.gamma': hyperparameter 'gamma' must be"),
+        (
+            f"algorithms: [ppo, impala]\nmaps: [{MAP_1}]\nseeds: [0]\nsearch: {{lambda: {{grid: [0.9, 1.0]}}}}\n",
+            "key 'search.lambda_': hyperparameter 'lambda_' applies to ppo only, not impala",
+        ),
+        (base("checkpoint: {every: 0}\n"), "key 'checkpoint.every': expected a positive integer, got 0"),
+        (base("checkpoint: {often: 1}\n"), "key 'checkpoint'"),
+        (base("name: 'a b'\n"), "key 'name': expected letters"),
+        (base("stop: {time_total_s: soon}\n"), "key 'stop'"),
+        ("- just\n- a list\n", "expected a mapping of keys"),
+        ("algorithms: [ppo\n", "not valid YAML at line"),
+    ],
+)
+def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
+    path = write(tmp_path, text)
+    with pytest.raises(SweepConfigError) as info:
+        load_sweep(path)
+    assert str(info.value).startswith(f"{path}: ")
+    assert message in str(info.value)
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(SweepConfigError, match="no such sweep file"):
+        load_sweep(tmp_path / "absent.yaml")
