@@ -7,10 +7,14 @@ For each algorithm (fixed seed, `smorphi-rl train`'s own code path, 2 env runner
   rate in this process (the yardstick for sampling overhead);
 - mean episode R1 in the first and last 10 iterations, and the greedy policy's settled R1 over 10
   seeded episodes against a uniform random policy's (the yardstick for learning);
-- peak memory of the whole run (the driver and every Ray process below it, summed PSS).
-Targets (2-core machine): PPO within 99 % in <= 100,000 env steps and <= 10 minutes; peak < 3 GiB.
+- peak memory of the whole run (the driver and every Ray process below it, summed PSS);
+- the cost of recording: env-runner sampling rate with every episode recorded to MCAP against the
+  same runners with recording off (the yardstick), measured alternately on fresh algorithms.
+Targets (2-core machine): PPO within 99 % in <= 100,000 env steps and <= 10 minutes; peak < 3 GiB;
+recording every episode slows sampling by at most 20 %.
 
     .venv/bin/python scripts/bench_training.py [--algos ppo impala] [--timesteps 100000] [--seed 0]
+    .venv/bin/python scripts/bench_training.py --recording-cost-only
 """
 
 from __future__ import annotations
@@ -20,6 +24,7 @@ import os
 import tempfile
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +40,7 @@ from smorphi_rl.training.run import train
 TARGET_STEPS = 100_000
 TARGET_WALL_S = 600.0
 TARGET_PEAK_GIB = 3.0
+TARGET_RECORDING_SLOWDOWN = 0.20
 EVAL_EPISODES = 10
 
 
@@ -128,9 +134,14 @@ def main() -> None:
     parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
     parser.add_argument("--timesteps", type=int, default=TARGET_STEPS)
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--recording-cost-only", action="store_true", help="only measure the cost of recording")
+    parser.add_argument("--cost-steps", type=int, default=4000, help="env steps per runner per recording-cost round")
     args = parser.parse_args()
 
     cfg0 = TrainConfig().with_env(maps=(str(Path(args.map).resolve()),))
+    recording_cost(cfg0, args.cost_steps)
+    if args.recording_cost_only:
+        return
     grid_map = load_map(args.map)
     t0 = time.perf_counter()
     optimum = best_on_lattice(Evaluator(grid_map), cfg0.env.w1, cfg0.env.w2)
@@ -191,6 +202,39 @@ def main() -> None:
             print(f"  peak memory (driver + every Ray process, summed PSS): {gib:.2f} GiB "
                   f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the {TARGET_PEAK_GIB:g} GiB target; "
                   f"summed RSS, shared libraries counted per process: {mem.peak_rss / 2**30:.2f} GiB)")  # fmt: skip
+
+
+def recording_cost(cfg: TrainConfig, steps: int, rounds: int = 2) -> None:
+    """Env-runner sampling rate (2 runners, a fresh PPO policy) with every episode recorded vs none."""
+    from smorphi_rl.recording import episode_files
+    from smorphi_rl.training import cluster
+    from smorphi_rl.training.config import algorithm_config, recording_settings, register_env
+
+    rates: dict[bool, list[float]] = {False: [], True: []}
+    with tempfile.TemporaryDirectory(prefix="bench-recording-") as tmp, cluster.ray_session(None):
+        register_env()
+        recorded = replace(cfg, record_every=1)
+        for _ in range(rounds):
+            for record in (False, True):
+                rec = recording_settings(recorded, Path(tmp), "bench") if record else None
+                algo = algorithm_config(cfg, recording=rec).build_algo()
+                try:
+                    runners = algo.env_runner_group
+                    runners.foreach_env_runner(lambda r: r.sample(num_timesteps=500), local_env_runner=False)
+                    t0 = time.perf_counter()
+                    runners.foreach_env_runner(lambda r: r.sample(num_timesteps=steps), local_env_runner=False)
+                    rates[record].append(2 * steps / (time.perf_counter() - t0))
+                finally:
+                    algo.stop()
+        files = episode_files(Path(tmp) / "episodes")
+        size = sum(f.stat().st_size for f in files) / max(1, len(files))
+    off, on = float(np.median(rates[False])), float(np.median(rates[True]))
+    slowdown = 1 - on / off
+    verdict = "meets" if slowdown <= TARGET_RECORDING_SLOWDOWN else "misses"
+    print(f"recording cost: 2 env runners sample {on:,.0f} env steps/s recording every episode vs {off:,.0f}/s "
+          f"not recording (yardstick, same run): {on / off:.3f}x, a {100 * slowdown:.1f} % slowdown ({verdict} the "
+          f"{100 * TARGET_RECORDING_SLOWDOWN:.0f} % target); {len(files)} files, {size / 1024:.0f} KiB each "
+          f"(200-step episodes, zstd)")  # fmt: skip
 
 
 def summary_curve(run_dir: Path) -> dict[str, np.ndarray]:

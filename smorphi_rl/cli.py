@@ -14,7 +14,7 @@ import time
 import warnings
 from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
@@ -260,6 +260,7 @@ def cmd_train(args: argparse.Namespace) -> int:
         preset=args.preset,
         checkpoint_every=args.checkpoint_every,
         pretrained=args.pretrained,
+        record_every=args.record_every,
     )
     from smorphi_rl.training.run import format_summary, train
 
@@ -275,7 +276,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     """Fine-tune a pretrained policy and train from scratch on each held-out map; the paper's Table 5."""
     from smorphi_rl.training.config import TrainConfig
 
-    TrainConfig(algo=args.algo, timesteps=args.timesteps, preset=args.preset)  # options checked before anything runs
+    TrainConfig(
+        algo=args.algo, timesteps=args.timesteps, preset=args.preset, record_every=args.record_every
+    )  # options checked before anything runs
     for seed in args.seeds:
         if seed < 0:
             raise SmorphiError(f"--seeds must be non-negative integers, got {seed}")
@@ -285,7 +288,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
     job_dir, runs = run_transfer(args.pretrained, [str(m) for m in args.maps], args.seeds, args.timesteps,
-                                 args.algo, args.preset, name, args.log_dir, args.address)  # fmt: skip
+                                 args.algo, args.preset, name, args.log_dir, args.address,
+                                 record_every=args.record_every)  # fmt: skip
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
     missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
@@ -310,6 +314,93 @@ def cmd_sweep(args: argparse.Namespace) -> int:
         print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with "
               f"`{PROG} sweep {args.config} --resume`", file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED
+    return 0
+
+
+GIF_MAX_FRAMES = 120
+
+
+def _replay_listing(directory: Path) -> int:
+    """`replay DIR`: every recording under DIR with its best step, one line each."""
+    from smorphi_rl.recording import RecordingError, episode_files, read_episode
+
+    files = episode_files(directory)
+    if not files:
+        raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
+    print(f"{'episode':<44} {'map':<8} {'algo':<8} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
+    for f in files:
+        try:
+            ep = read_episode(f)
+        except RecordingError as exc:
+            print(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}")
+            continue
+        b = ep.best
+        assert b is not None
+        flag = " (cut short)" if ep.truncated else ""
+        print(f"{f.name:<44} {b['map']:<8} {ep.metadata.get('algorithm', '-'):<8} {len(ep.steps) - 1:>5}  "
+              f"{b['R1']:>7.2f}  {_theta_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
+    print(f"{len(files)} recordings in {_rel(directory)}")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Summarise a recorded episode (or list a run's recordings); print its steps; draw it as PNG or GIF."""
+    from smorphi_rl.recording import read_episode
+
+    target = Path(args.path)
+    if target.is_dir():
+        if args.steps or args.gif or args.png:
+            raise SmorphiError("--steps, --gif and --png take one recording, not a directory")
+        return _replay_listing(target)
+    ep = read_episode(target)
+    meta, steps, best = ep.metadata, ep.steps, ep.best
+    assert best is not None
+    run = f"{meta.get('run', '-')} ({meta.get('algorithm', '-').upper()}, seed {meta.get('seed', '-')})"
+    start, final = _theta_text(steps[0]["theta"]), _theta_text(steps[-1]["theta"])
+    rows = [
+        ("episode", _rel(target)),
+        ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}"),
+        ("map", steps[0]["map"]),
+        ("steps", f"{len(steps) - 1} (start {start}, final {final})"),
+        ("best", f"step {best['step']}: {_scored_text(best)}"),
+        ("return", f"{ep.episode_return:,.1f}"),
+    ]
+    if ep.truncated:
+        rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short (the rest of the episode was lost)"))
+    print("\n".join(f"{k:<10} {v}" for k, v in rows))
+    if args.steps:
+        print(f"\n{'step':>5}  {'theta':<18} {'action':<9} {'reward':>8} {'R1':>7} {'P_c %':>7} {'P_len':>5}  feasible")
+        for st in steps:
+            action = "-" if st["action"] is None else ",".join(str(a) for a in st["action"])
+            reward = "-" if st["reward"] is None else f"{st['reward']:.2f}"
+            print(f"{st['step']:>5}  {_theta_text(st['theta']):<18} {action:<9} {reward:>8} {st['R1']:>7.2f} "
+                  f"{st['P_c']:>7.2f} {st['P_len']:>5}  {'yes' if st['feasible'] else 'no'}")  # fmt: skip
+    if args.png or args.gif:
+        from smorphi_rl.plots import animate_replay, plot_replay
+
+        cells = ep.grid_cells()
+        if cells is None:
+            raise SmorphiError(f"{target}: the map message was not recovered; nothing to draw on")
+        grid = ep.grid or {}
+        pos = grid["pose"]["position"]
+        grid_map = Map(cells, float(grid["cell_size"]["x"]), (pos["x"], pos["y"], 0.0), steps[0]["map"])
+
+        def title(i: int) -> str:
+            st = steps[i]
+            return (f"step {st['step']}: {_theta_text(st['theta'])}  P_c {st['P_c']:.2f} %  P_len {st['P_len']}  "
+                    f"R1 {st['R1']:.2f}")  # fmt: skip
+
+        if args.png:
+            picks = {"start": 0, "best": steps.index(best), "final": len(steps) - 1}
+            titles = [f"{label} - {title(i)}" for label, i in picks.items()]
+            out = plot_replay(grid_map, [ep.frame(i) for i in picks.values()], titles, args.png)
+            print(f"png        {_rel(out)}")
+        if args.gif:
+            changed = [i for i in range(len(steps)) if i == 0 or steps[i]["theta"] != steps[i - 1]["theta"]]
+            if len(changed) > GIF_MAX_FRAMES:
+                changed = [changed[round(k)] for k in np.linspace(0, len(changed) - 1, GIF_MAX_FRAMES)]
+            out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], args.gif)
+            print(f"gif        {_rel(out)} ({len(changed)} frames)")
     return 0
 
 
@@ -347,9 +438,19 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.policy import check_fits, env_config_of, rollout
 
     module = load_module(checkpoint)
-    env = MorphologyEnv(env_config_of(module, maps).to_dict())
-    check_fits(module, env)
-    rollouts = [rollout(module, env, args.seed + i) for i in range(args.episodes)]
+    base = MorphologyEnv(env_config_of(module, maps).to_dict())
+    check_fits(module, base)
+    env: Any = base
+    if args.record is not None:
+        from smorphi_rl.recording import RecordingConfig, RecordingWrapper
+
+        meta = {"run": str(checkpoint), "algorithm": f"greedy {module.model_config.get('algorithm', 'policy')}",
+                "seed": str(args.seed), "config": json.dumps(base.config.to_dict())}  # fmt: skip
+        env = RecordingWrapper(base, RecordingConfig(str(Path(args.record).resolve()), every=1, metadata=meta))
+    try:
+        rollouts = [rollout(module, env, args.seed + i) for i in range(args.episodes)]
+    finally:
+        env.close()
     if args.json:
         for i, r in enumerate(rollouts):
             record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
@@ -368,9 +469,12 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         from smorphi_rl.plots import plot_coverage
 
         theta = rollouts[0].settled["theta"]
-        env.reset(seed=args.seed)  # back to the first episode's map
-        path = plot_coverage(env.plan(theta), env.grid_map, Morphology.of(theta), env.config.block_side_m, args.plot)
+        base.reset(seed=args.seed)  # back to the first episode's map
+        path = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
+                             args.plot)  # fmt: skip
         print(f"plot        {path}")
+    if args.record is not None and not args.json:
+        print(f"recordings  {_rel(Path(args.record))} (smorphi-rl replay {_rel(Path(args.record))})")
     return 0
 
 
@@ -494,6 +598,14 @@ def _weights(args: argparse.Namespace) -> EnvConfigType:
     return EnvConfig.from_dict({k: v for k in ("w1", "w2") if (v := getattr(args, k)) is not None})
 
 
+def _record_option(p: argparse.ArgumentParser) -> None:
+    from smorphi_rl.training.config import DEFAULT_RECORD_EVERY
+
+    p.add_argument("--record-every", type=int, default=DEFAULT_RECORD_EVERY, metavar="N",
+                   help=f"record every Nth episode of each env to MCAP under the run's episodes/ "
+                        f"(default {DEFAULT_RECORD_EVERY}; 0: off)")  # fmt: skip
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog=PROG, description="Find the best Smorphi morphology for a floor map.")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
@@ -540,6 +652,7 @@ def build_parser() -> argparse.ArgumentParser:
     tr.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
     tr.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints (and at the end)")
     tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
+    _record_option(tr)
     tr.set_defaults(func=cmd_train)
 
     tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
@@ -552,6 +665,7 @@ def build_parser() -> argparse.ArgumentParser:
     tf.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     tf.add_argument("--name", help="job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
     tf.add_argument("--log-dir", default="logs")
+    _record_option(tf)
     tf.set_defaults(func=cmd_transfer)
 
     sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
@@ -561,6 +675,13 @@ def build_parser() -> argparse.ArgumentParser:
     sw.add_argument("--log-dir", default="logs", help="the experiment goes to LOG_DIR/<the sweep's name>")
     sw.set_defaults(func=cmd_sweep)
 
+    rl = sub.add_parser("replay", help="summarise, list or draw episodes recorded to MCAP")
+    rl.add_argument("path", help="a recording (.mcap, or a .mcap.part cut short) or a folder of them")
+    rl.add_argument("--steps", action="store_true", help="print every step")
+    rl.add_argument("--png", help="write the start, best and final steps side by side (Figure 6 style)")
+    rl.add_argument("--gif", help="write a GIF of the morphology changing over the episode")
+    rl.set_defaults(func=cmd_replay)
+
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
     ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
     ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
@@ -568,6 +689,7 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--seed", type=int, default=0, help="seed of the first episode's start morphology")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
+    ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
     se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")

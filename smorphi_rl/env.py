@@ -32,7 +32,7 @@ Terminated when P_c >= `coverage_threshold` (off unless set); truncated after `m
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass, fields
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,10 @@ from smorphi_rl.maps import Cell, Map, load_map
 
 ENV_ID = "smorphi_rl/Morphology-v0"
 DEFAULT_MAPS = (str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"),)
+
+
+PLAN_CACHE_SIZE = 4096
+"""Full plans (path and covered mask, a few KB each) kept per env before the cache starts again."""
 
 
 class EnvConfigError(SmorphiError):
@@ -169,6 +173,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
         self._maps: list[Map] = [load_map(p) for p in self.config.maps]
         self._evaluators: dict[int, Evaluator] = {}
+        self._plans: dict[tuple[int, bool, tuple[int, ...], bytes], CoverageResult] = {}
         self._map_obs = [self._map_channels(m) for m in self._maps]
         self._lattice_max = round(180 / self.config.angle_step_deg)
         size = self.config.obs_size
@@ -209,8 +214,18 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self._maps[self._map_index]
 
     def plan(self, theta: tuple[float, float, float]) -> CoverageResult:
-        """The full FBCPP plan (path and covered cells) of `theta` on the current map, for figures."""
-        return self._evaluator().plan(Morphology.of(theta))
+        """The full FBCPP plan (path and covered cells) of `theta` on the current map, for figures and
+        recordings; cached by footprint matrix like the metrics, so replanning a visited shape is free."""
+        evaluator = self._evaluator()
+        morphology = Morphology.of(theta)
+        f = evaluator.footprint(morphology)
+        key = (self._map_index, f.feasible, f.matrix.shape, f.matrix.tobytes())
+        plan = self._plans.get(key)
+        if plan is None:
+            if len(self._plans) >= PLAN_CACHE_SIZE:
+                self._plans.clear()
+            plan = self._plans[key] = evaluator.plan(morphology)
+        return replace(plan, theta=morphology.angles, footprint_m=(f.width_m, f.length_m))
 
     def score(self, theta: tuple[float, float, float]) -> dict[str, Any]:
         """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""

@@ -173,6 +173,45 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
     return _save(fig, out)
 
 
+def _draw_replay_frame(ax: plt.Axes, grid_map: Map, frame: dict[str, Any], title: str) -> None:
+    """One recorded step: the map, the coverage path of the step's morphology, its four blocks at the path start."""
+    ax.clear()
+    draw_map(ax, grid_map)
+    path = frame["path"]
+    if len(path):
+        ax.plot(path[:, 0], path[:, 1], "-", color="#d62728", lw=1.3)
+    for n, ((x, y, yaw, side), colour) in enumerate(zip(frame["blocks"], BLOCK_COLOURS, strict=True)):
+        c, s = np.cos(yaw), np.sin(yaw)
+        local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * side / 2
+        pts = local @ np.array([[c, s], [-s, c]]) + [x, y]
+        ax.add_patch(Polygon(pts, closed=True, facecolor=colour, edgecolor="black", alpha=0.8, lw=1))
+        ax.text(x, y, f"B{n + 1}", ha="center", va="center", fontsize=6, color="white", weight="bold")
+    ax.set_title(title, fontsize=9)
+
+
+def plot_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str], out: str | Path) -> Path:
+    """Recorded steps side by side (the paper's Figure 6 for one episode): map, path and blocks of each."""
+    fig, axes = plt.subplots(1, len(frames), figsize=(5.2 * len(frames), 5.2), squeeze=False)
+    for ax, frame, title in zip(axes[0], frames, titles, strict=True):
+        _draw_replay_frame(ax, grid_map, frame, title)
+    return _save(fig, out)
+
+
+def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str], out: str | Path,
+                   fps: int = 6) -> Path:  # fmt: skip
+    """A GIF of the morphology changing over the episode, one recorded step a frame."""
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    fig, ax = plt.subplots(figsize=(5.6, 5.6))
+    fig.tight_layout()
+    anim = FuncAnimation(fig, lambda i: _draw_replay_frame(ax, grid_map, frames[i], titles[i]), frames=len(frames))
+    path = Path(out)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    anim.save(str(path), writer=PillowWriter(fps=fps), dpi=90)
+    plt.close(fig)
+    return path
+
+
 def plot_map(grid_map: Map, out: str | Path) -> Path:
     """The map alone, with its size and cell fractions in the title."""
     fig, ax = plt.subplots(figsize=(6, 6))

@@ -5,12 +5,14 @@ Validated once, before Ray starts; the presets here are the only place hyperpara
 
 from __future__ import annotations
 
+import json
 import math
 import re
 from dataclasses import asdict, dataclass, field, fields, replace
+from pathlib import Path
 from typing import Any
 
-from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PPO_ONLY, PRESETS, Preset
 
@@ -44,6 +46,8 @@ class TrainConfig:
     """Also stop after this many training iterations (tests and smoke runs); None: the env-step budget only."""
     overrides: dict[str, float] = field(default_factory=dict)
     """Hyperparameters that replace the preset's (a sweep's search space), by Preset field name."""
+    record_every: int = 0
+    """Record every Nth episode of each env to MCAP under the run's episodes/ folder; 0: no recording."""
 
     def __post_init__(self) -> None:
         if self.algo not in ALGORITHMS:
@@ -58,12 +62,14 @@ class TrainConfig:
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.record_every, bool) or not isinstance(self.record_every, int) or self.record_every < 0:
+            raise TrainConfigError(f"record_every must be a non-negative integer (0: off), got {self.record_every!r}")
         check_overrides(self.algo, self.overrides)
 
     @property
     def hyperparameters(self) -> Preset:
         """The preset's hyperparameters with the overrides applied."""
-        return replace(PRESETS[self.preset][self.algo], **self.overrides)
+        return replace(PRESETS[self.preset][self.algo], **self.overrides)  # type: ignore[arg-type]
 
     def with_env(self, **changes: Any) -> TrainConfig:
         return replace(self, env=replace(self.env, **changes))
@@ -119,6 +125,22 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     return float(values.mean()) * horizon, spread * horizon
 
 
+DEFAULT_RECORD_EVERY = 25
+"""Record every 25th episode of each env by default: ~20 files of ~100 KB for a 100k-step run."""
+EPISODES_DIR = "episodes"
+"""The folder under a run (or trial) directory that holds its MCAP recordings."""
+
+
+def recording_settings(cfg: TrainConfig, run_dir: Path, run: str) -> dict[str, Any] | None:
+    """The RecordingConfig dict for the env runners of one run, or None when recording is off."""
+    if not cfg.record_every:
+        return None
+    from smorphi_rl.recording import RecordingConfig
+
+    meta = {"run": run, "algorithm": cfg.algo, "seed": str(cfg.seed), "config": json.dumps(cfg.to_dict())}
+    return RecordingConfig(str((run_dir / EPISODES_DIR).resolve()), every=cfg.record_every, metadata=meta).to_dict()
+
+
 def default_run_name(cfg: TrainConfig, stamp: str) -> str:
     """`<algo>-<first map>-<stamp>`, safe as a directory name."""
     stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", cfg.env.maps[0].rsplit("/", 1)[-1].removesuffix(".yaml"))
@@ -129,17 +151,21 @@ def register_env() -> None:
     """Register the env with Ray Tune under TUNE_ENV_NAME (safe to call again)."""
     from ray.tune.registry import register_env as tune_register
 
-    tune_register(TUNE_ENV_NAME, lambda env_config: MorphologyEnv(dict(env_config)))
+    from smorphi_rl.recording import make_env
+
+    tune_register(TUNE_ENV_NAME, make_env)
 
 
-def algorithm_config(cfg: TrainConfig, callbacks: type | None = None) -> Any:
+def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording: dict[str, Any] | None = None) -> Any:
     """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks
-    (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass)."""
+    (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass). `recording`, a
+    RecordingConfig dict, makes the env runners record episodes to MCAP."""
     from ray.rllib.algorithms.appo import APPOConfig
     from ray.rllib.algorithms.impala import IMPALAConfig
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
+    from smorphi_rl.recording import RECORDING_KEY
     from smorphi_rl.training.callbacks import MorphologyCallbacks
     from smorphi_rl.training.module import MorphologyModule
 
@@ -165,7 +191,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None) -> Any:
         }
     config = (
         config_cls()
-        .environment(TUNE_ENV_NAME, env_config=env_dict)
+        .environment(TUNE_ENV_NAME, env_config=env_dict | ({RECORDING_KEY: recording} if recording else {}))
         .framework("torch")
         .env_runners(
             num_env_runners=cfg.num_env_runners,
@@ -178,7 +204,12 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None) -> Any:
         .rl_module(
             rl_module_spec=RLModuleSpec(
                 module_class=MorphologyModule,
-                model_config={"value_offset": offset, "value_scale": scale, "env_config": env_dict},
+                model_config={
+                    "value_offset": offset,
+                    "value_scale": scale,
+                    "env_config": env_dict,
+                    "algorithm": cfg.algo,
+                },
             )
         )
         .callbacks(callbacks or MorphologyCallbacks)

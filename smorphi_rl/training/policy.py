@@ -60,8 +60,8 @@ def greedy_action(module: Any, obs: dict[str, np.ndarray]) -> np.ndarray:
     return dist.to_deterministic().sample()[0].numpy()
 
 
-def rollout(module: Any, env: MorphologyEnv, seed: int) -> Rollout:
-    """One greedy episode from the env's seeded start."""
+def rollout(module: Any, env: Any, seed: int) -> Rollout:
+    """One greedy episode from the env's seeded start (`env`: a MorphologyEnv, or one wrapped for recording)."""
     obs, info = env.reset(seed=seed)
     start, thetas, total = info, [info["theta"]], 0.0
     done = False
@@ -72,6 +72,6 @@ def rollout(module: Any, env: MorphologyEnv, seed: int) -> Rollout:
         done = terminated or truncated
     tail = thetas[-SETTLE_WINDOW:]
     settled_theta = max(set(tail), key=lambda t: (tail.count(t), -tail[::-1].index(t)))
-    settled = env.score(settled_theta)
+    settled = env.unwrapped.score(settled_theta)
     best = {k.removeprefix("best_"): v for k, v in info.items() if k.startswith("best_")}
     return Rollout(start, settled, best, info, len(thetas) - 1, total, thetas)

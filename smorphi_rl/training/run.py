@@ -23,7 +23,14 @@ from smorphi_rl.rundir import prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
 from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
-from smorphi_rl.training.config import TrainConfig, algorithm_config, default_run_name, register_env
+from smorphi_rl.training.config import (
+    EPISODES_DIR,
+    TrainConfig,
+    algorithm_config,
+    default_run_name,
+    recording_settings,
+    register_env,
+)
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, write_csv, write_tables
 from smorphi_rl.training.transfer import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
@@ -230,7 +237,7 @@ def train(
         from ray import tune
 
         register_env()
-        config = algorithm_config(cfg, callbacks)
+        config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, name))
         progress = _Progress(cfg, out, label)
         stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
         if cfg.max_iterations is not None:
@@ -277,6 +284,8 @@ def train(
         pretrained=pretrained,
         pretrained_in_runners=progress.pretrained_in_runners,
     )
+    if (run_dir / EPISODES_DIR).is_dir():
+        files["episodes"] = run_dir / EPISODES_DIR
     files["summary"] = run_dir / "summary.json"
     files["summary"].write_text(json.dumps(summary.to_dict(), indent=2))
     return summary
@@ -314,6 +323,10 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
                        ("curves_png", "learning curves"), ("summary", "summary")):  # fmt: skip
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")
+    if "episodes" in s.files:
+        n = sum(1 for p in s.files["episodes"].iterdir() if p.name.endswith(".mcap"))
+        lines.append(f"episodes: {rel(s.files['episodes'])} ({n} MCAP recordings; "
+                     f"smorphi-rl replay {rel(s.files['episodes'])})")  # fmt: skip
     lines.append(f"logs: {rel(s.run_dir)}")
     lines.append(f"tensorboard --logdir {rel(s.run_dir)}")
     return "\n".join(lines)

@@ -17,13 +17,21 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import yaml
+
 from smorphi_rl.rundir import RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.checkpoints import find_checkpoint
-from smorphi_rl.training.config import CPUS_PER_ENV_RUNNER, NUM_ENV_RUNNERS, algorithm_config, register_env
+from smorphi_rl.training.config import (
+    CPUS_PER_ENV_RUNNER,
+    NUM_ENV_RUNNERS,
+    algorithm_config,
+    recording_settings,
+    register_env,
+)
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import STEPS_KEY, TrainingError, _fmt_duration
-from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
+from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
 from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners
 
@@ -54,7 +62,8 @@ def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
         pretrained = find_checkpoint(cfg.pretrained)
         callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
     register_env()
-    algo = algorithm_config(cfg, callbacks).build_algo()
+    trial_dir = Path(tune.get_context().get_trial_dir())
+    algo = algorithm_config(cfg, callbacks, recording_settings(cfg, trial_dir, trial_dir.name)).build_algo()
     try:
         resume = tune.get_checkpoint()
         if resume is not None:
@@ -156,15 +165,9 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
     copy = exp / SWEEP_COPY
     if not copy.is_file():
         raise RunDirError(f"nothing to resume: {exp} holds no sweep started by smorphi-rl")
-    if load_sweep(copy) != _same_path(load_sweep(sweep.path), copy):
+    if yaml.safe_load(copy.read_text()) != yaml.safe_load(sweep.path.read_text()):  # comments may differ
         raise RunDirError(f"{sweep.path} has changed since {exp} started; resume with the original ({copy})")
     return exp
-
-
-def _same_path(cfg: SweepConfig, path: Path) -> SweepConfig:
-    from dataclasses import replace
-
-    return replace(cfg, path=path)
 
 
 def run_sweep(
@@ -185,9 +188,9 @@ def run_sweep(
     with cluster.ray_session(address):
         from ray import tune
 
+        bundles: list[dict[str, float]] = [{"CPU": 1.0}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * NUM_ENV_RUNNERS
         trainable = tune.with_resources(
-            tune.with_parameters(sweep_trainable, sweep=sweep),
-            tune.PlacementGroupFactory([{"CPU": 1}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * NUM_ENV_RUNNERS),
+            tune.with_parameters(sweep_trainable, sweep=sweep), tune.PlacementGroupFactory(bundles)
         )
         run_config = tune.RunConfig(
             name=sweep.name,
@@ -222,8 +225,9 @@ def run_sweep(
         first = str(errors[0]).strip().splitlines()
         raise TrainingError(f"{len(errors)} trial(s) failed: {first[-1] if first else type(errors[0]).__name__} "
                             f"(tables of the rest and the full errors under {exp})")  # fmt: skip
-    finished = sum(1 for r in results if r.metrics and r.metrics.get("done"))
-    return SweepSummary(exp, rows, len(results), wall, finished < len(results), files)
+    trials = [results[i] for i in range(len(results))]
+    finished = sum(1 for r in trials if r.metrics and r.metrics.get("done"))
+    return SweepSummary(exp, rows, len(trials), wall, finished < len(trials), files)
 
 
 def _trial_dirname(trial: Any) -> str:

@@ -17,7 +17,7 @@ import yaml
 
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
 
 SPACE_KINDS = ("grid", "choice", "uniform", "loguniform")
@@ -37,6 +37,7 @@ KEYS = {
     "num_samples": "samples of the random search parts per grid point",
     "pretrained": "a checkpoint every trial fine-tunes from",
     "max_iterations": "also stop each trial after this many iterations (smoke runs)",
+    "record_every": "record every Nth episode of each env to MCAP in the trial's episodes/ (0: off)",
 }
 
 
@@ -87,6 +88,7 @@ class SweepConfig:
     num_samples: int = 1
     pretrained: str | None = None
     max_iterations: int | None = None
+    record_every: int = DEFAULT_RECORD_EVERY
 
     @property
     def num_grid_trials(self) -> int:
@@ -99,7 +101,8 @@ class SweepConfig:
         env = EnvConfig.from_dict({**self.env, "maps": list(maps)})
         return TrainConfig(algo=algo, env=env, timesteps=self.timesteps, seed=seed, preset=self.preset,
                            checkpoint_every=self.checkpoint_every, pretrained=self.pretrained,
-                           max_iterations=self.max_iterations, overrides=overrides)  # fmt: skip
+                           max_iterations=self.max_iterations, overrides=overrides,
+                           record_every=self.record_every)  # fmt: skip
 
 
 def load_sweep(path: str | Path) -> SweepConfig:
@@ -159,7 +162,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
     search = raw.get("search") or {}
     if not isinstance(search, dict):
         raise fail("search", KEYS["search"])
-    spaces = {ALIASES.get(k, k): _space(v, f"search.{k}", fail) for k, v in search.items()}
+    spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in search.items()}
     pretrained = raw.get("pretrained")
     if pretrained is not None and not isinstance(pretrained, str):
         raise fail("pretrained", "a checkpoint path")
@@ -180,6 +183,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         pretrained=pretrained,
         max_iterations=None if raw.get("max_iterations") is None else _positive(raw["max_iterations"],
                                                                                "max_iterations", fail),
+        record_every=_positive(raw.get("record_every", DEFAULT_RECORD_EVERY), "record_every", fail, zero=True),
     )  # fmt: skip
     for algo in algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():

@@ -108,6 +108,7 @@ def run_transfer(
     log_dir: str | Path = "logs",
     address: str | None = None,
     out: Any = None,
+    record_every: int = 0,
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from `pretrained` and train from scratch, same budget."""
     from smorphi_rl.env import EnvConfig
@@ -122,7 +123,7 @@ def run_transfer(
     configs = []
     for path in maps:  # every map and the checkpoint are checked before the first run starts
         cfg = TrainConfig(algo=algo, env=replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps),
-                          timesteps=timesteps, preset=preset)  # fmt: skip
+                          timesteps=timesteps, preset=preset, record_every=record_every)  # fmt: skip
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)
     job_dir = prepare_run_dir(log_dir, name)

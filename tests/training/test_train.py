@@ -32,7 +32,7 @@ ROOT = Path(__file__).resolve().parents[2]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")
 OUR_TAGS = [f"ray/tune/env_runners/smorphi/{m}" for m in (
     "P_c_mean", "P_len_mean", "R1_mean", "best_P_c", "best_P_len", "best_R1", "best_theta1", "best_theta2",
-    "best_theta3")]  # fmt: skip
+    "best_theta3", "R1_final")]  # fmt: skip
 pytestmark = pytest.mark.slow
 
 
@@ -138,8 +138,27 @@ def test_evaluate_policy_command(ppo_run, tmp_path):
     for d in docs:
         assert d["best"]["R1"] >= d["start"]["R1"] and d["best"]["R1"] >= d["settled"]["R1"] - 1e-9
     png = tmp_path / "settled.png"
-    proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--map", MAP_1, "--plot", str(png), cwd=tmp_path)
+    proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--map", MAP_1, "--plot", str(png), "--record",
+               "rec", cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0 and "settled" in proc.stdout and png.stat().st_size > 10_000
+    (recording,) = (tmp_path / "rec").glob("*.mcap")  # the greedy episode, recorded
+    from smorphi_rl.recording import read_episode
+
+    episode = read_episode(recording)
+    settled = docs[0]["settled"]
+    assert episode.metadata["algorithm"] == "greedy ppo" and len(episode.steps) == 201
+    assert settled["theta"] in [s["theta"] for s in episode.steps[-20:]]  # the same seeded greedy episode
+
+
+def test_train_records_episodes_that_replay_lists(ppo_run, tmp_path):
+    run_dir, proc = ppo_run
+    files = sorted((run_dir / "episodes").glob("*.mcap"))
+    assert len(files) >= 2  # each runner's first episode at least (every 25th)
+    assert "episodes: logs/smoke/episodes" in proc.stdout
+    listing = cli("replay", str(run_dir / "episodes"), cwd=tmp_path)
+    assert listing.returncode == 0 and f"{len(files)} recordings" in listing.stdout
+    shown = cli("replay", str(files[0]), cwd=tmp_path)
+    assert shown.returncode == 0 and "(PPO, seed 0)" in shown.stdout and "steps      200" in shown.stdout
 
 
 def test_compare_takes_a_training_run(ppo_run, tmp_path):

@@ -80,3 +80,31 @@ def test_transfer_rejects_bad_input(capsys, tmp_path, argv, code, message):
     got, err = run(capsys, "transfer", "--log-dir", str(tmp_path), *argv)
     assert got == code and message in err
     assert not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("sweep", "extra", "message"),
+    [
+        ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\nlr: 0.1\n", [], "key 'lr': unknown key"),
+        ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\npretrained: /no/ckpt\n", [], "checkpoint not found: /no/ckpt"),
+        ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\n", ["--resume"], "nothing to resume"),
+        ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\n", ["--address", "127.0.0.1:1"], "cannot reach a Ray cluster"),
+    ],
+)
+def test_sweep_rejects_bad_input_before_anything_starts(capsys, tmp_path, sweep, extra, message):
+    config = tmp_path / "s.yaml"
+    config.write_text(sweep.format(map=MAP_1))
+    logs = tmp_path / "logs"
+    code, err = run(capsys, "sweep", str(config), "--log-dir", str(logs), *extra)
+    assert code == 1 and message in err and err.startswith("smorphi-rl: error: ")
+    assert not logs.exists() or not list(logs.rglob("*"))
+
+
+def test_sweep_file_missing(capsys, tmp_path):
+    code, err = run(capsys, "sweep", str(tmp_path / "absent.yaml"))
+    assert code == 1 and "no such sweep file" in err
+
+
+def test_record_every_must_not_be_negative(capsys, tmp_path):
+    code, err = run(capsys, "train", "--log-dir", str(tmp_path), "--record-every", "-1")
+    assert code == 1 and "record_every must be a non-negative integer" in err

@@ -1,0 +1,234 @@
+"""MCAP recordings: round trip, Foxglove schemas, crash recovery, every-Nth, replay command, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.writer import Writer
+
+from smorphi_rl.cli import main
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.recording import (
+    OUR_TOPICS,
+    PART_SUFFIX,
+    RecordingConfig,
+    RecordingError,
+    RecordingWrapper,
+    episode_files,
+    make_env,
+    read_episode,
+    step_record,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+META = {"run": "unit", "algorithm": "ppo", "seed": "7", "config": "{}"}
+
+
+def recorded_env(tmp_path: Path, every: int = 1, flush_steps: int = 50, max_steps: int = 40) -> RecordingWrapper:
+    rec = RecordingConfig(str(tmp_path / "episodes"), every=every, flush_steps=flush_steps, metadata=META)
+    env = make_env({"maps": [MAP_1], "max_steps": max_steps, "recording": rec.to_dict()})
+    assert isinstance(env, RecordingWrapper)
+    return env
+
+
+def play(env, seed: int, rng: np.random.Generator, steps: int | None = None) -> list[dict]:
+    """Run one episode (or `steps` steps of it) with random actions; return what the env produced, as records."""
+    _, info = env.reset(seed=seed)
+    produced = [step_record(0, info)]
+    done, n = False, 0
+    while not done and (steps is None or n < steps):
+        action = rng.integers(0, 3, size=3)
+        _, reward, terminated, truncated, info = env.step(action)
+        n += 1
+        produced.append(step_record(n, info, action, reward))
+        done = terminated or truncated
+    return produced
+
+
+def test_round_trip_gives_exactly_the_steps_the_env_produced(tmp_path):
+    env = recorded_env(tmp_path)
+    produced = play(env, 3, np.random.default_rng(0))
+    (path,) = episode_files(tmp_path / "episodes")
+    assert path.name.endswith(".mcap") and not path.name.endswith(PART_SUFFIX)  # finished and renamed
+    ep = read_episode(path)
+    assert not ep.truncated
+    assert ep.steps == json.loads(json.dumps(produced))  # every field, every step, in order
+    assert len(ep.scenes) == len(produced) and ep.grid is not None
+    assert ep.metadata["run"] == "unit" and ep.metadata["algorithm"] == "ppo" and ep.metadata["seed"] == "7"
+    assert ep.metadata["map"] == "map-1" and ep.metadata["reset_seed"] == "3" and ep.metadata["worker"] == "0"
+    assert ep.logs[0].startswith("episode 0 start on map-1") and "episode end after 40 steps" in ep.logs[-1]
+    assert (ep.grid_cells() == MorphologyEnv({"maps": [MAP_1]}).grid_map.cells).all()  # the map round-trips
+    assert ep.best is not None and ep.best["R1"] == max(p["R1"] for p in produced)
+
+
+def test_every_message_validates_against_its_schema(tmp_path):
+    env = recorded_env(tmp_path)
+    play(env, 1, np.random.default_rng(1))
+    (path,) = episode_files(tmp_path / "episodes")
+    with path.open("rb") as fh:
+        reader = make_reader(fh)
+        summary = reader.get_summary()
+        assert summary is not None
+        names = {ch.topic: summary.schemas[ch.schema_id].name for ch in summary.channels.values()}
+        assert names == {"/smorphi/step": "smorphi_rl.Step", "/map": "foxglove.Grid",
+                         "/morphology": "foxglove.SceneUpdate", "/log": "foxglove.Log"}  # fmt: skip
+        counts: dict[str, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            assert schema.encoding == "jsonschema" and channel.message_encoding == "json"
+            jsonschema.validate(json.loads(message.data), json.loads(schema.data))
+            counts[channel.topic] = counts.get(channel.topic, 0) + 1
+    assert counts == {"/map": 1, "/log": 2, "/smorphi/step": 41, "/morphology": 41}
+    for name in ("Grid", "SceneUpdate", "Log"):  # the schemas shipped are the official ones, unchanged
+        schema = json.loads((ROOT / "smorphi_rl" / "schemas" / f"{name}.json").read_text())
+        assert schema["title"] == f"foxglove.{name}"
+        jsonschema.Draft202012Validator.check_schema(schema)
+
+
+def test_a_scene_holds_four_blocks_and_the_coverage_path(tmp_path):
+    env = recorded_env(tmp_path)
+    play(env, 2, np.random.default_rng(2))
+    ep = read_episode(episode_files(tmp_path / "episodes")[0])
+    base = env.unwrapped
+    for i in (0, 10, 40):
+        frame = ep.frame(i)
+        assert len(frame["blocks"]) == 4
+        plan = base.plan(tuple(ep.steps[i]["theta"]))
+        if plan.feasible:
+            assert len(frame["path"]) == len(plan.path_tiles) > 0
+
+
+def test_only_every_nth_episode_is_recorded_with_unique_names(tmp_path):
+    rng = np.random.default_rng(0)
+    env_a, env_b = recorded_env(tmp_path, every=3, max_steps=5), recorded_env(tmp_path, every=3, max_steps=5)
+    for i in range(7):
+        play(env_a, i, rng)
+        play(env_b, i, rng)
+    env_a.close()
+    env_b.close()
+    files = episode_files(tmp_path / "episodes")
+    assert len(files) == 2 * 3  # episodes 0, 3 and 6 of each env
+    assert len({f.name for f in files}) == 6 and {env_a.instance, env_b.instance} == {
+        f.name.split("-")[2] for f in files
+    }
+    assert sorted(int(read_episode(f).metadata["episode"]) for f in files) == [0, 0, 3, 3, 6, 6]
+
+
+def test_a_file_cut_short_is_recovered_up_to_its_last_flush(tmp_path, capsys):
+    env = recorded_env(tmp_path, flush_steps=10, max_steps=200)
+    produced = play(env, 5, np.random.default_rng(5), steps=35)  # flushed at steps 10, 20, 30; then "killed"
+    (part,) = episode_files(tmp_path / "episodes")
+    assert part.name.endswith(PART_SUFFIX)
+    copy = tmp_path / "killed.mcap.part"
+    shutil.copyfile(part, copy)  # what a killed worker leaves behind
+    ep = read_episode(copy)
+    assert ep.truncated and 30 <= len(ep.steps) <= 36  # the chunks flushed every 10 recorded steps
+    assert ep.steps == json.loads(json.dumps(produced[: len(ep.steps)]))
+    assert main(["replay", str(copy)]) == 0
+    out = capsys.readouterr().out
+    assert "recovered" in out and "cut short" in out
+
+    env.close()  # finishing the real one turns it into a complete file
+    (done,) = episode_files(tmp_path / "episodes")
+    data = done.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: len(data) * 2 // 3])  # a finished file truncated mid-way
+    with pytest.raises(RecordingError):
+        read_episode(tmp_path / "nothing-here.mcap")
+    partial = read_episode(cut)
+    assert partial.truncated and 1 <= len(partial.steps) <= len(produced)
+    assert partial.steps == json.loads(json.dumps(produced[: len(partial.steps)]))
+
+
+def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
+    env = recorded_env(tmp_path, max_steps=30)
+    for seed in range(2):
+        play(env, seed, np.random.default_rng(seed))
+    first, second = episode_files(tmp_path / "episodes")
+    png, gif = tmp_path / "r.png", tmp_path / "r.gif"
+    assert main(["replay", str(first), "--steps", "--png", str(png), "--gif", str(gif)]) == 0
+    out = capsys.readouterr().out
+    assert "map        map-1" in out and "run        unit (PPO, seed 7)" in out and "best       step" in out
+    assert sum(1 for line in out.splitlines() if line[:5].strip().isdigit()) == 31  # the step table
+    assert png.stat().st_size > 10_000 and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    listing = capsys.readouterr().out
+    assert first.name in listing and second.name in listing and "2 recordings" in listing
+
+
+def _foreign_mcap(path: Path) -> None:
+    with path.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        schema = writer.register_schema(name="x", encoding="jsonschema", data=b"{}")
+        channel = writer.register_channel("/other", message_encoding="json", schema_id=schema)
+        writer.add_message(channel, log_time=0, publish_time=0, data=b"{}")
+        writer.finish()
+
+
+@pytest.mark.parametrize(
+    ("content", "message"),
+    [
+        (b"not an mcap file at all", "not an MCAP file"),
+        (b"\x89MCAP0\r\n\x01\x02", "cut short before any channel"),
+        (None, "holds none of smorphi-rl's channels"),
+    ],
+)
+def test_bad_recordings_give_one_line_and_exit_1(tmp_path, capsys, content, message):
+    path = tmp_path / "bad.mcap"
+    if content is None:
+        _foreign_mcap(path)
+    else:
+        path.write_bytes(content)
+    assert main(["replay", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err and "Traceback" not in err
+
+
+def test_replay_of_a_folder_without_recordings_and_of_a_missing_file(tmp_path, capsys):
+    assert main(["replay", str(tmp_path)]) == 1
+    assert "holds no MCAP recordings" in capsys.readouterr().err
+    assert main(["replay", str(tmp_path / "absent.mcap")]) == 1
+    assert "no such file" in capsys.readouterr().err
+
+
+def test_recording_config_is_validated():
+    with pytest.raises(RecordingError, match="'every' must be a positive integer"):
+        RecordingConfig("/tmp/x", every=0)
+    with pytest.raises(RecordingError, match="must be absolute"):
+        RecordingConfig("relative/dir")
+    assert set(OUR_TOPICS) == {"/smorphi/step", "/map", "/morphology", "/log"}
+
+
+@pytest.mark.slow
+def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_path):
+    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.training import cluster
+    from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
+
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1], "max_steps": 20}), record_every=2)
+    with cluster.ray_session(None):
+        register_env()
+        config = algorithm_config(cfg, recording=recording_settings(cfg, tmp_path, "vector")).env_runners(
+            num_envs_per_env_runner=3
+        )
+        algo = config.build_algo()
+        try:
+            algo.train()
+        finally:
+            algo.stop()  # closes every env: episodes in progress are finished, nothing left as .part
+    files = episode_files(tmp_path / "episodes")
+    assert files and not [f for f in files if f.name.endswith(PART_SUFFIX)]
+    instances = {(f.name.split("-")[1], f.name.split("-")[2]) for f in files}
+    assert {w for w, _ in instances} == {"w01", "w02"} and len(instances) == 2 * 3  # 2 runners x 3 sub-envs
+    for f in files:
+        ep = read_episode(f)
+        assert not ep.truncated and ep.metadata["run"] == "vector" and ep.metadata["algorithm"] == "ppo"
+        assert int(ep.metadata["episode"]) % 2 == 0
+        assert [s["step"] for s in ep.steps] == list(range(len(ep.steps)))
