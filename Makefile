@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 
-.PHONY: setup run test lint format type bench bench-training bench-exhaustive clean
+.PHONY: setup run test lint format type bench bench-training bench-exhaustive bench-transfer clean
 
 # torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 $(BIN)/.installed: pyproject.toml
@@ -42,6 +42,9 @@ bench-training: setup
 
 bench-exhaustive: setup
 	$(BIN)/python scripts/bench_exhaustive.py
+
+bench-transfer: setup
+	$(BIN)/python scripts/bench_transfer.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

@@ -209,7 +209,9 @@ def recording_cost(cfg: TrainConfig, steps: int, rounds: int = 2) -> None:
     from smorphi_rl.recording import episode_files
     from smorphi_rl.training import cluster
     from smorphi_rl.training.config import algorithm_config, recording_settings, register_env
+    from smorphi_rl.training.quiet import quiet
 
+    quiet()
     rates: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory(prefix="bench-recording-") as tmp, cluster.ray_session(None):
         register_env()
