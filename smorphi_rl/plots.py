@@ -158,7 +158,8 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
     """A sweep's Figure 5: per map set (columns), mean episode return and final-shape R1 (rows) against env
     steps, one line per algorithm and hyperparameters: the mean over seeds, shaded from the lowest to the highest."""
     cols = max(1, len(groups))
-    fig, axes = plt.subplots(2, cols, figsize=(6 * cols, 8), squeeze=False)
+    crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
+    fig, axes = plt.subplots(2, cols, figsize=(6 * cols + (5 if crowded else 0), 8), squeeze=False)
     for col, (maps, lines) in enumerate(groups.items()):
         for row, (key, title) in enumerate((("episode_return_mean", "mean episode return"),
                                             ("final_R1", "final-shape R1"))):  # fmt: skip
@@ -169,7 +170,10 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
             ax.set_title(f"{maps}: {title}", fontsize=10)
             ax.set_xlabel("env steps")
             ax.grid(alpha=0.3)
-            ax.legend(fontsize=7)
+            if crowded:
+                ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+            else:
+                ax.legend(fontsize=7)
     return _save(fig, out)
 
 
