@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 CURVE_KEY = "final_R1"
-"""The curve (in `Curve.as_dict()` and `summary_curve`) that convergence is measured on."""
+"""The curve (in `Curve.as_dict()` and `sweep_report.result_curve`) that convergence is measured on."""
 TOLERANCE = 0.02
 PLATEAU_FRACTION = 0.2
 

@@ -42,33 +42,47 @@ class TrialRow:
     curve: dict[str, list[float]]
 
 
+def result_rows(result_json: Path) -> list[dict[str, Any]]:
+    """A trial's result.json rows, one per iteration in order: an iteration re-run after a restore
+    keeps its last row, and a line cut short by a kill is skipped."""
+    by_iter: dict[int, dict[str, Any]] = {}
+    for line in result_json.read_text().splitlines():
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        by_iter[int(row.get(ITERATION_KEY, row.get("training_iteration", 0)))] = row
+    return [by_iter[i] for i in sorted(by_iter)]
+
+
+def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
+    """Env steps, mean episode return, the iteration's best R1 and the final-shape R1 of each row
+    (the curves of `train`, `transfer` and `sweep`)."""
+    curve: dict[str, list[float]] = {"env_steps": [], "episode_return_mean": [], "best_R1": [], CURVE_KEY: []}
+    for r in rows:
+        runners = r.get("env_runners", {})
+        bests = json.loads(r.get("smorphi_episode_best") or "[]")
+        curve["env_steps"].append(float(r.get("num_env_steps_sampled_lifetime") or 0))
+        curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
+        curve["best_R1"].append(max((b[-1] for b in bests), default=math.nan))
+        curve[CURVE_KEY].append(_num(runners.get("smorphi", {}).get("R1_final")))
+    return curve
+
+
 def read_trial(trial_dir: Path) -> TrialRow | None:
     """The row of one trial folder; None before its first result."""
     params, results = trial_dir / "params.json", trial_dir / "result.json"
     if not params.is_file() or not results.is_file():
         return None
     spec = json.loads(params.read_text())
-    by_iter: dict[int, dict[str, Any]] = {}
-    for line in results.read_text().splitlines():
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError:  # a line cut short by a kill: the rest is still good
-            continue
-        by_iter[int(row.get(ITERATION_KEY, row.get("training_iteration", 0)))] = row
-    rows = [by_iter[i] for i in sorted(by_iter)]
+    rows = result_rows(results)
     if not rows:
         return None
     top = TopMorphologies()
-    curve: dict[str, list[float]] = {"env_steps": [], "episode_return_mean": [], "best_R1": [], CURVE_KEY: []}
     for r in rows:
-        steps = int(r.get("num_env_steps_sampled_lifetime") or 0)
-        bests = json.loads(r.get("smorphi_episode_best") or "[]")
-        top.add_episode_bests(spec["algo"], bests, steps)
-        runners = r.get("env_runners", {})
-        curve["env_steps"].append(float(steps))
-        curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
-        curve["best_R1"].append(max((b[-1] for b in bests), default=math.nan))
-        curve[CURVE_KEY].append(_num(runners.get("smorphi", {}).get("R1_final")))
+        top.add_episode_bests(spec["algo"], json.loads(r.get("smorphi_episode_best") or "[]"),
+                              int(r.get("num_env_steps_sampled_lifetime") or 0))  # fmt: skip
+    curve = result_curve(rows)
     at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
     best = top.top(1)
     return TrialRow(

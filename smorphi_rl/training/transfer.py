@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import csv
 import hashlib
-import json
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -145,15 +144,11 @@ def run_transfer(
 
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:
-    """Env steps, mean episode return, the iteration's best R1 and the final-shape R1 of a run, from result.json."""
+    """The curves (env steps, episode return, best R1, final-shape R1) of a training run, from its result.json."""
+    from smorphi_rl.training.sweep_report import result_curve, result_rows
+
     (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").is_file()]
-    rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
-    return {
-        "env_steps": [float(r.get("num_env_steps_sampled_lifetime") or 0) for r in rows],
-        "episode_return_mean": [float(r["env_runners"].get("episode_return_mean", np.nan)) for r in rows],
-        "best_R1": [float(r["env_runners"].get("smorphi", {}).get("best_R1_max", np.nan)) for r in rows],
-        "final_R1": [float(r["env_runners"].get("smorphi", {}).get("R1_final", np.nan)) for r in rows],
-    }
+    return result_curve(result_rows(trial / "result.json"))
 
 
 def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, Path]:

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import signal
-import subprocess
-import sys
-import time
 from pathlib import Path
 
 import pytest
+from cli_runs import cli, ctrl_c_after_checkpoint
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
@@ -30,15 +26,6 @@ checkpoint: {{every: 1}}
 pytestmark = pytest.mark.slow
 
 
-def _env() -> dict[str, str]:
-    return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-
-
-def cli(*argv: str, cwd: Path, timeout: float = 400) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd,
-                          env=_env(), timeout=timeout)  # fmt: skip
-
-
 def results(trial: Path) -> list[dict]:
     return [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
 
@@ -47,16 +34,8 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text(SWEEP)
     exp = tmp_path / "logs" / "tiny"
-    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", "sweep", str(config)], cwd=tmp_path, env=_env(),
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and not list(exp.glob("*_00000/checkpoint_000000")):
-        time.sleep(0.5)
-    assert list(exp.glob("*_00000/checkpoint_000000")), "the first trial wrote no checkpoint"
-    time.sleep(1.0)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=180)
-    assert proc.returncode == 130, err[-3000:]
+    code, out, err = ctrl_c_after_checkpoint(["sweep", str(config)], tmp_path, exp, "*_00000/checkpoint_000000")
+    assert code == 130, err[-3000:]
     assert "Traceback" not in err and f"sweep {config} --resume" in err
     assert "interrupted after" in out
     (first,) = exp.glob("*_00000")

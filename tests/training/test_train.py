@@ -17,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from cli_runs import cli, ctrl_c_after_checkpoint
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.env import EnvConfig, MorphologyEnv
@@ -34,14 +35,6 @@ OUR_TAGS = [f"ray/tune/env_runners/smorphi/{m}" for m in (
     "P_c_mean", "P_len_mean", "R1_mean", "best_P_c", "best_P_len", "best_R1", "best_theta1", "best_theta2",
     "best_theta3", "R1_final")]  # fmt: skip
 pytestmark = pytest.mark.slow
-
-
-def cli(*argv: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess[str]:
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    return subprocess.run(
-        [sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd, env=env,
-        timeout=timeout,
-    )  # fmt: skip
 
 
 def trial_dir(run_dir: Path) -> Path:
@@ -282,21 +275,10 @@ def test_attaches_to_a_running_cluster(tmp_path):
 
 
 def test_ctrl_c_stops_cleanly_and_keeps_checkpoints(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "smorphi_rl.cli", "train", "--map", MAP_1, "--timesteps", "1000000", "--name", "stopped",
-         "--checkpoint-every", "1"],
-        cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )  # fmt: skip
     run_dir = tmp_path / "logs" / "stopped"
-    deadline = time.monotonic() + 240
-    while time.monotonic() < deadline and not list(run_dir.glob("*/checkpoint_000000")):
-        time.sleep(0.5)
-    assert list(run_dir.glob("*/checkpoint_000000")), "no checkpoint was written"
-    time.sleep(1.0)
-    proc.send_signal(signal.SIGINT)
-    out, err = proc.communicate(timeout=180)
-    assert proc.returncode == 130, err[-3000:]
+    argv = ["train", "--map", MAP_1, "--timesteps", "1000000", "--name", "stopped", "--checkpoint-every", "1"]
+    code, out, err = ctrl_c_after_checkpoint(argv, tmp_path, run_dir, "*/checkpoint_000000")
+    assert code == 130, err[-3000:]
     assert "Traceback" not in err and "interrupted" in err
     assert "interrupted after" in out
     load_module(find_checkpoint(run_dir))  # what was written is intact

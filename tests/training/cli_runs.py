@@ -1,0 +1,36 @@
+"""`smorphi-rl` in a subprocess for the Ray tests: run plainly, or stopped by Ctrl-C after its first checkpoint."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+
+def ray_env() -> dict[str, str]:
+    """The environment without RAY_ADDRESS, so each run starts its own local Ray."""
+    return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+
+
+def cli(*argv: str, cwd: Path, timeout: float = 400) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd,
+                          env=ray_env(), timeout=timeout)  # fmt: skip
+
+
+def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, pattern: str) -> tuple[int, str, str]:
+    """Start the command; SIGINT once `checkpoints.glob(pattern)` finds a checkpoint; (exit code, stdout, stderr)."""
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], cwd=cwd, env=ray_env(),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 240
+    while time.monotonic() < deadline and not list(checkpoints.glob(pattern)):
+        time.sleep(0.5)
+    if not list(checkpoints.glob(pattern)):
+        proc.kill()
+        raise AssertionError(f"no checkpoint matching {pattern} under {checkpoints} within 240 s")
+    time.sleep(1.0)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=180)
+    return proc.returncode, out, err
