@@ -1,25 +1,28 @@
-"""Benchmark learning on map-1: PPO and IMPALA against the exact optimum and a random-policy yardstick.
+"""Benchmark training throughput on map-1: PPO and IMPALA through `smorphi-rl train`'s own code path.
 
-For each algorithm (fixed seed, `smorphi-rl train`'s own code path, 2 env runners on a local Ray):
-- env steps and wall time until the episode-best R1 first reaches 99 % of the best R1 over every
-  triple on the 2-degree lattice;
-- env-runner sampling throughput (env steps/s over the whole run) against the bare env's stepping
-  rate in this process (the yardstick for sampling overhead);
-- mean episode R1 in the first and last 10 iterations, and the greedy policy's settled R1 over 10
-  seeded episodes against a uniform random policy's (the yardstick for learning);
-- peak memory of the whole run (the driver and every Ray process below it, summed PSS);
-- the cost of recording: env-runner sampling rate with every episode recorded to MCAP against the
-  same runners with recording off (the yardstick), measured alternately on fresh algorithms.
-Targets (2-core machine): PPO within 99 % in <= 100,000 env steps and <= 10 minutes; peak < 3 GiB;
-recording every episode slows sampling by at most 20 %.
+Prints, in one run on this machine:
+- the yardstick: the bare env stepping with random actions in this process (env steps/s);
+- sampling alone: the algorithm's env runners sampling with a fresh policy, no learning (env steps/s);
+- Ray start-up and shutdown, measured on their own;
+- for each algorithm, `train` end to end as it reports itself ("trained for N env steps in T"): env
+  steps/s and the ratio to the bare env, learner time per iteration, peak memory (PSS summed over
+  the driver and every Ray process), and the greedy evaluation at the end (settled R1 from the
+  protocol's 20 fixed starts);
+- learning per env step before and after: the first layout (2 runners x 1 env, 1,000-step batches,
+  8 epochs of 4 minibatches) against the new default, same seed and budget, by the protocol's
+  settled R1 (`--compare-layouts`);
+- the cost of recording every episode to MCAP (`--recording-cost`).
+Targets (2-core machine): PPO >= 2,000 env steps/s as `train` reports it, >= 0.12 of the bare env;
+sampling >= 5,000/s; Ray start-up + shutdown < 15 s; IMPALA at least PPO's rate; peak < 3 GiB.
 
-    .venv/bin/python scripts/bench_training.py [--algos ppo impala] [--timesteps 100000] [--seed 0]
-    .venv/bin/python scripts/bench_training.py --recording-cost-only
+    .venv/bin/python scripts/bench_training.py [--algos ppo impala] [--timesteps 200000] [--seed 0]
+        [--compare-layouts] [--recording-cost]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import tempfile
 import threading
@@ -30,18 +33,19 @@ from pathlib import Path
 import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.evaluate import Evaluator, best_on_lattice
-from smorphi_rl.maps import load_map
-from smorphi_rl.training.checkpoints import load_module
-from smorphi_rl.training.config import TrainConfig
-from smorphi_rl.training.policy import rollout
+from smorphi_rl.training import cluster
+from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
+from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import train
 
-TARGET_STEPS = 100_000
-TARGET_WALL_S = 600.0
+TARGET_PPO_RATE = 2000.0
+TARGET_RATIO = 0.12
+TARGET_SAMPLING = 5000.0
+TARGET_RAY_S = 15.0
 TARGET_PEAK_GIB = 3.0
-TARGET_RECORDING_SLOWDOWN = 0.20
-EVAL_EPISODES = 10
+OLD_LAYOUT = {"num_env_runners": 2, "envs_per_runner": 1}
+OLD_PPO = {"train_batch_size": 1000, "num_epochs": 8, "minibatch_size": 250}
+"""The first layout and PPO preset, which `train` ran at about 174 env steps/s."""
 
 
 def _memory_kib(pid: int) -> tuple[int, int]:
@@ -104,19 +108,8 @@ class PeakMemory:
         self._thread.join()
 
 
-def random_policy_episode(env: MorphologyEnv, seed: int) -> tuple[float, float, float]:
-    """(mean R1 over the episode, best R1, final R1) of uniform random actions from the seeded start."""
-    _, info = env.reset(seed=seed)
-    rng = np.random.default_rng(seed)
-    r1, done = [], False
-    while not done:
-        _, _, terminated, truncated, info = env.step(rng.integers(0, 3, size=3))
-        r1.append(info["R1"])
-        done = terminated or truncated
-    return float(np.mean(r1)), float(info["best_R1"]), float(info["R1"])
-
-
 def env_step_rate(env: MorphologyEnv, steps: int = 20_000) -> float:
+    """The yardstick: the bare env stepping with random actions in this process."""
     rng = np.random.default_rng(1)
     actions = rng.integers(0, 3, size=(steps, 3))
     env.reset(seed=1)
@@ -128,148 +121,146 @@ def env_step_rate(env: MorphologyEnv, steps: int = 20_000) -> float:
     return steps / (time.perf_counter() - t0)
 
 
+def ray_overhead() -> float:
+    """Seconds to start a local Ray for a run and shut it down again, nothing else."""
+    t0 = time.perf_counter()
+    with cluster.ray_session(None):
+        pass
+    return time.perf_counter() - t0
+
+
+def sampling_rate(cfg: TrainConfig, steps: int = 20_000) -> float:
+    """Env steps/s of the algorithm's env runners sampling with a fresh policy (no learning)."""
+    with cluster.ray_session(None):
+        register_env()
+        algo = algorithm_config(cfg).build_algo()
+        try:
+            if cfg.env_runners == 0:
+                algo.env_runner.sample(num_timesteps=2000)
+                t0 = time.perf_counter()
+                algo.env_runner.sample(num_timesteps=steps)
+                return steps / (time.perf_counter() - t0)
+            runners = algo.env_runner_group
+            per = steps // cfg.env_runners
+            runners.foreach_env_runner(lambda r: r.sample(num_timesteps=2000), local_env_runner=False)
+            t0 = time.perf_counter()
+            runners.foreach_env_runner(lambda r: r.sample(num_timesteps=per), local_env_runner=False)
+            return per * cfg.env_runners / (time.perf_counter() - t0)
+        finally:
+            algo.stop()
+
+
+def learner_seconds(run_dir: Path) -> float:
+    """Mean learner time per iteration over the run (RLlib's smoothed timer, last value)."""
+    (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").exists()]
+    rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
+    values = [r.get("timers", {}).get("learner_update_timer") for r in rows]
+    values = [v for v in values if isinstance(v, float)]
+    return float(values[-1]) if values else float("nan")
+
+
+def run_train(cfg: TrainConfig, tmp: str, name: str) -> tuple[object, PeakMemory]:
+    with PeakMemory() as mem, open(os.devnull, "w") as devnull:
+        summary = train(cfg, name=name, log_dir=tmp, out=devnull)
+    return summary, mem
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--map", default=str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"))
     parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
-    parser.add_argument("--timesteps", type=int, default=TARGET_STEPS)
+    parser.add_argument("--timesteps", type=int, default=200_000)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--recording-cost-only", action="store_true", help="only measure the cost of recording")
-    parser.add_argument("--cost-steps", type=int, default=4000, help="env steps per runner per recording-cost round")
+    parser.add_argument("--compare-layouts", action="store_true", help="learning per step: first layout vs new")
+    parser.add_argument("--compare-steps", type=int, default=60_000, help="budget of each layout-comparison run")
+    parser.add_argument("--recording-cost", action="store_true", help="also measure recording every episode")
     args = parser.parse_args()
+    quiet()
 
-    cfg0 = TrainConfig().with_env(maps=(str(Path(args.map).resolve()),))
-    recording_cost(cfg0, args.cost_steps)
-    if args.recording_cost_only:
-        return
-    grid_map = load_map(args.map)
-    t0 = time.perf_counter()
-    optimum = best_on_lattice(Evaluator(grid_map), cfg0.env.w1, cfg0.env.w2)
-    target = 0.99 * optimum.R1
-    print(f"{grid_map.name}: best R1 on the 2-degree lattice {optimum.R1:.2f} at {optimum.theta} "
-          f"({optimum.evaluated:,} shapes, {time.perf_counter() - t0:.1f} s); 99 % = {target:.2f}")  # fmt: skip
-
-    env = MorphologyEnv(cfg0.env.to_dict())
-    bare_rate = env_step_rate(env)
-    randoms = [random_policy_episode(env, s) for s in range(EVAL_EPISODES)]
-    rand_mean, rand_best, rand_final = (float(np.mean(c)) for c in zip(*randoms, strict=True))
-    reach = sum(b >= target for _, b, _ in randoms)
-    print(f"yardsticks: bare env {bare_rate:,.0f} steps/s in this process; random policy: episode mean R1 "
-          f"{rand_mean:.2f}, final R1 {rand_final:.2f}, episode best R1 {rand_best:.2f} "
-          f"({reach}/{EVAL_EPISODES} episodes reach 99 %)")  # fmt: skip
+    base = TrainConfig(record_every=0).with_env(maps=(str(Path(args.map).resolve()),))
+    env = MorphologyEnv(base.env.to_dict())
+    bare = env_step_rate(env)
+    print(f"yardstick: the bare env steps {bare:,.0f} env steps/s with random actions in this process")
+    ray_s = ray_overhead()
+    print(f"Ray start-up and shutdown: {ray_s:.1f} s ({'under' if ray_s < TARGET_RAY_S else 'OVER'} the "
+          f"{TARGET_RAY_S:.0f} s target)")  # fmt: skip
 
     with tempfile.TemporaryDirectory(prefix="bench-training-") as tmp:
+        rates: dict[str, float] = {}
         for algo in args.algos:
-            cfg = TrainConfig(algo=algo, env=cfg0.env, timesteps=args.timesteps, seed=args.seed, checkpoint_every=1000)
-            with PeakMemory() as mem, open(os.devnull, "w") as quiet:
-                summary = train(cfg, name=algo, log_dir=tmp, out=quiet)
-            curve = summary_curve(summary.run_dir)
-            hit = first_reach(curve, target)
-            overall = summary.env_steps / summary.wall_s
-            sampling = float(curve["runner_rate"][-1])
-            first = float(np.nanmean(curve["R1_mean"][:10]))
-            last = float(np.nanmean(curve["R1_mean"][-10:]))
-            module = load_module(summary.checkpoint) if summary.checkpoint else None
-            greedy = [rollout(module, env, s).settled["R1"] for s in range(EVAL_EPISODES)] if module else [np.nan]
-            print(f"\n{algo.upper()}: {summary.env_steps:,} env steps, {summary.iterations} iterations, "
-                  f"{summary.wall_s:.0f} s wall (Ray start and stop included)")  # fmt: skip
-            if hit is None:
-                print(f"  99 % of optimum: not reached in {summary.env_steps:,} steps")
-            else:
-                steps, wall, r1 = hit
-                ok = "meets" if steps <= TARGET_STEPS and wall <= TARGET_WALL_S else "misses"
-                goal = f"{TARGET_STEPS:,}-step / {TARGET_WALL_S:.0f} s target"
-                print(f"  99 % of optimum: first reached at {steps:,.0f} env steps, {wall:.0f} s "
-                      f"(episode best R1 {r1:.2f}; {ok} the {goal})")  # fmt: skip
-            best = summary.best
-            if best is not None:
-                print(f"  best found: {best.angles} P_c {best.P_c:.2f} % P_len {best.P_len} R1 {best.R1:.2f} "
-                      f"= {100 * best.R1 / optimum.R1:.2f} % of optimum")  # fmt: skip
-            print(f"  sampling: the 2 env runners {sampling:,.0f} env steps/s (RLlib's lifetime throughput; "
-                  f"{sampling / bare_rate:.3f}x the bare env in one process); {overall:,.0f} env steps/s "
-                  f"over the whole run, start-up included")  # fmt: skip
-            busy = curve["sampling_s"]
-            if algo == "ppo" and np.nansum(busy) > 0:
-                rate = float(np.nansum(np.diff(curve["steps"], prepend=0.0)) / np.nansum(busy))
-                learn = float(np.nanmean(curve["learn_s"]))
-                print(f"  PPO samples then learns: {rate:,.0f} env steps/s while sampling, "
-                      f"{np.nanmean(busy):.2f} s sampling and {learn:.2f} s learning an iteration")  # fmt: skip
-            g = float(np.mean(greedy))
-            print(f"  learning: episode mean R1 {first:.2f} (first 10 iterations) -> {last:.2f} (last 10); "
-                  f"greedy settled R1 {g:.2f} vs random final R1 {rand_final:.2f} "
-                  f"({100 * g / optimum.R1:.2f} % vs {100 * rand_final / optimum.R1:.2f} % of optimum)")  # fmt: skip
+            cfg = replace(base, algo=algo, timesteps=args.timesteps, seed=args.seed, checkpoint_every=1000)
+            sampling = sampling_rate(cfg)
+            summary, mem = run_train(cfg, tmp, algo)
+            rate = summary.env_steps / summary.wall_s  # type: ignore[attr-defined]
+            rates[algo] = rate
+            ev = summary.evaluation  # type: ignore[attr-defined]
             gib = mem.peak_pss / 2**30
+            print(f"\n{algo.upper()} ({cfg.env_runners} remote env runners x {cfg.envs_per_runner} envs, preset fast)")
+            sampling_note = ""
+            if algo == "ppo":
+                sampling_note = f" (target 5,000: {'met' if sampling >= TARGET_SAMPLING else 'MISSED'})"
+            print(f"  sampling alone: {sampling:,.0f} env steps/s{sampling_note}")
+            verdict = "met" if rate >= TARGET_PPO_RATE and rate / bare >= TARGET_RATIO else "MISSED"
+            target = f" (PPO target 2,000/s and 0.12: {verdict})" if algo == "ppo" else ""
+            steps, wall = summary.env_steps, summary.wall_s  # type: ignore[attr-defined]
+            print(f"  train: {steps:,} env steps in {wall:.1f} s = {rate:,.0f} env steps/s, "
+                  f"{rate / bare:.3f} of the bare env{target}")  # fmt: skip
+            print(f"  learner time per iteration: {learner_seconds(summary.run_dir):.2f} s "  # type: ignore[attr-defined]
+                  f"(RLlib's smoothed timer); {summary.iterations} iterations")  # type: ignore[attr-defined]  # fmt: skip
             print(f"  peak memory (driver + every Ray process, summed PSS): {gib:.2f} GiB "
-                  f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the {TARGET_PEAK_GIB:g} GiB target; "
-                  f"summed RSS, shared libraries counted per process: {mem.peak_rss / 2**30:.2f} GiB)")  # fmt: skip
+                  f"({'under' if gib < TARGET_PEAK_GIB else 'OVER'} the 3 GiB target; summed RSS "
+                  f"{mem.peak_rss / 2**30:.2f} GiB)")  # fmt: skip
+            if ev:
+                print(
+                    f"  greedy policy at the end: mean settled R1 {ev['settled_R1_mean']:.2f}, median gap "
+                    f"{ev['median_gap']:.2f}, {ev['share_within_1pct']:.0%} of {ev['starts']} starts within 1 %"
+                )
+        if "ppo" in rates and "impala" in rates:
+            ok = "met" if rates["impala"] >= rates["ppo"] else "MISSED"
+            print(f"\nIMPALA / PPO env steps/s: {rates['impala'] / rates['ppo']:.2f} (target >= 1: {ok})")
+        if args.compare_layouts:
+            compare_layouts(base, args.compare_steps, args.seed, tmp)
+    if args.recording_cost:
+        recording_cost(base)
 
 
-def recording_cost(cfg: TrainConfig, steps: int, rounds: int = 2) -> None:
-    """Env-runner sampling rate (2 runners, a fresh PPO policy) with every episode recorded vs none."""
+def compare_layouts(base: TrainConfig, steps: int, seed: int, tmp: str) -> None:
+    """Learning per env step: the first layout and PPO preset against the new default, same seed and budget."""
+    print(f"\nlearning per env step, PPO, seed {seed}, {steps:,} env steps each (protocol: 20 fixed starts):")
+    for label, cfg in (("first layout (2 x 1 env, batch 1,000, 8 x 4 minibatches)",
+                        replace(base, timesteps=steps, seed=seed, overrides=OLD_PPO, **OLD_LAYOUT)),
+                       ("new default", replace(base, timesteps=steps, seed=seed))):  # fmt: skip
+        summary, _ = run_train(cfg, tmp, f"layout-{label.split()[0]}")
+        ev = summary.evaluation  # type: ignore[attr-defined]
+        rate = summary.env_steps / summary.wall_s  # type: ignore[attr-defined]
+        print(f"  {label}: settled R1 {ev.get('settled_R1_mean', float('nan')):.2f}, median gap "
+              f"{ev.get('median_gap', float('nan')):.2f}; {summary.wall_s:.0f} s, {rate:,.0f} env steps/s")  # type: ignore[attr-defined]  # fmt: skip
+
+
+def recording_cost(cfg: TrainConfig, steps: int = 20_000, rounds: int = 2) -> None:
+    """Sampling rate with every episode recorded to MCAP against none (the yardstick), alternately."""
     from smorphi_rl.recording import episode_files
-    from smorphi_rl.training import cluster
-    from smorphi_rl.training.config import algorithm_config, recording_settings, register_env
-    from smorphi_rl.training.quiet import quiet
 
-    quiet()
     rates: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory(prefix="bench-recording-") as tmp, cluster.ray_session(None):
         register_env()
-        recorded = replace(cfg, record_every=1)
         for _ in range(rounds):
             for record in (False, True):
-                rec = recording_settings(recorded, Path(tmp), "bench") if record else None
+                rec = recording_settings(replace(cfg, record_every=1), Path(tmp), "bench") if record else None
                 algo = algorithm_config(cfg, recording=rec).build_algo()
                 try:
-                    runners = algo.env_runner_group
-                    runners.foreach_env_runner(lambda r: r.sample(num_timesteps=500), local_env_runner=False)
+                    algo.env_runner.sample(num_timesteps=2000)
                     t0 = time.perf_counter()
-                    runners.foreach_env_runner(lambda r: r.sample(num_timesteps=steps), local_env_runner=False)
-                    rates[record].append(2 * steps / (time.perf_counter() - t0))
+                    algo.env_runner.sample(num_timesteps=steps)
+                    rates[record].append(steps / (time.perf_counter() - t0))
                 finally:
                     algo.stop()
         files = episode_files(Path(tmp) / "episodes")
         size = sum(f.stat().st_size for f in files) / max(1, len(files))
     off, on = float(np.median(rates[False])), float(np.median(rates[True]))
-    slowdown = 1 - on / off
-    verdict = "meets" if slowdown <= TARGET_RECORDING_SLOWDOWN else "misses"
-    print(f"recording cost: 2 env runners sample {on:,.0f} env steps/s recording every episode vs {off:,.0f}/s "
-          f"not recording (yardstick, same run): {on / off:.3f}x, a {100 * slowdown:.1f} % slowdown ({verdict} the "
-          f"{100 * TARGET_RECORDING_SLOWDOWN:.0f} % target); {len(files)} files, {size / 1024:.0f} KiB each "
-          f"(200-step episodes, zstd)")  # fmt: skip
-
-
-def summary_curve(run_dir: Path) -> dict[str, np.ndarray]:
-    """Per-iteration env steps, wall time, episode-best R1 (max this iteration) and episode mean R1."""
-    import json
-
-    (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").exists()]
-    rows = [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
-    ours = [r["env_runners"].get("smorphi", {}) for r in rows]
-    return {
-        "steps": np.array([r["num_env_steps_sampled_lifetime"] for r in rows], dtype=float),
-        "wall": np.array([r["time_total_s"] for r in rows], dtype=float),
-        "best_R1": np.array([o.get("best_R1_max", np.nan) for o in ours], dtype=float),
-        "R1_mean": np.array([o.get("R1_mean", np.nan) for o in ours], dtype=float),
-        "sampling_s": np.array([r.get("timers", {}).get("env_runner_sampling_timer", np.nan) for r in rows]),
-        "learn_s": np.array([r.get("timers", {}).get("learner_update_timer", np.nan) for r in rows]),
-        "runner_rate": np.array(
-            [
-                r["env_runners"]
-                .get("num_env_steps_sampled_lifetime_throughput", {})
-                .get("throughput_since_last_restore", np.nan)
-                for r in rows
-            ]
-        ),
-    }
-
-
-def first_reach(curve: dict[str, np.ndarray], target: float) -> tuple[float, float, float] | None:
-    hits = np.flatnonzero(curve["best_R1"] >= target)
-    if not hits.size:
-        return None
-    i = int(hits[0])
-    return float(curve["steps"][i]), float(curve["wall"][i]), float(curve["best_R1"][i])
+    print(f"\nrecording cost: sampling {on:,.0f} env steps/s recording every episode vs {off:,.0f}/s not recording "
+          f"(yardstick, same run): {on / off:.3f}x, a {100 * (1 - on / off):.1f} % slowdown; {len(files)} files, "
+          f"{size / 1024:.0f} KiB each")  # fmt: skip
 
 
 if __name__ == "__main__":

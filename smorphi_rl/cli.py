@@ -9,7 +9,9 @@ import argparse
 import csv
 import json
 import math
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -45,6 +47,17 @@ def default_map() -> Path:
     return Path(__file__).resolve().parent.parent / DEFAULT_MAP
 
 
+def _seed(text: str) -> int:
+    """argparse type of every --seed: a non-negative integer (numpy's generators take no negative seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
 def _number(text: str, what: str) -> float:
     try:
         value = float(text)
@@ -66,12 +79,12 @@ def read_angles_file(path: Path) -> np.ndarray:
 
     numpy reads well-formed files fast; anything it refuses is re-read row by row to name the line."""
     try:
-        with path.open() as fh:
+        with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
             first = fh.readline()
         header = 0 if _is_numeric_row(first.split(",")) else 1
-        with warnings.catch_warnings():
+        with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
             warnings.simplefilter("ignore")  # an empty file: reported below, with its name
-            values = np.loadtxt(path, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
+            values = np.loadtxt(fh, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
         if values.shape[0] > 0 and values.shape[1] == 3 and np.isfinite(values).all():
             return values
     except (ValueError, UnicodeDecodeError):
@@ -81,7 +94,7 @@ def read_angles_file(path: Path) -> np.ndarray:
     except OSError as exc:
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
     try:
-        with path.open(newline="") as fh:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
             rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1) if any(c.strip() for c in row)]
     except FileNotFoundError:
         raise SmorphiError(f"angles file not found: {path}") from None
@@ -252,12 +265,17 @@ def cmd_train(args: argparse.Namespace) -> int:
     from smorphi_rl.env import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
+    env_options = {"maps": _map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2}
     cfg = TrainConfig(
         algo=args.algo,
-        env=EnvConfig.from_dict({"maps": _map_paths(args.map)}),
+        env=EnvConfig.from_dict({k: v for k, v in env_options.items() if v is not None}),
         timesteps=args.timesteps,
         seed=args.seed,
         preset=args.preset,
+        num_env_runners=args.env_runners,
+        envs_per_runner=args.envs_per_runner,
+        eval_every=args.eval_every,
+        eval_starts=args.eval_starts,
         checkpoint_every=args.checkpoint_every,
         pretrained=args.pretrained,
         record_every=args.record_every,
@@ -500,7 +518,7 @@ def _progress_line(label: str) -> Callable[[int, int], None]:
 
 def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II or the exhaustive lattice on a map; results, front and plot under logs/<run>/."""
-    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.results import save
 
     weights = _weights(args)
@@ -509,7 +527,7 @@ def cmd_search(args: argparse.Namespace) -> int:
         from smorphi_rl.search.exhaustive import check_step, run_exhaustive
 
         check_step(args.step)
-        name = args.name or f"exhaustive-{Path(str(args.map)).stem}-step{args.step:g}"
+        name = args.name or safe_name(f"exhaustive-{Path(str(args.map)).stem}-step{args.step:g}")
         run_dir = prepare_run_dir(args.log_dir, name)
         result = run_exhaustive(str(args.map), args.step, progress=_progress_line("exhaustive"))
     elif args.method == "random":
@@ -517,14 +535,18 @@ def cmd_search(args: argparse.Namespace) -> int:
 
         if args.samples < 1:
             raise SmorphiError(f"--samples must be >= 1, got {args.samples}")
-        run_dir = prepare_run_dir(args.log_dir, args.name or f"random-{Path(str(args.map)).stem}-seed{args.seed}")
+        run_dir = prepare_run_dir(
+            args.log_dir, args.name or safe_name(f"random-{Path(str(args.map)).stem}-seed{args.seed}")
+        )
         result = run_random(str(args.map), args.samples, args.seed)
     else:
         from smorphi_rl.search.nsga2 import run_nsga2
 
         if args.pop < 2 or args.generations < 1:
             raise SmorphiError(f"--pop must be >= 2 and --generations >= 1, got {args.pop} and {args.generations}")
-        run_dir = prepare_run_dir(args.log_dir, args.name or f"nsga2-{Path(str(args.map)).stem}-seed{args.seed}")
+        run_dir = prepare_run_dir(
+            args.log_dir, args.name or safe_name(f"nsga2-{Path(str(args.map)).stem}-seed{args.seed}")
+        )
         result = run_nsga2(str(args.map), args.pop, args.generations, args.seed)
     files = save(result, run_dir, weights.w1, weights.w2)
     front_rows = result.front_records(weights.w1, weights.w2)
@@ -562,7 +584,7 @@ def cmd_search(args: argparse.Namespace) -> int:
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import points_of_run, score_methods, write_report
-    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
 
@@ -575,7 +597,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
-    run_dir = prepare_run_dir(args.log_dir, args.name or f"compare-{grid_map.name}")
+    run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
         exact = run_exhaustive(str(args.map), args.step, progress=_progress_line("exact front"))
     exact_score, methods = score_methods(exact, runs, weights.w1, weights.w2)
@@ -628,7 +650,7 @@ def build_parser() -> argparse.ArgumentParser:
     gen.add_argument("--height-m", type=float, default=5.0)
     gen.add_argument("--resolution", type=float, default=0.1, help="metres per cell")
     gen.add_argument("--density", type=float, default=0.2, help="target fraction of occupied cells")
-    gen.add_argument("--seed", type=int, default=0)
+    gen.add_argument("--seed", type=_seed, default=0)
     gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
     gen.add_argument("--force", action="store_true", help="overwrite an existing map")
     gen.set_defaults(func=cmd_maps_generate)
@@ -637,6 +659,9 @@ def build_parser() -> argparse.ArgumentParser:
     show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
     show.set_defaults(func=cmd_maps_show)
 
+    from smorphi_rl.env import REWARD_MODES
+    from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
+    from smorphi_rl.training.config import ENVS_PER_RUNNER
     from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
 
     tr = sub.add_parser("train", help="train PPO / IMPALA / APPO on maps through Ray Tune (the main job)")
@@ -645,20 +670,47 @@ def build_parser() -> argparse.ArgumentParser:
         "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
     )
     tr.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="env steps to train for")
-    tr.add_argument("--seed", type=int, default=0)
+    tr.add_argument("--seed", type=_seed, default=0)
     tr.add_argument("--preset", choices=tuple(PRESETS), default="fast", help="fast (2 cores) or paper (Table 1)")
     tr.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto); default: a local Ray")
     tr.add_argument("--name", help="run name: results go to LOG_DIR/NAME (default: ALGO-MAP-TIMESTAMP)")
     tr.add_argument("--log-dir", default="logs", help="root of the run directories (default: logs)")
     tr.add_argument("--checkpoint-every", type=int, default=10, help="iterations between checkpoints (and at the end)")
     tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
+    tr.add_argument("--reward", choices=REWARD_MODES, default=None,
+                    help="reward mode (ENV.md): paper, improvement or commit (default: the env's)")  # fmt: skip
+    _weight_options(tr)
+    tr.add_argument("--env-runners", type=int, default=None, metavar="N",
+                    help="remote env runners; 0 samples in the trial process (default: the preset's, "
+                         "0 for PPO and 2 for IMPALA/APPO on the fast preset)")  # fmt: skip
+    tr.add_argument(
+        "--envs-per-runner",
+        type=int,
+        default=ENVS_PER_RUNNER,
+        metavar="N",
+        help=f"envs each runner steps together, one forward pass for all (default {ENVS_PER_RUNNER})",
+    )
+    tr.add_argument(
+        "--eval-every",
+        type=int,
+        default=EVAL_EVERY,
+        metavar="N",
+        help=f"greedy evaluation from fixed starts every N iterations (default {EVAL_EVERY}; 0: off)",
+    )
+    tr.add_argument(
+        "--eval-starts",
+        type=int,
+        default=EVAL_STARTS,
+        metavar="N",
+        help=f"fixed seeded start shapes per map in each evaluation (default {EVAL_STARTS})",
+    )
     _record_option(tr)
     tr.set_defaults(func=cmd_train)
 
     tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
     tf.add_argument("--pretrained", required=True, help="checkpoint, trial or run directory of the pretrained policy")
     tf.add_argument("--maps", nargs="+", required=True, help="held-out maps (map_server YAML)")
-    tf.add_argument("--seeds", nargs="+", type=int, default=[0], help="seeds; each map runs once per seed and mode")
+    tf.add_argument("--seeds", nargs="+", type=_seed, default=[0], help="seeds; each map runs once per seed and mode")
     tf.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="env-step budget of every run")
     tf.add_argument("--algo", choices=ALGORITHMS, default="ppo")
     tf.add_argument("--preset", choices=tuple(PRESETS), default="fast")
@@ -686,7 +738,7 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
     ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
     ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
-    ep.add_argument("--seed", type=int, default=0, help="seed of the first episode's start morphology")
+    ep.add_argument("--seed", type=_seed, default=0, help="seed of the first episode's start morphology")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
@@ -709,7 +761,7 @@ def build_parser() -> argparse.ArgumentParser:
             m.add_argument("--pop", type=int, default=40, help="population size")
             m.add_argument("--generations", type=int, default=50)
         if method in ("random", "nsga2"):
-            m.add_argument("--seed", type=int, default=0)
+            m.add_argument("--seed", type=_seed, default=0)
         if method == "exhaustive":
             m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
         m.set_defaults(func=cmd_search)
@@ -736,7 +788,20 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _sigterm_as_sigint(signum: int, frame: Any) -> None:
+    """SIGTERM (what `timeout`, `kill` and cluster schedulers send) does what Ctrl-C does at that moment:
+    Ray Tune's own handler while a run is going (trials stop at their next report, checkpoints and the
+    summary are written), a KeyboardInterrupt otherwise."""
+    handler = signal.getsignal(signal.SIGINT)
+    if callable(handler):
+        handler(signal.SIGINT, frame)
+    else:
+        raise KeyboardInterrupt
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _sigterm_as_sigint)
     args = build_parser().parse_args(argv)
     if getattr(args, "map", "") is None and getattr(args, "map_default", None) is None:
         args.map = default_map()

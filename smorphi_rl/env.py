@@ -9,30 +9,46 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
 
 ## Observation Space
 `Dict`, the same shape for every map so one policy transfers between maps:
-- `map`: `Box(0, 1, (2, S, S))`, the fraction of occupied (channel 0) and unknown (channel 1)
-  cells of the map resampled to S x S (`obs_size`, default 64);
+- `map`: `Box(0, 255, (2, S, S), uint8)`, the fraction of occupied (channel 0) and unknown
+  (channel 1) cells of the map resampled to S x S (`obs_size`, default 64), times 255 and rounded
+  (a quarter of float32's bytes through every connector; the policy divides by 255);
 - `angles`: `Box(0, 1, (3,))`, theta / 180;
 - `metrics`: `Box(0, 1, (2,))`, P_c / 100 and P_len / (P_len + 100) of the current shape.
 
 ## Rewards
-`R = R1 + R2`, `R1 = w1 P_c - w2 P_len` of the new shape, `R2 = -beta` when the action leaves
-all three angles unchanged. Infeasible shapes score P_c = P_len = 0.
+`R1 = w1 P_c - w2 P_len` of a shape (infeasible shapes score P_c = P_len = 0). By `reward` mode:
+- `paper`: `R = R1 + R2` of the new shape, `R2 = -beta` when the action leaves all three angles
+  unchanged (the paper's eqs. 8-10, for reproduction).
+- `level`: `R = (R1(s') - mu_map) / sigma_map`, no `R2`: the return is the discounted sum of the
+  standardised R1 of every shape visited, so the best behaviour is to walk to the best shape fast
+  and stay there; each step's reward says directly how good the shape reached is.
+- `improvement`: `R = (R1(s') - R1(s)) / sigma_map`; the return telescopes to the final shape's R1
+  minus the start's, so standing still at the optimum costs nothing.
+- `commit`: the all-zero action ends the episode and pays `R1(s) / sigma_map`; any other step pays
+  `-step_cost`, and truncation pays the final shape's `R1 / sigma_map` as well.
+`mu_map` and `sigma_map` are the mean and standard deviation of R1 over a fixed seeded sample of
+random shapes on the map.
 
 ## Starting State
-A map drawn from `maps`, and theta uniform on the `angle_step_deg` lattice (or `start_theta`),
-both from the env's seeded generator.
+A map drawn from `maps`, and theta uniform on the `angle_step_deg` lattice (or `start_theta`, or
+`reset(options={"theta": ...})`, rounded to the lattice), both from the env's seeded generator.
 
 ## Episode End
-Terminated when P_c >= `coverage_threshold` (off unless set); truncated after `max_steps`.
+Terminated when P_c >= `coverage_threshold` (off unless set), or in `commit` mode on the all-zero
+action; truncated after `max_steps`.
 
 ## Version History
-- v0: first version.
+- v0: first version; the map channels became uint8 and the `improvement` and `commit` reward modes
+  were added without a version bump (no policy had been published).
 """
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import asdict, dataclass, fields, replace
+from enum import Enum
+from functools import lru_cache
 from pathlib import Path
 from typing import Any
 
@@ -43,13 +59,29 @@ from gymnasium import spaces
 from smorphi_rl.coverage import CoverageResult
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import Cell, Map, load_map
 
 ENV_ID = "smorphi_rl/Morphology-v0"
 DEFAULT_MAPS = (str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"),)
 
 
+class RewardMode(str, Enum):
+    """What an episode pays (ENV.md, "Reward modes")."""
+
+    PAPER = "paper"
+    LEVEL = "level"
+    IMPROVEMENT = "improvement"
+    COMMIT = "commit"
+
+
+REWARD_MODES = tuple(m.value for m in RewardMode)
+SIGMA_SAMPLES = 256
+"""Random shapes whose R1 spread scales the design rewards (seeded, so every process agrees)."""
+MAP_LEVELS = 255
+"""The map channels are fractions times this, rounded to uint8."""
+SCORE_CACHE_SIZE = 1 << 17
+"""Scored lattice points kept per env (a few hundred bytes each) before the memo starts again."""
 PLAN_CACHE_SIZE = 4096
 """Full plans (path and covered mask, a few KB each) kept per env before the cache starts again."""
 
@@ -82,8 +114,18 @@ class EnvConfig:
     """Fixed start morphology; random on the lattice when None."""
     block_side_m: float = DEFAULT_BLOCK_SIDE_M
     """Side of one block in metres."""
+    reward: str = RewardMode.PAPER.value
+    """Reward mode: paper (R1 + R2), improvement (R1 gained, scaled) or commit (R1 of the committed shape)."""
+    step_cost: float = 0.0
+    """`commit` mode: what every step that does not commit costs (in units of sigma_map)."""
 
     def __post_init__(self) -> None:
+        if self.reward not in REWARD_MODES:
+            raise EnvConfigError(
+                f"env_config 'reward': unknown mode '{self.reward}' (choose from {', '.join(REWARD_MODES)})"
+            )
+        if self.step_cost < 0:
+            raise EnvConfigError(f"env_config 'step_cost' must be >= 0, got {self.step_cost}")
         if not self.maps:
             raise EnvConfigError("env_config 'maps': give at least one map")
         step = self.angle_step_deg
@@ -130,6 +172,10 @@ def _coerce(name: str, value: Any) -> Any:
             return None if value is None else tuple(float(v) for v in value)
         if name == "coverage_threshold":
             return None if value is None else _real(value)
+        if name == "reward":
+            if not isinstance(value, str | RewardMode):
+                raise TypeError
+            return RewardMode(value).value if value in REWARD_MODES else str(value)
         if name in ("max_steps", "obs_size"):
             if isinstance(value, bool) or int(value) != value:
                 raise TypeError
@@ -164,6 +210,22 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
     return (total / area).astype(np.float32)
 
 
+@lru_cache(maxsize=64)
+def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float) -> tuple[float, float]:
+    """(mu_map, sigma_map): mean and standard deviation of R1 over SIGMA_SAMPLES seeded random integer shapes
+    on the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
+    rng = np.random.default_rng(20231)
+    thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
+    batch = Evaluator(load_map(map_path), block_side_m).evaluate_many(thetas)
+    r1 = w1 * batch.P_c - w2 * batch.P_len
+    return float(np.mean(r1)), max(float(np.std(r1)), 1e-6)
+
+
+def r1_spread(map_path: str, w1: float, w2: float, block_side_m: float) -> float:
+    """sigma_map (see r1_stats)."""
+    return r1_stats(map_path, w1, w2, block_side_m)[1]
+
+
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     """Smorphi morphology design as an MDP (module docstring has the full spec)."""
 
@@ -172,29 +234,50 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def __init__(self, env_config: dict[str, Any] | None = None, **kwargs: Any) -> None:
         self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
         self._maps: list[Map] = [load_map(p) for p in self.config.maps]
+        for grid_map in self._maps:  # a footprint under one cell, or absurdly many, fails here and names the map
+            try:
+                check_block_side(self.config.block_side_m, grid_map.resolution_m)
+            except SmorphiError as exc:
+                raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
         self._evaluators: dict[int, Evaluator] = {}
         self._plans: dict[tuple[int, bool, tuple[int, ...], bytes], CoverageResult] = {}
+        self._scores: dict[tuple[int, int, int, int], dict[str, Any]] = {}
         self._map_obs = [self._map_channels(m) for m in self._maps]
+        self._mode = RewardMode(self.config.reward)
+        self._stats = [
+            r1_stats(p, self.config.w1, self.config.w2, self.config.block_side_m) if self._mode is not RewardMode.PAPER
+            else (0.0, 1.0)
+            for p in self.config.maps
+        ]  # fmt: skip
         self._lattice_max = round(180 / self.config.angle_step_deg)
         size = self.config.obs_size
         self.action_space = spaces.MultiDiscrete([3, 3, 3])
         self.observation_space = spaces.Dict(
             {
-                "map": spaces.Box(0.0, 1.0, (2, size, size), np.float32),
+                "map": spaces.Box(0, MAP_LEVELS, (2, size, size), np.uint8),
                 "angles": spaces.Box(0.0, 1.0, (3,), np.float32),
                 "metrics": spaces.Box(0.0, 1.0, (2,), np.float32),
             }
         )
         self._map_index = 0
-        self._idx = np.zeros(3, dtype=np.int64)  # theta = idx * angle_step_deg
+        self._idx: tuple[int, int, int] = (0, 0, 0)  # theta = idx * angle_step_deg
         self._steps = 0
         self._last: dict[str, Any] = {}
         self._best: dict[str, Any] = {}
 
+    def sibling(self) -> MorphologyEnv:
+        """A fresh env of the same configuration that shares this one's maps, observations and caches
+        (an env runner's sub-envs share them, so a shape scored by one is free for all); unseeded."""
+        twin = copy.copy(self)
+        twin._idx, twin._steps, twin._last, twin._best = (0, 0, 0), 0, {}, {}
+        twin._np_random, twin._np_random_seed = None, None
+        return twin
+
     # -- helpers ---------------------------------------------------------------------------
     def _map_channels(self, grid_map: Map) -> np.ndarray:
         size = self.config.obs_size
-        channels = np.stack([resample(grid_map.cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
+        fractions = np.stack([resample(grid_map.cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
+        channels = np.rint(fractions * MAP_LEVELS).astype(np.uint8)
         channels.setflags(write=False)  # shared by every observation of this map
         return channels
 
@@ -206,7 +289,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     @property
     def theta(self) -> tuple[float, float, float]:
         step = self.config.angle_step_deg
-        return (float(self._idx[0] * step), float(self._idx[1] * step), float(self._idx[2] * step))
+        i, j, k = self._idx
+        return (i * step, j * step, k * step)
 
     @property
     def grid_map(self) -> Map:
@@ -242,6 +326,21 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             "map": self._maps[self._map_index].name,
         }
 
+    def _score_current(self) -> dict[str, Any]:
+        """`score` of the current lattice point, memoised by (map, lattice index): the env's hot path."""
+        key = (self._map_index, *self._idx)
+        scored = self._scores.get(key)
+        if scored is None:
+            if len(self._scores) >= SCORE_CACHE_SIZE:
+                self._scores.clear()
+            scored = self._scores[key] = self.score(self.theta)
+        return scored
+
+    @property
+    def sigma_map(self) -> float:
+        """The R1 spread that scales the design rewards on the current map (1 in `paper` mode)."""
+        return self._stats[self._map_index][1]
+
     def _observe(self) -> dict[str, np.ndarray]:
         p_c, p_len = self._last["P_c"], self._last["P_len"]
         return {
@@ -272,29 +371,48 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         self._map_index = int(self.np_random.integers(len(self._maps)))
-        if self.config.start_theta is not None:
-            self._idx = np.rint(np.asarray(self.config.start_theta) / self.config.angle_step_deg).astype(np.int64)
+        start = (options or {}).get("theta", self.config.start_theta)
+        if start is not None:  # options={"theta": ...}: the evaluation protocol's fixed starts
+            try:
+                Morphology.of(start)
+            except (SmorphiError, TypeError, ValueError) as exc:
+                raise EnvConfigError(f"reset option 'theta': {exc}") from None
+            i, j, k = (min(round(t / self.config.angle_step_deg), self._lattice_max) for t in start)
         else:
-            self._idx = self.np_random.integers(0, self._lattice_max + 1, size=3).astype(np.int64)
+            i, j, k = (int(v) for v in self.np_random.integers(0, self._lattice_max + 1, size=3))
+        self._idx = (i, j, k)
         self._steps = 0
         self._best = {}
-        self._record(self.score(self.theta))
+        self._record(self._score_current())
         return self._observe(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
-        delta = np.asarray(action, dtype=np.int64) - 1
-        if delta.shape != (3,) or (np.abs(delta) > 1).any():
+        moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
+        if len(moves) != 3 or any(m not in (0, 1, 2) for m in moves):
             raise SmorphiError(f"action must be three values in {{0, 1, 2}}, got {action!r}")
-        new_idx = np.clip(self._idx + delta, 0, self._lattice_max)
-        unchanged = bool((new_idx == self._idx).all())
-        self._idx = new_idx
         self._steps += 1
-        scored = self.score(self.theta)
+        before = self._last
+        truncated = self._steps >= self.config.max_steps
+        if self._mode is RewardMode.COMMIT and moves == [1, 1, 1]:
+            # committing keeps the shape and ends the episode, paid the value of that one design
+            return self._observe(), float(before["R1"] / self.sigma_map), True, False, self._info()
+        top = self._lattice_max
+        i, j, k = (min(max(v + m - 1, 0), top) for v, m in zip(self._idx, moves, strict=True))
+        unchanged = (i, j, k) == self._idx
+        self._idx = (i, j, k)
+        scored = self._score_current()
         self._record(scored)
-        reward = scored["R1"] - (self.config.beta if unchanged else 0.0)
+        if self._mode is RewardMode.PAPER:
+            reward = scored["R1"] - (self.config.beta if unchanged else 0.0)
+        elif self._mode is RewardMode.LEVEL:
+            mu, sigma = self._stats[self._map_index]
+            reward = (scored["R1"] - mu) / sigma
+        elif self._mode is RewardMode.IMPROVEMENT:
+            reward = (scored["R1"] - before["R1"]) / self.sigma_map
+        else:
+            reward = -self.config.step_cost + (scored["R1"] / self.sigma_map if truncated else 0.0)
         threshold = self.config.coverage_threshold
         terminated = threshold is not None and scored["P_c"] >= threshold
-        truncated = self._steps >= self.config.max_steps
         return self._observe(), float(reward), bool(terminated), bool(truncated), self._info()
 
 

@@ -23,8 +23,8 @@ from smorphi_rl.coverage import (
     raise_for_status,
     result_dict,
 )
-from smorphi_rl.errors import MorphologyError, SmorphiError
-from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.errors import MorphologyError
+from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import Map
 
 _PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS]  # what the cache holds per F
@@ -107,9 +107,7 @@ class Evaluator:
         start: Start = AUTO_START,
         cache: bool = True,
     ) -> None:
-        if not block_side_m > 0:
-            raise SmorphiError(f"block side must be > 0 m, got {block_side_m}")
-        self.block_side_m = float(block_side_m)
+        self.block_side_m = check_block_side(block_side_m, grid_map.resolution_m)
         self.start = start
         self.use_cache = cache
         self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)

@@ -192,3 +192,24 @@ def trim(grid: np.ndarray) -> np.ndarray:
 def format_footprint(f: np.ndarray) -> str:
     """F as text, top row (highest y) first, '#' for in F: the notation of FBCPP.md section 8."""
     return "\n".join("".join("#" if v else "." for v in row) for row in f[::-1])
+
+
+MAX_BLOCK_CELLS = 400
+"""A block may span at most this many map cells (the footprint buffer grows with its square)."""
+
+
+def check_block_side(block_side_m: float, resolution_m: float) -> float:
+    """The block side, if a block spans at least one and at most MAX_BLOCK_CELLS cells of the map;
+    MorphologyError naming both otherwise (a footprint under one cell has no tiles to plan on)."""
+    if isinstance(block_side_m, bool) or not isinstance(block_side_m, int | float) or not math.isfinite(block_side_m):
+        raise MorphologyError(f"block side must be a finite number of metres, got {block_side_m!r}")
+    if block_side_m <= 0:
+        raise MorphologyError(f"block side must be > 0 m, got {block_side_m:g}")
+    cells = block_side_m / resolution_m
+    if cells < 1:
+        raise MorphologyError(f"a block of {block_side_m:g} m is smaller than one cell of this map "
+                              f"({resolution_m:g} m): use a finer map or a larger --block-side")  # fmt: skip
+    if cells > MAX_BLOCK_CELLS:
+        raise MorphologyError(f"a block of {block_side_m:g} m spans {cells:,.0f} cells of this map "
+                              f"({resolution_m:g} m); at most {MAX_BLOCK_CELLS}: resample the map coarser")  # fmt: skip
+    return float(block_side_m)

@@ -6,6 +6,7 @@ stores it after flipping the image.
 
 from __future__ import annotations
 
+import contextlib
 import enum
 import math
 from collections import deque
@@ -111,6 +112,9 @@ def _require(meta: dict[str, Any], key: str, path: Path) -> Any:
 
 def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
     value = meta.get(key, default) if default is not None else _require(meta, key, path)
+    if isinstance(value, str):  # YAML 1.1 reads 1e-9 (no dot) as a string; a number is a number
+        with contextlib.suppress(ValueError):
+            value = float(value)
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
         raise MapError(f"{path}: '{key}' must be a number, got {value!r}")
     return float(value)
@@ -266,6 +270,10 @@ def _free_is_connected(occupied: np.ndarray) -> bool:
     return int(seen.sum()) == int(free.sum())
 
 
+MAX_GENERATED_CELLS = 25_000_000
+"""`maps generate` refuses larger maps (5,000 x 5,000 cells is a 500 m square at 0.1 m)."""
+
+
 def generate_map(
     rng: np.random.Generator,
     width_m: float = 5.0,
@@ -284,9 +292,14 @@ def generate_map(
         raise MapError("map width, height and resolution must be > 0")
     if not 0 < min_obstacle_m <= max_obstacle_m:
         raise MapError("need 0 < min obstacle size <= max obstacle size")
+    if not all(math.isfinite(v) for v in (width_m, height_m, resolution_m)):
+        raise MapError("map width, height and resolution must be finite numbers")
     h, w = round(height_m / resolution_m), round(width_m / resolution_m)
     if h < 2 or w < 2:
         raise MapError("the map must be at least 2 x 2 cells")
+    if h * w > MAX_GENERATED_CELLS:
+        raise MapError(f"a {width_m:g} x {height_m:g} m map at {resolution_m:g} m is {w:,} x {h:,} cells; "
+                       f"generate at most {MAX_GENERATED_CELLS:,} cells (a coarser --resolution)")  # fmt: skip
     lo = max(1, round(min_obstacle_m / resolution_m))
     hi = max(lo, min(round(max_obstacle_m / resolution_m), h - 1, w - 1))
     occupied = np.zeros((h, w), dtype=bool)

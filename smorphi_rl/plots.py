@@ -134,16 +134,22 @@ def plot_top_morphologies(
 def plot_learning_curves(
     curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None
 ) -> Path:
-    """Mean episode return, the iteration's best R1 and the final-shape R1 against env steps (paper Figure 5).
+    """Mean episode return, the iteration's best R1 and the greedy policy's settled R1 (the evaluation protocol;
+    the stochastic final-shape R1 beside it) against env steps (paper Figure 5).
 
-    `curves[label]` has lists `env_steps`, `episode_return_mean`, `best_R1` and optionally `final_R1`."""
+    `curves[label]` has lists `env_steps`, `episode_return_mean`, `best_R1` and optionally `eval_R1`, `final_R1`."""
     panels = [("episode_return_mean", "mean episode return"), ("best_R1", "best R1 of the episodes in each iteration"),
-              ("final_R1", "final-shape R1 (the shape episodes end on; convergence)")]  # fmt: skip
+              ("eval_R1", "greedy settled R1, mean over the fixed starts (convergence)")]  # fmt: skip
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.4))
     for ax, (key, title) in zip(axes, panels, strict=True):
         for label, c in curves.items():
             if key in c:
-                ax.plot(c["env_steps"], c[key], lw=1.4, label=label)
+                x, y = np.asarray(c["env_steps"], dtype=float), np.asarray(c[key], dtype=float)
+                ok = np.isfinite(y)
+                (line,) = ax.plot(x[ok], y[ok], lw=1.4, marker="o" if key == "eval_R1" else None, ms=3, label=label)
+                if key == "eval_R1" and "final_R1" in c:
+                    ax.plot(c["env_steps"], c["final_R1"], lw=0.8, alpha=0.4, color=line.get_color(),
+                            label=f"{label}: stochastic final-shape R1")  # fmt: skip
         if optimum_r1 is not None and key != "episode_return_mean":
             ax.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")
             ax.axhline(0.99 * optimum_r1, color="grey", ls=":", lw=1, label="99 % of optimum")
@@ -155,14 +161,14 @@ def plot_learning_curves(
 
 
 def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | Path) -> Path:
-    """A sweep's Figure 5: per map set (columns), mean episode return and final-shape R1 (rows) against env
+    """A sweep's Figure 5: per map set (columns), mean episode return and the greedy settled R1 (rows) against env
     steps, one line per algorithm and hyperparameters: the mean over seeds, shaded from the lowest to the highest."""
     cols = max(1, len(groups))
     crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
     fig, axes = plt.subplots(2, cols, figsize=(6 * cols + (5 if crowded else 0), 8), squeeze=False)
     for col, (maps, lines) in enumerate(groups.items()):
         for row, (key, title) in enumerate((("episode_return_mean", "mean episode return"),
-                                            ("final_R1", "final-shape R1"))):  # fmt: skip
+                                            ("eval_R1", "greedy settled R1 (fixed starts)"))):  # fmt: skip
             ax = axes[row][col]
             for label, c in lines.items():
                 (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, label=label)

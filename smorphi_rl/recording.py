@@ -350,21 +350,6 @@ class RecordingWrapper(gym.Wrapper):
         self._writer = None
 
 
-RECORDING_KEY = "recording"
-"""The env_config key that carries a RecordingConfig dict to the env runners (not an EnvConfig field)."""
-
-
-def make_env(env_config: dict[str, Any] | None) -> gym.Env:
-    """The env for RLlib's env creator: MorphologyEnv, wrapped for recording when env_config asks for it."""
-    raw = dict(env_config or {})
-    recording = raw.pop(RECORDING_KEY, None)
-    env = MorphologyEnv(raw)
-    if not recording:
-        return env
-    worker = int(getattr(env_config, "worker_index", 0) or 0)
-    return RecordingWrapper(env, RecordingConfig(**recording), worker_index=worker)
-
-
 # -- reading -------------------------------------------------------------------------------------
 
 

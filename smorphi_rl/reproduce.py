@@ -60,7 +60,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: An
     """Run every experiment of `budget_name`; returns the report's path."""
     from smorphi_rl.compare import points_of_run, score_methods, write_report
     from smorphi_rl.env import EnvConfig
-    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.nsga2 import run_nsga2
     from smorphi_rl.search.random import run_random
@@ -92,7 +92,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: An
             run_nsga2(_map(map_name), b.nsga2_pop, b.nsga2_generations, seed=0),
             run_exhaustive(_map(map_name), b.exhaustive_step),
         ):
-            run_dir = prepare_run_dir(root, f"{result.method}-{map_name}")
+            run_dir = prepare_run_dir(root, safe_name(f"{result.method}-{map_name}"))
             save(result, run_dir, weights.w1, weights.w2)
             searches[(result.method, map_name)] = result
     say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
@@ -117,7 +117,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: An
         runs = [points_of_run(training[(a, map_name)], map_name) for a in b.algorithms]
         runs += [points_of_run(root / f"{m}-{map_name}", map_name) for m in ("nsga2", "random")]
         exact_score, scores = score_methods(exact, runs, weights.w1, weights.w2)
-        cmp_dir = prepare_run_dir(root, f"compare-{map_name}")
+        cmp_dir = prepare_run_dir(root, safe_name(f"compare-{map_name}"))
         files = write_report(exact_score, scores, map_name, weights.w1, weights.w2, cmp_dir)
         curves = {a.upper(): summary_curve(training[(a, map_name)]) for a in b.algorithms}
         sections += _map_section(map_name, training, b, exact_score, scores, files, curves, root)

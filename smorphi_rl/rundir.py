@@ -1,27 +1,89 @@
-"""Run directories under logs/: created and proven writable up front; an existing run is never overwritten."""
+"""Run directories under --log-dir: one validated name, claimed atomically, never overwritten.
+
+A run name names exactly one folder directly under the log directory (no separators, no '.' or
+'..', nothing hidden), so nothing a command writes can land outside the folder the user named.
+The folder is claimed by creating a marker file with O_EXCL: of several processes racing for one
+name exactly one wins, and the others are refused before they write anything.
+"""
 
 from __future__ import annotations
 
+import os
+import re
+import shutil
+import time
 from pathlib import Path
 
 from smorphi_rl.errors import SmorphiError
+
+RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}")
+MARKER = ".smorphi-run"
+"""Created first in every run directory: the claim (and the write test); says which process made it."""
 
 
 class RunDirError(SmorphiError):
     """The run directory cannot be used."""
 
 
-def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
-    """`log_dir/name`, made and write-tested; refused if it already holds anything."""
-    root = Path(log_dir).resolve()
-    run_dir = root / name
-    if run_dir.exists() and any(run_dir.iterdir()):
+def check_run_name(name: str, what: str = "run name") -> str:
+    """`name` if it names one plain folder; RunDirError otherwise."""
+    if not isinstance(name, str) or not RUN_NAME.fullmatch(name):
+        raise RunDirError(
+            f"{what} {name!r} is not a plain folder name: use letters, digits and _ . + - (not first), "
+            "at most 128 characters, no / or .."
+        )
+    return name
+
+
+def safe_name(text: str) -> str:
+    """A default run name built from free text (a map's file name): every other character becomes '_'."""
+    name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text)[:128]
+    return name if RUN_NAME.fullmatch(name) else f"run_{name}"[:128]
+
+
+def check_run_dir(log_dir: str | Path, name: str) -> Path:
+    """Where the run would go, checked without creating anything (a valid name, not taken)."""
+    run_dir = Path(log_dir).resolve() / check_run_name(name)
+    if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
         raise RunDirError(f"run directory {run_dir} already exists: choose another --name")
+    return run_dir
+
+
+def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
+    """`log_dir/name`, created and claimed atomically; refused if it already holds anything or another
+    process claimed it first."""
+    run_dir = check_run_dir(log_dir, name)
+    root = run_dir.parent
     try:
-        run_dir.mkdir(parents=True, exist_ok=True)
-        probe = run_dir / ".write-test"
-        probe.write_text("ok")
-        probe.unlink()
+        root.mkdir(parents=True, exist_ok=True)
+        run_dir.mkdir(exist_ok=True)
+        fd = os.open(run_dir / MARKER, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
+    except FileExistsError:
+        raise RunDirError(f"run directory {run_dir} already exists: choose another --name") from None
     except OSError as exc:
         raise RunDirError(f"log directory {root} is not writable ({exc.strerror or exc})") from None
+    with os.fdopen(fd, "w") as fh:
+        fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+    if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:  # a user's folder that filled meanwhile
+        (run_dir / MARKER).unlink(missing_ok=True)
+        raise RunDirError(f"run directory {run_dir} already exists: choose another --name")
     return run_dir
+
+
+def discard_run_dir(run_dir: Path) -> None:
+    """Remove a run directory this process claimed and that holds no result (a run that never started)."""
+    if (run_dir / MARKER).is_file():
+        shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def write_atomic(path: Path, data: bytes) -> None:
+    """Write `path` through a temporary file in the same folder and rename it: readers never see half a file."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -59,3 +59,12 @@ def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_un
     cells[(u >= p_occupied) & (u < p_occupied + p_unknown)] = Cell.UNKNOWN
     cells[rng.integers(h), rng.integers(w)] = Cell.FREE
     return Map(cells, 0.1, name="random")
+
+
+@pytest.fixture(autouse=True, scope="session")
+def _shared_optimum_cache(tmp_path_factory):
+    """Every training run in the suite shares one cache of exact optima (each costs ~10 s to compute)."""
+    import os
+
+    os.environ["SMORPHI_RL_CACHE_DIR"] = str(tmp_path_factory.mktemp("optimum-cache"))
+    yield

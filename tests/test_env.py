@@ -142,3 +142,79 @@ def test_bad_action():
     env.reset(seed=0)
     with pytest.raises(SmorphiError, match="action"):
         env.step(np.array([3, 0, 0]))
+
+
+def test_map_observation_is_uint8_fractions():
+    env = MorphologyEnv()
+    obs, _ = env.reset(seed=0)
+    assert obs["map"].dtype == np.uint8 and obs["map"].max() == 255  # fully occupied cells
+    assert env.observation_space["map"].contains(obs["map"])
+
+
+def test_improvement_return_telescopes_to_final_minus_start():
+    env = MorphologyEnv({"reward": "improvement", "max_steps": 40})
+    _, info = env.reset(seed=3)
+    start = info["R1"]
+    total, done = 0.0, False
+    rng = np.random.default_rng(1)
+    while not done:
+        _, reward, terminated, truncated, info = env.step(rng.integers(0, 3, size=3))
+        total += reward
+        done = terminated or truncated
+    assert total == pytest.approx((info["R1"] - start) / env.sigma_map)
+    assert env.sigma_map > 0.5  # R1 spreads over several points on map-1
+
+
+def test_commit_ends_the_episode_and_pays_the_shape():
+    env = MorphologyEnv({"reward": "commit", "step_cost": 0.01, "start_theta": [90, 90, 90]})
+    _, info = env.reset(seed=0)
+    _, moved, terminated, _, info = env.step(np.array([2, 2, 2]))
+    assert moved == pytest.approx(-0.01) and not terminated
+    _, paid, terminated, truncated, after = env.step(NOOP)
+    assert terminated and not truncated and after["theta"] == info["theta"] == (91.0, 91.0, 91.0)
+    assert paid == pytest.approx(info["R1"] / env.sigma_map)
+
+
+def test_commit_truncation_pays_the_final_shape():
+    env = MorphologyEnv({"reward": "commit", "max_steps": 2, "start_theta": [10, 10, 10]})
+    env.reset(seed=0)
+    env.step(np.array([2, 2, 2]))
+    _, paid, terminated, truncated, info = env.step(np.array([2, 2, 2]))
+    assert truncated and not terminated and paid == pytest.approx(info["R1"] / env.sigma_map)
+
+
+def test_level_reward_is_standardised_r1_without_penalty():
+    from smorphi_rl.env import r1_stats
+
+    env = MorphologyEnv({"reward": "level", "start_theta": [90, 90, 90]})
+    _, info = env.reset(seed=0)
+    mu, sigma = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.block_side_m)
+    _, still, *_rest, info = env.step(NOOP)  # standing still costs nothing
+    assert still == pytest.approx((info["R1"] - mu) / sigma)
+
+
+def test_reset_option_theta_sets_the_start():
+    env = MorphologyEnv()
+    _, info = env.reset(seed=0, options={"theta": (12.0, 34.0, 56.0)})
+    assert info["theta"] == (12.0, 34.0, 56.0)
+    with pytest.raises(EnvConfigError, match="reset option 'theta'"):
+        env.reset(options={"theta": (12.0, 34.0, 200.0)})
+
+
+def test_unknown_reward_mode_is_named():
+    with pytest.raises(EnvConfigError, match="env_config 'reward': unknown mode 'greedy'"):
+        MorphologyEnv({"reward": "greedy"})
+
+
+def test_block_smaller_than_a_cell_is_refused_before_any_planning():
+    with pytest.raises(EnvConfigError, match="smaller than one cell"):
+        MorphologyEnv({"block_side_m": 0.01})
+
+
+def test_sibling_shares_tables_but_not_state():
+    env = MorphologyEnv()
+    twin = env.sibling()
+    env.reset(seed=1)
+    twin.reset(seed=2)
+    assert twin._scores is env._scores and twin._evaluators is env._evaluators
+    assert twin.np_random is not env.np_random and twin.theta != env.theta

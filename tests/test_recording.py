@@ -21,10 +21,10 @@ from smorphi_rl.recording import (
     RecordingError,
     RecordingWrapper,
     episode_files,
-    make_env,
     read_episode,
     step_record,
 )
+from smorphi_rl.vector_env import make_env
 
 ROOT = Path(__file__).resolve().parents[1]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")

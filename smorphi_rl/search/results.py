@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.rundir import write_atomic
 from smorphi_rl.search.pareto import pareto_front, r1
 
 RESULTS_FILE = "results.npz"
@@ -57,10 +59,12 @@ class SearchResult:
 def save(result: SearchResult, run_dir: Path, w1: float, w2: float) -> dict[str, Path]:
     """results.npz (every evaluation, compressed), front.csv and summary.json; returns the paths."""
     files = {"results": run_dir / RESULTS_FILE, "front": run_dir / "front.csv", "summary": run_dir / "summary.json"}
+    buffer = io.BytesIO()
     np.savez_compressed(
-        files["results"], thetas=result.thetas.astype(np.float32), P_c=result.P_c, P_len=result.P_len.astype(np.int32),
+        buffer, thetas=result.thetas.astype(np.float32), P_c=result.P_c, P_len=result.P_len.astype(np.int32),
         feasible=result.feasible,
     )  # fmt: skip
+    write_atomic(files["results"], buffer.getvalue())  # a reader never sees half an archive
     front = result.front_records(w1, w2)
     with files["front"].open("w", newline="") as fh:
         writer = csv.writer(fh)

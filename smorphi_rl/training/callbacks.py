@@ -11,7 +11,10 @@ import os
 from typing import Any
 
 from ray.rllib.callbacks.callbacks import RLlibCallback
-from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS
+from ray.rllib.core import DEFAULT_MODULE_ID
+from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
+
+from smorphi_rl.protocol import EVAL_KEY
 
 WINDOW = 50
 """Episodes each mean is taken over (RLlib's own episode_return_mean uses 100)."""
@@ -30,7 +33,13 @@ def _step_infos(episode: Any, chunks: list[Any] | None) -> list[dict[str, Any]]:
 
 
 class MorphologyCallbacks(RLlibCallback):
-    """Episode mean and best P_c, P_len, R1, the R1 of the shape the episode ends on, and the best shape's angles."""
+    """Episode mean and best P_c, P_len, R1, the R1 of the shape the episode ends on, and the best shape's angles;
+    every `eval_every` iterations (and the first), the evaluation protocol's greedy roll-outs (`with_evaluation`)."""
+
+    eval_every: int = 0
+    eval_final_steps: int = 0
+    eval_starts: tuple[tuple[float, float, float], ...] = ()
+    eval_optima: dict[str, Any] = {}  # noqa: RUF012 (set per run by with_evaluation)
 
     def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
         import torch
@@ -75,3 +84,55 @@ class MorphologyCallbacks(RLlibCallback):
         if not isinstance(bests, list | tuple):  # no episode ended this iteration (RLlib reports NaN)
             bests = []
         result[EPISODE_BEST_KEY] = json.dumps([list(b) for b in bests if isinstance(b, list | tuple) and len(b) == 7])
+        iteration = int(getattr(algorithm, "iteration", 0) or 0)
+        last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
+        if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):
+            result[EVAL_KEY] = self._evaluate(algorithm)
+
+    def _evaluate(self, algorithm: Any) -> dict[str, Any]:
+        """Greedy roll-outs of the learner's current policy from the fixed starts on every training map."""
+        import numpy as np
+
+        from smorphi_rl.env import EnvConfig
+        from smorphi_rl.protocol import Optimum
+        from smorphi_rl.training.policy import evaluate_policy
+
+        known = set(EnvConfig.__dataclass_fields__)
+        env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
+        starts = np.array(self.eval_starts, dtype=np.float64)
+        optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
+
+        def run(learner: Any) -> list[Any]:
+            return evaluate_policy(learner.module[DEFAULT_MODULE_ID], env, starts, optima)
+
+        (first, *_) = list(algorithm.learner_group.foreach_learner(run))  # the local learner, or the first remote
+        evaluations = first.get()
+        return evaluation_metrics(evaluations)
+
+
+def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
+    """The eval/... figures: every map's summary under its name, and the medians and shares over all maps."""
+    import numpy as np
+
+    gaps = np.concatenate([e.gaps for e in evaluations])
+    within = sum(e.within for e in evaluations)
+    out: dict[str, Any] = {e.map: e.summary() for e in evaluations}
+    out |= {"median_gap": float(np.median(gaps)), "share_within_1pct": within / len(gaps), "starts": len(gaps),
+            "settled_R1_mean": float(np.mean([e.mean_R1 for e in evaluations]))}  # fmt: skip
+    return out
+
+
+def with_evaluation(
+    base: type[MorphologyCallbacks], every: int, starts: Any, optima: dict[str, Any], final_steps: int = 0
+) -> type:
+    """`base` with the periodic evaluation switched on: `starts` (n x 3), each training map's Optimum, and the
+    env-step budget (the iteration that reaches it is evaluated too)."""
+    from dataclasses import asdict
+
+    class EvaluatingCallbacks(base):  # type: ignore[valid-type, misc]
+        eval_every = every
+        eval_final_steps = final_steps
+        eval_starts = tuple(tuple(float(t) for t in row) for row in starts)
+        eval_optima = {name: asdict(o) for name, o in optima.items()}  # noqa: RUF012
+
+    return EvaluatingCallbacks

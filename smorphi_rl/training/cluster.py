@@ -71,3 +71,16 @@ def ray_session(address: str | None) -> Iterator[None]:
         yield
     finally:
         ray.shutdown()
+
+
+def check_capacity(cpus: float, env_runners: int, address: str | None) -> None:
+    """Refuse, before any trial starts, a layout the Ray in use cannot place (it would wait forever)."""
+    import ray
+
+    have = float(ray.cluster_resources().get("CPU", 0.0))
+    if cpus > have + 1e-9:
+        where = "this machine's local Ray" if address is None else f"the Ray cluster at {address}"
+        raise ClusterError(
+            f"{env_runners} env runner(s) need {cpus:g} CPUs (1 for the trial, 0.5 per runner) and {where} has "
+            f"{have:g}: use fewer --env-runners"
+        )

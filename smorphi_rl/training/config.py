@@ -7,20 +7,23 @@ from __future__ import annotations
 
 import json
 import math
-import re
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PPO_ONLY, PRESETS, Preset
+from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
+from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, LAYOUT, PPO_ONLY, PRESETS, Preset
 
 TUNE_ENV_NAME = "smorphi_rl_morphology"
 """The env's name in Ray Tune's registry (a Tune config names the env by this string)."""
-NUM_ENV_RUNNERS = 2
 CPUS_PER_ENV_RUNNER = 0.5
 """Two runners plus the trial's own process fit in 2 CPUs (1 CPU each never starts on 2 cores)."""
+CPUS_FOR_TRIAL = 1.0
+"""The trial's own process: the learner, and the local env runner when there are no remote ones."""
+ENVS_PER_RUNNER = 16
+"""Sub-envs each env runner steps together: one forward pass serves them all (see the README's speed table)."""
 
 
 class TrainConfigError(SmorphiError):
@@ -36,7 +39,10 @@ class TrainConfig:
     timesteps: int = DEFAULT_TIMESTEPS
     seed: int = 0
     preset: str = "fast"
-    num_env_runners: int = NUM_ENV_RUNNERS
+    num_env_runners: int | None = None
+    """Remote env runners; None: the preset's layout (0 samples in the trial process)."""
+    envs_per_runner: int = ENVS_PER_RUNNER
+    """Envs each env runner steps as one vector env (one policy forward pass for all of them)."""
     checkpoint_every: int = 10
     """Checkpoint every this many iterations (and always at the end)."""
     top_k: int = 8
@@ -46,6 +52,10 @@ class TrainConfig:
     """Also stop after this many training iterations (tests and smoke runs); None: the env-step budget only."""
     overrides: dict[str, float] = field(default_factory=dict)
     """Hyperparameters that replace the preset's (a sweep's search space), by Preset field name."""
+    eval_every: int = EVAL_EVERY
+    """Evaluate the greedy policy from the protocol's fixed starts every this many iterations (0: never)."""
+    eval_starts: int = EVAL_STARTS
+    """Fixed seeded start shapes per training map in each evaluation."""
     record_every: int = 0
     """Record every Nth episode of each env to MCAP under the run's episodes/ folder; 0: no recording."""
 
@@ -54,17 +64,32 @@ class TrainConfig:
             raise TrainConfigError(f"unknown algorithm '{self.algo}' (choose from {', '.join(ALGORITHMS)})")
         if self.preset not in PRESETS:
             raise TrainConfigError(f"unknown preset '{self.preset}' (choose from {', '.join(PRESETS)})")
-        for name in ("timesteps", "num_env_runners", "checkpoint_every", "top_k"):
+        for name in ("timesteps", "envs_per_runner", "checkpoint_every", "top_k", "eval_starts"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise TrainConfigError(f"{name} must be a positive integer, got {value!r}")
+        runners = self.num_env_runners
+        if runners is not None and (isinstance(runners, bool) or not isinstance(runners, int) or runners < 0):
+            raise TrainConfigError(f"env runners must be 0 (sample in the trial process) or more, got {runners!r}")
         if self.max_iterations is not None and (not isinstance(self.max_iterations, int) or self.max_iterations < 1):
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.eval_every, bool) or not isinstance(self.eval_every, int) or self.eval_every < 0:
+            raise TrainConfigError(f"eval_every must be a non-negative integer (0: off), got {self.eval_every!r}")
         if isinstance(self.record_every, bool) or not isinstance(self.record_every, int) or self.record_every < 0:
             raise TrainConfigError(f"record_every must be a non-negative integer (0: off), got {self.record_every!r}")
         check_overrides(self.algo, self.overrides)
+
+    @property
+    def env_runners(self) -> int:
+        """Remote env runners of this run: the option, else the preset's layout."""
+        return self.hyperparameters.env_runners if self.num_env_runners is None else self.num_env_runners
+
+    @property
+    def cpus(self) -> float:
+        """CPUs one trial of this run asks for: its own process plus each remote env runner's share."""
+        return CPUS_FOR_TRIAL + CPUS_PER_ENV_RUNNER * self.env_runners
 
     @property
     def hyperparameters(self) -> Preset:
@@ -83,7 +108,7 @@ class TrainConfig:
 
 def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
     """Every override names a hyperparameter that `algo` uses, with a positive number (gamma, lambda_ <= 1)."""
-    known = {f.name for f in fields(Preset)} - {"rollout_fragment_length", "min_time_s_per_iteration"}
+    known = {f.name for f in fields(Preset)} - set(LAYOUT)
     for name, value in overrides.items():
         if name not in known:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
@@ -105,11 +130,13 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
 def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tuple[float, float]:
     """(offset, scale) for the critic, V = offset + scale * head, from R1 of random shapes on the maps.
 
-    Returns are in the thousands (R1 ~ 80 a step over ~1/(1-gamma) steps) while shapes differ by a
-    few percent; starting the critic at the random-shape level and scaling its head to the spread
-    lets it learn in a few iterations instead of a few hundred."""
+    Starting the critic at the random-shape return level and scaling its head to the spread lets it
+    learn in a few iterations instead of a few hundred. Returns by reward mode: `paper`, R1 a step
+    over ~1/(1-gamma) steps (thousands); `level`, the same in standard units (centred on 0);
+    `improvement`, the R1 gained in sigma_map units; `commit`, one shape's R1 in sigma_map units."""
     import numpy as np
 
+    from smorphi_rl.env import RewardMode, r1_stats
     from smorphi_rl.evaluate import Evaluator
     from smorphi_rl.maps import load_map
 
@@ -118,10 +145,18 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     r1 = []
     for path in env.maps:
         batch = Evaluator(load_map(path), env.block_side_m).evaluate_many(thetas)
-        r1.append(env.w1 * batch.P_c - env.w2 * batch.P_len)
+        values = env.w1 * batch.P_c - env.w2 * batch.P_len
+        if env.reward != RewardMode.PAPER.value:
+            mu, sigma = r1_stats(path, env.w1, env.w2, env.block_side_m)
+            values = (values - (mu if env.reward == RewardMode.LEVEL.value else 0.0)) / sigma
+        r1.append(values)
     values = np.concatenate(r1)
-    horizon = 1.0 / (1.0 - gamma) if gamma < 1 else float(env.max_steps)
     spread = max(float(values.max() - values.min()), 1e-3)
+    if env.reward == RewardMode.IMPROVEMENT.value:
+        return 0.0, spread
+    if env.reward == RewardMode.COMMIT.value:
+        return float(values.mean()), spread
+    horizon = 1.0 / (1.0 - gamma) if gamma < 1 else float(env.max_steps)
     return float(values.mean()) * horizon, spread * horizon
 
 
@@ -143,15 +178,16 @@ def recording_settings(cfg: TrainConfig, run_dir: Path, run: str) -> dict[str, A
 
 def default_run_name(cfg: TrainConfig, stamp: str) -> str:
     """`<algo>-<first map>-<stamp>`, safe as a directory name."""
-    stem = re.sub(r"[^A-Za-z0-9_.-]+", "_", cfg.env.maps[0].rsplit("/", 1)[-1].removesuffix(".yaml"))
-    return f"{cfg.algo}-{stem}-{stamp}"
+    from smorphi_rl.rundir import safe_name
+
+    return safe_name(f"{cfg.algo}-{Path(cfg.env.maps[0]).name.removesuffix('.yaml')}-{stamp}")
 
 
 def register_env() -> None:
     """Register the env with Ray Tune under TUNE_ENV_NAME (safe to call again)."""
     from ray.tune.registry import register_env as tune_register
 
-    from smorphi_rl.recording import make_env
+    from smorphi_rl.vector_env import make_env
 
     tune_register(TUNE_ENV_NAME, make_env)
 
@@ -165,9 +201,9 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
     from ray.rllib.algorithms.ppo import PPOConfig
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
-    from smorphi_rl.recording import RECORDING_KEY
     from smorphi_rl.training.callbacks import MorphologyCallbacks
     from smorphi_rl.training.module import MorphologyModule
+    from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
 
     hp = cfg.hyperparameters
     offset, scale = value_normalisation(cfg.env, hp.gamma)
@@ -191,11 +227,15 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
         }
     config = (
         config_cls()
-        .environment(TUNE_ENV_NAME, env_config=env_dict | ({RECORDING_KEY: recording} if recording else {}))
+        .environment(
+            TUNE_ENV_NAME,
+            env_config=env_dict | {SEED_KEY: cfg.seed} | ({RECORDING_KEY: recording} if recording else {}),
+        )
         .framework("torch")
         .env_runners(
-            num_env_runners=cfg.num_env_runners,
-            num_envs_per_env_runner=1,
+            num_env_runners=cfg.env_runners,
+            num_envs_per_env_runner=cfg.envs_per_runner,
+            gym_env_vectorize_mode="vector_entry_point",  # our MorphologyVectorEnv (smorphi_rl/vector_env.py)
             num_cpus_per_env_runner=CPUS_PER_ENV_RUNNER,
             rollout_fragment_length=hp.rollout_fragment_length,
         )

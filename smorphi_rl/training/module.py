@@ -3,6 +3,10 @@
 Policy and value are separate networks (no shared trunk), so the value loss, whose scale is the
 episode return's, never swamps the policy gradient. The critic is `value_offset + value_scale * head`
 (the random-shape return level and its spread), so the head's raw output stays near 0.
+
+The map is constant within an episode and a batch holds a handful of distinct maps, so the CNN runs
+once per distinct map in a batch and its features are gathered to the rows (`_MapEncoder`): the
+learner's cost no longer grows with a CNN pass per row.
 """
 
 from __future__ import annotations
@@ -20,6 +24,58 @@ from torch import nn
 
 HIDDEN = 128
 MAP_FEATURES = 64
+MAP_LEVELS = 255.0
+"""The env's map channels are uint8 fractions times 255."""
+
+
+def distinct_rows(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """(index of one row per distinct map, each row's distinct-map number) of a uint8 batch (B, ...), or
+    None when the batch's maps are (nearly) all distinct.
+
+    Rows are grouped by a few sampled pixels, then every row is checked equal to its group's first
+    row, so the grouping is exact: a batch where the sample misleads is simply not deduplicated."""
+    flat = maps.reshape(maps.shape[0], -1)
+    words = _as_words(flat)
+    n = flat.shape[0]
+    if bool((words == words[0]).all()):  # one map: the common case, one cheap check
+        zeros = torch.zeros(n, dtype=torch.long, device=flat.device)
+        return zeros[:1], zeros
+    if n < MIN_GROUPED_ROWS:
+        return None
+    probe = _probe(flat.shape[1], flat.device)
+    keys = (flat[:, probe[0]].to(torch.int64) * probe[1]).sum(dim=1)
+    unique, inverse = torch.unique(keys, return_inverse=True)
+    if 2 * unique.shape[0] > n:
+        return None
+    first = torch.full((unique.shape[0],), n, dtype=torch.long, device=flat.device)
+    first.scatter_reduce_(0, inverse, torch.arange(n, device=flat.device), reduce="amin")
+    if not bool((words[first][inverse] == words).all()):
+        return None
+    return first, inverse
+
+
+def _as_words(flat: torch.Tensor) -> torch.Tensor:
+    """The rows of a uint8 (B, N) tensor as int64 words when N allows (8x fewer elements to compare)."""
+    if flat.shape[1] % 8 == 0 and flat.is_contiguous():
+        return flat.view(torch.int64)
+    return flat
+
+
+MIN_GROUPED_ROWS = 128
+"""Below this many rows, grouping several maps costs more than running the CNN on every row."""
+PROBE_PIXELS = 256
+_PROBES: dict[tuple[int, str], tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def _probe(n: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """Fixed pixel positions and 40-bit weights that key a map row."""
+    key = (n, str(device))
+    if key not in _PROBES:
+        generator = torch.Generator().manual_seed(0x5EED)
+        positions = torch.randperm(n, generator=generator)[: min(n, PROBE_PIXELS)]
+        weights = torch.randint(1, 1 << 40, (positions.shape[0],), generator=generator, dtype=torch.int64)
+        _PROBES[key] = (positions.to(device), weights.to(device))
+    return _PROBES[key]
 
 
 class _Net(nn.Module):
@@ -50,8 +106,16 @@ class _Net(nn.Module):
         nn.init.orthogonal_(self.head.weight, gain=0.01)
         nn.init.zeros_(self.head.bias)
 
+    def encode_maps(self, maps: torch.Tensor) -> torch.Tensor:
+        """Map features for every row, computing the CNN once per distinct map of the batch."""
+        groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
+        if groups is not None:
+            first, inverse = groups
+            return self.map_fc(self.cnn(maps[first].float() / MAP_LEVELS))[inverse]
+        return self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
+
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        map_features = self.map_fc(self.cnn(obs["map"]))
+        map_features = self.encode_maps(obs["map"])
         return self.head(self.mlp(torch.cat([map_features, obs["angles"], obs["metrics"]], dim=-1)))
 
 

@@ -1,4 +1,5 @@
-"""`smorphi-rl evaluate-policy`: roll a trained policy out greedily and report where it settles."""
+"""Greedy roll-outs of a policy: the evaluation protocol's policy side (`evaluate-policy`, the periodic
+evaluation during training, transfer, sweeps and the benchmarks all call `evaluate_policy`)."""
 
 from __future__ import annotations
 
@@ -8,11 +9,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.env import EnvConfig, MorphologyEnv, RewardMode
+from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome, settled_theta
 from smorphi_rl.training.checkpoints import CheckpointError
-
-SETTLE_WINDOW = 20
-"""The settled morphology is the one the policy holds most often over its last steps."""
 
 
 @dataclass(frozen=True)
@@ -49,15 +48,70 @@ def check_fits(module: Any, env: MorphologyEnv) -> None:
         )
 
 
-def greedy_action(module: Any, obs: dict[str, np.ndarray]) -> np.ndarray:
-    """The most likely action of each hinge (deterministic)."""
+def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np.ndarray:
+    """The most likely action of each hinge for every observation, in one forward pass (deterministic)."""
     from ray.rllib.core.columns import Columns
 
-    batch = {Columns.OBS: {k: torch.tensor(v).unsqueeze(0) for k, v in obs.items()}}
+    batch = {Columns.OBS: {k: torch.from_numpy(np.stack([o[k] for o in observations])) for k in observations[0]}}
     with torch.no_grad():
         out = module.forward_inference(batch)
     dist = module.get_inference_action_dist_cls().from_logits(out[Columns.ACTION_DIST_INPUTS])
-    return dist.to_deterministic().sample()[0].numpy()
+    return dist.to_deterministic().sample().numpy()
+
+
+def greedy_action(module: Any, obs: dict[str, np.ndarray]) -> np.ndarray:
+    """The most likely action of each hinge for one observation."""
+    return greedy_actions(module, [obs])[0]
+
+
+def greedy_outcomes(module: Any, envs: list[Any], starts: np.ndarray) -> list[Outcome]:
+    """One greedy episode per start, all stepped together (one forward pass a step for every live
+    episode); `envs` are MorphologyEnvs of one map (or wrapped for recording), one per start."""
+    observations = [env.reset(seed=0, options={"theta": tuple(float(t) for t in start)})[0]
+                    for env, start in zip(envs, starts, strict=True)]  # fmt: skip
+    histories = [[env.unwrapped.theta] for env in envs]
+    committed: list[tuple[float, float, float] | None] = [None] * len(envs)
+    live = list(range(len(envs)))
+    while live:
+        actions = greedy_actions(module, [observations[i] for i in live])
+        still = []
+        for action, i in zip(actions, live, strict=True):
+            observations[i], _, terminated, truncated, info = envs[i].step(action)
+            histories[i].append(tuple(info["theta"]))
+            if terminated and envs[i].unwrapped.config.reward == RewardMode.COMMIT.value:
+                committed[i] = tuple(info["theta"])
+            if not (terminated or truncated):
+                still.append(i)
+        live = still
+    outcomes = []
+    for env, start, history, commit in zip(envs, starts, histories, committed, strict=True):
+        theta = commit if commit is not None else settled_theta(history)
+        scored = env.unwrapped.score(theta)
+        outcomes.append(Outcome(tuple(float(t) for t in start), theta, float(scored["R1"]),  # type: ignore[arg-type]
+                                float(scored["P_c"]), int(scored["P_len"]), len(set(history))))  # fmt: skip
+    return outcomes
+
+
+def evaluate_policy(
+    module: Any, env_config: EnvConfig, starts: np.ndarray, optima: dict[str, Optimum], method: str = "policy",
+    wrap: Any = None,
+) -> list[MapEvaluation]:  # fmt: skip
+    """The protocol on every map of `env_config`: greedy from each start, against that map's optimum
+    (`optima` by map name). `wrap(env)`, if given, wraps each env (recording)."""
+    evaluations = []
+    for path in env_config.maps:
+        first = MorphologyEnv(replace(env_config, maps=(path,)).to_dict())
+        envs = [first] + [first.sibling() for _ in range(len(starts) - 1)]
+        wrapped = [wrap(e) for e in envs] if wrap is not None else envs
+        try:
+            outcomes = greedy_outcomes(module, wrapped, starts)
+        finally:
+            if wrap is not None:
+                for e in wrapped:
+                    e.close()
+        name = first.grid_map.name
+        evaluations.append(MapEvaluation(name, method, optima[name], tuple(outcomes)))
+    return evaluations
 
 
 def rollout(module: Any, env: Any, seed: int) -> Rollout:
@@ -70,8 +124,6 @@ def rollout(module: Any, env: Any, seed: int) -> Rollout:
         thetas.append(info["theta"])
         total += reward
         done = terminated or truncated
-    tail = thetas[-SETTLE_WINDOW:]
-    settled_theta = max(set(tail), key=lambda t: (tail.count(t), -tail[::-1].index(t)))
-    settled = env.unwrapped.score(settled_theta)
+    settled = env.unwrapped.score(settled_theta(thetas))
     best = {k.removeprefix("best_"): v for k, v in info.items() if k.startswith("best_")}
     return Rollout(start, settled, best, info, len(thetas) - 1, total, thetas)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -15,13 +16,15 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator, LatticeBest, best_on_lattice
+from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
-from smorphi_rl.rundir import prepare_run_dir
+from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
+from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
-from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX
+from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX, MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
 from smorphi_rl.training.config import (
     EPISODES_DIR,
@@ -52,11 +55,15 @@ class Curve:
     episode_return_mean: list[float] = field(default_factory=list)
     best_R1: list[float] = field(default_factory=list)
     final_R1: list[float] = field(default_factory=list)
+    eval_R1: list[float] = field(default_factory=list)
+    eval_gap: list[float] = field(default_factory=list)
+    eval_within: list[float] = field(default_factory=list)
     wall_s: list[float] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, list[float]]:
         return {"env_steps": self.env_steps, "episode_return_mean": self.episode_return_mean, "best_R1": self.best_R1,
-                "final_R1": self.final_R1}  # fmt: skip
+                "final_R1": self.final_R1, "eval_R1": self.eval_R1, "eval_gap": self.eval_gap,
+                "eval_within": self.eval_within}  # fmt: skip
 
 
 @dataclass
@@ -70,11 +77,13 @@ class RunSummary:
     wall_s: float
     interrupted: bool
     best: Found | None
-    optimum: dict[str, LatticeBest]
+    optimum: dict[str, Optimum]
     checkpoint: Path | None
     files: dict[str, Path]
     pretrained: Path | None = None
     pretrained_in_runners: bool | None = None
+    evaluation: dict[str, Any] = field(default_factory=dict)
+    """The last greedy evaluation (the protocol's eval/... figures), empty when evaluation was off."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -90,7 +99,8 @@ class RunSummary:
             "wall_s": round(self.wall_s, 2),
             "interrupted": self.interrupted,
             "best": best,
-            "lattice_optimum": {m: asdict(o) for m, o in self.optimum.items()},
+            "exact_optimum": {m: asdict(o) for m, o in self.optimum.items()},
+            "evaluation": self.evaluation,
             "checkpoint": None if self.checkpoint is None else str(self.checkpoint),
             "pretrained": None if self.pretrained is None else str(self.pretrained),
             "pretrained_in_runners": self.pretrained_in_runners,
@@ -115,6 +125,7 @@ class _Progress:
         self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
         self._last_print = -math.inf
+        self.last_eval: dict[str, Any] = {}
         self.pretrained_in_runners: bool | None = None
         """Fine-tuning: whether every env runner held the checkpoint's policy before the first sample."""
 
@@ -136,6 +147,12 @@ class _Progress:
         self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
         self.curve.best_R1.append(float(best_iter))
         self.curve.final_R1.append(float(runners.get(METRIC_PREFIX, {}).get("R1_final", math.nan)))
+        ev = result.get(EVAL_KEY) or {}
+        self.curve.eval_R1.append(float(ev.get("settled_R1_mean", math.nan)))
+        self.curve.eval_gap.append(float(ev.get("median_gap", math.nan)))
+        self.curve.eval_within.append(float(ev.get("share_within_1pct", math.nan)))
+        if ev:
+            self.last_eval = ev
         self.curve.wall_s.append(time.monotonic() - self.t0)
         if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
             self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)
@@ -177,14 +194,11 @@ def _tune_callback(progress: _Progress) -> Any:
     return _Callback()
 
 
-def write_outputs(
-    run_dir: Path, cfg: TrainConfig, progress: _Progress
-) -> tuple[dict[str, Path], dict[str, LatticeBest]]:
-    """Top-k CSV/Markdown/PNG and the learning curves, with every map's lattice optimum as yardstick."""
+def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum: dict[str, Optimum]) -> dict[str, Path]:
+    """Top-k CSV/Markdown/PNG and the learning curves, with every map's exact optimum as yardstick."""
     from smorphi_rl.plots import plot_learning_curves, plot_top_morphologies
 
     files: dict[str, Path] = {}
-    optimum: dict[str, LatticeBest] = {}
     rows = [f for m in progress.top.maps() for f in progress.top.top(cfg.top_k, m)]
     if rows:
         files["top_csv"], files["top_md"] = run_dir / "top_morphologies.csv", run_dir / "top_morphologies.md"
@@ -194,7 +208,6 @@ def write_outputs(
     for path in cfg.env.maps:
         grid_map = load_map(path)
         evaluator = Evaluator(grid_map, cfg.env.block_side_m)
-        optimum[grid_map.name] = best_on_lattice(evaluator, cfg.env.w1, cfg.env.w2)
         top = progress.top.top(TOP_PLOT, grid_map.name)
         if top:
             items = []
@@ -210,7 +223,61 @@ def write_outputs(
         files["curves_png"] = plot_learning_curves(
             {cfg.algo.upper(): progress.curve.as_dict()}, run_dir / "learning_curves.png", reference
         )
-    return files, optimum
+    return files
+
+
+OPTIMUM_CACHE = ".cache"
+"""Folder under --log-dir holding each map's exact optimum (a small JSON per map and weights)."""
+CACHE_ENV = "SMORPHI_RL_CACHE_DIR"
+"""If set, the exact optima are cached there instead (the test suite shares one cache this way)."""
+
+
+def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
+    """The exact 1-degree optimum of every training map (about 10 s each the first time, then cached); not
+    computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far longer."""
+    cache = Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+    optima: dict[str, Optimum] = {}
+    for path in cfg.env.maps:
+        grid_map = load_map(path)
+        if grid_map.cells.size > OPTIMUM_MAX_CELLS:
+            out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
+                      f"{OPTIMUM_MAX_CELLS:,}); gaps are not reported\n")  # fmt: skip
+            optima[grid_map.name] = NO_OPTIMUM
+            continue
+        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {cache})\n")
+        out.flush()
+        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, cfg.env.w2, cfg.env.block_side_m, cache)
+    return optima
+
+
+def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None) -> Any:
+    """The Tune run itself (a local Ray or a cluster is already up): results, the progress kept, wall time."""
+    from ray import tune
+
+    register_env()
+    config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, name))
+    progress = _Progress(cfg, out, label)
+    stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
+    if cfg.max_iterations is not None:
+        stop["training_iteration"] = cfg.max_iterations
+    tuner = tune.Tuner(
+        config.algo_class,
+        param_space=config,
+        tune_config=tune.TuneConfig(trial_dirname_creator=lambda trial: f"{cfg.algo}-{trial.trial_id}"),
+        run_config=tune.RunConfig(
+            name=name,
+            storage_path=str(run_dir.parent),
+            stop=stop,
+            checkpoint_config=tune.CheckpointConfig(checkpoint_frequency=cfg.checkpoint_every, checkpoint_at_end=True),
+            callbacks=[_tune_callback(progress)],
+            verbose=0,
+        ),
+    )
+    t0 = time.monotonic()
+    results = tuner.fit()
+    wall = time.monotonic() - t0
+    progress.finish()
+    return results, progress, wall
 
 
 def train(
@@ -218,55 +285,41 @@ def train(
     name: str | None = None,
     log_dir: str | Path = "logs",
     address: str | None = None,
-    out: Any = sys.stderr,
+    out: Any = None,
     label: str | None = None,
 ) -> RunSummary:
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
-    for path in cfg.env.maps:  # fails here, before Ray starts, with the map named
-        load_map(path)
+    MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
     callbacks, pretrained = None, None
     if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         pretrained = find_checkpoint(cfg.pretrained)
         callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
-    run_dir = prepare_run_dir(log_dir, name)
     cluster.check_reachable(address)
-    (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address}, indent=2))
-    quiet()
-    with cluster.ray_session(address):
-        from ray import tune
-
-        register_env()
-        config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, name))
-        progress = _Progress(cfg, out, label)
-        stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
-        if cfg.max_iterations is not None:
-            stop["training_iteration"] = cfg.max_iterations
-        tuner = tune.Tuner(
-            config.algo_class,
-            param_space=config,
-            tune_config=tune.TuneConfig(trial_dirname_creator=lambda trial: f"{cfg.algo}-{trial.trial_id}"),
-            run_config=tune.RunConfig(
-                name=name,
-                storage_path=str(run_dir.parent),
-                stop=stop,
-                checkpoint_config=tune.CheckpointConfig(
-                    checkpoint_frequency=cfg.checkpoint_every, checkpoint_at_end=True
-                ),
-                callbacks=[_tune_callback(progress)],
-                verbose=0,
-            ),
-        )
-        t0 = time.monotonic()
-        results = tuner.fit()
-        wall = time.monotonic() - t0
-        progress.finish()
+    out = out or sys.stderr
+    run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
+    try:
+        optima = training_optima(cfg, log_dir, out)
+        base = callbacks or MorphologyCallbacks
+        if cfg.eval_every:
+            starts = eval_starts(cfg.eval_starts, cfg.env.angle_step_deg)
+            callbacks = with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps)
+        quiet()
+        with cluster.ray_session(address):
+            cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
+            (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address},
+                                                            indent=2))  # fmt: skip
+            results, progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
+    except BaseException:
+        if not any(p.name.startswith(f"{cfg.algo}-") for p in run_dir.iterdir()):
+            discard_run_dir(run_dir)  # nothing trained: the name stays free
+        raise
     errors = list(results.errors)
     if errors:
         first = str(errors[0]).strip().splitlines()
         raise TrainingError(f"training failed: {first[-1] if first else type(errors[0]).__name__} "
                             f"(full error under {run_dir})")  # fmt: skip
-    files, optimum = write_outputs(run_dir, cfg, progress)
+    files = write_outputs(run_dir, cfg, progress, optima)
     steps = int(progress.curve.env_steps[-1]) if progress.curve.env_steps else 0
     checkpoints = checkpoints_under(run_dir)
     best = progress.top.top(1)
@@ -278,11 +331,12 @@ def train(
         wall_s=wall,
         interrupted=steps < cfg.timesteps and len(progress.curve.env_steps) != cfg.max_iterations,
         best=best[0] if best else None,
-        optimum=optimum,
+        optimum=optima,
         checkpoint=checkpoints[-1] if checkpoints else None,
         files=files,
         pretrained=pretrained,
         pretrained_in_runners=progress.pretrained_in_runners,
+        evaluation=progress.last_eval,
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
@@ -309,11 +363,16 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
         lines.append(f"best morphology: {b.angles} on {b.map}: P_c {b.P_c:.2f} %, P_len {b.P_len}, R1 {b.R1:.2f} "
                      f"(first found at {b.env_steps:,} env steps)")  # fmt: skip
         opt = s.optimum.get(b.map)
-        if opt is not None:
+        if opt is not None and math.isfinite(opt.R1):
             t = "(" + ", ".join(f"{v:g}" for v in opt.theta) + ")"
             pct = 100 * b.R1 / opt.R1 if opt.R1 else math.nan
             lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
+    ev = s.evaluation
+    if ev:
+        lines.append(f"greedy policy from {ev.get('starts', '?')} fixed starts: settles within 1 % "
+                     f"of the optimum from {100 * ev['share_within_1pct']:.0f} % of them; median gap "
+                     f"{ev['median_gap']:.2f} R1, mean settled R1 {ev['settled_R1_mean']:.2f}")  # fmt: skip
     if s.pretrained is not None:
         held = {True: "yes", False: "NO", None: "not reported"}[s.pretrained_in_runners]
         lines.append(f"fine-tuned from: {rel(s.pretrained)} (every env runner held its policy from the start: {held})")

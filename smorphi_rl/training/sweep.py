@@ -23,8 +23,8 @@ from smorphi_rl.rundir import RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.checkpoints import find_checkpoint
 from smorphi_rl.training.config import (
+    CPUS_FOR_TRIAL,
     CPUS_PER_ENV_RUNNER,
-    NUM_ENV_RUNNERS,
     algorithm_config,
     recording_settings,
     register_env,
@@ -188,10 +188,12 @@ def run_sweep(
     with cluster.ray_session(address):
         from ray import tune
 
-        bundles: list[dict[str, float]] = [{"CPU": 1.0}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * NUM_ENV_RUNNERS
-        trainable = tune.with_resources(
-            tune.with_parameters(sweep_trainable, sweep=sweep), tune.PlacementGroupFactory(bundles)
-        )
+        def resources(config: dict[str, Any]) -> Any:
+            runners = sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}).env_runners
+            bundles = [{"CPU": CPUS_FOR_TRIAL}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * runners
+            return tune.PlacementGroupFactory(bundles)
+
+        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep), resources)
         run_config = tune.RunConfig(
             name=sweep.name,
             storage_path=str(exp.parent),

@@ -8,7 +8,6 @@ names the file and the key.
 from __future__ import annotations
 
 import math
-import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -105,12 +104,35 @@ class SweepConfig:
                            record_every=self.record_every)  # fmt: skip
 
 
+STOP_METRICS = ("time_total_s", "training_iteration", "num_env_steps_sampled_lifetime", "timesteps_total")
+"""Stop criteria a sweep may give (Ray Tune ignores an unknown metric silently: a typo would never stop)."""
+MAX_TRIALS = 10_000
+"""More trials than any machine or cluster of ours runs; a larger grid is a typo (it would create the folders)."""
+
+
+class _UniqueKeyLoader(yaml.SafeLoader):
+    """YAML's safe loader, refusing a key given twice in one mapping (the second would silently win)."""
+
+
+def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+    seen: set[Any] = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
+
+
 def load_sweep(path: str | Path) -> SweepConfig:
     """Read and validate a sweep file; SweepConfigError names the file and the key."""
     file = Path(path)
     where = str(path)
     try:
-        raw = yaml.safe_load(file.read_text())
+        raw = yaml.load(file.read_text(), Loader=_UniqueKeyLoader)
     except FileNotFoundError:
         raise SweepConfigError(f"{where}: no such sweep file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -118,7 +140,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
-        raise SweepConfigError(f"{where}: not valid YAML{at}") from None
+        problem = getattr(exc, "problem", "") or ""
+        detail = f" ({problem})" if problem.startswith("duplicate key") else ""
+        raise SweepConfigError(f"{where}: not valid YAML{at}{detail}") from None
     if not isinstance(raw, dict):
         raise SweepConfigError(f"{where}: expected a mapping of keys ({', '.join(KEYS)})")
 
@@ -150,6 +174,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     stop = raw.get("stop") or {}
     if not isinstance(stop, dict) or not all(_is_number(v) for v in stop.values()):
         raise fail("stop", KEYS["stop"])
+    unknown_stop = sorted(str(k) for k in stop if k not in STOP_METRICS)
+    if unknown_stop:
+        raise fail("stop", f"unknown metric '{unknown_stop[0]}' (known: {', '.join(STOP_METRICS)})")
     env = raw.get("env") or {}
     if not isinstance(env, dict):
         raise fail("env", KEYS["env"])
@@ -185,6 +212,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
                                                                                "max_iterations", fail),
         record_every=_positive(raw.get("record_every", DEFAULT_RECORD_EVERY), "record_every", fail, zero=True),
     )  # fmt: skip
+    if cfg.num_grid_trials > MAX_TRIALS:
+        raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
     for algo in algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
             for value in space.examples():
@@ -246,6 +275,9 @@ def _positive(value: Any, key: str, fail: Any, zero: bool = False) -> int:
 
 
 def _name(value: Any, fail: Any) -> str:
-    if not isinstance(value, str) or not re.fullmatch(r"[A-Za-z0-9_.-]+", value):
-        raise fail("name", f"expected letters, digits, '_', '.' or '-', got {value!r}")
+    from smorphi_rl.rundir import RUN_NAME
+
+    if not isinstance(value, str) or not RUN_NAME.fullmatch(value):
+        raise fail("name", f"expected a plain folder name (letters, digits and _ . + -, not first; no / or ..), "
+                           f"got {value!r}")  # fmt: skip
     return value

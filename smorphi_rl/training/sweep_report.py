@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies
 
@@ -56,16 +57,22 @@ def result_rows(result_json: Path) -> list[dict[str, Any]]:
 
 
 def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
-    """Env steps, mean episode return, the iteration's best R1 and the final-shape R1 of each row
+    """Env steps, mean episode return, the iteration's best R1, the final-shape R1 and the greedy evaluation
+    (settled R1, median gap, share within 1 %; NaN where the iteration was not evaluated) of each row
     (the curves of `train`, `transfer` and `sweep`)."""
-    curve: dict[str, list[float]] = {"env_steps": [], "episode_return_mean": [], "best_R1": [], CURVE_KEY: []}
+    keys = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
+    curve: dict[str, list[float]] = {k: [] for k in keys}
     for r in rows:
         runners = r.get("env_runners", {})
         bests = json.loads(r.get("smorphi_episode_best") or "[]")
+        ev = r.get(EVAL_KEY) or {}
         curve["env_steps"].append(float(r.get("num_env_steps_sampled_lifetime") or 0))
         curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
         curve["best_R1"].append(max((b[-1] for b in bests), default=math.nan))
-        curve[CURVE_KEY].append(_num(runners.get("smorphi", {}).get("R1_final")))
+        curve["final_R1"].append(_num(runners.get("smorphi", {}).get("R1_final")))
+        curve["eval_R1"].append(_num(ev.get("settled_R1_mean")))
+        curve["eval_gap"].append(_num(ev.get("median_gap")))
+        curve["eval_within"].append(_num(ev.get("share_within_1pct")))
     return curve
 
 

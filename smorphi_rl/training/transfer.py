@@ -111,7 +111,7 @@ def run_transfer(
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from `pretrained` and train from scratch, same budget."""
     from smorphi_rl.env import EnvConfig
-    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint
     from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.convergence import CURVE_KEY, convergence
@@ -132,7 +132,7 @@ def run_transfer(
         for seed in seeds:
             for mode in ("fine-tune", "scratch"):
                 run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
-                run_name = f"{map_name}-{mode}-seed{seed}"
+                run_name = safe_name(f"{map_name}-{mode}-seed{seed}")
                 summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{algo.upper()} {run_name}")  # fmt: skip
                 curve = summary_curve(summary.run_dir)

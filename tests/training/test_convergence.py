@@ -58,7 +58,8 @@ def _trial(root: Path, name: str, algo: str, lr: float, rows: list[dict]) -> Pat
 def _row(i: int, r1: float, best: float) -> dict:
     p_len = int(200 - 2 * best)  # distinct morphologies for distinct R1
     return {"smorphi_iteration": i, "num_env_steps_sampled_lifetime": 1000 * i, "time_this_iter_s": 2.0,
-            "env_runners": {"episode_return_mean": 17000.0 + i, "smorphi": {"R1_final": r1}},
+            "env_runners": {"episode_return_mean": 17000.0 + i, "smorphi": {"R1_final": r1 - 1.0}},
+            "eval": {"settled_R1_mean": r1, "median_gap": 90.0 - r1, "share_within_1pct": 0.5},
             "smorphi_episode_best": json.dumps([["map-1", 10.0, 20.0, 30.0, 95.0, p_len, best]])}  # fmt: skip
 
 
@@ -70,7 +71,8 @@ def test_trial_rows_count_iterations_re_run_after_a_restore_once(tmp_path):
     row = read_trial(d)
     assert row is not None
     assert (row.iterations, row.env_steps, row.wall_s) == (3, 3000, 6.0)
-    assert row.curve["final_R1"] == [82.0, 86.0, 86.0]  # the re-run iteration 2 replaced the first
+    assert row.curve["eval_R1"] == [82.0, 86.0, 86.0]  # the re-run iteration 2 replaced the first
+    assert row.curve["final_R1"] == [81.0, 85.0, 85.0]
     assert row.best is not None and row.best.R1 == 90.0 and row.best.angles == "(10, 20, 30)"
     assert row.hyperparameters == {"lr": 0.001} and row.maps == "map-1"
 
@@ -89,4 +91,4 @@ def test_sweep_table_and_curves(tmp_path):
     (lines_by_label,) = groups.values()
     assert set(lines_by_label) == {"PPO lr=0.001 (1 seed)", "PPO lr=0.003 (1 seed)"}
     line = lines_by_label["PPO lr=0.001 (1 seed)"]
-    assert math.isnan(line["final_R1_mean"][0]) and line["final_R1_mean"][-1] == 85.0
+    assert math.isnan(line["eval_R1_mean"][0]) and line["eval_R1_mean"][-1] == 85.0

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import pytest
 
+from smorphi_rl.training.presets import PRESETS
 from smorphi_rl.training.sweep_config import SweepConfigError, load_sweep
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -57,7 +58,7 @@ def test_search_space_kinds_and_overrides(tmp_path):
     assert cfg.num_grid_trials == 2 * 3
     trial = cfg.base_config("ppo", cfg.map_sets[0], 0, {"lr": 0.002, "lambda_": 0.9, "gamma": 0.98})
     hp = trial.hyperparameters
-    assert (hp.lr, hp.lambda_, hp.gamma, hp.num_epochs) == (0.002, 0.9, 0.98, 8)  # the rest from the preset
+    assert (hp.lr, hp.lambda_, hp.gamma, hp.num_epochs) == (0.002, 0.9, 0.98, PRESETS["fast"]["ppo"].num_epochs)
 
 
 def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
@@ -93,7 +94,9 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         ),
         (base("checkpoint: {every: 0}\n"), "key 'checkpoint.every': expected a positive integer, got 0"),
         (base("checkpoint: {often: 1}\n"), "key 'checkpoint'"),
-        (base("name: 'a b'\n"), "key 'name': expected letters"),
+        (base("name: 'a b'\n"), "key 'name': expected a plain folder name"),
+        (base("name: '..'\n"), "key 'name': expected a plain folder name"),
+        (base("name: ../../etc\n"), "key 'name': expected a plain folder name"),
         (base("stop: {time_total_s: soon}\n"), "key 'stop'"),
         ("- just\n- a list\n", "expected a mapping of keys"),
         ("algorithms: [ppo\n", "not valid YAML at line"),
@@ -110,3 +113,16 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
 def test_missing_file(tmp_path):
     with pytest.raises(SweepConfigError, match="no such sweep file"):
         load_sweep(tmp_path / "absent.yaml")
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (base("seeds: [1]\n"), "duplicate key 'seeds'"),
+        (base("stop: {time_total: 60}\n"), "key 'stop': unknown metric 'time_total'"),
+        (base("num_samples: 1000000000\nsearch: {lr: {uniform: [0.001, 0.01]}}\n"), "key 'num_samples'"),
+    ],
+)
+def test_silent_acceptance_is_refused(tmp_path, text, message):
+    with pytest.raises(SweepConfigError, match=message):
+        load_sweep(write(tmp_path, text))

@@ -73,7 +73,7 @@ def test_evaluate_policy_rejects_bad_checkpoints(capsys, tmp_path):
         (["--pretrained", "/no/ckpt", "--maps", "/no/map.yaml"], 1, "map file not found: /no/map.yaml"),
         (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--timesteps", "0"], 1, "timesteps must be a positive integer"),
         (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--algo", "a3c"], 2, "invalid choice: 'a3c'"),
-        (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--seeds", "-1"], 1, "--seeds must be non-negative"),
+        (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--seeds", "-1"], 2, "expected a non-negative integer"),
     ],
 )
 def test_transfer_rejects_bad_input(capsys, tmp_path, argv, code, message):

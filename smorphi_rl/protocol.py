@@ -1,0 +1,164 @@
+"""The one evaluation protocol (ENV.md, "Evaluating a policy"): fixed seeded starts, the settled shape,
+its gap to the exact optimum, and a map's summary. No torch, no Ray: policies and baselines share it.
+
+Every policy and baseline is started from the same `eval_starts()` on each map; an outcome is the
+shape it settles on (the committed shape in `commit` mode, else the one held most often over the
+last SETTLE_WINDOW steps), that shape's R1, and the FBCPP evaluations spent (distinct shapes
+scored). A map's summary is the median gap to the exact optimum R1* of the 1-degree lattice and the
+share of starts that end within 1 % of it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+EVAL_KEY = "eval"
+"""The training result key of the periodic greedy evaluation (TensorBoard: ray/tune/eval/...)."""
+EVAL_EVERY = 5
+"""Training iterations between periodic evaluations (and the first iteration)."""
+EVAL_STARTS = 20
+"""Seeded start shapes per map (the same for every policy and baseline)."""
+EVAL_SEED = 20_231_101
+"""The starts' own seed: independent of every training seed."""
+SETTLE_WINDOW = 20
+"""The settled shape is the one held most often over the last this many steps."""
+WITHIN = 0.01
+"""An outcome 'reaches the optimum' when its R1 is within this fraction of R1*."""
+
+
+def eval_starts(n: int = EVAL_STARTS, step_deg: float = 1.0, seed: int = EVAL_SEED) -> np.ndarray:
+    """(n, 3) start shapes, uniform on the `step_deg` lattice, from their own seeded stream."""
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"evaluation starts must be a positive integer, got {n!r}")
+    top = round(180 / step_deg)
+    rng = np.random.default_rng(np.random.SeedSequence(seed))
+    return rng.integers(0, top + 1, size=(n, 3)).astype(np.float64) * step_deg
+
+
+def settled_theta(history: Sequence[tuple[float, float, float]]) -> tuple[float, float, float]:
+    """The shape held most often over the last SETTLE_WINDOW steps (the latest of equally frequent ones)."""
+    tail = list(history[-SETTLE_WINDOW:])
+    return max(set(tail), key=lambda t: (tail.count(t), -tail[::-1].index(t)))
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """Where one roll-out (or one baseline run) from one start ended."""
+
+    start: tuple[float, float, float]
+    settled: tuple[float, float, float]
+    R1: float
+    P_c: float
+    P_len: int
+    evaluations: int
+    """FBCPP evaluations used: distinct shapes scored."""
+
+
+@dataclass(frozen=True)
+class Optimum:
+    """The exact best R1 over the 1-degree lattice of a map and weights."""
+
+    theta: tuple[float, float, float]
+    R1: float
+    P_c: float
+    P_len: int
+    step_deg: float = 1.0
+
+
+NO_OPTIMUM = Optimum((math.nan, math.nan, math.nan), math.nan, math.nan, 0)
+"""Stands for an optimum not computed (a map too large to enumerate): gaps are NaN."""
+OPTIMUM_MAX_CELLS = 250_000
+"""Maps with more cells than this (500 x 500) get no exact optimum during training: it would take minutes."""
+
+
+@dataclass(frozen=True)
+class MapEvaluation:
+    """Every start's outcome on one map, against that map's exact optimum."""
+
+    map: str
+    method: str
+    optimum: Optimum
+    outcomes: tuple[Outcome, ...]
+
+    @property
+    def gaps(self) -> np.ndarray:
+        """R1* minus each settled shape's R1 (0 at the optimum)."""
+        return np.array([self.optimum.R1 - o.R1 for o in self.outcomes])
+
+    @property
+    def median_gap(self) -> float:
+        return float(np.median(self.gaps))
+
+    @property
+    def within(self) -> int:
+        """Starts whose settled shape is within WITHIN of R1*."""
+        return int(np.sum(self.gaps <= WITHIN * abs(self.optimum.R1) + 1e-9))
+
+    @property
+    def mean_R1(self) -> float:
+        return float(np.mean([o.R1 for o in self.outcomes]))
+
+    @property
+    def mean_evaluations(self) -> float:
+        return float(np.mean([o.evaluations for o in self.outcomes]))
+
+    def summary(self) -> dict[str, float]:
+        """The figures logged and tabulated (TensorBoard's eval/... tags)."""
+        n = len(self.outcomes)
+        return {"median_gap": self.median_gap, "share_within_1pct": self.within / n, "settled_R1_mean": self.mean_R1,
+                "evaluations_mean": self.mean_evaluations, "optimum_R1": self.optimum.R1}  # fmt: skip
+
+    def to_dict(self) -> dict[str, object]:
+        return {"map": self.map, "method": self.method, "optimum": asdict(self.optimum), **self.summary(),
+                "within": self.within, "starts": len(self.outcomes),
+                "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
+
+
+def map_key(map_path: str, w1: float, w2: float, block_side_m: float) -> str:
+    """A digest of the map's cells and resolution and the weights: what the optimum depends on."""
+    from smorphi_rl.maps import load_map
+
+    grid_map = load_map(map_path)
+    h = hashlib.blake2b(digest_size=12)
+    h.update(np.ascontiguousarray(grid_map.cells).tobytes())
+    h.update(json.dumps([grid_map.cells.shape, grid_map.resolution_m, w1, w2, block_side_m]).encode())
+    return h.hexdigest()
+
+
+@lru_cache(maxsize=32)
+def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, block_side_m: float) -> Optimum:
+    from smorphi_rl.search.exhaustive import run_exhaustive
+
+    result = run_exhaustive(map_path, 1.0, block_side_m)
+    r1 = w1 * result.P_c - w2 * result.P_len
+    i = int(np.argmax(r1))
+    t1, t2, t3 = (float(v) for v in result.thetas[i])
+    return Optimum((t1, t2, t3), float(r1[i]), float(result.P_c[i]), int(result.P_len[i]))
+
+
+def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cache_dir: Path | None = None) -> Optimum:
+    """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
+    process and, given `cache_dir`, in a small JSON file there keyed by the map's content and the weights."""
+    from smorphi_rl.rundir import write_atomic
+
+    key = map_key(map_path, w1, w2, block_side_m)
+    file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
+    if file is not None and file.is_file():
+        try:
+            raw = json.loads(file.read_text())
+            return Optimum(tuple(raw["theta"]), float(raw["R1"]), float(raw["P_c"]), int(raw["P_len"]))  # type: ignore[arg-type]
+        except (OSError, ValueError, KeyError, TypeError):
+            pass  # a damaged cache entry is recomputed and rewritten
+    optimum = _optimum_in_process(key, str(map_path), w1, w2, block_side_m)
+    if file is not None:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        write_atomic(file, json.dumps(asdict(optimum)).encode())
+    return optimum

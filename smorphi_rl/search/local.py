@@ -1,0 +1,141 @@
+"""Local baselines under the evaluation protocol: what a user would try before reinforcement learning.
+
+Each starts from the protocol's fixed starts, moves on the same lattice with the same moves as the
+policy (each hinge -1, 0 or +1 step: the 26 non-zero moves), and stops at a budget of FBCPP
+evaluations (distinct shapes scored), so every method is compared at equal cost:
+
+- `hill_climb`: steepest ascent over the 26 neighbours; at a local maximum it restarts from a
+  uniformly random shape (seeded) while budget remains, and ends on the best shape found;
+- `anneal`: simulated annealing over the same neighbours (a random neighbour, accepted with
+  probability exp(dR1 / T), T falling geometrically from 1 to 0.01 R1-spreads), ending on the best;
+- `random_walk`: uniformly random moves from the start, ending on the shape the protocol says it
+  settled on (as a policy's roll-out would);
+- `random_search`: uniformly random shapes, ending on the best.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable
+
+import numpy as np
+
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.protocol import Outcome, settled_theta
+
+Theta = tuple[float, float, float]
+MOVES = [m for m in itertools.product((-1, 0, 1), repeat=3) if any(m)]
+"""The 26 non-zero moves of one step per hinge."""
+METHODS = ("hillclimb", "anneal", "random_walk", "random_search")
+
+
+class _Budgeted:
+    """R1 of shapes on one env's map, counting distinct shapes scored; stops answering past the budget."""
+
+    def __init__(self, env: MorphologyEnv, budget: int) -> None:
+        self.env, self.budget = env, budget
+        self.seen: dict[Theta, float] = {}
+        self.step = env.config.angle_step_deg
+        self.top = 180.0
+
+    def r1(self, theta: Theta) -> float | None:
+        if theta in self.seen:
+            return self.seen[theta]
+        if len(self.seen) >= self.budget:
+            return None
+        value = self.seen[theta] = float(self.env.score(theta)["R1"])
+        return value
+
+    def neighbours(self, theta: Theta) -> list[Theta]:
+        out = []
+        for m in MOVES:
+            t = tuple(min(max(a + d * self.step, 0.0), self.top) for a, d in zip(theta, m, strict=True))
+            if t != theta:
+                out.append(t)
+        return out  # type: ignore[return-value]
+
+    def random_theta(self, rng: np.random.Generator) -> Theta:
+        n = round(180 / self.step)
+        i, j, k = (int(v) for v in rng.integers(0, n + 1, size=3))
+        return (i * self.step, j * self.step, k * self.step)
+
+    def best(self) -> Theta:
+        return max(self.seen, key=lambda t: self.seen[t])
+
+
+def hill_climb(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    current: Theta | None = start
+    while current is not None:
+        value = space.r1(current)
+        if value is None:
+            break
+        best, best_value = current, value
+        for t in space.neighbours(current):
+            v = space.r1(t)
+            if v is None:
+                return space.best()
+            if v > best_value:
+                best, best_value = t, v
+        current = best if best != current else space.random_theta(rng)  # a local maximum: restart
+    return space.best()
+
+
+def anneal(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    current, value = start, space.r1(start)
+    scale = space.env.sigma_map if space.env.config.reward != "paper" else 1.0
+    t_hi, t_lo = 1.0 * scale, 0.01 * scale
+    while value is not None and len(space.seen) < space.budget:
+        frac = len(space.seen) / space.budget
+        temperature = t_hi * (t_lo / t_hi) ** frac
+        options = space.neighbours(current)
+        candidate = options[int(rng.integers(len(options)))]
+        v = space.r1(candidate)
+        if v is None:
+            break
+        if v >= value or rng.random() < math.exp((v - value) / temperature):
+            current, value = candidate, v
+    return space.best()
+
+
+def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    history = [start]
+    space.r1(start)
+    for _ in range(space.env.config.max_steps):
+        m = MOVES[int(rng.integers(len(MOVES)))] if rng.random() > 1 / 27 else (0, 0, 0)
+        theta = tuple(min(max(a + d * space.step, 0.0), 180.0) for a, d in zip(history[-1], m, strict=True))
+        history.append(theta)  # type: ignore[arg-type]
+        space.seen.setdefault(theta, float(space.env.score(theta)["R1"]))  # type: ignore[arg-type]
+    return settled_theta(history)
+
+
+def random_search(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    space.r1(start)
+    while len(space.seen) < space.budget:
+        space.r1(space.random_theta(rng))
+    return space.best()
+
+
+SEARCHERS: dict[str, Callable[[_Budgeted, Theta, np.random.Generator], Theta]] = {
+    "hillclimb": hill_climb, "anneal": anneal, "random_walk": random_walk, "random_search": random_search,
+}  # fmt: skip
+
+
+def run_local(method: str, env: MorphologyEnv, starts: np.ndarray, budget: int, seed: int) -> list[Outcome]:
+    """`method` from every start on `env`'s (single) map, each with `budget` evaluations and its own stream
+    (SeedSequence(seed) spawned per start)."""
+    if method not in SEARCHERS:
+        raise ValueError(f"unknown local method '{method}' (choose from {', '.join(METHODS)})")
+    if budget < 1:
+        raise ValueError(f"budget must be >= 1 evaluation, got {budget}")
+    env.reset(seed=0)
+    streams = np.random.SeedSequence(seed).spawn(len(starts))
+    outcomes = []
+    for start, stream in zip(starts, streams, strict=True):
+        theta0: Theta = (float(start[0]), float(start[1]), float(start[2]))
+        space = _Budgeted(env, budget)
+        end = SEARCHERS[method](space, theta0, np.random.default_rng(stream))
+        scored = env.score(end)
+        outcomes.append(Outcome(theta0, end, float(scored["R1"]), float(scored["P_c"]), int(scored["P_len"]),
+                                len(space.seen)))  # fmt: skip
+    return outcomes

@@ -1,0 +1,133 @@
+"""Many morphology envs stepped as one gymnasium VectorEnv: the env an RLlib env runner builds.
+
+RLlib registers our env creator with a `vector_entry_point`; with `gym_env_vectorize_mode`
+"vector_entry_point" it asks the creator for `num_envs` envs at once, and this class serves them.
+Compared with gymnasium's SyncVectorEnv it shares one set of maps, caches and observations among
+its sub-envs (a shape planned by one is free for all), stacks observations without deep copies,
+and builds the info columns in one pass. Autoreset is gymnasium's NEXT_STEP, as RLlib expects.
+
+Seeds: given a run seed, sub-env i of env runner w draws from
+`SeedSequence(run_seed, spawn_key=(w, i))`, so no two runners, sub-envs or seeds share a stream
+(RLlib's own `seed + worker_index` would give seed s, runner 2 the stream of seed s + 1, runner 1).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.vector import AutoresetMode, VectorEnv
+from gymnasium.vector.utils import batch_space
+
+from smorphi_rl.env import MorphologyEnv
+
+RECORDING_KEY = "recording"
+"""The env_config key that carries a RecordingConfig dict to the env runners (not an EnvConfig field)."""
+SEED_KEY = "run_seed"
+"""The env_config key that carries the run's seed to the env runners (not an EnvConfig field)."""
+NUM_ENVS_KEY = "num_envs"
+"""What RLlib adds to env_config when it asks the creator for a vector env."""
+
+
+def sub_env_generator(run_seed: int, worker_index: int, env_index: int) -> np.random.Generator:
+    """The independent random stream of one sub-env of one env runner of one run."""
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed, spawn_key=(worker_index, env_index))))
+
+
+class MorphologyVectorEnv(VectorEnv):
+    """`num_envs` morphology envs (each possibly wrapped for recording) behind gymnasium's VectorEnv API."""
+
+    metadata: dict[str, Any] = {"autoreset_mode": AutoresetMode.NEXT_STEP}  # noqa: RUF012
+
+    def __init__(self, envs: Sequence[gym.Env], run_seed: int | None = None, worker_index: int = 0) -> None:
+        if not envs:
+            raise ValueError("a vector env needs at least one env")
+        self.envs = list(envs)
+        self.num_envs = len(self.envs)
+        first = self.envs[0]
+        self.single_observation_space = first.observation_space
+        self.single_action_space = first.action_space
+        self.observation_space = batch_space(first.observation_space, self.num_envs)
+        self.action_space = batch_space(first.action_space, self.num_envs)
+        self.run_seed = run_seed
+        self.worker_index = worker_index
+        self._seeded = False
+        self._needs_reset = np.zeros(self.num_envs, dtype=bool)
+
+    def _seed_envs(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
+        """Reset seeds for the sub-envs; with a run seed, each gets its own spawned stream once instead."""
+        if self.run_seed is not None:
+            if not self._seeded:
+                for i, env in enumerate(self.envs):
+                    env.unwrapped.np_random = sub_env_generator(self.run_seed, self.worker_index, i)
+                self._seeded = True
+            return [None] * self.num_envs
+        if seed is None or isinstance(seed, int):
+            return [None if seed is None else seed + i for i in range(self.num_envs)]
+        return list(seed)
+
+    def reset(
+        self, *, seed: int | list[int | None] | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+        results = [env.reset(seed=s, options=options) for env, s in zip(self.envs, self._seed_envs(seed), strict=True)]
+        self._needs_reset[:] = False
+        return self._stack([r[0] for r in results]), self._info_columns([r[1] for r in results])
+
+    def step(
+        self, actions: np.ndarray
+    ) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+        n = self.num_envs
+        rewards = np.zeros(n, dtype=np.float64)
+        terminated = np.zeros(n, dtype=bool)
+        truncated = np.zeros(n, dtype=bool)
+        observations, infos = [], []
+        for i, env in enumerate(self.envs):
+            if self._needs_reset[i]:  # NEXT_STEP autoreset: this step's action is ignored
+                obs, info = env.reset()
+            else:
+                obs, reward, term, trunc, info = env.step(actions[i])
+                rewards[i], terminated[i], truncated[i] = reward, term, trunc
+            observations.append(obs)
+            infos.append(info)
+        self._needs_reset = terminated | truncated
+        return self._stack(observations), rewards, terminated, truncated, self._info_columns(infos)
+
+    def close_extras(self, **kwargs: Any) -> None:
+        for env in self.envs:
+            env.close()
+
+    @staticmethod
+    def _stack(observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+
+    def _info_columns(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
+        """gymnasium's vector info: one object array per key (every sub-env reports every key)."""
+        columns: dict[str, Any] = {}
+        for key in infos[0]:
+            column = np.empty(self.num_envs, dtype=object)
+            for i, info in enumerate(infos):
+                column[i] = info[key]
+            columns[key] = column
+        return columns
+
+
+def make_env(env_config: dict[str, Any] | None) -> gym.Env:
+    """RLlib's env creator: one MorphologyEnv, or with `num_envs` a MorphologyVectorEnv of them sharing
+    their tables; each wrapped for recording when env_config carries a recording configuration."""
+    raw = dict(env_config or {})
+    recording = raw.pop(RECORDING_KEY, None)
+    run_seed = raw.pop(SEED_KEY, None)
+    num_envs = raw.pop(NUM_ENVS_KEY, None)
+    worker = int(getattr(env_config, "worker_index", 0) or 0)
+    wrap: Callable[[MorphologyEnv], gym.Env] = lambda env: env  # noqa: E731
+    if recording:
+        from smorphi_rl.recording import RecordingConfig, RecordingWrapper
+
+        wrap = lambda env: RecordingWrapper(env, RecordingConfig(**recording), worker_index=worker)  # noqa: E731
+    if num_envs is None:
+        return wrap(MorphologyEnv(raw))
+    first = MorphologyEnv(raw)
+    envs = [first] + [first.sibling() for _ in range(int(num_envs) - 1)]
+    return MorphologyVectorEnv([wrap(e) for e in envs], run_seed=run_seed, worker_index=worker)
