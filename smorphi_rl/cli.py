@@ -539,6 +539,16 @@ def cmd_search(args: argparse.Namespace) -> int:
             args.log_dir, args.name or safe_name(f"random-{Path(str(args.map)).stem}-seed{args.seed}")
         )
         result = run_random(str(args.map), args.samples, args.seed)
+    elif args.method in ("hillclimb", "anneal"):
+        from smorphi_rl.search.local import run_local_search
+
+        if args.budget < 1 or args.starts < 1:
+            raise SmorphiError(f"--budget and --starts must be >= 1, got {args.budget} and {args.starts}")
+        run_dir = prepare_run_dir(
+            args.log_dir, args.name or safe_name(f"{args.method}-{Path(str(args.map)).stem}-seed{args.seed}")
+        )
+        result = run_local_search(args.method, str(args.map), args.budget, args.seed, args.starts,
+                                  {"w1": weights.w1, "w2": weights.w2})  # fmt: skip
     else:
         from smorphi_rl.search.nsga2 import run_nsga2
 
@@ -588,9 +598,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
 
-    dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or [])]]
+    dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or []), *(args.local or [])]]
     if not dirs:
-        raise SmorphiError("give at least one run to compare: --runs, --nsga2 or --random")
+        raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
     grid_map = load_map(args.map)
     weights = _weights(args)
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
@@ -748,7 +758,9 @@ def build_parser() -> argparse.ArgumentParser:
     se_sub = se.add_subparsers(dest="method", required=True, parser_class=_Parser)
     for method, text in (("random", "uniformly random integer shapes (paper Table 4)"),
                          ("nsga2", "NSGA-II over integer angles (paper Table 6, Figure 7)"),
-                         ("exhaustive", "every triple on the lattice: the exact front and best R1")):  # fmt: skip
+                         ("exhaustive", "every triple on the lattice: the exact front and best R1"),
+                         ("hillclimb", "steepest ascent over the 26 one-step moves from the protocol's fixed starts"),
+                         ("anneal", "simulated annealing over the same moves from the same starts")):  # fmt: skip
         m = se_sub.add_parser(method, help=text)
         m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
         m.add_argument("--name", help="run name: results go to LOG_DIR/NAME")
@@ -760,8 +772,11 @@ def build_parser() -> argparse.ArgumentParser:
         if method == "nsga2":
             m.add_argument("--pop", type=int, default=40, help="population size")
             m.add_argument("--generations", type=int, default=50)
-        if method in ("random", "nsga2"):
+        if method in ("random", "nsga2", "hillclimb", "anneal"):
             m.add_argument("--seed", type=_seed, default=0)
+        if method in ("hillclimb", "anneal"):
+            m.add_argument("--budget", type=int, default=200, help="FBCPP evaluations per start (default 200)")
+            m.add_argument("--starts", type=int, default=20, help="fixed seeded starts (default 20)")
         if method == "exhaustive":
             m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
         m.set_defaults(func=cmd_search)
@@ -771,6 +786,7 @@ def build_parser() -> argparse.ArgumentParser:
     co.add_argument("--runs", nargs="+", help="training run directories (logs/<run>)")
     co.add_argument("--nsga2", nargs="+", help="`search nsga2` run directories")
     co.add_argument("--random", nargs="+", help="`search random` run directories")
+    co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
     co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
     co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
     co.add_argument("--name", help="run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")

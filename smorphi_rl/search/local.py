@@ -17,12 +17,14 @@ from __future__ import annotations
 
 import itertools
 import math
+import time
 from collections.abc import Callable
 
 import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.protocol import Outcome, settled_theta
+from smorphi_rl.protocol import EVAL_STARTS, Outcome, eval_starts, settled_theta
+from smorphi_rl.search.results import SearchResult
 
 Theta = tuple[float, float, float]
 MOVES = [m for m in itertools.product((-1, 0, 1), repeat=3) if any(m)]
@@ -36,6 +38,7 @@ class _Budgeted:
     def __init__(self, env: MorphologyEnv, budget: int) -> None:
         self.env, self.budget = env, budget
         self.seen: dict[Theta, float] = {}
+        self.metrics: dict[Theta, tuple[float, int, bool]] = {}
         self.step = env.config.angle_step_deg
         self.top = 180.0
 
@@ -44,7 +47,12 @@ class _Budgeted:
             return self.seen[theta]
         if len(self.seen) >= self.budget:
             return None
-        value = self.seen[theta] = float(self.env.score(theta)["R1"])
+        return self._score(theta)
+
+    def _score(self, theta: Theta) -> float:
+        scored = self.env.score(theta)
+        self.metrics[theta] = (float(scored["P_c"]), int(scored["P_len"]), bool(scored["feasible"]))
+        value = self.seen[theta] = float(scored["R1"])
         return value
 
     def neighbours(self, theta: Theta) -> list[Theta]:
@@ -105,7 +113,8 @@ def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> The
         m = MOVES[int(rng.integers(len(MOVES)))] if rng.random() > 1 / 27 else (0, 0, 0)
         theta = tuple(min(max(a + d * space.step, 0.0), 180.0) for a, d in zip(history[-1], m, strict=True))
         history.append(theta)  # type: ignore[arg-type]
-        space.seen.setdefault(theta, float(space.env.score(theta)["R1"]))  # type: ignore[arg-type]
+        if theta not in space.seen:
+            space._score(theta)  # type: ignore[arg-type]
     return settled_theta(history)
 
 
@@ -121,9 +130,11 @@ SEARCHERS: dict[str, Callable[[_Budgeted, Theta, np.random.Generator], Theta]] =
 }  # fmt: skip
 
 
-def run_local(method: str, env: MorphologyEnv, starts: np.ndarray, budget: int, seed: int) -> list[Outcome]:
+def run_local(
+    method: str, env: MorphologyEnv, starts: np.ndarray, budget: int, seed: int, visited: list[_Budgeted] | None = None
+) -> list[Outcome]:
     """`method` from every start on `env`'s (single) map, each with `budget` evaluations and its own stream
-    (SeedSequence(seed) spawned per start)."""
+    (SeedSequence(seed) spawned per start). `visited`, if given, receives each start's scored shapes."""
     if method not in SEARCHERS:
         raise ValueError(f"unknown local method '{method}' (choose from {', '.join(METHODS)})")
     if budget < 1:
@@ -135,7 +146,30 @@ def run_local(method: str, env: MorphologyEnv, starts: np.ndarray, budget: int, 
         theta0: Theta = (float(start[0]), float(start[1]), float(start[2]))
         space = _Budgeted(env, budget)
         end = SEARCHERS[method](space, theta0, np.random.default_rng(stream))
+        if visited is not None:
+            visited.append(space)
         scored = env.score(end)
         outcomes.append(Outcome(theta0, end, float(scored["R1"]), float(scored["P_c"]), int(scored["P_len"]),
                                 len(space.seen)))  # fmt: skip
     return outcomes
+
+
+def run_local_search(
+    method: str, map_path: str, budget: int, seed: int, starts: int = EVAL_STARTS, env_config: dict | None = None
+) -> SearchResult:
+    """`search hillclimb|anneal`: the method from the protocol's fixed starts, every shape it scored pooled into
+    one SearchResult (for `compare`), with the protocol's outcome per start in `params`."""
+    env = MorphologyEnv({**(env_config or {}), "maps": [map_path]})
+    spaces: list[_Budgeted] = []
+    t0 = time.perf_counter()
+    outcomes = run_local(method, env, eval_starts(starts, env.config.angle_step_deg), budget, seed, spaces)
+    wall = time.perf_counter() - t0
+    shapes = {t: m for space in spaces for t, m in space.metrics.items()}
+    thetas = np.array(list(shapes), dtype=np.float64).reshape(-1, 3)
+    p_c = np.array([m[0] for m in shapes.values()])
+    p_len = np.array([m[1] for m in shapes.values()], dtype=np.int64)
+    feasible = np.array([m[2] for m in shapes.values()], dtype=bool)
+    evaluations = sum(len(space.seen) for space in spaces)
+    params = {"budget_per_start": budget, "starts": starts, "seed": seed,
+              "settled_R1": [o.R1 for o in outcomes], "settled": [list(o.settled) for o in outcomes]}  # fmt: skip
+    return SearchResult(method, env.grid_map.name, thetas, p_c, p_len, feasible, evaluations, wall, params)

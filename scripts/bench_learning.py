@@ -1,0 +1,159 @@
+"""Benchmark learning against the exact optimum: do trained policies settle on the best shape?
+
+For every map, algorithm, reward mode and seed: `train` (its own code path, default preset and
+layout) for a fixed budget, then the evaluation protocol: greedy roll-outs from the 20 fixed
+starts, each settled shape's gap to the exact 1-degree optimum. Yardsticks from the same starts,
+seeded the same way: a random walk (uniform moves, settled as a policy's would be), hill
+climbing, simulated annealing and random search, each held to the FBCPP evaluations the policies
+used per start. Every figure is the mean over seeds with a 95 % bootstrap interval.
+
+    .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
+        [--algos ppo impala] [--rewards paper level] [--seeds 0 1 2] [--timesteps 100000] [--out DIR]
+
+Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
+curves (learning_curves.png) under --out (default logs/bench-learning-<time>).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.maps import load_map
+from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
+from smorphi_rl.rundir import prepare_run_dir
+from smorphi_rl.search.local import run_local
+from smorphi_rl.stats import mean_interval
+from smorphi_rl.training.checkpoints import load_module
+from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.policy import evaluate_policy
+from smorphi_rl.training.run import train
+from smorphi_rl.training.transfer import summary_curve
+
+ROOT = Path(__file__).resolve().parent.parent
+BASELINES = ("random_walk", "hillclimb", "anneal", "random_search")
+
+
+@dataclass
+class Row:
+    """One run (or one seeded baseline) on one map: the protocol's figures."""
+
+    map: str
+    method: str
+    seed: int
+    median_gap: float
+    within: float
+    evaluations: float
+    settled_R1: float
+    wall_s: float = float("nan")
+    curve: tuple[list[float], list[float]] | None = None
+
+
+def row_of(ev: MapEvaluation, method: str, seed: int, wall_s: float = float("nan"), curve=None) -> Row:
+    return Row(ev.map, method, seed, ev.median_gap, ev.within / len(ev.outcomes), ev.mean_evaluations, ev.mean_R1,
+               wall_s, curve)  # fmt: skip
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--maps", nargs="+", default=[str(ROOT / "maps" / "map-1.yaml"), str(ROOT / "maps" / "map-2.yaml")]
+    )
+    parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
+    parser.add_argument("--rewards", nargs="+", default=["paper", "level"])
+    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--timesteps", type=int, default=100_000)
+    parser.add_argument("--out", default=None)
+    args = parser.parse_args()
+    out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
+    starts = eval_starts()
+    rows: list[Row] = []
+    t_all = time.monotonic()
+    for map_path in args.maps:
+        name = load_map(map_path).name
+        base_env = EnvConfig.from_dict({"maps": [map_path]})
+        optimum = exact_optimum(map_path, base_env.w1, base_env.w2, base_env.block_side_m, ROOT / "logs" / ".cache")
+        print(f"{name}: exact optimum R1* {optimum.R1:.2f} at {optimum.theta} (1-degree lattice); "
+              f"1 % band: R1 >= {optimum.R1 - 0.01 * abs(optimum.R1):.2f}", flush=True)  # fmt: skip
+        for algo in args.algos:
+            for reward in args.rewards:
+                for seed in args.seeds:
+                    rows.append(train_and_evaluate(algo, reward, seed, map_path, args.timesteps, optimum, starts, out))
+                    r = rows[-1]
+                    print(f"  {r.method} seed {seed}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, "
+                          f"settled R1 {r.settled_R1:.2f}, {r.evaluations:.0f} evaluations a start, {r.wall_s:.0f} s",
+                          flush=True)  # fmt: skip
+        policy_rows = [r for r in rows if r.map == name]
+        budget = max(1, round(float(np.median([r.evaluations for r in policy_rows])))) if policy_rows else 200
+        env = MorphologyEnv(base_env.to_dict())
+        for method in BASELINES:
+            for seed in args.seeds:
+                outcomes = run_local(method, env, starts, budget, seed)
+                rows.append(row_of(MapEvaluation(name, method, optimum, tuple(outcomes)), f"{method} ({budget} evals)",
+                                   seed))  # fmt: skip
+    report(rows, out, args, time.monotonic() - t_all)
+
+
+def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timesteps: int, optimum: Optimum,
+                       starts: np.ndarray, out: Path) -> Row:  # fmt: skip
+    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [map_path], "reward": reward}), timesteps=timesteps,
+                      seed=seed, record_every=0, checkpoint_every=1000)  # fmt: skip
+    name = f"{algo}-{reward}-{Path(map_path).stem}-seed{seed}"
+    with open(os.devnull, "w") as devnull:
+        summary = train(cfg, name=name, log_dir=out / "runs", out=devnull)
+    module = load_module(summary.checkpoint)
+    (ev,) = evaluate_policy(module, cfg.env, starts, {optimum_name(map_path): optimum})
+    curve = summary_curve(summary.run_dir)
+    steps, gaps = curve["env_steps"], curve["eval_gap"]
+    kept = [(s, g) for s, g in zip(steps, gaps, strict=True) if np.isfinite(g)]
+    return row_of(ev, f"{algo.upper()} {reward}", seed, summary.wall_s,
+                  ([s for s, _ in kept], [g for _, g in kept]))  # fmt: skip
+
+
+def optimum_name(map_path: str) -> str:
+    return load_map(map_path).name
+
+
+def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) -> None:
+    from smorphi_rl.plots import plot_gap_curves
+
+    with (out / "learning.csv").open("w", newline="") as fh:
+        writer = csv.writer(fh)
+        writer.writerow(["map", "method", "seed", "median_gap", "share_within_1pct", "evaluations_per_start",
+                         "settled_R1_mean", "wall_s"])  # fmt: skip
+        for r in rows:
+            writer.writerow([r.map, r.method, r.seed, f"{r.median_gap:.4f}", f"{r.within:.3f}", f"{r.evaluations:.1f}",
+                             f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}"])  # fmt: skip
+    lines = [f"Greedy settled gap to the exact optimum, {len(args.seeds)} seeds ({', '.join(map(str, args.seeds))}), "
+             f"{args.timesteps:,} env steps per run, 20 fixed starts; mean over seeds [95 % bootstrap interval].", "",
+             "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start |",
+             "|---|---|---:|---:|---:|---:|"]  # fmt: skip
+    for map_name, method in dict.fromkeys((r.map, r.method) for r in rows):
+        group = [r for r in rows if r.map == map_name and r.method == method]
+        gap = mean_interval([r.median_gap for r in group])
+        within = mean_interval([100 * r.within for r in group])
+        r1 = mean_interval([r.settled_R1 for r in group])
+        evals = float(np.mean([r.evaluations for r in group]))
+        lines.append(f"| {map_name} | {method} | {gap.text()} | {within.text('.0f')} % | {r1.text()} | {evals:.0f} |")
+    lines.append("")
+    lines.append(f"{len(rows)} rows in {wall_s / 60:.1f} min.")
+    text = "\n".join(lines)
+    (out / "learning.md").write_text(text + "\n")
+    curves = {f"{r.map} {r.method}": [] for r in rows if r.curve}
+    for r in rows:
+        if r.curve:
+            curves[f"{r.map} {r.method}"].append(r.curve)
+    png = plot_gap_curves(curves, out / "learning_curves.png") if curves else None
+    print("\n" + text)
+    print(f"\ntable: {out / 'learning.md'}\nrows: {out / 'learning.csv'}" + (f"\ncurves: {png}" if png else ""))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,66 @@
+"""The evaluation protocol: fixed starts, the settled shape, gaps to the exact optimum, the optimum's cache."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.protocol import (
+    MapEvaluation,
+    Optimum,
+    Outcome,
+    eval_starts,
+    exact_optimum,
+    map_key,
+    settled_theta,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+def test_starts_are_fixed_on_the_lattice_and_their_own_stream():
+    a, b = eval_starts(20), eval_starts(20)
+    assert np.array_equal(a, b) and a.shape == (20, 3)
+    assert ((a >= 0) & (a <= 180) & (a == np.round(a))).all()
+    assert len({tuple(r) for r in a}) == 20
+    coarse = eval_starts(5, step_deg=10)
+    assert (coarse % 10 == 0).all()
+    with pytest.raises(ValueError, match="positive integer"):
+        eval_starts(0)
+
+
+def test_settled_is_the_most_held_shape_of_the_last_steps():
+    a, b, c = (1.0, 1.0, 1.0), (2.0, 2.0, 2.0), (3.0, 3.0, 3.0)
+    assert settled_theta([c] * 50 + [a] * 12 + [b] * 8) == a
+    assert settled_theta([a, b] * 10) == b  # a tie: the latest
+    assert settled_theta([c]) == c
+
+
+def test_map_summary_counts_gaps_and_the_1_percent_band():
+    opt = Optimum((1.0, 2.0, 3.0), 90.0, 97.0, 70)
+    outcomes = tuple(Outcome((0.0, 0.0, 0.0), (1.0, 2.0, 3.0), r1, 95.0, 80, 10) for r1 in (90.0, 89.2, 80.0, 89.0))
+    ev = MapEvaluation("map-1", "test", opt, outcomes)
+    assert ev.within == 2  # 90.0 and 89.2 are within 0.9 of 90; 89.0 is not
+    assert ev.median_gap == pytest.approx(np.median([0.0, 0.8, 10.0, 1.0]))
+    assert ev.summary()["share_within_1pct"] == 0.5
+    assert json.loads(json.dumps(ev.to_dict()))["starts"] == 4
+
+
+@pytest.mark.slow
+def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
+    from smorphi_rl.evaluate import Evaluator, best_on_lattice
+    from smorphi_rl.maps import load_map
+
+    opt = exact_optimum(MAP_1, 1.0, 0.1, 0.17, tmp_path)
+    coarse = best_on_lattice(Evaluator(load_map(MAP_1)), 1.0, 0.1, step_deg=10.0)
+    assert opt.R1 >= coarse.R1 and opt.step_deg == 1.0 and math.isfinite(opt.R1)
+    (cached,) = tmp_path.glob("optimum-*.json")
+    assert map_key(MAP_1, 1.0, 0.1, 0.17) in cached.name
+    assert exact_optimum(MAP_1, 1.0, 0.1, 0.17, tmp_path) == opt
+    cached.write_text("{broken")  # a damaged entry is recomputed
+    assert exact_optimum(MAP_1, 1.0, 0.1, 0.17, tmp_path) == opt

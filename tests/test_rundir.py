@@ -1,0 +1,87 @@
+"""Run folders: names that stay inside --log-dir, atomic claims under races, atomic result files."""
+
+from __future__ import annotations
+
+import multiprocessing as mp
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.cli import main
+from smorphi_rl.rundir import MARKER, RunDirError, check_run_name, prepare_run_dir, safe_name, write_atomic
+from smorphi_rl.search.results import load as load_result
+
+ROOT = Path(__file__).resolve().parents[1]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+@pytest.mark.parametrize("name", ["../../etc", "..", ".", "/abs/path", "a/b", ".hidden", "", "x" * 129, "a b", "a\\b"])
+def test_names_that_leave_the_log_dir_are_refused(name):
+    with pytest.raises(RunDirError, match="not a plain folder name"):
+        check_run_name(name)
+
+
+def test_default_names_from_odd_map_files_are_made_safe():
+    assert check_run_name(safe_name("random-my map (copy)-seed0")) == "random-my_map_copy_-seed0"
+    assert check_run_name(safe_name("..")).startswith("run_")
+
+
+def test_an_existing_run_is_never_reused(tmp_path):
+    first = prepare_run_dir(tmp_path, "run")
+    assert (first / MARKER).is_file()
+    with pytest.raises(RunDirError, match="already exists"):
+        prepare_run_dir(tmp_path, "run")
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("keep")
+    with pytest.raises(RunDirError, match="already exists"):
+        prepare_run_dir(tmp_path, "mine")
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "keep"
+
+
+def _claim(args: tuple[str, str]) -> str:
+    root, name = args
+    try:
+        prepare_run_dir(root, name)
+        return "won"
+    except RunDirError:
+        return "refused"
+
+
+def test_racing_processes_exactly_one_wins(tmp_path):
+    with mp.get_context("spawn").Pool(6) as pool:
+        for round_ in range(3):
+            outcomes = pool.map(_claim, [(str(tmp_path), f"same-{round_}")] * 6)
+            assert outcomes.count("won") == 1 and outcomes.count("refused") == 5
+
+
+def test_atomic_write_leaves_no_temporary_behind(tmp_path):
+    target = tmp_path / "out.bin"
+    write_atomic(target, b"x" * 1000)
+    write_atomic(target, b"y")
+    assert target.read_bytes() == b"y" and [p.name for p in tmp_path.iterdir()] == ["out.bin"]
+
+
+@pytest.mark.parametrize("name", ["../../escape", "/tmp/abs-escape", "a/b"])
+def test_search_with_a_traversing_name_writes_nothing_outside(tmp_path, capsys, name):
+    log_dir = tmp_path / "logs"
+    code = main(["search", "random", "--map", MAP_1, "--samples", "5", "--name", name, "--log-dir", str(log_dir)])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "not a plain folder name" in err[0]
+    assert not (tmp_path / "escape").exists() and not Path("/tmp/abs-escape").exists()
+    assert not log_dir.exists() or not any(log_dir.rglob("*.npz"))
+
+
+def test_racing_searches_one_result_intact(tmp_path):
+    """Two `search random` processes on one name: one wins, the other says so, the result loads."""
+    import subprocess
+    import sys
+
+    cmd = [sys.executable, "-m", "smorphi_rl.cli", "search", "random", "--map", MAP_1, "--samples", "200",
+           "--name", "same", "--log-dir", str(tmp_path)]  # fmt: skip
+    procs = [subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(3)]
+    results = [(p.wait(timeout=120), p.stderr.read()) for p in procs]  # type: ignore[union-attr]
+    assert sorted(code for code, _ in results) == [0, 1, 1]
+    assert all("already exists" in err for code, err in results if code == 1)
+    loaded = load_result(tmp_path / "same")
+    assert len(loaded.thetas) == 200 and np.isfinite(loaded.P_c).all()

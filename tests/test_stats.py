@@ -1,0 +1,21 @@
+"""Bootstrap intervals over seeds."""
+
+from __future__ import annotations
+
+import math
+
+from smorphi_rl.stats import mean_interval
+
+
+def test_interval_brackets_the_mean_and_narrows_with_agreement():
+    wide = mean_interval([1.0, 5.0, 9.0])
+    narrow = mean_interval([4.9, 5.0, 5.1])
+    assert wide.lo <= wide.mean <= wide.hi and narrow.lo <= narrow.mean <= narrow.hi
+    assert (narrow.hi - narrow.lo) < (wide.hi - wide.lo)
+    assert mean_interval([1.0, 5.0, 9.0]) == wide  # seeded: one answer
+
+
+def test_degenerate_inputs():
+    assert mean_interval([3.0]).text() == "3.00 (1 seed)"
+    assert mean_interval([2.0, 2.0]).lo == 2.0
+    assert math.isnan(mean_interval([float("nan")]).mean) and mean_interval([]).text() == "-"
