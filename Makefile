@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 
-.PHONY: setup run test lint format type bench bench-training bench-exhaustive bench-transfer clean
+.PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer clean
 
 # torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 $(BIN)/.installed: pyproject.toml
@@ -19,9 +19,10 @@ setup: $(BIN)/.installed
 run: setup  ## the main job: PPO on the shipped default map, on a local Ray started for it
 	$(BIN)/smorphi-rl train --map $(MAP)
 
-test: setup  ## lint, format check and the whole suite
+test: setup  ## lint, format check, type check and the whole suite
 	$(BIN)/ruff check smorphi_rl tests scripts
 	$(BIN)/ruff format --check smorphi_rl tests scripts
+	$(BIN)/mypy smorphi_rl
 	$(BIN)/python -m pytest -q
 
 lint: setup
@@ -39,6 +40,9 @@ bench: setup
 
 bench-training: setup
 	$(BIN)/python scripts/bench_training.py
+
+bench-learning: setup
+	$(BIN)/python scripts/bench_learning.py
 
 bench-exhaustive: setup
 	$(BIN)/python scripts/bench_exhaustive.py

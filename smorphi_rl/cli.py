@@ -488,9 +488,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
 
         theta = rollouts[0].settled["theta"]
         base.reset(seed=args.seed)  # back to the first episode's map
-        path = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
-                             args.plot)  # fmt: skip
-        print(f"plot        {path}")
+        png = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
+                            args.plot)  # fmt: skip
+        print(f"plot        {png}")
     if args.record is not None and not args.json:
         print(f"recordings  {_rel(Path(args.record))} (smorphi-rl replay {_rel(Path(args.record))})")
     return 0

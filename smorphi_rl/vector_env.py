@@ -113,7 +113,7 @@ class MorphologyVectorEnv(VectorEnv):
         return columns
 
 
-def make_env(env_config: dict[str, Any] | None) -> gym.Env:
+def make_env(env_config: dict[str, Any] | None) -> gym.Env | VectorEnv:
     """RLlib's env creator: one MorphologyEnv, or with `num_envs` a MorphologyVectorEnv of them sharing
     their tables; each wrapped for recording when env_config carries a recording configuration."""
     raw = dict(env_config or {})

@@ -7,7 +7,8 @@ evaluations (distinct shapes scored), so every method is compared at equal cost:
 - `hill_climb`: steepest ascent over the 26 neighbours; at a local maximum it restarts from a
   uniformly random shape (seeded) while budget remains, and ends on the best shape found;
 - `anneal`: simulated annealing over the same neighbours (a random neighbour, accepted with
-  probability exp(dR1 / T), T falling geometrically from 1 to 0.01 R1-spreads), ending on the best;
+  probability exp(dR1 / T), T falling geometrically from 1 to 0.01 R1-spreads as the budget is
+  spent; at most 20 proposed moves per evaluation), ending on the best;
 - `random_walk`: uniformly random moves from the start, ending on the shape the protocol says it
   settled on (as a policy's roll-out would);
 - `random_search`: uniformly random shapes, ending on the best.
@@ -30,6 +31,8 @@ Theta = tuple[float, float, float]
 MOVES = [m for m in itertools.product((-1, 0, 1), repeat=3) if any(m)]
 """The 26 non-zero moves of one step per hinge."""
 METHODS = ("hillclimb", "anneal", "random_walk", "random_search")
+ANNEAL_MOVES_PER_EVALUATION = 20
+"""Annealing stops after this many proposed moves per budgeted evaluation even if some budget is left."""
 
 
 class _Budgeted:
@@ -93,7 +96,9 @@ def anneal(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
     current, value = start, space.r1(start)
     scale = space.env.sigma_map if space.env.config.reward != "paper" else 1.0
     t_hi, t_lo = 1.0 * scale, 0.01 * scale
-    while value is not None and len(space.seen) < space.budget:
+    moves = 0
+    while value is not None and len(space.seen) < space.budget and moves < ANNEAL_MOVES_PER_EVALUATION * space.budget:
+        moves += 1  # at a low temperature every neighbour may already be scored: bound the moves too
         frac = len(space.seen) / space.budget
         temperature = t_hi * (t_lo / t_hi) ** frac
         options = space.neighbours(current)

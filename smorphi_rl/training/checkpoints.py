@@ -63,11 +63,11 @@ def pickle_globals(path: Path) -> set[tuple[str, str]]:
             if name in _STRING_OPS:
                 pushed.append(arg)
             elif name in _GET_OPS:
-                pushed.append(memo.get(int(arg)))
+                pushed.append(memo.get(int(arg)))  # type: ignore[arg-type]
             elif name == "MEMOIZE":
                 memo[len(memo)] = pushed[-1] if pushed else None
             elif name in _PUT_OPS:
-                memo[int(arg)] = pushed[-1] if pushed else None
+                memo[int(arg)] = pushed[-1] if pushed else None  # type: ignore[arg-type]
             elif name == "STACK_GLOBAL":
                 module, attr = (pushed[-2], pushed[-1]) if len(pushed) >= 2 else (None, None)
                 found.add((str(module), str(attr)))

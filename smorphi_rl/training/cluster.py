@@ -7,6 +7,7 @@ import os
 import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
+from typing import Any
 
 from smorphi_rl.errors import SmorphiError
 
@@ -53,7 +54,7 @@ def ray_session(address: str | None) -> Iterator[None]:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
     # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
     # cluster started without a token aborts the process inside Ray's C++ core.
-    kwargs: dict[str, object] = {
+    kwargs: dict[str, Any] = {
         "include_dashboard": False,
         "log_to_driver": False,
         "logging_level": logging.ERROR,

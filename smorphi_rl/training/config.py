@@ -236,7 +236,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             num_env_runners=cfg.env_runners,
             num_envs_per_env_runner=cfg.envs_per_runner,
             gym_env_vectorize_mode="vector_entry_point",  # our MorphologyVectorEnv (smorphi_rl/vector_env.py)
-            num_cpus_per_env_runner=CPUS_PER_ENV_RUNNER,
+            num_cpus_per_env_runner=CPUS_PER_ENV_RUNNER,  # type: ignore[arg-type]  # RLlib takes fractions
             rollout_fragment_length=hp.rollout_fragment_length,
         )
         .learners(num_learners=0)

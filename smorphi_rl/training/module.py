@@ -14,6 +14,7 @@ from __future__ import annotations
 from typing import Any
 
 import gymnasium as gym
+import numpy as np
 import torch
 from ray.rllib.core.columns import Columns
 from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCategorical
@@ -83,7 +84,10 @@ class _Net(nn.Module):
 
     def __init__(self, obs_space: gym.spaces.Dict, out: int) -> None:
         super().__init__()
-        channels, size, _ = obs_space["map"].shape
+        map_shape = obs_space["map"].shape
+        if map_shape is None:  # pragma: no cover (the env always declares it)
+            raise TypeError("the observation's map has no shape")
+        channels, size, _ = map_shape
         self.cnn = nn.Sequential(
             nn.Conv2d(channels, 8, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
@@ -95,7 +99,7 @@ class _Net(nn.Module):
         with torch.no_grad():
             flat = self.cnn(torch.zeros(1, channels, size, size)).shape[1]
         self.map_fc = nn.Sequential(nn.Linear(flat, MAP_FEATURES), nn.ReLU())
-        shape_inputs = obs_space["angles"].shape[0] + obs_space["metrics"].shape[0]
+        shape_inputs = sum(int(np.prod(obs_space[k].shape or (1,))) for k in ("angles", "metrics"))
         self.mlp = nn.Sequential(
             nn.Linear(MAP_FEATURES + shape_inputs, HIDDEN),
             nn.Tanh(),
@@ -132,10 +136,15 @@ class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):
         if not isinstance(space, gym.spaces.MultiDiscrete):
             raise TypeError(f"MorphologyModule needs a MultiDiscrete action space, got {space}")
         nvec = [int(n) for n in space.nvec]
-        self.action_dist_cls = TorchMultiCategorical.get_partial_dist_cls(space=space, input_lens=nvec)
-        self._pi = _Net(self.observation_space, sum(nvec))
-        self._vf = _Net(self.observation_space, 1)
-        model_config = self.model_config or {}
+        self.action_dist_cls = TorchMultiCategorical.get_partial_dist_cls(  # type: ignore[misc]  # RLlib's typing
+            space=space, input_lens=nvec
+        )
+        obs_space = self.observation_space
+        if not isinstance(obs_space, gym.spaces.Dict):
+            raise TypeError(f"MorphologyModule needs the env's Dict observation space, got {obs_space}")
+        self._pi = _Net(obs_space, sum(nvec))
+        self._vf = _Net(obs_space, 1)
+        model_config: dict[str, Any] = dict(self.model_config or {})  # type: ignore[arg-type]
         self._value_offset = float(model_config.get("value_offset", 0.0))
         self._value_scale = float(model_config.get("value_scale", 1.0))
 

@@ -41,7 +41,7 @@ def env_config_of(module: Any, maps: list[str] | None) -> EnvConfig:
 def check_fits(module: Any, env: MorphologyEnv) -> None:
     """The policy's observation space must be the env's (same obs_size), else say so in one line."""
     want = module.observation_space["map"].shape
-    have = env.observation_space["map"].shape
+    have = env.observation_space["map"].shape  # type: ignore[index]  # a Dict space
     if tuple(want) != tuple(have):
         raise CheckpointError(
             f"the policy expects map observations of shape {tuple(want)}, the env gives {tuple(have)}"

@@ -41,7 +41,7 @@ def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
 
     module = load_module(checkpoint)
     env = MorphologyEnv(env_config)
-    want, have = module.observation_space["map"].shape, env.observation_space["map"].shape
+    want, have = module.observation_space["map"].shape, env.observation_space["map"].shape  # type: ignore[index]
     if tuple(want) != tuple(have):
         raise CheckpointError(
             f"{checkpoint}: the pretrained policy expects map observations of shape {tuple(want)}, "
