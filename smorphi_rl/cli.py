@@ -9,9 +9,7 @@ import argparse
 import csv
 import json
 import math
-import signal
 import sys
-import threading
 import time
 import warnings
 from collections.abc import Callable, Sequence
@@ -20,6 +18,7 @@ from typing import TYPE_CHECKING, Any, NoReturn
 
 import numpy as np
 
+from smorphi_rl import interrupts
 from smorphi_rl.coverage import CoverageResult, Start
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
@@ -804,20 +803,8 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _sigterm_as_sigint(signum: int, frame: Any) -> None:
-    """SIGTERM (what `timeout`, `kill` and cluster schedulers send) does what Ctrl-C does at that moment:
-    Ray Tune's own handler while a run is going (trials stop at their next report, checkpoints and the
-    summary are written), a KeyboardInterrupt otherwise."""
-    handler = signal.getsignal(signal.SIGINT)
-    if callable(handler):
-        handler(signal.SIGINT, frame)
-    else:
-        raise KeyboardInterrupt
-
-
 def main(argv: Sequence[str] | None = None) -> int:
-    if threading.current_thread() is threading.main_thread():
-        signal.signal(signal.SIGTERM, _sigterm_as_sigint)
+    interrupts.install()
     args = build_parser().parse_args(argv)
     if getattr(args, "map", "") is None and getattr(args, "map_default", None) is None:
         args.map = default_map()

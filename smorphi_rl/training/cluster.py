@@ -5,10 +5,12 @@ from __future__ import annotations
 import logging
 import os
 import socket
+import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from smorphi_rl import interrupts
 from smorphi_rl.errors import SmorphiError
 
 CONNECT_TIMEOUT_S = 3.0
@@ -46,6 +48,30 @@ def check_reachable(address: str | None) -> None:
 
 
 @contextmanager
+def _daemons_in_their_own_session() -> Iterator[None]:
+    """Start a local Ray's daemons (GCS, raylet and the workers they spawn) in a session of their own.
+
+    `timeout` and batch schedulers send SIGTERM to the whole process group; Ray's daemons would die at
+    once and the driver could no longer stop its trials and write their summary. In their own session
+    they get no group signal; they still die with the driver (Ray's kill-on-parent-death fate sharing)."""
+    from ray._private import services
+
+    original = services.ConsolePopen
+
+    class _Detached(original):  # type: ignore[valid-type, misc]
+        def __init__(self, *args: Any, **kwargs: Any) -> None:
+            if sys.platform != "win32":
+                kwargs.setdefault("start_new_session", True)
+            super().__init__(*args, **kwargs)
+
+    services.ConsolePopen = _Detached  # type: ignore[misc]
+    try:
+        yield
+    finally:
+        services.ConsolePopen = original  # type: ignore[misc]
+
+
+@contextmanager
 def ray_session(address: str | None) -> Iterator[None]:
     """A local Ray started for this run (address None), or a connection to an existing cluster."""
     import ray
@@ -63,11 +89,16 @@ def ray_session(address: str | None) -> Iterator[None]:
     if address is None:
         kwargs["num_cpus"] = max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
     try:
-        ray.init(address=address, **kwargs)
+        if address is None:
+            with _daemons_in_their_own_session():
+                ray.init(address=address, **kwargs)
+        else:
+            ray.init(address=address, **kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = "a local Ray" if address is None else f"the Ray cluster at {address}"
         message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
         raise ClusterError(f"cannot start or reach {where}: {message}") from None
+    interrupts.install()  # Ray's core just replaced our SIGTERM handler with one that only prints and dies
     try:
         yield
     finally:

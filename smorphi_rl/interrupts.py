@@ -1,0 +1,27 @@
+"""SIGTERM handled like Ctrl-C: what `timeout`, `kill` and cluster schedulers send must not lose a run.
+
+At the moment SIGTERM arrives it does what SIGINT would: Ray Tune's own handler while a run is going
+(trials stop at their next report; checkpoints, tables and the summary are written), a
+KeyboardInterrupt otherwise. Ray's core installs a C++ handler for SIGTERM in `ray.init` that
+prints raw stack lines and exits, so `install()` is called again once Ray has started.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from typing import Any
+
+
+def _sigterm_as_sigint(signum: int, frame: Any) -> None:
+    handler = signal.getsignal(signal.SIGINT)
+    if callable(handler):
+        handler(signal.SIGINT, frame)
+    else:
+        raise KeyboardInterrupt
+
+
+def install() -> None:
+    """Route SIGTERM to the current SIGINT behaviour (only the main thread may set handlers)."""
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGTERM, _sigterm_as_sigint)
