@@ -457,6 +457,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     module = load_module(checkpoint)
     base = MorphologyEnv(env_config_of(module, maps).to_dict())
     check_fits(module, base)
+    if args.starts is not None:
+        return _evaluate_protocol(args, module, base.config)
     env: Any = base
     if args.record is not None:
         from smorphi_rl.recording import RecordingConfig, RecordingWrapper
@@ -492,6 +494,33 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         print(f"plot        {png}")
     if args.record is not None and not args.json:
         print(f"recordings  {_rel(Path(args.record))} (smorphi-rl replay {_rel(Path(args.record))})")
+    return 0
+
+
+def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -> int:
+    """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
+    from smorphi_rl.protocol import eval_starts, exact_optimum
+    from smorphi_rl.training.policy import evaluate_policy
+
+    if args.starts < 1:
+        raise SmorphiError(f"--starts must be >= 1, got {args.starts}")
+    cache = Path(args.log_dir).resolve() / ".cache"
+    optima = {load_map(p).name: exact_optimum(p, env_config.w1, env_config.w2, env_config.block_side_m, cache)
+              for p in env_config.maps}  # fmt: skip
+    for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
+        if args.json:
+            for o in ev.outcomes:
+                print(json.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
+                                  "settled": {"theta": list(o.settled), "R1": o.R1, "P_c": o.P_c, "P_len": o.P_len,
+                                              "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
+            continue
+        opt = ev.optimum
+        print(f"{ev.map}: exact optimum {_theta_text(opt.theta)} R1 {opt.R1:.2f}; greedy from {len(ev.outcomes)} "
+              f"fixed starts: {ev.within}/{len(ev.outcomes)} settle within 1 %, median gap {ev.median_gap:.2f}, "
+              f"mean settled R1 {ev.mean_R1:.2f}, {ev.mean_evaluations:.0f} FBCPP evaluations a start")  # fmt: skip
+        for o in ev.outcomes:
+            print(f"  start {_theta_text(o.start):<17} settled {_theta_text(o.settled):<17} R1 {o.R1:6.2f}  "
+                  f"gap {opt.R1 - o.R1:5.2f}")  # fmt: skip
     return 0
 
 
@@ -670,8 +699,7 @@ def build_parser() -> argparse.ArgumentParser:
 
     from smorphi_rl.env import REWARD_MODES
     from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
-    from smorphi_rl.training.config import ENVS_PER_RUNNER
-    from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
+    from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, ENVS_PER_RUNNER, PRESETS
 
     tr = sub.add_parser("train", help="train PPO / IMPALA / APPO on maps through Ray Tune (the main job)")
     tr.add_argument("--algo", choices=ALGORITHMS, default="ppo", help="algorithm (IMPALA serves the paper's A3C)")
@@ -751,6 +779,10 @@ def build_parser() -> argparse.ArgumentParser:
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
+    ep.add_argument("--starts", type=int, default=None, metavar="N",
+                    help="the evaluation protocol instead: greedy from N fixed seeded starts (20 in training) on "
+                         "each map, against the exact optimum")  # fmt: skip
+    ep.add_argument("--log-dir", default="logs", help="where the exact optima are cached (LOG_DIR/.cache)")
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
     se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")

@@ -74,7 +74,7 @@ class RecordingConfig:
     """Where and how often the env runners record: every `every`-th episode of each env instance."""
 
     directory: str
-    every: int = 25
+    every: int
     flush_steps: int = 50
     metadata: dict[str, str] = field(default_factory=dict)
     """Run-level facts stored in every file: run name, algorithm, seed, configuration."""

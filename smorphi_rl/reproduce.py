@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
     from smorphi_rl.compare import MethodScore
@@ -40,6 +41,8 @@ class Budget:
     nsga2_pop: int
     nsga2_generations: int
     exhaustive_step: float
+    envs_per_runner: int = ENVS_PER_RUNNER
+    """Envs per env runner (the tiny budget uses few, so whole 200-step episodes end within it)."""
 
 
 BUDGETS = {
@@ -48,8 +51,12 @@ BUDGETS = {
     # The paper's scale: 3 x 10^5 steps a run (its Figure 5); hours on 2 cores.
     "paper": Budget(300_000, 300_000, 300_000, VAL_MAPS, ("ppo", "impala"), TRAIN_MAPS, 1000, 100, 100, 1.0),
     # A smoke test of the whole pipeline (the test suite): minutes, results meaningless.
-    "tiny": Budget(1000, 1000, 1000, ("val-1",), ("ppo", "impala"), ("map-1",), 100, 10, 3, 10.0),
+    "tiny": Budget(1000, 1000, 1000, ("val-1",), ("ppo", "impala"), ("map-1",), 100, 10, 3, 10.0, envs_per_runner=2),
 }
+
+
+PAPER_REWARD = "paper"
+"""`reproduce` trains on the paper's reward (R1 + R2), whatever `train`'s default is."""
 
 
 def _map(name: str) -> str:
@@ -81,7 +88,8 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: An
     for map_name in b.train_maps:
         for algo in b.algorithms:
             say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps")
-            cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [_map(map_name)]}), timesteps=b.train_steps)
+            env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
+            cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner)
             training[(algo, map_name)] = train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
                                                label=f"{algo.upper()} {map_name}").run_dir  # fmt: skip
     searches: dict[tuple[str, str], SearchResult] = {}
@@ -96,12 +104,13 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: An
             save(result, run_dir, weights.w1, weights.w2)
             searches[(result.method, map_name)] = result
     say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
-    pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS]})
-    pre = train(TrainConfig(env=pre_env, timesteps=b.pretrain_steps), name="pretrain", log_dir=root, out=out,
-                label="PPO pretrain")  # fmt: skip
+    pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
+    pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner)
+    pre = train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain")
     say(f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each")
     job_dir, transfer_runs = run_transfer(pre.run_dir, [_map(m) for m in b.val_maps], [0], b.transfer_steps,
-                                          name="transfer", log_dir=root, out=out)  # fmt: skip
+                                          name="transfer", log_dir=root, out=out,
+                                          envs_per_runner=b.envs_per_runner)  # fmt: skip
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [

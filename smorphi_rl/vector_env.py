@@ -56,6 +56,14 @@ class MorphologyVectorEnv(VectorEnv):
         self._seeded = False
         self._needs_reset = np.zeros(self.num_envs, dtype=bool)
 
+    def set_worker_index(self, worker_index: int) -> None:
+        """The env runner's index, known only after creation: RLlib's vector entry point hands the creator a
+        plain dict without it. Seeds streams and names recordings; call before the first reset."""
+        self.worker_index = int(worker_index)
+        for env in self.envs:
+            if hasattr(env, "worker_index"):
+                env.worker_index = self.worker_index
+
     def _seed_envs(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
         """Reset seeds for the sub-envs; with a run seed, each gets its own spawned stream once instead."""
         if self.run_seed is not None:

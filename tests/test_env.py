@@ -52,7 +52,7 @@ def test_same_seed_same_episode():
 
 
 def test_reward_is_r1_minus_beta_for_unchanged_shape():
-    env = MorphologyEnv({"start_theta": [90, 90, 180], "beta": 2.5, "w1": 1.0, "w2": 0.1})
+    env = MorphologyEnv({"reward": "paper", "start_theta": [90, 90, 180], "beta": 2.5, "w1": 1.0, "w2": 0.1})
     env.reset(seed=0)
     _, moved, *_rest, info = env.step(np.array([2, 0, 1]))
     assert info["theta"] == (91.0, 89.0, 180.0)

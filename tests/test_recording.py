@@ -202,7 +202,7 @@ def test_recording_config_is_validated():
     with pytest.raises(RecordingError, match="'every' must be a positive integer"):
         RecordingConfig("/tmp/x", every=0)
     with pytest.raises(RecordingError, match="must be absolute"):
-        RecordingConfig("relative/dir")
+        RecordingConfig("relative/dir", every=1)
     assert set(OUR_TOPICS) == {"/smorphi/step", "/map", "/morphology", "/log"}
 
 
@@ -212,12 +212,11 @@ def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_p
     from smorphi_rl.training import cluster
     from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
 
-    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1], "max_steps": 20}), record_every=2)
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1], "max_steps": 20}), record_every=2,
+                      num_env_runners=2, envs_per_runner=3)  # fmt: skip
     with cluster.ray_session(None):
         register_env()
-        config = algorithm_config(cfg, recording=recording_settings(cfg, tmp_path, "vector")).env_runners(
-            num_envs_per_env_runner=3
-        )
+        config = algorithm_config(cfg, recording=recording_settings(cfg, tmp_path, "vector"))
         algo = config.build_algo()
         try:
             algo.train()

@@ -41,6 +41,11 @@ class MorphologyCallbacks(RLlibCallback):
     eval_starts: tuple[tuple[float, float, float], ...] = ()
     eval_optima: dict[str, Any] = {}  # noqa: RUF012 (set per run by with_evaluation)
 
+    def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
+        """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index)."""
+        if hasattr(env, "set_worker_index"):
+            env.set_worker_index(int(getattr(env_context, "worker_index", 0) or 0))
+
     def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
         import torch
 

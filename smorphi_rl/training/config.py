@@ -14,7 +14,15 @@ from typing import Any
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
-from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, LAYOUT, PPO_ONLY, PRESETS, Preset
+from smorphi_rl.training.presets import (
+    ALGORITHMS,
+    DEFAULT_TIMESTEPS,
+    ENVS_PER_RUNNER,
+    LAYOUT,
+    PPO_ONLY,
+    PRESETS,
+    Preset,
+)
 
 TUNE_ENV_NAME = "smorphi_rl_morphology"
 """The env's name in Ray Tune's registry (a Tune config names the env by this string)."""
@@ -22,8 +30,11 @@ CPUS_PER_ENV_RUNNER = 0.5
 """Two runners plus the trial's own process fit in 2 CPUs (1 CPU each never starts on 2 cores)."""
 CPUS_FOR_TRIAL = 1.0
 """The trial's own process: the learner, and the local env runner when there are no remote ones."""
-ENVS_PER_RUNNER = 16
-"""Sub-envs each env runner steps together: one forward pass serves them all (see the README's speed table)."""
+
+
+DEFAULT_RECORD_EVERY = 100
+"""Record every 100th episode of each env by default: a vector env of 32 then writes about one file per
+3,200 episodes' worth of each env's share, and the run slows by about 1 % (measured in bench_training)."""
 
 
 class TrainConfigError(SmorphiError):
@@ -56,7 +67,7 @@ class TrainConfig:
     """Evaluate the greedy policy from the protocol's fixed starts every this many iterations (0: never)."""
     eval_starts: int = EVAL_STARTS
     """Fixed seeded start shapes per training map in each evaluation."""
-    record_every: int = 0
+    record_every: int = DEFAULT_RECORD_EVERY
     """Record every Nth episode of each env to MCAP under the run's episodes/ folder; 0: no recording."""
 
     def __post_init__(self) -> None:
@@ -160,8 +171,6 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     return float(values.mean()) * horizon, spread * horizon
 
 
-DEFAULT_RECORD_EVERY = 25
-"""Record every 25th episode of each env by default: ~20 files of ~100 KB for a 100k-step run."""
 EPISODES_DIR = "episodes"
 """The folder under a run (or trial) directory that holds its MCAP recordings."""
 

@@ -25,6 +25,9 @@ from torch import nn
 
 HIDDEN = 128
 MAP_FEATURES = 64
+ANGLE_FREQUENCIES = 8
+"""Each angle also enters as sin and cos of k pi theta / 180 for k = 1..8: the R1 landscape is rugged at a
+few degrees, and these let the value and policy nets resolve it without first learning the features."""
 MAP_LEVELS = 255.0
 """The env's map channels are uint8 fractions times 255."""
 
@@ -99,7 +102,9 @@ class _Net(nn.Module):
         with torch.no_grad():
             flat = self.cnn(torch.zeros(1, channels, size, size)).shape[1]
         self.map_fc = nn.Sequential(nn.Linear(flat, MAP_FEATURES), nn.ReLU())
-        shape_inputs = sum(int(np.prod(obs_space[k].shape or (1,))) for k in ("angles", "metrics"))
+        n_angles = int(np.prod(obs_space["angles"].shape or (1,)))
+        shape_inputs = n_angles * (1 + 2 * ANGLE_FREQUENCIES) + int(np.prod(obs_space["metrics"].shape or (1,)))
+        self.register_buffer("_freqs", torch.arange(1, ANGLE_FREQUENCIES + 1, dtype=torch.float32) * torch.pi)
         self.mlp = nn.Sequential(
             nn.Linear(MAP_FEATURES + shape_inputs, HIDDEN),
             nn.Tanh(),
@@ -120,7 +125,11 @@ class _Net(nn.Module):
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         map_features = self.encode_maps(obs["map"])
-        return self.head(self.mlp(torch.cat([map_features, obs["angles"], obs["metrics"]], dim=-1)))
+        angles = obs["angles"]
+        freqs: torch.Tensor = self._freqs  # type: ignore[assignment]  # a registered buffer
+        phases = (angles.unsqueeze(-1) * freqs).flatten(-2)  # angles are theta / 180, so k pi theta / 180
+        features = [map_features, angles, torch.sin(phases), torch.cos(phases), obs["metrics"]]
+        return self.head(self.mlp(torch.cat(features, dim=-1)))
 
 
 class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):

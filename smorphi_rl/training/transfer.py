@@ -20,6 +20,8 @@ import numpy as np
 
 from smorphi_rl.training.callbacks import MorphologyCallbacks
 from smorphi_rl.training.checkpoints import MODULE_COMPONENT, MODULE_SUBDIR, CheckpointError, load_module
+from smorphi_rl.training.config import DEFAULT_RECORD_EVERY
+from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 PRETRAINED_KEY = "smorphi_pretrained_in_runners"
 POLICY_PREFIX = "_pi."
@@ -51,12 +53,14 @@ def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
 
 
 def push_module_to_runners(algorithm: Any) -> list[str]:
-    """Copy the learner's module into every remote env runner, waiting for each; returns their policy digests."""
+    """Copy the learner's module into every env runner that samples (the remote ones, or the trial's own when
+    there are none), waiting for each; returns their policy digests."""
     state = algorithm.learner_group.get_state(components="learner/rl_module", inference_only=True)
     runner_state = state["learner"]  # {"rl_module": {module id: module state}}
     runners = algorithm.env_runner_group
-    runners.foreach_env_runner(lambda r: r.set_state(runner_state), local_env_runner=False)
-    return runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=False)
+    local = runners.num_remote_env_runners() == 0
+    runners.foreach_env_runner(lambda r: r.set_state(runner_state), local_env_runner=local)
+    return runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=local)
 
 
 def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbacks]:
@@ -107,7 +111,8 @@ def run_transfer(
     log_dir: str | Path = "logs",
     address: str | None = None,
     out: Any = None,
-    record_every: int = 0,
+    record_every: int = DEFAULT_RECORD_EVERY,
+    envs_per_runner: int = ENVS_PER_RUNNER,
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from `pretrained` and train from scratch, same budget."""
     from smorphi_rl.env import EnvConfig
@@ -122,7 +127,8 @@ def run_transfer(
     configs = []
     for path in maps:  # every map and the checkpoint are checked before the first run starts
         cfg = TrainConfig(algo=algo, env=replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps),
-                          timesteps=timesteps, preset=preset, record_every=record_every)  # fmt: skip
+                          timesteps=timesteps, preset=preset, record_every=record_every,
+                          envs_per_runner=envs_per_runner)  # fmt: skip
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)
     job_dir = prepare_run_dir(log_dir, name)

@@ -49,7 +49,10 @@ def test_default_run_name_is_a_safe_directory_name():
 
 
 def test_value_normalisation_brackets_random_returns():
-    env = EnvConfig()
-    offset, scale = value_normalisation(env, gamma=0.99)
+    offset, scale = value_normalisation(EnvConfig(reward="paper"), gamma=0.99)
     # R1 of random shapes on map-1 lies around 60..91, over an effective horizon of 100 steps.
     assert 6_000 < offset < 9_100 and 100 < scale < 10_000
+    offset, scale = value_normalisation(EnvConfig(reward="level"), gamma=0.99)
+    assert abs(offset) < 100 and 100 < scale < 3_000  # standardised R1 (mean 0, spread ~6) over ~100 steps
+    offset, scale = value_normalisation(EnvConfig(reward="improvement"), gamma=0.99)
+    assert offset == 0 and 1 < scale < 20  # R1 gained, in spreads

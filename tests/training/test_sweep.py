@@ -21,6 +21,8 @@ seeds: [0]
 timesteps: 3000
 search:
   lr: {{grid: [0.001, 0.003]}}
+  train_batch_size: 1000
+env: {{max_steps: 20}}
 checkpoint: {{every: 1}}
 """
 pytestmark = pytest.mark.slow

@@ -55,9 +55,10 @@ def tensorboard_tags(run_dir: Path) -> set[str]:
 
 @pytest.fixture(scope="module")
 def ppo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess[str]]:
-    """`smorphi-rl train` for 2 iterations of 1,000 steps, checkpointing each."""
+    """`smorphi-rl train` for 2 iterations of 2,000 steps on 4 envs (5 episodes each), checkpointing each."""
     work = tmp_path_factory.mktemp("ppo")
-    proc = cli("train", "--map", MAP_1, "--timesteps", "2000", "--name", "smoke", "--checkpoint-every", "1", cwd=work)
+    proc = cli("train", "--map", MAP_1, "--timesteps", "4000", "--envs-per-runner", "4", "--name", "smoke",
+               "--checkpoint-every", "1", "--record-every", "25", cwd=work)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     return work / "logs" / "smoke", proc
 
@@ -65,8 +66,9 @@ def ppo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess[str]]:
 def test_train_prints_where_everything_is(ppo_run):
     run_dir, proc = ppo_run
     out = proc.stdout
-    assert "PPO trained for 2,000 env steps" in out and "(2 iterations)" in out
-    assert "best morphology: (" in out and "exact optimum on the 2-degree lattice" in out
+    assert "PPO trained for 4,000 env steps" in out and "(2 iterations)" in out
+    assert "best morphology: (" in out and "exact optimum on the 1-degree lattice" in out
+    assert "greedy policy from 20 fixed starts: settles within 1 % of the optimum from" in out
     assert "tensorboard --logdir logs/smoke" in out
     for name in ("config.json", "summary.json", "top_morphologies.csv", "top_morphologies.md", "morphologies.csv",
                  "top_morphologies.png", "learning_curves.png"):  # fmt: skip
@@ -78,7 +80,9 @@ def test_train_prints_where_everything_is(ppo_run):
 def test_metrics_exist_and_are_finite(ppo_run):
     run_dir, _ = ppo_run
     result = last_result(run_dir)
-    assert result["training_iteration"] == 2 and result["num_env_steps_sampled_lifetime"] >= 2000
+    assert result["training_iteration"] == 2 and result["num_env_steps_sampled_lifetime"] >= 4000
+    ev = result["eval"]  # the protocol ran at the first and the last iteration
+    assert ev["starts"] == 20 and 0 <= ev["share_within_1pct"] <= 1 and ev["median_gap"] >= 0
     ours = result["env_runners"]["smorphi"]
     for key in ("P_c_mean", "P_len_mean", "R1_mean", "best_P_c", "best_P_len", "best_R1", "best_theta1"):
         assert math.isfinite(ours[key]), key
@@ -93,6 +97,7 @@ def test_tensorboard_holds_our_tags(ppo_run):
     assert "ray/tune/env_runners/episode_return_mean" in tags
     missing = [t for t in OUR_TAGS if t not in tags]
     assert not missing
+    assert {"ray/tune/eval/median_gap", "ray/tune/eval/share_within_1pct", "ray/tune/eval/map-1/median_gap"} <= tags
 
 
 def test_top_k_table_holds_real_fbcpp_figures(ppo_run):
@@ -160,7 +165,7 @@ def test_compare_takes_a_training_run(ppo_run, tmp_path):
                cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr
     report = (tmp_path / "compare-map-1" / "report.md").read_text()
-    assert "| PPO (smoke) | 2,000 env steps |" in report
+    assert "| PPO (smoke) | 4,000 env steps |" in report
 
 
 def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_path):
@@ -174,7 +179,7 @@ def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_pat
         observation_space=trained.observation_space, action_space=trained.action_space, model_config={}
     )
     assert policy_digest(fresh.get_state()) != policy_digest(trained.get_state())  # the check can fail
-    cfg = TrainConfig(timesteps=1000, pretrained=str(run_dir), checkpoint_every=1)
+    cfg = TrainConfig(timesteps=2000, pretrained=str(run_dir), checkpoint_every=1, envs_per_runner=4)
     summary = train(cfg, name="tuned", log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
     assert summary.pretrained == checkpoint and summary.pretrained_in_runners is True
     first = json.loads((trial_dir(summary.run_dir) / "result.json").read_text().splitlines()[0])
@@ -184,7 +189,7 @@ def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_pat
 def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
     run_dir, _ = ppo_run
     val = str(ROOT / "maps" / "val-1.yaml")
-    proc = cli("transfer", "--pretrained", str(run_dir), "--maps", val, "--timesteps", "1000", "--name", "job",
+    proc = cli("transfer", "--pretrained", str(run_dir), "--maps", val, "--timesteps", "2000", "--name", "job",
                cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = list(csv.DictReader((tmp_path / "logs" / "job" / "transfer.csv").open()))
@@ -219,7 +224,7 @@ def test_evaluate_policy_refuses_a_map_of_another_observation_size(ppo_run, tmp_
 def test_async_learners_train_and_report(algo, tmp_path):
     # Asynchronous: the first iteration or two report no samples while the runners start, so run
     # to a step budget (at least 2 iterations) rather than a fixed number of iterations.
-    cfg = TrainConfig(algo=algo, timesteps=1000, checkpoint_every=1)
+    cfg = TrainConfig(algo=algo, timesteps=1000, checkpoint_every=1, envs_per_runner=2)
     summary = train(cfg, name=algo, log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
     assert summary.iterations >= 2 and not summary.interrupted and summary.env_steps >= 1000
     assert summary.best is not None and summary.checkpoint is not None
@@ -262,10 +267,10 @@ def test_attaches_to_a_running_cluster(tmp_path):
              "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
     try:
-        proc = cli("train", "--address", f"127.0.0.1:{port}", "--timesteps", "1000", "--name", "attached",
-                   "--map", MAP_1, cwd=tmp_path)  # fmt: skip
+        proc = cli("train", "--address", f"127.0.0.1:{port}", "--timesteps", "2000", "--name", "attached",
+                   "--map", MAP_1, "--env-runners", "2", "--envs-per-runner", "2", cwd=tmp_path)  # fmt: skip
         assert proc.returncode == 0, proc.stderr[-3000:]
-        assert "PPO trained for 1,000 env steps" in proc.stdout
+        assert "PPO trained for 2,000 env steps" in proc.stdout
         assert (
             json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == f"127.0.0.1:{port}"
         )
