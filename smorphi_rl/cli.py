@@ -84,8 +84,9 @@ def read_angles_file(path: Path) -> np.ndarray:
         with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
             warnings.simplefilter("ignore")  # an empty file: reported below, with its name
             values = np.loadtxt(fh, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
-        if values.shape[0] > 0 and values.shape[1] == 3 and np.isfinite(values).all():
-            return values
+        in_range = np.isfinite(values).all() and (values >= 0).all() and (values <= 180).all()
+        if values.shape[0] > 0 and values.shape[1] == 3 and in_range:
+            return values  # anything else is re-read row by row below, to name the file and line
     except (ValueError, UnicodeDecodeError):
         pass
     except FileNotFoundError:
@@ -109,6 +110,9 @@ def read_angles_file(path: Path) -> np.ndarray:
         if len(cells) != 3 or not _is_numeric_row(cells):
             raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {','.join(row)!r}")
         out[i] = [float(c) for c in cells]
+        for j, v in enumerate(out[i]):
+            if not 0 <= v <= 180:
+                raise SmorphiError(f"{path} line {n}: hinge angle t{j + 1}={v:g} is outside [0, 180] degrees")
     return out
 
 
@@ -345,11 +349,13 @@ def _replay_listing(directory: Path) -> int:
     if not files:
         raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
     print(f"{'episode':<44} {'map':<8} {'algo':<8} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
+    unreadable = 0
     for f in files:
         try:
             ep = read_episode(f)
         except RecordingError as exc:
             print(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}")
+            unreadable += 1
             continue
         b = ep.best
         assert b is not None
@@ -357,6 +363,8 @@ def _replay_listing(directory: Path) -> int:
         print(f"{f.name:<44} {b['map']:<8} {ep.metadata.get('algorithm', '-'):<8} {len(ep.steps) - 1:>5}  "
               f"{b['R1']:>7.2f}  {_theta_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
     print(f"{len(files)} recordings in {_rel(directory)}")
+    if unreadable == len(files):
+        raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
     return 0
 
 

@@ -31,9 +31,11 @@ NUM_ENVS_KEY = "num_envs"
 """What RLlib adds to env_config when it asks the creator for a vector env."""
 
 
-def sub_env_generator(run_seed: int, worker_index: int, env_index: int) -> np.random.Generator:
-    """The independent random stream of one sub-env of one env runner of one run."""
-    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed, spawn_key=(worker_index, env_index))))
+def sub_env_generator(run_seed: int, worker_index: int, env_index: int, generation: int = 0) -> np.random.Generator:
+    """The independent random stream of one sub-env of one env runner of one run; `generation` counts the
+    restores of a resumed run, so a resumed run draws fresh shapes instead of replaying its first ones."""
+    key = (worker_index, env_index) if generation == 0 else (worker_index, env_index, generation)
+    return np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed, spawn_key=key)))
 
 
 class MorphologyVectorEnv(VectorEnv):
@@ -63,6 +65,14 @@ class MorphologyVectorEnv(VectorEnv):
         for env in self.envs:
             if hasattr(env, "worker_index"):
                 env.worker_index = self.worker_index
+
+    def reseed(self, generation: int) -> None:
+        """Switch every sub-env to the streams of `generation` now (a resumed run: the restored iteration)."""
+        if self.run_seed is None:
+            return
+        for i, env in enumerate(self.envs):
+            env.unwrapped.np_random = sub_env_generator(self.run_seed, self.worker_index, i, generation)
+        self._seeded = True
 
     def _seed_envs(self, seed: int | Sequence[int | None] | None) -> list[int | None]:
         """Reset seeds for the sub-envs; with a run seed, each gets its own spawned stream once instead."""

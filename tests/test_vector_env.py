@@ -59,3 +59,16 @@ def test_seeds_and_runners_draw_independent_streams():
     assert not np.array_equal(g1.integers(0, 2**32, 64), g2.integers(0, 2**32, 64))
     within = _starts(0, worker=1, envs=4, episodes=1)[:4]
     assert len(set(within)) == 4  # the sub-envs of one runner differ too
+
+
+def test_a_resumed_run_draws_fresh_streams():
+    venv = make_env({"num_envs": 2, "run_seed": 5, "max_steps": 1})
+    _, first = venv.reset()
+    venv.reseed(3)
+    venv.step(np.ones((2, 3), dtype=np.int64))
+    _, _, _, _, after = venv.step(np.ones((2, 3), dtype=np.int64))  # the autoreset draws from generation 3
+    again = make_env({"num_envs": 2, "run_seed": 5, "max_steps": 1})
+    again.reset()
+    again.step(np.ones((2, 3), dtype=np.int64))
+    _, _, _, _, replay = again.step(np.ones((2, 3), dtype=np.int64))
+    assert list(after["theta"]) != list(replay["theta"])

@@ -33,7 +33,7 @@ from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import STEPS_KEY, TrainingError, _fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
-from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners
+from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
 
 SWEEP_COPY = "sweep.yaml"
 """The sweep file as it was when the experiment started; --resume checks the file still matches."""
@@ -70,6 +70,7 @@ def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
             with resume.as_directory() as path:
                 algo.restore_from_path(path)
             push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
+            reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
         while True:
             result = algo.train()
             steps = int(result.get(STEPS_KEY) or 0)

@@ -63,6 +63,19 @@ def push_module_to_runners(algorithm: Any) -> list[str]:
     return runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=local)
 
 
+def reseed_runners(algorithm: Any, generation: int) -> None:
+    """Give every sampling env its `generation` of independent streams (after a restore)."""
+    runners = algorithm.env_runner_group
+    local = runners.num_remote_env_runners() == 0
+
+    def reseed(runner: Any) -> None:
+        env = getattr(runner.env, "unwrapped", None)
+        if hasattr(env, "reseed"):
+            env.reseed(generation)
+
+    runners.foreach_env_runner(reseed, local_env_runner=local)
+
+
 def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbacks]:
     """MorphologyCallbacks that start the algorithm from `checkpoint`'s policy and value networks."""
 

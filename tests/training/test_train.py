@@ -262,7 +262,8 @@ def test_attaches_to_a_running_cluster(tmp_path):
     ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
     port = _free_port()
     temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
-    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", "RAY_AUTH_MODE")}
+    # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
     start = [ray, "start", "--head", "--num-cpus=2", f"--port={port}", "--include-dashboard=false",
              "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
