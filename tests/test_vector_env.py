@@ -63,7 +63,7 @@ def test_seeds_and_runners_draw_independent_streams():
 
 def test_a_resumed_run_draws_fresh_streams():
     venv = make_env({"num_envs": 2, "run_seed": 5, "max_steps": 1})
-    _, first = venv.reset()
+    venv.reset()
     venv.reseed(3)
     venv.step(np.ones((2, 3), dtype=np.int64))
     _, _, _, _, after = venv.step(np.ones((2, 3), dtype=np.int64))  # the autoreset draws from generation 3

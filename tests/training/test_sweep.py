@@ -59,14 +59,15 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     for trial in trials:
         rows = results(trial)
         assert sorted({r["smorphi_iteration"] for r in rows}) == [1, 2, 3]
-        assert rows[-1]["num_env_steps_sampled_lifetime"] == 3000  # the env-step count survived the restore
+        per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 32 envs
+        assert rows[-1]["num_env_steps_sampled_lifetime"] == 3 * per_iteration >= 3000  # survived the restore
         load_module(find_checkpoint(trial))
         acc = EventAccumulator(str(trial))
         acc.Reload()
         assert "ray/tune/env_runners/smorphi/R1_final" in acc.Tags()["scalars"]
     table = list(csv.DictReader((exp / "sweep.csv").open()))
     assert sorted(r["lr"] for r in table) == ["0.001", "0.003"]
-    assert all(r["env_steps"] == "3000" and r["iterations"] == "3" and float(r["best_R1"]) > 80 for r in table)
+    assert all(int(r["env_steps"]) >= 3000 and r["iterations"] == "3" and float(r["best_R1"]) > 80 for r in table)
     assert (exp / "sweep_curves.png").stat().st_size > 10_000
 
     config.write_text(SWEEP.replace("3000", "4000"))  # another sweep under the same name: refused
