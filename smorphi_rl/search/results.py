@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -95,8 +96,8 @@ def load(run_dir: str | Path) -> SearchResult:
         summary = json.loads((root / "summary.json").read_text())
         with np.load(root / RESULTS_FILE) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
-    except (OSError, ValueError, KeyError) as exc:
-        raise SmorphiError(f"{root}: holds no search results ({exc})") from None
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # missing, cut short, not ours
+        raise SmorphiError(f"{root}: holds no readable search results ({type(exc).__name__}: {exc})") from None
     return SearchResult(
         summary["method"], summary["map"], arrays["thetas"].astype(np.float64), arrays["P_c"], arrays["P_len"],
         arrays["feasible"], int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),

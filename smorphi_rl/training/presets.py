@@ -80,8 +80,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
         "appo": _A3C_PAPER,
     },
 }
-DEFAULT_TIMESTEPS = 200_000
-"""The main job's budget: about 90 s of training on 2 cores at the fast preset's ~2,500 env steps/s."""
+DEFAULT_TIMESTEPS = 150_000
+"""The main job's budget: about 100 s of training on 2 cores (1,500-1,900 env steps/s end to end)."""
 ENVS_PER_RUNNER = 32
 """Sub-envs each env runner steps together: one forward pass serves them all (16: 1,740 env steps/s end to end,
 32: 2,500/s, 64: no faster, on 2 cores; see the README's speed table)."""
