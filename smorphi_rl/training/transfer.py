@@ -69,8 +69,8 @@ def reseed_runners(algorithm: Any, generation: int) -> None:
     local = runners.num_remote_env_runners() == 0
 
     def reseed(runner: Any) -> None:
-        env = getattr(runner.env, "unwrapped", None)
-        if hasattr(env, "reseed"):
+        env: Any = getattr(runner.env, "unwrapped", None)
+        if env is not None and hasattr(env, "reseed"):
             env.reseed(generation)
 
     runners.foreach_env_runner(reseed, local_env_runner=local)
