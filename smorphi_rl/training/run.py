@@ -125,6 +125,7 @@ class _Progress:
         self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
         self._last_print = -math.inf
+        self._last_mean = math.nan
         self.last_eval: dict[str, Any] = {}
         self.pretrained_in_runners: bool | None = None
         """Fine-tuning: whether every env runner held the checkpoint's policy before the first sample."""
@@ -169,7 +170,9 @@ class _Progress:
         best = self.top.top(1)
         best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
         mean_r1 = ours.get("R1_mean")
-        mean_txt = f"episode mean R1 {mean_r1:.2f}" if isinstance(mean_r1, int | float) else ""
+        if isinstance(mean_r1, int | float) and math.isfinite(mean_r1):
+            self._last_mean = float(mean_r1)  # iterations in which no episode ended report NaN: keep the last
+        mean_txt = f"episode mean R1 {self._last_mean:.2f}" if math.isfinite(self._last_mean) else ""
         line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {_fmt_duration(now - self.t0)}  "
                 f"{best_txt}  {mean_txt}")  # fmt: skip
         if self.tty:
