@@ -87,7 +87,7 @@ def ray_session(address: str | None) -> Iterator[None]:
         "runtime_env": {"worker_process_setup_hook": "smorphi_rl.training.quiet.quiet"},
     }
     if address is None:
-        kwargs["num_cpus"] = max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
+        kwargs["num_cpus"] = local_cpus()
     try:
         if address is None:
             with _daemons_in_their_own_session():
@@ -105,11 +105,20 @@ def ray_session(address: str | None) -> Iterator[None]:
         ray.shutdown()
 
 
-def check_capacity(cpus: float, env_runners: int, address: str | None) -> None:
-    """Refuse, before any trial starts, a layout the Ray in use cannot place (it would wait forever)."""
-    import ray
+def local_cpus() -> int:
+    """The CPUs a local Ray started for a run gets."""
+    return max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
 
-    have = float(ray.cluster_resources().get("CPU", 0.0))
+
+def check_capacity(cpus: float, env_runners: int, address: str | None) -> None:
+    """Refuse, before any trial starts, a layout the Ray in use cannot place (it would wait forever). For a
+    local Ray this needs no Ray at all; for a cluster, call it once connected."""
+    if address is None:
+        have = float(local_cpus())
+    else:
+        import ray
+
+        have = float(ray.cluster_resources().get("CPU", 0.0))
     if cpus > have + 1e-9:
         where = "this machine's local Ray" if address is None else f"the Ray cluster at {address}"
         raise ClusterError(

@@ -299,6 +299,8 @@ def train(
         pretrained = find_checkpoint(cfg.pretrained)
         callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
     cluster.check_reachable(address)
+    if address is None:
+        cluster.check_capacity(cfg.cpus, cfg.env_runners, address)  # a local Ray's size is known before it starts
     out = out or sys.stderr
     run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
     try:

@@ -34,6 +34,11 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--address", "127.0.0.1:1"], 1, "cannot reach a Ray cluster at 127.0.0.1:1"),
         (["--address", "nonsense"], 1, "--address must be HOST:PORT, 'auto' or ray://HOST:PORT"),
         (["--pretrained", "/no/such/checkpoint"], 1, "checkpoint not found: /no/such/checkpoint"),
+        (["--env-runners", "-1"], 1, "env runners must be 0 (sample in the trial process) or more, got -1"),
+        (["--envs-per-runner", "0"], 1, "envs_per_runner must be a positive integer, got 0"),
+        (["--reward", "greedy"], 2, "invalid choice: 'greedy'"),
+        (["--eval-starts", "0"], 1, "eval_starts must be a positive integer, got 0"),
+        (["--name", "../../etc"], 1, "is not a plain folder name"),
     ],
 )
 def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
@@ -108,3 +113,9 @@ def test_sweep_file_missing(capsys, tmp_path):
 def test_record_every_must_not_be_negative(capsys, tmp_path):
     code, err = run(capsys, "train", "--log-dir", str(tmp_path), "--record-every", "-1")
     assert code == 1 and "record_every must be a non-negative integer" in err
+
+
+def test_train_refuses_more_env_runners_than_the_local_ray_can_place(capsys, tmp_path):
+    got, err = run(capsys, "train", "--log-dir", str(tmp_path), "--env-runners", "8", "--timesteps", "1000")
+    assert got == 1 and "8 env runner(s) need 5 CPUs" in err and "use fewer --env-runners" in err
+    assert not list(tmp_path.iterdir())  # the refused run's folder is gone again
