@@ -222,11 +222,6 @@ def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float) -> tuple[
     return float(np.mean(r1)), max(float(np.std(r1)), 1e-6)
 
 
-def r1_spread(map_path: str, w1: float, w2: float, block_side_m: float) -> float:
-    """sigma_map (see r1_stats)."""
-    return r1_stats(map_path, w1, w2, block_side_m)[1]
-
-
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     """Smorphi morphology design as an MDP (module docstring has the full spec)."""
 

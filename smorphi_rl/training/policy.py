@@ -118,12 +118,13 @@ def rollout(module: Any, env: Any, seed: int) -> Rollout:
     """One greedy episode from the env's seeded start (`env`: a MorphologyEnv, or one wrapped for recording)."""
     obs, info = env.reset(seed=seed)
     start, thetas, total = info, [info["theta"]], 0.0
-    done = False
+    done = terminated = False
     while not done:
         obs, reward, terminated, truncated, info = env.step(greedy_action(module, obs))
         thetas.append(info["theta"])
         total += reward
         done = terminated or truncated
-    settled = env.unwrapped.score(settled_theta(thetas))
+    committed = terminated and env.unwrapped.config.reward == RewardMode.COMMIT.value
+    settled = env.unwrapped.score(thetas[-1] if committed else settled_theta(thetas))  # the protocol's rule
     best = {k.removeprefix("best_"): v for k, v in info.items() if k.startswith("best_")}
     return Rollout(start, settled, best, info, len(thetas) - 1, total, thetas)
