@@ -39,7 +39,7 @@ class TrialRow:
     wall_s: float
     best: Found | None
     converged_at: float | None
-    final_R1: float
+    settled_R1_plateau: float
     curve: dict[str, list[float]]
 
 
@@ -103,7 +103,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         wall_s=float(sum(_num(r.get("time_this_iter_s")) for r in rows)),
         best=best[0] if best else None,
         converged_at=at,
-        final_R1=plateau,
+        settled_R1_plateau=plateau,
         curve=curve,
     )
 
@@ -118,14 +118,14 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     """sweep.csv (every column) and sweep.md (the same, sorted by best R1)."""
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
-              "best_map", "best_P_c", "best_P_len", "converged_at_env_steps", "final_R1_plateau"]  # fmt: skip
+              "best_map", "best_P_c", "best_P_len", "converged_at_env_steps", "settled_R1_plateau"]  # fmt: skip
     table = []
     for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
         b = r.best
         table.append([r.trial, r.algo, r.maps, r.seed, *[_fmt(r.hyperparameters.get(k)) for k in hp_keys],
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
-                      "" if r.converged_at is None else int(r.converged_at), f"{r.final_R1:.2f}"])  # fmt: skip
+                      "" if r.converged_at is None else int(r.converged_at), f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
     with csv_path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)

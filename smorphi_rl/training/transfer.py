@@ -177,7 +177,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
     with files["csv"].open("w", newline="") as fh:
         writer = csv.writer(fh)
-        writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_final_R1", "best_R1",
+        writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_settled_R1", "best_R1",
                          "pretrained_in_runners"])  # fmt: skip
         for r in runs:
             at = "" if r.converged_at is None else int(r.converged_at)
@@ -185,7 +185,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
                              r.pretrained_in_runners])  # fmt: skip
     lines = [
         "| Map | Fine-tuned: env steps to converge (median over seeds) | From scratch | Ratio scratch / fine-tuned "
-        "| Plateau final-shape R1 fine-tuned / scratch | Best R1 fine-tuned / scratch |",
+        "| Plateau greedy settled R1 fine-tuned / scratch | Best R1 fine-tuned / scratch |",
         "|---|---:|---:|---:|---:|---:|",
     ]
     for map_name in dict.fromkeys(r.map_name for r in runs):
