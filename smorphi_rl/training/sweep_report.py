@@ -125,7 +125,8 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
         table.append([r.trial, r.algo, r.maps, r.seed, *[_fmt(r.hyperparameters.get(k)) for k in hp_keys],
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
-                      "" if r.converged_at is None else int(r.converged_at), f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
+                      "" if r.converged_at is None else int(r.converged_at),
+                      f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
     with csv_path.open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
