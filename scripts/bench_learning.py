@@ -5,10 +5,13 @@ layout) for a fixed budget, then the evaluation protocol: greedy roll-outs from 
 starts, each settled shape's gap to the exact 1-degree optimum. Yardsticks from the same starts,
 seeded the same way: a random walk (uniform moves, settled as a policy's would be), hill
 climbing, simulated annealing and random search, each held to the FBCPP evaluations the policies
-used per start. Every figure is the mean over seeds with a 95 % bootstrap interval.
+used per start. Every figure is the mean over seeds with a 95 % bootstrap interval. The ceiling:
+the exact optimal policy of each reward mode at the preset's discount (value iteration over the whole
+lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala] [--rewards paper level] [--seeds 0 1 2] [--timesteps 100000] [--out DIR]
+        [--algos ppo impala] [--rewards paper level] [--seeds 0 1 2] [--timesteps 150000] [--no-ideal]
+        [--out DIR]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
 curves (learning_curves.png) under --out (default logs/bench-learning-<time>).
@@ -29,11 +32,14 @@ from smorphi_rl.env import EnvConfig, MorphologyEnv
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import prepare_run_dir
+from smorphi_rl.search.exhaustive import run_exhaustive
+from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values
 from smorphi_rl.search.local import run_local
 from smorphi_rl.stats import mean_interval
 from smorphi_rl.training.checkpoints import load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.policy import evaluate_policy
+from smorphi_rl.training.presets import DEFAULT_TIMESTEPS, PRESETS
 from smorphi_rl.training.run import train
 from smorphi_rl.training.transfer import summary_curve
 
@@ -69,7 +75,8 @@ def main() -> None:
     parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
     parser.add_argument("--rewards", nargs="+", default=["paper", "level"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--timesteps", type=int, default=100_000)
+    parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
+    parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
     parser.add_argument("--out", default=None)
     args = parser.parse_args()
     out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -90,7 +97,9 @@ def main() -> None:
                     print(f"  {r.method} seed {seed}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, "
                           f"settled R1 {r.settled_R1:.2f}, {r.evaluations:.0f} evaluations a start, {r.wall_s:.0f} s",
                           flush=True)  # fmt: skip
-        policy_rows = [r for r in rows if r.map == name]
+        if not args.no_ideal:
+            rows.extend(ideal_rows(map_path, base_env, optimum, starts, args.rewards))
+        policy_rows = [r for r in rows if r.map == name and not r.method.startswith("ideal")]
         budget = max(1, round(float(np.median([r.evaluations for r in policy_rows])))) if policy_rows else 200
         env = MorphologyEnv(base_env.to_dict())
         for method in BASELINES:
@@ -115,6 +124,32 @@ def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timeste
     kept = [(s, g) for s, g in zip(steps, gaps, strict=True) if np.isfinite(g)]
     return row_of(ev, f"{algo.upper()} {reward}", seed, summary.wall_s,
                   ([s for s, _ in kept], [g for _, g in kept]))  # fmt: skip
+
+
+def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarray, rewards: list[str]) -> list[Row]:
+    """The exact optimal policy of each reward mode (at the PPO preset's discount), rolled out greedily."""
+    from smorphi_rl.protocol import Outcome
+
+    name = load_map(map_path).name
+    result = run_exhaustive(map_path, block_side_m=env.block_side_m)
+    n = round(len(result.thetas) ** (1 / 3))
+    r1 = np.where(result.feasible, env.w1 * result.P_c - env.w2 * result.P_len, 0.0).reshape(n, n, n)
+    gamma = PRESETS["fast"]["ppo"].gamma
+    rows = []
+    for reward in (r for r in rewards if r in IDEAL_MODES):
+        t0 = time.monotonic()
+        w = move_values(r1, reward, gamma, env.beta)
+        settled = greedy_settled(w, starts.astype(int), env.max_steps, env.beta if reward == "paper" else None)
+        outcomes = []
+        for start, idx in zip(starts, settled, strict=True):
+            flat = (idx[0] * n + idx[1]) * n + idx[2]
+            outcomes.append(Outcome(tuple(float(v) for v in start), tuple(float(v) for v in idx), float(r1[idx]),
+                                    float(result.P_c[flat]), int(result.P_len[flat]), 0))  # fmt: skip
+        ev = MapEvaluation(name, f"ideal {reward}", optimum, tuple(outcomes))
+        rows.append(row_of(ev, f"ideal {reward} (value iteration, gamma {gamma})", 0, time.monotonic() - t0))
+        r = rows[-1]
+        print(f"  {r.method}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, {r.wall_s:.0f} s", flush=True)
+    return rows
 
 
 def optimum_name(map_path: str) -> str:

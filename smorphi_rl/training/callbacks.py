@@ -6,7 +6,6 @@ Runs inside the env runners (`on_episode_end`) and the trial process (`on_algori
 
 from __future__ import annotations
 
-import json
 import os
 from typing import Any
 
@@ -15,12 +14,10 @@ from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 
 WINDOW = 50
 """Episodes each mean is taken over (RLlib's own episode_return_mean uses 100)."""
-EPISODE_BEST_KEY = "smorphi_episode_best"
-"""Result key holding, as a JSON string, the best shape of each episode finished this iteration:
-[map, t1, t2, t3, P_c, P_len, R1]. A string, so TensorBoard skips it and the driver parses it."""
 METRIC_PREFIX = "smorphi"
 
 
@@ -79,16 +76,17 @@ class MorphologyCallbacks(RLlibCallback):
         for name, value in values.items():
             metrics_logger.log_value((METRIC_PREFIX, name), float(value), reduce="mean", window=WINDOW)
         metrics_logger.log_value((METRIC_PREFIX, "best_R1_max"), float(last["best_R1"]), reduce="max", window=WINDOW)
-        theta = [float(t) for t in last["best_theta"]]
-        best = [str(last["map"]), *theta, float(last["best_P_c"]), int(last["best_P_len"]), float(last["best_R1"])]
-        metrics_logger.log_value(EPISODE_BEST_KEY, best, reduce="item_series")
+        t1, t2, t3 = (float(t) for t in last["best_theta"])
+        best = EpisodeBest(str(last["map"]), (t1, t2, t3), float(last["best_P_c"]), int(last["best_P_len"]),
+                           float(last["best_R1"]))  # fmt: skip
+        metrics_logger.log_value(EPISODE_BEST_KEY, best.to_row(), reduce="item_series")
 
     def on_train_result(self, *, algorithm: Any, result: dict[str, Any], **kwargs: Any) -> None:
         runners = result.get(ENV_RUNNER_RESULTS, {})
         bests = runners.pop(EPISODE_BEST_KEY, None)
         if not isinstance(bests, list | tuple):  # no episode ended this iteration (RLlib reports NaN)
             bests = []
-        result[EPISODE_BEST_KEY] = json.dumps([list(b) for b in bests if isinstance(b, list | tuple) and len(b) == 7])
+        result[EPISODE_BEST_KEY] = encode_bests(bests)
         iteration = int(getattr(algorithm, "iteration", 0) or 0)
         last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
         if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):

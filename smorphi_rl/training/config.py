@@ -91,6 +91,18 @@ class TrainConfig:
         if isinstance(self.record_every, bool) or not isinstance(self.record_every, int) or self.record_every < 0:
             raise TrainConfigError(f"record_every must be a non-negative integer (0: off), got {self.record_every!r}")
         check_overrides(self.algo, self.overrides)
+        hp = self.hyperparameters
+        if hp.minibatch_size is not None:
+            if hp.minibatch_size > hp.train_batch_size:
+                raise TrainConfigError(
+                    f"minibatch_size ({hp.minibatch_size}) must not exceed train_batch_size ({hp.train_batch_size})"
+                )
+            fragment = hp.rollout_fragment_length
+            if self.algo != "ppo" and isinstance(fragment, int) and hp.minibatch_size % fragment:
+                raise TrainConfigError(
+                    f"{self.algo}: minibatch_size ({hp.minibatch_size}) must be a multiple of the rollout fragment "
+                    f"length ({fragment})"
+                )
 
     @property
     def env_runners(self) -> int:
@@ -234,6 +246,11 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
+    else:
+        from smorphi_rl.training.learners import LEARNERS
+
+        training["learner_class"] = LEARNERS[cfg.algo]  # v-trace advantages standardised per batch
+        training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size}
     config = (
         config_cls()
         .environment(

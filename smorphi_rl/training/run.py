@@ -24,7 +24,7 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
-from smorphi_rl.training.callbacks import EPISODE_BEST_KEY, METRIC_PREFIX, MorphologyCallbacks, with_evaluation
+from smorphi_rl.training.callbacks import METRIC_PREFIX, MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
 from smorphi_rl.training.config import (
     EPISODES_DIR,
@@ -35,7 +35,7 @@ from smorphi_rl.training.config import (
     register_env,
 )
 from smorphi_rl.training.quiet import quiet
-from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, write_csv, write_tables
+from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
 from smorphi_rl.training.transfer import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 
 STEPS_KEY = "num_env_steps_sampled_lifetime"
@@ -108,7 +108,7 @@ class RunSummary:
         }
 
 
-def _fmt_duration(seconds: float) -> str:
+def fmt_duration(seconds: float) -> str:
     m, s = divmod(round(seconds), 60)
     return f"{m}m {s:02d}s" if m else f"{s}s"
 
@@ -139,11 +139,11 @@ class _Progress:
 
     def on_result(self, result: dict[str, Any]) -> None:
         steps = int(result.get(STEPS_KEY) or 0)
-        rows = json.loads(result.get(EPISODE_BEST_KEY) or "[]")
-        self.top.add_episode_bests(self.cfg.algo, rows, steps)
+        bests = episode_bests(result)
+        self.top.add_episode_bests(self.cfg.algo, bests, steps)
         runners = result.get("env_runners", {})
         ret = runners.get("episode_return_mean", math.nan)
-        best_iter = max((r[-1] for r in rows), default=math.nan)
+        best_iter = max((b.R1 for b in bests), default=math.nan)
         self.curve.env_steps.append(steps)
         self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
         self.curve.best_R1.append(float(best_iter))
@@ -173,7 +173,7 @@ class _Progress:
         if isinstance(mean_r1, int | float) and math.isfinite(mean_r1):
             self._last_mean = float(mean_r1)  # iterations in which no episode ended report NaN: keep the last
         mean_txt = f"episode mean R1 {self._last_mean:.2f}" if math.isfinite(self._last_mean) else ""
-        line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {_fmt_duration(now - self.t0)}  "
+        line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {fmt_duration(now - self.t0)}  "
                 f"{best_txt}  {mean_txt}")  # fmt: skip
         if self.tty:
             self.out.write("\r" + line[:160].ljust(160) + ("\n" if done else ""))
@@ -361,7 +361,7 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
             return str(p)
 
     state = "interrupted after" if s.interrupted else "trained for"
-    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {_fmt_duration(s.wall_s)} "
+    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} "
              f"({s.iterations} iterations)"]  # fmt: skip
     if s.best is not None:
         b = s.best

@@ -8,7 +8,6 @@ runner, so Tune queues trials to fit the machine or the cluster.
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 import tempfile
@@ -30,9 +29,10 @@ from smorphi_rl.training.config import (
     register_env,
 )
 from smorphi_rl.training.quiet import quiet
-from smorphi_rl.training.run import STEPS_KEY, TrainingError, _fmt_duration
+from smorphi_rl.training.run import STEPS_KEY, TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
+from smorphi_rl.training.topk import episode_bests
 from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
 
 SWEEP_COPY = "sweep.yaml"
@@ -107,9 +107,9 @@ class _SweepProgress:
         self.__dict__.update(state, out=sys.stderr)
 
     def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
-        for row in json.loads(result.get("smorphi_episode_best") or "[]"):
-            if row[-1] > self.best[0]:
-                self.best = (row[-1], f"({row[1]:g}, {row[2]:g}, {row[3]:g}) on {row[0]}")
+        for b in episode_bests(result):
+            if self.best[0] < b.R1:
+                self.best = (b.R1, f"{b.angles} on {b.map}")
         steps = int(result.get(STEPS_KEY) or 0)
         maps = "+".join(Path(m).stem for m in config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
@@ -128,7 +128,7 @@ class _SweepProgress:
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         best = f"best R1 {self.best[0]:.2f} {self.best[1]}" if self.best[1] else "best R1 -"
         line = (f"sweep {self.sweep.name} [{bar}] {len(self.done)}/{self.total} trials  "
-                f"{_fmt_duration(now - self.t0)}  {current}  {best}")  # fmt: skip
+                f"{fmt_duration(now - self.t0)}  {current}  {best}")  # fmt: skip
         self.out.write(("\r" + line[:160].ljust(160)) if self.tty else line + "\n")
         self.out.flush()
 
@@ -254,14 +254,14 @@ def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
     """The end-of-sweep text: trials, the best of each, and where the files are."""
     state = "interrupted after" if s.interrupted else "ran"
     lines = [f"sweep {s.experiment_dir.name}: {state} {len(s.rows)} of {s.trials_total} trials "
-             f"in {_fmt_duration(s.wall_s)}"]  # fmt: skip
+             f"in {fmt_duration(s.wall_s)}"]  # fmt: skip
     ranked = sorted((r for r in s.rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
     for r in ranked[:5]:
         b = r.best
         assert b is not None
         hp = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.hyperparameters.items())
         lines.append(f"  {r.algo:<6} {r.maps:<14} seed {r.seed} {hp} best R1 {b.R1:.2f} {b.angles} "
-                     f"({r.env_steps:,} steps, {_fmt_duration(r.wall_s)})")  # fmt: skip
+                     f"({r.env_steps:,} steps, {fmt_duration(r.wall_s)})")  # fmt: skip
     for key, label in (("md", "table"), ("png", "curves")):
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")

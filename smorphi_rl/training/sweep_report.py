@@ -18,7 +18,7 @@ import numpy as np
 
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
-from smorphi_rl.training.topk import Found, TopMorphologies
+from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
 ITERATION_KEY = "smorphi_iteration"
 """The algorithm's own iteration count, reported by the sweep trainable; survives restores."""
@@ -64,11 +64,11 @@ def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
     curve: dict[str, list[float]] = {k: [] for k in keys}
     for r in rows:
         runners = r.get("env_runners", {})
-        bests = json.loads(r.get("smorphi_episode_best") or "[]")
+        bests = episode_bests(r)
         ev = r.get(EVAL_KEY) or {}
         curve["env_steps"].append(float(r.get("num_env_steps_sampled_lifetime") or 0))
         curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
-        curve["best_R1"].append(max((b[-1] for b in bests), default=math.nan))
+        curve["best_R1"].append(max((b.R1 for b in bests), default=math.nan))
         curve["final_R1"].append(_num(runners.get("smorphi", {}).get("R1_final")))
         curve["eval_R1"].append(_num(ev.get("settled_R1_mean")))
         curve["eval_gap"].append(_num(ev.get("median_gap")))
@@ -87,8 +87,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         return None
     top = TopMorphologies()
     for r in rows:
-        top.add_episode_bests(spec["algo"], json.loads(r.get("smorphi_episode_best") or "[]"),
-                              int(r.get("num_env_steps_sampled_lifetime") or 0))  # fmt: skip
+        top.add_episode_bests(spec["algo"], episode_bests(r), int(r.get("num_env_steps_sampled_lifetime") or 0))
     curve = result_curve(rows)
     at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
     best = top.top(1)

@@ -8,6 +8,8 @@ keeps the first found and how many distinct angle triples reached it.
 from __future__ import annotations
 
 import csv
+import json
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -17,6 +19,50 @@ FOUND_CSV = "morphologies.csv"
 CSV_FIELDS = (
     "rank", "algorithm", "map", "theta1", "theta2", "theta3", "P_c", "P_len", "R1", "first_seen_env_steps", "variants",
 )  # fmt: skip
+
+
+EPISODE_BEST_KEY = "smorphi_episode_best"
+"""Result key holding, as a JSON string, the best shape of each episode finished in an iteration (rows of
+`EpisodeBest.to_row`). A string, so TensorBoard skips it and the driver parses it."""
+
+
+@dataclass(frozen=True)
+class EpisodeBest:
+    """The best shape one episode reached (by R1), as the env runners report it to the driver."""
+
+    map: str
+    theta: tuple[float, float, float]
+    P_c: float
+    P_len: int
+    R1: float
+
+    def to_row(self) -> list[Any]:
+        """[map, t1, t2, t3, P_c, P_len, R1]: compact in every iteration's result."""
+        return [self.map, *self.theta, self.P_c, self.P_len, self.R1]
+
+    @classmethod
+    def from_row(cls, row: Any) -> EpisodeBest | None:
+        """The value of one row, or None for a row that is not one (RLlib reports NaN for none)."""
+        if not isinstance(row, list | tuple) or len(row) != 7:
+            return None
+        map_name, t1, t2, t3, p_c, p_len, r1 = row
+        return cls(str(map_name), (float(t1), float(t2), float(t3)), float(p_c), int(p_len), float(r1))
+
+    @property
+    def angles(self) -> str:
+        return "(" + ", ".join(f"{t:g}" for t in self.theta) + ")"
+
+
+def encode_bests(rows: Iterable[Any]) -> str:
+    """The result value for the episode bests of an iteration (rows that are not bests are dropped)."""
+    return json.dumps([b.to_row() for b in map(EpisodeBest.from_row, rows) if b is not None])
+
+
+def episode_bests(result: Mapping[str, Any]) -> list[EpisodeBest]:
+    """The episode bests of one training result (the one reader of EPISODE_BEST_KEY)."""
+    raw = result.get(EPISODE_BEST_KEY) or "[]"
+    rows = json.loads(raw) if isinstance(raw, str) else raw
+    return [b for b in map(EpisodeBest.from_row, rows) if b is not None]
 
 
 @dataclass(frozen=True)
@@ -48,15 +94,14 @@ class TopMorphologies:
     def __len__(self) -> int:
         return len(self._found)
 
-    def add_episode_bests(self, algorithm: str, rows: list[list[Any]], env_steps: int) -> None:
-        """Rows as the callbacks send them: [map, t1, t2, t3, P_c, P_len, R1]."""
-        for map_name, t1, t2, t3, p_c, p_len, r1 in rows:
-            theta = (float(t1), float(t2), float(t3))
-            key = (algorithm, str(map_name), round(float(p_c), 9), int(p_len))
+    def add_episode_bests(self, algorithm: str, bests: Iterable[EpisodeBest], env_steps: int) -> None:
+        """Count each episode's best shape, found at `env_steps`."""
+        for b in bests:
+            key = (algorithm, b.map, round(b.P_c, 9), b.P_len)
             seen = self._thetas.setdefault(key, set())
-            seen.add(theta)
+            seen.add(b.theta)
             if key not in self._found:
-                self._found[key] = Found(algorithm, str(map_name), theta, float(p_c), int(p_len), float(r1), env_steps)
+                self._found[key] = Found(algorithm, b.map, b.theta, b.P_c, b.P_len, b.R1, env_steps)
             self._found[key] = replace(self._found[key], variants=len(seen))
 
     def top(self, k: int, map_name: str | None = None) -> list[Found]:

@@ -30,6 +30,8 @@ def test_paper_preset_is_table_1():
         ({"timesteps": -5}, "timesteps must be a positive integer"),
         ({"seed": -1}, "seed must be a non-negative integer"),
         ({"max_iterations": 0}, "max_iterations must be a positive integer"),
+        ({"overrides": {"minibatch_size": 4000}}, r"minibatch_size \(4000\) must not exceed train_batch_size"),
+        ({"algo": "impala", "overrides": {"minibatch_size": 120}}, "must be a multiple of the rollout fragment"),
     ],
 )
 def test_bad_options_are_named(changes, message):
@@ -56,3 +58,26 @@ def test_value_normalisation_brackets_random_returns():
     assert abs(offset) < 100 and 100 < scale < 3_000  # standardised R1 (mean 0, spread ~6) over ~100 steps
     offset, scale = value_normalisation(EnvConfig(reward="improvement"), gamma=0.99)
     assert offset == 0 and 1 < scale < 20  # R1 gained, in spreads
+
+
+def test_async_learners_standardise_advantages():
+    """IMPALA and APPO train with our learners (v-trace advantages standardised); PPO keeps RLlib's."""
+    from smorphi_rl.training.config import algorithm_config
+    from smorphi_rl.training.learners import NormalisedAPPOLearner, NormalisedIMPALALearner
+
+    assert algorithm_config(TrainConfig(algo="impala")).learner_class is NormalisedIMPALALearner
+    assert algorithm_config(TrainConfig(algo="appo")).learner_class is NormalisedAPPOLearner
+    assert "Normalised" not in algorithm_config(TrainConfig(algo="ppo")).learner_class.__name__
+
+
+def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread():
+    import torch
+
+    from smorphi_rl.training.learners import _normalising
+
+    def vtrace(**_):
+        return torch.arange(6.0), torch.tensor([1.0, 5.0, 9.0, 2.0, 7.0, 100.0])
+
+    targets, advantages = _normalising(vtrace)()
+    assert torch.equal(targets, torch.arange(6.0))  # value targets untouched
+    assert abs(float(advantages.mean())) < 1e-6 and abs(float(advantages.std()) - 1) < 1e-5
