@@ -14,11 +14,11 @@ from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.training.result_keys import METRIC_PREFIX
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 
 WINDOW = 50
 """Episodes each mean is taken over (RLlib's own episode_return_mean uses 100)."""
-METRIC_PREFIX = "smorphi"
 
 
 def _step_infos(episode: Any, chunks: list[Any] | None) -> list[dict[str, Any]]:

@@ -24,7 +24,8 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
-from smorphi_rl.training.callbacks import METRIC_PREFIX, MorphologyCallbacks, with_evaluation
+from smorphi_rl.training import result_keys as keys
+from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
 from smorphi_rl.training.config import (
     EPISODES_DIR,
@@ -38,7 +39,7 @@ from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
 from smorphi_rl.training.transfer import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 
-STEPS_KEY = "num_env_steps_sampled_lifetime"
+STEPS_KEY = keys.STEPS
 TOP_PLOT = 4
 """Morphologies drawn in top_morphologies.png (the paper's Figure 6 shows 2 per algorithm)."""
 
@@ -141,13 +142,13 @@ class _Progress:
         steps = int(result.get(STEPS_KEY) or 0)
         bests = episode_bests(result)
         self.top.add_episode_bests(self.cfg.algo, bests, steps)
-        runners = result.get("env_runners", {})
-        ret = runners.get("episode_return_mean", math.nan)
+        runners = result.get(keys.ENV_RUNNERS, {})
+        ret = runners.get(keys.EPISODE_RETURN_MEAN, math.nan)
         best_iter = max((b.R1 for b in bests), default=math.nan)
         self.curve.env_steps.append(steps)
         self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
         self.curve.best_R1.append(float(best_iter))
-        self.curve.final_R1.append(float(runners.get(METRIC_PREFIX, {}).get("R1_final", math.nan)))
+        self.curve.final_R1.append(float(runners.get(keys.METRIC_PREFIX, {}).get("R1_final", math.nan)))
         ev = result.get(EVAL_KEY) or {}
         self.curve.eval_R1.append(float(ev.get("settled_R1_mean", math.nan)))
         self.curve.eval_gap.append(float(ev.get("median_gap", math.nan)))
@@ -157,7 +158,7 @@ class _Progress:
         self.curve.wall_s.append(time.monotonic() - self.t0)
         if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
             self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)
-        self._show(steps, runners.get(METRIC_PREFIX, {}), done=steps >= self.cfg.timesteps)
+        self._show(steps, runners.get(keys.METRIC_PREFIX, {}), done=steps >= self.cfg.timesteps)
 
     def _show(self, steps: int, ours: dict[str, Any], done: bool) -> None:
         now = time.monotonic()
@@ -262,7 +263,7 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
     progress = _Progress(cfg, out, label)
     stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
     if cfg.max_iterations is not None:
-        stop["training_iteration"] = cfg.max_iterations
+        stop[keys.ITERATION] = cfg.max_iterations
     tuner = tune.Tuner(
         config.algo_class,
         param_space=config,

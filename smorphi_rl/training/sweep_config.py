@@ -16,6 +16,7 @@ import yaml
 
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
 
@@ -104,7 +105,7 @@ class SweepConfig:
                            record_every=self.record_every)  # fmt: skip
 
 
-STOP_METRICS = ("time_total_s", "training_iteration", "num_env_steps_sampled_lifetime", "timesteps_total")
+STOP_METRICS = (keys.TIME_TOTAL, keys.ITERATION, keys.STEPS, keys.TIMESTEPS_TOTAL)
 """Stop criteria a sweep may give (Ray Tune ignores an unknown metric silently: a typo would never stop)."""
 MAX_TRIALS = 10_000
 """More trials than any machine or cluster of ours runs; a larger grid is a typo (it would create the folders)."""

@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
@@ -52,7 +53,7 @@ def result_rows(result_json: Path) -> list[dict[str, Any]]:
             row = json.loads(line)
         except json.JSONDecodeError:
             continue
-        by_iter[int(row.get(ITERATION_KEY, row.get("training_iteration", 0)))] = row
+        by_iter[int(row.get(ITERATION_KEY, row.get(keys.ITERATION, 0)))] = row
     return [by_iter[i] for i in sorted(by_iter)]
 
 
@@ -60,16 +61,16 @@ def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
     """Env steps, mean episode return, the iteration's best R1, the final-shape R1 and the greedy evaluation
     (settled R1, median gap, share within 1 %; NaN where the iteration was not evaluated) of each row
     (the curves of `train`, `transfer` and `sweep`)."""
-    keys = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
-    curve: dict[str, list[float]] = {k: [] for k in keys}
+    names = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
+    curve: dict[str, list[float]] = {k: [] for k in names}
     for r in rows:
-        runners = r.get("env_runners", {})
+        runners = r.get(keys.ENV_RUNNERS, {})
         bests = episode_bests(r)
         ev = r.get(EVAL_KEY) or {}
-        curve["env_steps"].append(float(r.get("num_env_steps_sampled_lifetime") or 0))
-        curve["episode_return_mean"].append(_num(runners.get("episode_return_mean")))
+        curve["env_steps"].append(float(r.get(keys.STEPS) or 0))
+        curve["episode_return_mean"].append(_num(runners.get(keys.EPISODE_RETURN_MEAN)))
         curve["best_R1"].append(max((b.R1 for b in bests), default=math.nan))
-        curve["final_R1"].append(_num(runners.get("smorphi", {}).get("R1_final")))
+        curve["final_R1"].append(_num(runners.get(keys.METRIC_PREFIX, {}).get("R1_final")))
         curve["eval_R1"].append(_num(ev.get("settled_R1_mean")))
         curve["eval_gap"].append(_num(ev.get("median_gap")))
         curve["eval_within"].append(_num(ev.get("share_within_1pct")))
@@ -87,7 +88,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         return None
     top = TopMorphologies()
     for r in rows:
-        top.add_episode_bests(spec["algo"], episode_bests(r), int(r.get("num_env_steps_sampled_lifetime") or 0))
+        top.add_episode_bests(spec["algo"], episode_bests(r), int(r.get(keys.STEPS) or 0))
     curve = result_curve(rows)
     at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
     best = top.top(1)
