@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -88,6 +89,23 @@ class PreparedMap:
         """(P_c, coverage_free_pct) from counts of covered free cells (FBCPP.md section 6)."""
         known = self.n_free + self.n_occupied
         return 100.0 * (n_covered + self.n_occupied) / known, 100.0 * n_covered / self.n_free
+
+    def metrics(self, n_covered: Any, p_len: Any, n_ew: Any, n_ns: Any, l: Any, w: Any) -> Metrics:
+        """The planner kernel's counts as FBCPP.md section 7's metrics: the one place they become results.
+        Works on scalars (one plan) and on arrays (a batch) alike."""
+        p_c, cov_free = self.coverage_pct(n_covered)
+        path_cells = n_ew * w + n_ns * l
+        return Metrics(p_c, cov_free, p_len, path_cells * self.grid_map.resolution_m, path_cells)
+
+
+class Metrics(NamedTuple):
+    """P_c, coverage of the free cells (%), P_len, path length in metres and in cells (scalars or arrays)."""
+
+    P_c: Any
+    coverage_free_pct: Any
+    P_len: Any
+    path_length_m: Any
+    path_length_cells: Any
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,15 +203,15 @@ def plan_coverage(
         if n_path <= capacity:
             break
         capacity = n_path
-    p_c, cov_free = prepared.coverage_pct(n_cov)
+    m = prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w)
     return CoverageResult(
         theta=theta,
         feasible=True,
-        P_c=float(p_c),
-        coverage_free_pct=float(cov_free),
-        P_len=int(p_len),
-        path_length_m=(n_ew * w + n_ns * l) * grid_map.resolution_m,
-        path_length_cells=int(n_ew * w + n_ns * l),
+        P_c=float(m.P_c),
+        coverage_free_pct=float(m.coverage_free_pct),
+        P_len=int(m.P_len),
+        path_length_m=float(m.path_length_m),
+        path_length_cells=int(m.path_length_cells),
         footprint_m=(footprint.width_m, footprint.length_m),
         footprint_cells=(l, w),
         path_tiles=path[:n_path].copy(),

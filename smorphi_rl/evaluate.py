@@ -166,16 +166,15 @@ class Evaluator:
         else:
             self.hits += 1
         n_cov, p_len, n_ew, n_ns = counts
-        p_c, cov_free = self.prepared.coverage_pct(n_cov)
-        path_cells = int(n_ew * w + n_ns * l)
+        m = self.prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w)
         return CoverageResult(
             theta=morphology.angles,
             feasible=True,
-            P_c=float(p_c),
-            coverage_free_pct=float(cov_free),
-            P_len=int(p_len),
-            path_length_m=path_cells * self.grid_map.resolution_m,
-            path_length_cells=path_cells,
+            P_c=float(m.P_c),
+            coverage_free_pct=float(m.coverage_free_pct),
+            P_len=int(m.P_len),
+            path_length_m=float(m.path_length_m),
+            path_length_cells=int(m.path_length_cells),
             footprint_m=(w_m, l_m),
             footprint_cells=(l, w),
         )
@@ -235,19 +234,17 @@ class Evaluator:
 
     def _to_batch(self, thetas: np.ndarray, out: np.ndarray) -> BatchResult:
         feasible = out[:, k.COL_FEASIBLE] > 0
-        n_cov = np.where(feasible, out[:, k.COL_COVERED], 0.0)
-        p_c, cov_free = self.prepared.coverage_pct(n_cov)
         l, w = out[:, k.COL_L], out[:, k.COL_W]
-        r = self.grid_map.resolution_m
-        path_cells = out[:, k.COL_EW] * w + out[:, k.COL_NS] * l
+        n_cov = np.where(feasible, out[:, k.COL_COVERED], 0.0)
+        m = self.prepared.metrics(n_cov, out[:, k.COL_PLEN], out[:, k.COL_EW], out[:, k.COL_NS], l, w)
         return BatchResult(
             theta=thetas,
             feasible=feasible,
-            P_c=np.where(feasible, p_c, 0.0),
-            coverage_free_pct=np.where(feasible, cov_free, 0.0),
-            P_len=out[:, k.COL_PLEN].astype(np.int64),
-            path_length_m=path_cells * r,
-            path_length_cells=path_cells.astype(np.int64),
+            P_c=np.where(feasible, m.P_c, 0.0),
+            coverage_free_pct=np.where(feasible, m.coverage_free_pct, 0.0),
+            P_len=m.P_len.astype(np.int64),
+            path_length_m=m.path_length_m,
+            path_length_cells=m.path_length_cells.astype(np.int64),
             footprint_cells=np.column_stack([l, w]).astype(np.int64),
             footprint_m=out[:, [k.COL_W_M, k.COL_L_M]],
         )
