@@ -254,25 +254,3 @@ def lattice_thetas(step_deg: float) -> np.ndarray:
     """Every (t1, t2, t3) on the `step_deg` lattice of [0, 180]^3, as an (N, 3) array."""
     g = np.arange(0.0, 180.0 + 1e-9, step_deg)
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
-
-
-@dataclass(frozen=True)
-class LatticeBest:
-    """The best morphology by R1 = w1 P_c - w2 P_len over a whole lattice: the yardstick for learners."""
-
-    theta: tuple[float, float, float]
-    P_c: float
-    P_len: int
-    R1: float
-    step_deg: float
-    evaluated: int
-
-
-def best_on_lattice(evaluator: Evaluator, w1: float, w2: float, step_deg: float = 2.0) -> LatticeBest:
-    """Exact best R1 over every triple at `step_deg` (2 degrees: 753,571 shapes, about 5 s on one core)."""
-    thetas = lattice_thetas(step_deg)
-    batch = evaluator.evaluate_many(thetas)
-    r1 = w1 * batch.P_c - w2 * batch.P_len
-    i = int(np.argmax(r1))
-    t1, t2, t3 = (float(v) for v in thetas[i])
-    return LatticeBest((t1, t2, t3), float(batch.P_c[i]), int(batch.P_len[i]), float(r1[i]), step_deg, len(thetas))

@@ -72,6 +72,15 @@ class Optimum:
     P_len: int
     step_deg: float = 1.0
 
+    @classmethod
+    def of(cls, thetas: np.ndarray, P_c: np.ndarray, P_len: np.ndarray, w1: float, w2: float,
+           step_deg: float = 1.0) -> Optimum:  # fmt: skip
+        """The best row by R1 = w1 P_c - w2 P_len of a scored lattice (the first of equal ones)."""
+        r1 = w1 * P_c - w2 * P_len
+        i = int(np.argmax(r1))
+        t1, t2, t3 = (float(v) for v in thetas[i])
+        return cls((t1, t2, t3), float(r1[i]), float(P_c[i]), int(P_len[i]), step_deg)
+
 
 NO_OPTIMUM = Optimum((math.nan, math.nan, math.nan), math.nan, math.nan, 0)
 """Stands for an optimum not computed (a map too large to enumerate): gaps are NaN."""
@@ -138,10 +147,7 @@ def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, block_sid
     from smorphi_rl.search.exhaustive import run_exhaustive
 
     result = run_exhaustive(map_path, 1.0, block_side_m)
-    r1 = w1 * result.P_c - w2 * result.P_len
-    i = int(np.argmax(r1))
-    t1, t2, t3 = (float(v) for v in result.thetas[i])
-    return Optimum((t1, t2, t3), float(r1[i]), float(result.P_c[i]), int(result.P_len[i]))
+    return Optimum.of(result.thetas, result.P_c, result.P_len, w1, w2)
 
 
 def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cache_dir: Path | None = None) -> Optimum:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from smorphi_rl.errors import MorphologyError, SmorphiError
-from smorphi_rl.evaluate import Evaluator, best_on_lattice, lattice_thetas
+from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 
@@ -102,11 +102,13 @@ def test_lattice_covers_every_triple_once():
     assert len({tuple(t) for t in thetas}) == 27 and thetas.min() == 0 and thetas.max() == 180
 
 
-def test_best_on_lattice_is_the_brute_force_argmax(room12):
+def test_optimum_of_a_scored_lattice_is_the_brute_force_argmax(room12):
+    from smorphi_rl.protocol import Optimum
+
     evaluator = Evaluator(room12)
-    best = best_on_lattice(evaluator, w1=1.0, w2=0.5, step_deg=30.0)
-    scores = [
-        (r.P_c - 0.5 * r.P_len, r.theta) for r in (evaluator.evaluate(Morphology.of(t)) for t in lattice_thetas(30.0))
-    ]
-    assert abs(best.R1 - max(s for s, _ in scores)) < 1e-9 and best.evaluated == 7**3
+    thetas = lattice_thetas(30.0)
+    batch = evaluator.evaluate_many(thetas)
+    best = Optimum.of(thetas, batch.P_c, batch.P_len, 1.0, 0.5, 30.0)
+    scores = [(r.P_c - 0.5 * r.P_len, r.theta) for r in (evaluator.evaluate(Morphology.of(t)) for t in thetas)]
+    assert abs(best.R1 - max(s for s, _ in scores)) < 1e-9 and best.step_deg == 30.0
     assert best.theta == tuple(float(v) for v in max(scores, key=lambda s: s[0])[1])
