@@ -380,6 +380,21 @@ class Episode:
             cells[raw == value] = cell
         return cells.reshape(-1, self.grid["column_count"])
 
+    def grid_map(self) -> Map:
+        """The recorded map as a Map (for drawing the episode); an error when its message was not recovered."""
+        cells = self.grid_cells()
+        if cells is None or self.grid is None:
+            raise RecordingError(f"{self.path}: the map message was not recovered; nothing to draw on")
+        pos = self.grid["pose"]["position"]
+        return Map(cells, float(self.grid["cell_size"]["x"]), (pos["x"], pos["y"], 0.0), self.steps[0]["map"])
+
+    def changed_steps(self, max_frames: int) -> list[int]:
+        """Indices of the steps where the shape changed (and the first), thinned evenly to at most `max_frames`."""
+        changed = [i for i in range(len(self.steps)) if i == 0 or self.steps[i]["theta"] != self.steps[i - 1]["theta"]]
+        if len(changed) > max_frames:
+            changed = [changed[round(k)] for k in np.linspace(0, len(changed) - 1, max_frames)]
+        return changed
+
     def frame(self, index: int) -> dict[str, Any]:
         """Step `index` as plain values for a figure: blocks (x, y, yaw rad, side) and the path as (N, 2) metres."""
         entities = {e["id"]: e for e in self.scenes[index]["entities"]}

@@ -1,0 +1,7 @@
+"""`python -m smorphi_rl.cli`: the same as the `smorphi-rl` command."""
+
+import sys
+
+from smorphi_rl.cli import main
+
+sys.exit(main())

@@ -1,0 +1,127 @@
+"""What every command shares: the one-line-error parser, exit codes, argument types and output helpers."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, NoReturn
+
+from smorphi_rl.errors import SmorphiError
+
+if TYPE_CHECKING:
+    from smorphi_rl.env import EnvConfig
+
+PROG = "smorphi-rl"
+DEFAULT_MAP = Path("maps") / "map-1.yaml"
+EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+DEFAULT_LOG_DIR = "logs"
+"""Where run directories go unless --log-dir says otherwise."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse that reports a usage error as one line, like every other error."""
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
+
+
+def default_map() -> Path:
+    """maps/map-1.yaml in the working directory, else the one shipped beside the package."""
+    if DEFAULT_MAP.exists():
+        return DEFAULT_MAP
+    return Path(__file__).resolve().parent.parent.parent / DEFAULT_MAP
+
+
+def seed_arg(text: str) -> int:
+    """argparse type of every --seed: a non-negative integer (numpy's generators take no negative seed)."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    return value
+
+
+def number(text: str, what: str) -> float:
+    """A finite number from the command line, or an error naming `what`."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SmorphiError(f"{what} {text!r} is not a number") from None
+    if not math.isfinite(value):
+        raise SmorphiError(f"{what} {text!r} is not a finite number")
+    return value
+
+
+def rel(path: Path) -> str:
+    """`path` relative to the working directory when it lies below it (as the README shows it)."""
+    try:
+        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def map_paths(value: object) -> list[str]:
+    return [str(v) for v in value] if isinstance(value, list) else [str(value)]
+
+
+def theta_text(theta: Sequence[float]) -> str:
+    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
+
+
+def scored_text(d: dict[str, object]) -> str:
+    return f"{theta_text(d['theta'])} P_c {d['P_c']:.2f} %, P_len {d['P_len']}, R1 {d['R1']:.2f}"  # type: ignore[arg-type]
+
+
+def weight_options(parser: argparse.ArgumentParser) -> None:
+    """--w1 / --w2: the reward weights that rank shapes by R1 = w1 P_c - w2 P_len (the env's defaults)."""
+    parser.add_argument("--w1", type=float, help="weight of P_c in R1 (default: the env's)")
+    parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
+
+
+def weights(args: argparse.Namespace) -> EnvConfig:
+    """The env configuration with --w1 / --w2 applied (validated there, defaults from there)."""
+    from smorphi_rl.env import EnvConfig
+
+    return EnvConfig.from_dict({k: v for k in ("w1", "w2") if (v := getattr(args, k)) is not None})
+
+
+def run_options(parser: argparse.ArgumentParser, what: str = "run name: results go to LOG_DIR/NAME") -> None:
+    """--name and --log-dir, as every command that writes a run directory takes them."""
+    parser.add_argument("--name", help=what)
+    parser.add_argument(
+        "--log-dir", default=DEFAULT_LOG_DIR, help=f"root of the run directories (default: {DEFAULT_LOG_DIR})"
+    )
+
+
+def record_option(p: argparse.ArgumentParser) -> None:
+    from smorphi_rl.training.config import DEFAULT_RECORD_EVERY
+
+    p.add_argument("--record-every", type=int, default=DEFAULT_RECORD_EVERY, metavar="N",
+                   help=f"record every Nth episode of each env to MCAP under the run's episodes/ "
+                        f"(default {DEFAULT_RECORD_EVERY}; 0: off)")  # fmt: skip
+
+
+def progress_line(label: str) -> Callable[[int, int], None]:
+    """A progress bar on stderr: rewritten in place on a terminal, every 10 % otherwise."""
+    tty = sys.stderr.isatty()
+    t0 = time.monotonic()
+    shown = [-1]
+
+    def show(done: int, total: int) -> None:
+        frac = done / total
+        tenth = int(10 * frac)
+        if not tty and tenth == shown[0] and done < total:
+            return
+        shown[0] = tenth
+        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
+        line = f"{label} [{bar}] {done:,}/{total:,} {time.monotonic() - t0:5.1f} s"
+        sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
+        sys.stderr.flush()
+
+    return show

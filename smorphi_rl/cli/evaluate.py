@@ -1,0 +1,241 @@
+"""`evaluate` (FBCPP on one shape or a file of them) and `maps generate|show`."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import sys
+import warnings
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, seed_arg
+from smorphi_rl.coverage import CoverageResult, Start
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.maps import Cell, Map, load_map
+
+
+def register(sub: Any) -> None:
+    """Add `evaluate` and `maps` to the command line."""
+    ev = sub.add_parser("evaluate", help="coverage (P_c) and path length (P_len) of morphologies on a map")
+    ev.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
+    ev.add_argument("--angles", nargs=3, metavar=("T1", "T2", "T3"), help="hinge angles in degrees, each 0-180")
+    ev.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
+    ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
+    ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
+    ev.add_argument("--block-side", type=float, default=DEFAULT_BLOCK_SIDE_M, help="block side in metres")
+    ev.add_argument("--start", help="start tile 'tile:A,B' or free point 'xy:X,Y' in metres (default: first tile)")
+    ev.set_defaults(func=cmd_evaluate)
+
+    maps = sub.add_parser("maps", help="generate or inspect maps")
+    maps_sub = maps.add_subparsers(dest="maps_command", required=True, parser_class=Parser)
+    gen = maps_sub.add_parser("generate", help="write a map of rectangular obstacles")
+    gen.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
+    gen.add_argument("--width-m", type=float, default=5.0)
+    gen.add_argument("--height-m", type=float, default=5.0)
+    gen.add_argument("--resolution", type=float, default=0.1, help="metres per cell")
+    gen.add_argument("--density", type=float, default=0.2, help="target fraction of occupied cells")
+    gen.add_argument("--seed", type=seed_arg, default=0)
+    gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
+    gen.add_argument("--force", action="store_true", help="overwrite an existing map")
+    gen.set_defaults(func=cmd_maps_generate)
+    show = maps_sub.add_parser("show", help="print a map's size and fractions and draw it")
+    show.add_argument("map", help="map_server YAML")
+    show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
+    show.set_defaults(func=cmd_maps_show)
+
+
+def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
+    """Three hinge angles from the command line, each a number in [0, 180]."""
+    t1, t2, t3 = (number(v, f"hinge angle t{i + 1}") for i, v in enumerate(values))
+    return (t1, t2, t3)
+
+
+def read_angles_file(path: Path) -> np.ndarray:
+    """(N, 3) angles from a CSV file of three columns with an optional header row.
+
+    numpy reads well-formed files fast; anything it refuses is re-read row by row to name the line."""
+    try:
+        with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
+            first = fh.readline()
+        header = 0 if _is_numeric_row(first.split(",")) else 1
+        with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
+            warnings.simplefilter("ignore")  # an empty file: reported below, with its name
+            values = np.loadtxt(fh, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
+        in_range = np.isfinite(values).all() and (values >= 0).all() and (values <= 180).all()
+        if values.shape[0] > 0 and values.shape[1] == 3 and in_range:
+            return values  # anything else is re-read row by row below, to name the file and line
+    except (ValueError, UnicodeDecodeError):
+        pass
+    except FileNotFoundError:
+        raise SmorphiError(f"angles file not found: {path}") from None
+    except OSError as exc:
+        raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
+    return _read_angles_rows(path)
+
+
+def _read_angles_rows(path: Path) -> np.ndarray:
+    """The slow, exact reading of an angles file: the first bad line is named."""
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1) if any(c.strip() for c in row)]
+    except FileNotFoundError:
+        raise SmorphiError(f"angles file not found: {path}") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
+    if rows and not _is_numeric_row(rows[0][1]):
+        rows = rows[1:]  # header
+    if not rows:
+        raise SmorphiError(f"{path}: no angles in the file (expected rows of t1,t2,t3)")
+    out = np.empty((len(rows), 3))
+    for i, (n, row) in enumerate(rows):
+        cells = [c.strip() for c in row]
+        if len(cells) != 3 or not _is_numeric_row(cells):
+            raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {','.join(row)!r}")
+        out[i] = [float(c) for c in cells]
+        for j, v in enumerate(out[i]):
+            if not 0 <= v <= 180:
+                raise SmorphiError(f"{path} line {n}: hinge angle t{j + 1}={v:g} is outside [0, 180] degrees")
+    return out
+
+
+def _is_numeric_row(row: Sequence[str]) -> bool:
+    try:
+        return all(math.isfinite(float(c)) for c in row)
+    except ValueError:
+        return False
+
+
+def parse_start(text: str | None, grid_map: Map) -> Start:
+    """--start tile:A,B (a tile of the resized map) or xy:X,Y (a free point, metres)."""
+    if text is None:
+        return Start()
+    kind, _, rest = text.partition(":")
+    parts = rest.split(",")
+    if kind not in ("tile", "xy") or len(parts) != 2:
+        raise SmorphiError(f"--start {text!r}: use tile:A,B or xy:X,Y")
+    if kind == "tile":
+        try:
+            return Start.tile(int(parts[0]), int(parts[1]))
+        except ValueError:
+            raise SmorphiError(f"--start {text!r}: tile indices must be integers") from None
+    x, y = (number(p, "--start coordinate") for p in parts)
+    return Start.point(grid_map, x, y)
+
+
+def cmd_evaluate(args: argparse.Namespace) -> int:
+    """Evaluate one morphology (or a file of them) with FBCPP on a map."""
+    from smorphi_rl.evaluate import Evaluator
+
+    if (args.angles is None) == (args.angles_file is None):
+        raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
+    if args.angles_file is not None and args.plot is not None:
+        raise SmorphiError("--plot draws one morphology: use it with --angles")
+    if not args.block_side > 0:
+        raise SmorphiError(f"--block-side must be > 0 m, got {args.block_side}")
+    thetas = read_angles_file(Path(args.angles_file)) if args.angles_file else None
+    morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
+    grid_map = load_map(args.map)
+    evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map))
+    if thetas is not None:
+        batch = evaluator.evaluate_many(thetas)
+        if args.json:
+            lines = [json.dumps(r) for r in batch.records()]
+        else:
+            header = "t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w"
+            lines = [header, *(_csv_row(r) for r in batch)]
+        sys.stdout.write("\n".join(lines) + "\n")
+        return 0
+    if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
+        raise SmorphiError("give --angles T1 T2 T3")
+    result = evaluator.plan(morphology) if args.plot else evaluator.evaluate(morphology)
+    plot_path = None
+    if args.plot:
+        from smorphi_rl.plots import plot_coverage
+
+        plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
+    if args.json:
+        print(json.dumps(result.to_dict()))
+        return 0
+    print(format_result(result, grid_map, evaluator.start.describe(), plot_path))
+    return 0
+
+
+def _csv_row(r: CoverageResult) -> str:
+    theta = [f"{t:g}" for t in r.theta]
+    fields = [*theta, f"{r.P_c:.6f}", f"{r.coverage_free_pct:.6f}", r.P_len, f"{r.path_length_m:.4f}"]
+    return ",".join(str(v) for v in [*fields, int(r.feasible), *r.footprint_cells])
+
+
+def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: Path | None) -> str:
+    """The human-readable report of one evaluation."""
+    pct = {c: 100 * grid_map.fraction(c) for c in Cell}
+    theta = ", ".join(f"{t:g}" for t in result.theta)
+    l, w = result.footprint_cells
+    size = f"{grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m"
+    fractions = ", ".join(f"{c.name.lower()} {pct[c]:.1f} %" for c in Cell)
+    rows = [
+        ("map", f"{grid_map.name} ({size}; {fractions})"),
+        ("theta", f"({theta}) deg"),
+        ("feasible", "yes" if result.feasible else "no: blocks overlap, metrics are 0"),
+        ("footprint", f"{result.footprint_m[0]:.3f} x {result.footprint_m[1]:.3f} m (w x l), F {l} x {w} cells"),
+        ("start", start),
+        ("P_c", f"{result.P_c:.4f} % (covered + obstacle cells over all known cells)"),
+        ("coverage", f"{result.coverage_free_pct:.4f} % of free cells"),
+        ("P_len", f"{result.P_len} tile moves"),
+        ("path length", f"{result.path_length_m:.2f} m ({result.path_length_cells} cells)"),
+    ]  # fmt: skip
+    if plot_path is not None:
+        rows.append(("plot", str(plot_path)))
+    return "\n".join(f"{k:<12} {v}" for k, v in rows)
+
+
+def cmd_maps_generate(args: argparse.Namespace) -> int:
+    """Write an indoor-like map of rectangular obstacles."""
+    from smorphi_rl.maps import generate_map, save_map
+
+    out = Path(args.out)
+    if out.suffix != ".yaml":
+        raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
+    image = out.with_suffix(f".{args.format}")
+    if not args.force and (out.exists() or image.exists()):
+        raise SmorphiError(f"{out if out.exists() else image} exists; pass --force to overwrite it")
+    rng = np.random.default_rng(args.seed)
+    grid_map = generate_map(
+        rng,
+        width_m=args.width_m,
+        height_m=args.height_m,
+        resolution_m=args.resolution,
+        obstacle_density=args.density,
+        name=out.stem,
+    )
+    save_map(grid_map, out, image_format=args.format)
+    occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
+    print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
+          f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    return 0
+
+
+def cmd_maps_show(args: argparse.Namespace) -> int:
+    """Print a map's size and cell fractions, and draw it."""
+    from smorphi_rl.plots import plot_map
+
+    grid_map = load_map(args.map)
+    png = Path(args.png) if args.png else Path(DEFAULT_LOG_DIR) / "maps" / f"{grid_map.name}.png"
+    r = grid_map.resolution_m
+    rows = [
+        ("map", f"{args.map}"),
+        ("size", f"{grid_map.width} x {grid_map.height} cells, {grid_map.width * r:g} x {grid_map.height * r:g} m"),
+        ("resolution", f"{r:g} m/cell"),
+        ("origin", ", ".join(f"{v:g}" for v in grid_map.origin)),
+        *((c.name.lower(), f"{100 * grid_map.fraction(c):.2f} % ({grid_map.counts[c]} cells)") for c in Cell),
+        ("png", str(plot_map(grid_map, png))),
+    ]
+    print("\n".join(f"{k:<11} {v}" for k, v in rows))
+    return 0

@@ -1,0 +1,216 @@
+"""`evaluate-policy` (greedy roll-outs of a trained policy) and `replay` (recorded episodes)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, seed_arg, theta_text
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.maps import load_map
+
+GIF_MAX_FRAMES = 120
+
+
+def register(sub: Any) -> None:
+    """Add `replay` and `evaluate-policy` to the command line."""
+    rl = sub.add_parser("replay", help="summarise, list or draw episodes recorded to MCAP")
+    rl.add_argument("path", help="a recording (.mcap, or a .mcap.part cut short) or a folder of them")
+    rl.add_argument("--steps", action="store_true", help="print every step")
+    rl.add_argument("--png", help="write the start, best and final steps side by side (Figure 6 style)")
+    rl.add_argument("--gif", help="write a GIF of the morphology changing over the episode")
+    rl.set_defaults(func=cmd_replay)
+
+    ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
+    ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
+    ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
+    ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
+    ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
+    ep.add_argument("--json", action="store_true", help="one JSON object per episode")
+    ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
+    ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
+    ep.add_argument("--starts", type=int, default=None, metavar="N",
+                    help="the evaluation protocol instead: greedy from N fixed seeded starts (20 in training) on "
+                         "each map, against the exact optimum")  # fmt: skip
+    ep.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help="where the exact optima are cached (LOG_DIR/.cache)")
+    ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
+
+
+def _replay_listing(directory: Path) -> int:
+    """`replay DIR`: every recording under DIR with its best step, one line each."""
+    from smorphi_rl.recording import RecordingError, episode_files, read_episode
+
+    files = episode_files(directory)
+    if not files:
+        raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
+    print(f"{'episode':<44} {'map':<8} {'algo':<8} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
+    unreadable = 0
+    for f in files:
+        try:
+            ep = read_episode(f)
+        except RecordingError as exc:
+            print(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}")
+            unreadable += 1
+            continue
+        b = ep.best
+        assert b is not None
+        flag = " (cut short)" if ep.truncated else ""
+        print(f"{f.name:<44} {b['map']:<8} {ep.metadata.get('algorithm', '-'):<8} {len(ep.steps) - 1:>5}  "
+              f"{b['R1']:>7.2f}  {theta_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
+    print(f"{len(files)} recordings in {rel(directory)}")
+    if unreadable == len(files):
+        raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
+    return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    """Summarise a recorded episode (or list a run's recordings); print its steps; draw it as PNG or GIF."""
+    from smorphi_rl.recording import read_episode
+
+    target = Path(args.path)
+    if target.is_dir():
+        if args.steps or args.gif or args.png:
+            raise SmorphiError("--steps, --gif and --png take one recording, not a directory")
+        return _replay_listing(target)
+    ep = read_episode(target)
+    meta, steps, best = ep.metadata, ep.steps, ep.best
+    assert best is not None
+    run = f"{meta.get('run', '-')} ({meta.get('algorithm', '-').upper()}, seed {meta.get('seed', '-')})"
+    start, final = theta_text(steps[0]["theta"]), theta_text(steps[-1]["theta"])
+    rows = [
+        ("episode", rel(target)),
+        ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}"),
+        ("map", steps[0]["map"]),
+        ("steps", f"{len(steps) - 1} (start {start}, final {final})"),
+        ("best", f"step {best['step']}: {scored_text(best)}"),
+        ("return", f"{ep.episode_return:,.1f}"),
+    ]
+    if ep.truncated:
+        rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short (the rest of the episode was lost)"))
+    print("\n".join(f"{k:<10} {v}" for k, v in rows))
+    if args.steps:
+        print(f"\n{'step':>5}  {'theta':<18} {'action':<9} {'reward':>8} {'R1':>7} {'P_c %':>7} {'P_len':>5}  feasible")
+        for st in steps:
+            action = "-" if st["action"] is None else ",".join(str(a) for a in st["action"])
+            reward = "-" if st["reward"] is None else f"{st['reward']:.2f}"
+            print(f"{st['step']:>5}  {theta_text(st['theta']):<18} {action:<9} {reward:>8} {st['R1']:>7.2f} "
+                  f"{st['P_c']:>7.2f} {st['P_len']:>5}  {'yes' if st['feasible'] else 'no'}")  # fmt: skip
+    if args.png or args.gif:
+        _draw_replay(ep, args.png, args.gif)
+    return 0
+
+
+def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
+    """`replay --png/--gif`: the start, best and final steps side by side; the shape changing as a GIF."""
+    from smorphi_rl.plots import animate_replay, plot_replay
+
+    grid_map = ep.grid_map()
+    steps = ep.steps
+
+    def title(i: int) -> str:
+        st = steps[i]
+        shape = f"{theta_text(st['theta'])}  P_c {st['P_c']:.2f} %  P_len {st['P_len']}  R1 {st['R1']:.2f}"
+        return f"step {st['step']}: {shape}"
+
+    if png:
+        picks = {"start": 0, "best": steps.index(ep.best), "final": len(steps) - 1}
+        titles = [f"{label} - {title(i)}" for label, i in picks.items()]
+        out = plot_replay(grid_map, [ep.frame(i) for i in picks.values()], titles, png)
+        print(f"png        {rel(out)}")
+    if gif:
+        changed = ep.changed_steps(GIF_MAX_FRAMES)
+        out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], gif)
+        print(f"gif        {rel(out)} ({len(changed)} frames)")
+
+
+def cmd_evaluate_policy(args: argparse.Namespace) -> int:
+    """Roll a trained policy out greedily; report where it settles and the best shape it visited."""
+    if args.episodes < 1:
+        raise SmorphiError(f"--episodes must be >= 1, got {args.episodes}")
+    if args.starts is not None and args.starts < 1:
+        raise SmorphiError(f"--starts must be >= 1, got {args.starts}")
+    from smorphi_rl.training.checkpoints import find_checkpoint
+
+    checkpoint = find_checkpoint(args.checkpoint)
+    maps = map_paths(args.map) if args.map is not None else None
+    for path in maps or []:
+        load_map(path)
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.training.checkpoints import load_module
+    from smorphi_rl.training.policy import check_fits, env_config_of
+
+    module = load_module(checkpoint)
+    base = MorphologyEnv(env_config_of(module, maps).to_dict())
+    check_fits(module, base)
+    if args.starts is not None:
+        return _evaluate_protocol(args, module, base.config)
+    rollouts = _rollouts(args, module, base, checkpoint)
+    if args.json:
+        for i, r in enumerate(rollouts):
+            record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
+                      "return": r.episode_return, "start": r.start, "settled": r.settled, "best": r.best}  # fmt: skip
+            print(json.dumps(record, default=float))
+    else:
+        print(f"policy      {checkpoint}")
+        for i, r in enumerate(rollouts):
+            print(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
+                  f"return {r.episode_return:.1f})")  # fmt: skip
+            print(f"  start     {scored_text(r.start)}")
+            print(f"  settled   {scored_text(r.settled)}")
+            print(f"  best      {scored_text(r.best)}")
+    if args.plot:
+        from smorphi_rl.geometry import Morphology
+        from smorphi_rl.plots import plot_coverage
+
+        theta = rollouts[0].settled["theta"]
+        base.reset(seed=args.seed)  # back to the first episode's map
+        png = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
+                            args.plot)  # fmt: skip
+        print(f"plot        {png}")
+    if args.record is not None and not args.json:
+        print(f"recordings  {rel(Path(args.record))} (smorphi-rl replay {rel(Path(args.record))})")
+    return 0
+
+
+def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path) -> list[Any]:
+    """`--episodes` greedy roll-outs from seeded starts, recorded to MCAP with `--record`."""
+    from smorphi_rl.training.policy import rollout
+
+    env: Any = base
+    if args.record is not None:
+        from smorphi_rl.recording import RecordingConfig, RecordingWrapper
+
+        meta = {"run": str(checkpoint), "algorithm": f"greedy {module.model_config.get('algorithm', 'policy')}",
+                "seed": str(args.seed), "config": json.dumps(base.config.to_dict())}  # fmt: skip
+        env = RecordingWrapper(base, RecordingConfig(str(Path(args.record).resolve()), every=1, metadata=meta))
+    try:
+        return [rollout(module, env, args.seed + i) for i in range(args.episodes)]
+    finally:
+        env.close()
+
+
+def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -> int:
+    """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
+    from smorphi_rl.protocol import eval_starts, exact_optimum
+    from smorphi_rl.training.policy import evaluate_policy
+
+    cache = Path(args.log_dir).resolve() / ".cache"
+    optima = {load_map(p).name: exact_optimum(p, env_config.w1, env_config.w2, env_config.block_side_m, cache)
+              for p in env_config.maps}  # fmt: skip
+    for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
+        if args.json:
+            for o in ev.outcomes:
+                print(json.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
+                                  "settled": {"theta": list(o.settled), "R1": o.R1, "P_c": o.P_c, "P_len": o.P_len,
+                                              "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
+            continue
+        opt = ev.optimum
+        print(f"{ev.map}: exact optimum {theta_text(opt.theta)} R1 {opt.R1:.2f}; greedy from {len(ev.outcomes)} "
+              f"fixed starts: {ev.within}/{len(ev.outcomes)} settle within 1 %, median gap {ev.median_gap:.2f}, "
+              f"mean settled R1 {ev.mean_R1:.2f}, {ev.mean_evaluations:.0f} FBCPP evaluations a start")  # fmt: skip
+        for o in ev.outcomes:
+            print(f"  start {theta_text(o.start):<17} settled {theta_text(o.settled):<17} R1 {o.R1:6.2f}  "
+                  f"gap {opt.R1 - o.R1:5.2f}")  # fmt: skip
+    return 0

@@ -1,0 +1,181 @@
+"""`search random|nsga2|exhaustive|hillclimb|anneal` and `compare`: the baselines and the exact front."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.cli.common import (
+    DEFAULT_MAP,
+    Parser,
+    progress_line,
+    rel,
+    run_options,
+    seed_arg,
+    theta_text,
+    weight_options,
+    weights,
+)
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.maps import load_map
+from smorphi_rl.search.pareto import r1
+
+METHODS = (
+    ("random", "uniformly random integer shapes (paper Table 4)"),
+    ("nsga2", "NSGA-II over integer angles (paper Table 6, Figure 7)"),
+    ("exhaustive", "every triple on the lattice: the exact front and best R1"),
+    ("hillclimb", "steepest ascent over the 26 one-step moves from the protocol's fixed starts"),
+    ("anneal", "simulated annealing over the same moves from the same starts"),
+)
+
+
+def register(sub: Any) -> None:
+    """Add `search METHOD` and `compare` to the command line."""
+    se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")
+    se_sub = se.add_subparsers(dest="method", required=True, parser_class=Parser)
+    for method, text in METHODS:
+        m = se_sub.add_parser(method, help=text)
+        m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
+        run_options(m)
+        m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
+        weight_options(m)
+        if method == "random":
+            m.add_argument("--samples", type=int, default=1000, help="shapes to draw")
+        if method == "nsga2":
+            m.add_argument("--pop", type=int, default=40, help="population size")
+            m.add_argument("--generations", type=int, default=50)
+        if method in ("random", "nsga2", "hillclimb", "anneal"):
+            m.add_argument("--seed", type=seed_arg, default=0)
+        if method in ("hillclimb", "anneal"):
+            m.add_argument("--budget", type=int, default=200, help="FBCPP evaluations per start (default 200)")
+            m.add_argument("--starts", type=int, default=20, help="fixed seeded starts (default 20)")
+        if method == "exhaustive":
+            m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
+        m.set_defaults(func=cmd_search)
+
+    co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
+    co.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
+    co.add_argument("--runs", nargs="+", help="training run directories (logs/<run>)")
+    co.add_argument("--nsga2", nargs="+", help="`search nsga2` run directories")
+    co.add_argument("--random", nargs="+", help="`search random` run directories")
+    co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
+    co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
+    co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
+    run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
+    weight_options(co)
+    co.set_defaults(func=cmd_compare)
+
+
+def _check(args: argparse.Namespace) -> None:
+    """The method's own options, before anything is written."""
+    if args.method == "exhaustive":
+        from smorphi_rl.search.exhaustive import check_step
+
+        check_step(args.step)
+    elif args.method == "random" and args.samples < 1:
+        raise SmorphiError(f"--samples must be >= 1, got {args.samples}")
+    elif args.method in ("hillclimb", "anneal") and (args.budget < 1 or args.starts < 1):
+        raise SmorphiError(f"--budget and --starts must be >= 1, got {args.budget} and {args.starts}")
+    elif args.method == "nsga2" and (args.pop < 2 or args.generations < 1):
+        raise SmorphiError(f"--pop must be >= 2 and --generations >= 1, got {args.pop} and {args.generations}")
+
+
+def _run(args: argparse.Namespace, w1: float, w2: float) -> Any:
+    """Run the chosen method on the map: a SearchResult."""
+    map_path = str(args.map)
+    if args.method == "exhaustive":
+        from smorphi_rl.search.exhaustive import run_exhaustive
+
+        return run_exhaustive(map_path, args.step, progress=progress_line("exhaustive"))
+    if args.method == "random":
+        from smorphi_rl.search.random import run_random
+
+        return run_random(map_path, args.samples, args.seed)
+    if args.method in ("hillclimb", "anneal"):
+        from smorphi_rl.search.local import run_local_search
+
+        return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, {"w1": w1, "w2": w2})
+    from smorphi_rl.search.nsga2 import run_nsga2
+
+    return run_nsga2(map_path, args.pop, args.generations, args.seed)
+
+
+def cmd_search(args: argparse.Namespace) -> int:
+    """Random shapes, NSGA-II, local search or the exhaustive lattice on a map; results, front and plot under
+    LOG_DIR/<run>/."""
+    from smorphi_rl.plots import plot_pareto
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.search.results import save
+
+    w = weights(args)
+    load_map(args.map)  # a bad map fails here, before anything is written
+    _check(args)
+    suffix = f"step{args.step:g}" if args.method == "exhaustive" else f"seed{args.seed}"
+    run_dir = prepare_run_dir(
+        args.log_dir, args.name or safe_name(f"{args.method}-{Path(str(args.map)).stem}-{suffix}")
+    )
+    result = _run(args, w.w1, w.w2)
+    files = save(result, run_dir, w.w1, w.w2)
+    front_rows = result.front_records(w.w1, w.w2)
+    b = result.best(w.w1, w.w2)
+    files["plot"] = plot_pareto(
+        {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
+        run_dir / "pareto.png",
+        f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
+        best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
+    )
+    if args.json:
+        for row in front_rows:
+            print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
+        return 0
+    print(format_search(result, front_rows, w.w1, w.w2, files))
+    return 0
+
+
+def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: float, files: dict[str, Path]) -> str:
+    """The human-readable report of a search: its size, its front, its best shape and where the files are."""
+    extra = result.params.get("distinct_footprints")
+    footprints = f", {extra:,} distinct footprints" if extra is not None else ""
+    feasible = int(np.count_nonzero(result.feasible))
+    lines = [f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
+             f"{result.wall_s:.1f} s ({feasible:,} feasible)",
+             f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
+    for row in front_rows:
+        lines.append(
+            f"  {theta_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
+        )
+    b = result.best(w1, w2)
+    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:g}): {theta_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
+                 f"P_len {result.P_len[b]}, R1 {float(r1(result.P_c[b], result.P_len[b], w1, w2)):.2f}")  # fmt: skip
+    lines.extend(f"{key + ':':<9} {rel(files[key])}" for key in ("results", "front", "summary", "plot"))
+    return "\n".join(lines)
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
+    from smorphi_rl.compare import points_of_run, score_methods, write_report
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.search.exhaustive import run_exhaustive
+    from smorphi_rl.search.results import load
+
+    dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or []), *(args.local or [])]]
+    if not dirs:
+        raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
+    grid_map = load_map(args.map)
+    w = weights(args)
+    runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
+    exact = load(args.exhaustive) if args.exhaustive else None
+    if exact is not None and exact.map_name != grid_map.name:
+        raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
+    run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
+    if exact is None:
+        exact = run_exhaustive(str(args.map), args.step, progress=progress_line("exact front"))
+    exact_score, methods = score_methods(exact, runs, w.w1, w.w2)
+    files = write_report(exact_score, methods, grid_map.name, w.w1, w.w2, run_dir)
+    print(files["report"].read_text().split("\n\n![")[0])
+    print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
+    return 0
