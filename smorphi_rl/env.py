@@ -60,10 +60,10 @@ from smorphi_rl.coverage import CoverageResult
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
-from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
 
 ENV_ID = "smorphi_rl/Morphology-v0"
-DEFAULT_MAPS = (str(Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"),)
+DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
 
 
 class RewardMode(str, Enum):

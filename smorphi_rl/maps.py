@@ -19,6 +19,9 @@ import yaml
 
 from smorphi_rl.errors import MapError
 
+SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
+"""The default map of every command and of the env: map-1, shipped beside the package."""
+
 
 class Cell(enum.IntEnum):
     """State of one map cell."""

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.rundir import DEFAULT_LOG_DIR
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
@@ -63,7 +64,7 @@ def _map(name: str) -> str:
     return str(MAPS_DIR / f"{name}.yaml")
 
 
-def reproduce(budget_name: str, name: str, log_dir: str | Path = "logs", out: Any = sys.stderr) -> Path:
+def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = sys.stderr) -> Path:
     """Run every experiment of `budget_name`; returns the report's path."""
     from smorphi_rl.compare import points_of_run, score_methods, write_report
     from smorphi_rl.env import EnvConfig

@@ -20,6 +20,9 @@ RUN_NAME = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+-]{0,127}")
 MARKER = ".smorphi-run"
 """Created first in every run directory: the claim (and the write test); says which process made it."""
 
+DEFAULT_LOG_DIR = "logs"
+"""Where run directories go unless the user names another root (`--log-dir`)."""
+
 
 class RunDirError(SmorphiError):
     """The run directory cannot be used."""

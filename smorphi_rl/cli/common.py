@@ -11,15 +11,16 @@ from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
+from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
 if TYPE_CHECKING:
     from smorphi_rl.env import EnvConfig
 
 PROG = "smorphi-rl"
-DEFAULT_MAP = Path("maps") / "map-1.yaml"
+DEFAULT_MAP = Path("maps") / SHIPPED_DEFAULT_MAP.name
+"""The default map as the README shows it: maps/map-1.yaml in the working directory (else the shipped one)."""
 EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
-DEFAULT_LOG_DIR = "logs"
-"""Where run directories go unless --log-dir says otherwise."""
 
 
 class Parser(argparse.ArgumentParser):
@@ -33,7 +34,7 @@ def default_map() -> Path:
     """maps/map-1.yaml in the working directory, else the one shipped beside the package."""
     if DEFAULT_MAP.exists():
         return DEFAULT_MAP
-    return Path(__file__).resolve().parent.parent.parent / DEFAULT_MAP
+    return SHIPPED_DEFAULT_MAP
 
 
 def seed_arg(text: str) -> int:

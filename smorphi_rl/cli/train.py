@@ -26,7 +26,8 @@ from smorphi_rl.maps import load_map
 def register(sub: Any) -> None:
     """Add `train`, `transfer`, `sweep` and `reproduce` to the command line."""
     _register_train(sub)
-    from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 
     tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
     tf.add_argument("--pretrained", required=True, help="checkpoint, trial or run directory of the pretrained policy")
@@ -34,9 +35,9 @@ def register(sub: Any) -> None:
     tf.add_argument(
         "--seeds", nargs="+", type=seed_arg, default=[0], help="seeds; each map runs once per seed and mode"
     )
-    tf.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="env-step budget of every run")
-    tf.add_argument("--algo", choices=ALGORITHMS, default="ppo")
-    tf.add_argument("--preset", choices=tuple(PRESETS), default="fast")
+    tf.add_argument("--timesteps", type=int, default=TrainConfig.timesteps, help="env-step budget of every run")
+    tf.add_argument("--algo", choices=ALGORITHMS, default=TrainConfig.algo)
+    tf.add_argument("--preset", choices=tuple(PRESETS), default=TrainConfig.preset)
     tf.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     run_options(tf, "job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
     record_option(tf)

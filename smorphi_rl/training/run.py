@@ -22,7 +22,7 @@ from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
-from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -287,7 +287,7 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
 def train(
     cfg: TrainConfig,
     name: str | None = None,
-    log_dir: str | Path = "logs",
+    log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     out: Any = None,
     label: str | None = None,

@@ -18,7 +18,7 @@ from typing import Any
 
 import yaml
 
-from smorphi_rl.rundir import RunDirError, prepare_run_dir
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training.checkpoints import find_checkpoint
 from smorphi_rl.training.config import (
@@ -173,7 +173,7 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
 
 def run_sweep(
     sweep: SweepConfig,
-    log_dir: str | Path = "logs",
+    log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     resume: bool = False,
     out: Any = sys.stderr,

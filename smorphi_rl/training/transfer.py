@@ -18,9 +18,10 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.rundir import DEFAULT_LOG_DIR
 from smorphi_rl.training.callbacks import MorphologyCallbacks
 from smorphi_rl.training.checkpoints import MODULE_COMPONENT, MODULE_SUBDIR, CheckpointError, load_module
-from smorphi_rl.training.config import DEFAULT_RECORD_EVERY
+from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 PRETRAINED_KEY = "smorphi_pretrained_in_runners"
@@ -118,10 +119,10 @@ def run_transfer(
     maps: list[str],
     seeds: list[int],
     timesteps: int,
-    algo: str = "ppo",
-    preset: str = "fast",
+    algo: str = TrainConfig.algo,
+    preset: str = TrainConfig.preset,
     name: str = "transfer",
-    log_dir: str | Path = "logs",
+    log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     out: Any = None,
     record_every: int = DEFAULT_RECORD_EVERY,
