@@ -17,8 +17,8 @@ import yaml
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
-from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
+from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 
 SPACE_KINDS = ("grid", "choice", "uniform", "loguniform")
 ALIASES = {"lambda": "lambda_"}
@@ -78,17 +78,17 @@ class SweepConfig:
     algorithms: tuple[str, ...]
     map_sets: tuple[tuple[str, ...], ...]
     seeds: tuple[int, ...]
-    timesteps: int = DEFAULT_TIMESTEPS
-    preset: str = "fast"
+    timesteps: int = TrainConfig.timesteps
+    preset: str = TrainConfig.preset
     stop: dict[str, float] = field(default_factory=dict)
-    checkpoint_every: int = 10
+    checkpoint_every: int = TrainConfig.checkpoint_every
     checkpoint_keep: int = 0
     env: dict[str, Any] = field(default_factory=dict)
     search: dict[str, Space] = field(default_factory=dict)
     num_samples: int = 1
     pretrained: str | None = None
     max_iterations: int | None = None
-    record_every: int = DEFAULT_RECORD_EVERY
+    record_every: int = TrainConfig.record_every
 
     @property
     def num_grid_trials(self) -> int:
@@ -166,7 +166,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
     seeds = tuple(_list(raw["seeds"], "seeds", fail, int))
     if any(s < 0 for s in seeds):
         raise fail("seeds", "seeds must be non-negative")
-    preset = raw.get("preset", "fast")
+    preset = raw.get("preset", TrainConfig.preset)
     if preset not in PRESETS:
         raise fail("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
     checkpoint = raw.get("checkpoint") or {}
@@ -200,10 +200,10 @@ def load_sweep(path: str | Path) -> SweepConfig:
         algorithms=algorithms,
         map_sets=map_sets,
         seeds=seeds,
-        timesteps=_positive(raw.get("timesteps", DEFAULT_TIMESTEPS), "timesteps", fail),
+        timesteps=_positive(raw.get("timesteps", TrainConfig.timesteps), "timesteps", fail),
         preset=preset,
         stop={str(k): float(v) for k, v in stop.items()},
-        checkpoint_every=_positive(checkpoint.get("every", 10), "checkpoint.every", fail),
+        checkpoint_every=_positive(checkpoint.get("every", TrainConfig.checkpoint_every), "checkpoint.every", fail),
         checkpoint_keep=_positive(checkpoint.get("keep", 0), "checkpoint.keep", fail, zero=True),
         env=env,
         search=spaces,
@@ -211,7 +211,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         pretrained=pretrained,
         max_iterations=None if raw.get("max_iterations") is None else _positive(raw["max_iterations"],
                                                                                "max_iterations", fail),
-        record_every=_positive(raw.get("record_every", DEFAULT_RECORD_EVERY), "record_every", fail, zero=True),
+        record_every=_positive(raw.get("record_every", TrainConfig.record_every), "record_every", fail, zero=True),
     )  # fmt: skip
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
