@@ -35,9 +35,9 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
+from smorphi_rl.training.finetune import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
-from smorphi_rl.training.transfer import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 
 STEPS_KEY = keys.STEPS
 TOP_PLOT = 4

@@ -28,12 +28,12 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
+from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import STEPS_KEY, TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
 from smorphi_rl.training.topk import episode_bests
-from smorphi_rl.training.transfer import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
 
 SWEEP_COPY = "sweep.yaml"
 """The sweep file as it was when the experiment started; --resume checks the file still matches."""

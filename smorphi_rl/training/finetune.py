@@ -1,0 +1,92 @@
+"""Fine-tuning from a pretrained checkpoint, with the weights provably in the env runners from the start.
+
+RLlib's own weight sync after a restore is fire-and-forget; the notes saw it silently dropped in
+2 of 3 runs, so the runners sampled with untrained weights. Here the restored module state is
+pushed to every runner with a blocking call, and each runner's policy weights are digested and
+reported in the first results (`smorphi_pretrained_in_runners`: 1.0 when every runner holds
+exactly the checkpoint's policy). Used by `train --pretrained`, `transfer` and `sweep`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.training.callbacks import MorphologyCallbacks
+from smorphi_rl.training.checkpoints import MODULE_COMPONENT, MODULE_SUBDIR, CheckpointError, load_module
+
+PRETRAINED_KEY = "smorphi_pretrained_in_runners"
+POLICY_PREFIX = "_pi."
+"""The policy network's parameters (the value net is not used for sampling)."""
+
+
+def policy_digest(state: dict[str, Any]) -> str:
+    """A digest of the policy network's parameters in a module state dict."""
+    h = hashlib.blake2b(digest_size=16)
+    for key in sorted(k for k in state if k.startswith(POLICY_PREFIX)):
+        h.update(key.encode())
+        h.update(np.ascontiguousarray(np.asarray(state[key], dtype=np.float32)).tobytes())
+    return h.hexdigest()
+
+
+def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
+    """Before Ray starts: the checkpoint is ours and its observations fit the env; returns its policy digest."""
+    from smorphi_rl.env import MorphologyEnv
+
+    module = load_module(checkpoint)
+    env = MorphologyEnv(env_config)
+    want, have = module.observation_space["map"].shape, env.observation_space["map"].shape  # type: ignore[index]
+    if tuple(want) != tuple(have):
+        raise CheckpointError(
+            f"{checkpoint}: the pretrained policy expects map observations of shape {tuple(want)}, "
+            f"the env gives {tuple(have)} (obs_size must match)"
+        )
+    return policy_digest(module.get_state())
+
+
+def push_module_to_runners(algorithm: Any) -> list[str]:
+    """Copy the learner's module into every env runner that samples (the remote ones, or the trial's own when
+    there are none), waiting for each; returns their policy digests."""
+    state = algorithm.learner_group.get_state(components="learner/rl_module", inference_only=True)
+    runner_state = state["learner"]  # {"rl_module": {module id: module state}}
+    runners = algorithm.env_runner_group
+    local = runners.num_remote_env_runners() == 0
+    runners.foreach_env_runner(lambda r: r.set_state(runner_state), local_env_runner=local)
+    return runners.foreach_env_runner(lambda r: policy_digest(r.module.get_state()), local_env_runner=local)
+
+
+def reseed_runners(algorithm: Any, generation: int) -> None:
+    """Give every sampling env its `generation` of independent streams (after a restore)."""
+    runners = algorithm.env_runner_group
+    local = runners.num_remote_env_runners() == 0
+
+    def reseed(runner: Any) -> None:
+        env: Any = getattr(runner.env, "unwrapped", None)
+        if env is not None and hasattr(env, "reseed"):
+            env.reseed(generation)
+
+    runners.foreach_env_runner(reseed, local_env_runner=local)
+
+
+def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbacks]:
+    """MorphologyCallbacks that start the algorithm from `checkpoint`'s policy and value networks."""
+
+    class FineTuneCallbacks(MorphologyCallbacks):
+        pretrained = str(checkpoint.resolve())
+        expected = digest
+        in_runners = float("nan")
+
+        def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
+            super().on_algorithm_init(algorithm=algorithm, **kwargs)
+            algorithm.restore_from_path(str(Path(self.pretrained) / MODULE_SUBDIR), component=MODULE_COMPONENT)
+            digests = push_module_to_runners(algorithm)
+            self.in_runners = float(bool(digests) and all(d == self.expected for d in digests))
+
+        def on_train_result(self, *, algorithm: Any, result: dict[str, Any], **kwargs: Any) -> None:
+            super().on_train_result(algorithm=algorithm, result=result, **kwargs)
+            result[PRETRAINED_KEY] = self.in_runners
+
+    return FineTuneCallbacks
