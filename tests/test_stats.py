@@ -19,3 +19,13 @@ def test_degenerate_inputs():
     assert mean_interval([3.0]).text() == "3.00 (1 seed)"
     assert mean_interval([2.0, 2.0]).lo == 2.0
     assert math.isnan(mean_interval([float("nan")]).mean) and mean_interval([]).text() == "-"
+
+
+def test_ratio_interval_brackets_the_ratio_of_means():
+    from smorphi_rl.stats import ratio_interval
+
+    iv = ratio_interval([40_000, 50_000, 60_000], [20_000, 25_000, 30_000])
+    assert iv.mean == 2.0 and iv.lo < 2.0 < iv.hi and iv.n == 3
+    single = ratio_interval([10.0], [5.0])
+    assert (single.mean, single.lo, single.hi) == (2.0, 2.0, 2.0)
+    assert math.isnan(ratio_interval([], [1.0]).mean)

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
+from smorphi_rl.stats import mean_interval, ratio_interval
 from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
@@ -106,29 +107,32 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
             writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
                              r.pretrained_in_runners])  # fmt: skip
     lines = [
-        "| Map | Fine-tuned: env steps to converge (median over seeds) | From scratch | Ratio scratch / fine-tuned "
-        "| Plateau greedy settled R1 fine-tuned / scratch | Best R1 fine-tuned / scratch |",
-        "|---|---:|---:|---:|---:|---:|",
+        "Over seeds: mean [95 % bootstrap interval]. Env steps to converge count converged runs only; a run that "
+        "never settled is counted as not converged, not as a number.",
+        "",
+        "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
+        "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "
+        "| Best R1 fine-tuned / scratch |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for map_name in dict.fromkeys(r.map_name for r in runs):
         tuned = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
         scratch = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
-        t, s = _median_steps(tuned), _median_steps(scratch)
-        ratio = f"{s / t:.2f}" if t and s else "-"
+        t_steps, s_steps = _converged_steps(tuned), _converged_steps(scratch)
+        ratio = ratio_interval(s_steps, t_steps)
         best = f"{max(r.best_R1 for r in tuned):.2f} / {max(r.best_R1 for r in scratch):.2f}"
-        plateau = f"{np.median([r.plateau for r in tuned]):.2f} / {np.median([r.plateau for r in scratch]):.2f}"
-        lines.append(f"| {map_name} | {_steps_text(t)} | {_steps_text(s)} | {ratio} | {plateau} | {best} |")
+        lines.append(
+            f"| {map_name} | {mean_interval(t_steps).text(',.0f')} | {len(t_steps)} of {len(tuned)} "
+            f"| {mean_interval(s_steps).text(',.0f')} | {len(s_steps)} of {len(scratch)} | {ratio.text()} "
+            f"| {mean_interval([r.plateau for r in tuned]).text()} "
+            f"| {mean_interval([r.plateau for r in scratch]).text()} | {best} |"
+        )
     files["md"].write_text("\n".join(lines) + "\n")
     curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
     plot_learning_curves(curves, files["png"])
     return files
 
 
-def _median_steps(runs: list[TransferRun]) -> float | None:
-    """Median convergence step; a run that never settled counts as its whole budget."""
-    values = [r.converged_at if r.converged_at is not None else float(r.env_steps) for r in runs]
-    return float(np.median(values)) if values else None
-
-
-def _steps_text(steps: float | None) -> str:
-    return "-" if steps is None else f"{steps:,.0f}"
+def _converged_steps(runs: list[TransferRun]) -> list[float]:
+    """Env steps to convergence of the runs that converged."""
+    return [float(r.converged_at) for r in runs if r.converged_at is not None]

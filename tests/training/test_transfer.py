@@ -1,0 +1,36 @@
+"""The transfer job's Table 5, from synthetic runs (no Ray): intervals over seeds, non-converged runs named."""
+
+from pathlib import Path
+
+from smorphi_rl.training.transfer import TransferRun, write_transfer_report
+
+
+def _run(mode: str, seed: int, converged_at: float | None, plateau: float) -> TransferRun:
+    curve = {
+        "env_steps": [0.0, 10_000.0],
+        "eval_R1": [80.0, plateau],
+        "episode_return_mean": [1.0, 2.0],
+        "best_R1": [85.0, 89.0],
+        "final_R1": [80.0, 85.0],
+        "eval_gap": [5.0, 1.0],
+        "eval_within": [0.0, 0.5],
+    }
+    return TransferRun("val-1", seed, mode, 10_000, converged_at, plateau, 89.0, True, Path("."), curve)
+
+
+def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
+    runs = [
+        _run("fine-tune", 0, 2_000, 88.0),
+        _run("fine-tune", 1, 4_000, 88.4),
+        _run("fine-tune", 2, None, 87.0),
+        _run("scratch", 0, 6_000, 87.5),
+        _run("scratch", 1, 8_000, 87.9),
+        _run("scratch", 2, 10_000, 88.1),
+    ]
+    files = write_transfer_report(tmp_path, runs)
+    row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1].startswith("3,000 [") and cells[2] == "2 of 3"  # the run that never settled is not a number
+    assert cells[3].startswith("8,000 [") and cells[4] == "3 of 3"
+    assert cells[5].startswith("2.67 [")  # 8,000 / 3,000, with its interval
+    assert files["png"].is_file()
