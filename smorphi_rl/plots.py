@@ -162,7 +162,7 @@ def plot_learning_curves(
 
 def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | Path) -> Path:
     """A sweep's Figure 5: per map set (columns), mean episode return and the greedy settled R1 (rows) against env
-    steps, one line per algorithm and hyperparameters: the mean over seeds, shaded from the lowest to the highest."""
+    steps, one line per algorithm and hyperparameters: the mean over seeds, shaded over its 95 % bootstrap band."""
     cols = max(1, len(groups))
     crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
     fig, axes = plt.subplots(2, cols, figsize=(6 * cols + (5 if crowded else 0), 8), squeeze=False)

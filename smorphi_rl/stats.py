@@ -8,6 +8,7 @@ intervals are wide; they say so honestly rather than hide it.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -67,3 +68,21 @@ def ratio_interval(numerator: Sequence[float], denominator: Sequence[float], see
     res = bootstrap((a, b), statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
                     random_state=np.random.default_rng(seed))  # fmt: skip
     return Interval(ratio, float(res.confidence_interval.low), float(res.confidence_interval.high), n)
+
+
+def band(curves: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(mean, lo, hi) over seeds (rows) at every point (column) of `curves`: the 95 % bootstrap band of the
+    mean curve, for shaded plots. Points where a seed has no value yet fall back to the mean of those that do."""
+    from scipy.stats import bootstrap
+
+    data = np.asarray(curves, dtype=float)
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # columns with no value at all stay NaN
+        mean = np.nanmean(data, axis=0)
+    lo, hi = mean.copy(), mean.copy()
+    full = np.isfinite(data).all(axis=0) & (np.ptp(np.nan_to_num(data), axis=0) > 0)
+    if data.shape[0] >= 2 and full.any():
+        res = bootstrap((data[:, full],), np.mean, axis=0, confidence_level=CONFIDENCE, n_resamples=RESAMPLES // 5,
+                        method="percentile", random_state=np.random.default_rng(seed))  # fmt: skip
+        lo[full], hi[full] = res.confidence_interval.low, res.confidence_interval.high
+    return mean, lo, hi

@@ -32,7 +32,14 @@ from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks, 
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import STEPS_KEY, TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
-from smorphi_rl.training.sweep_report import ITERATION_KEY, TrialRow, group_curves, read_sweep, write_sweep_tables
+from smorphi_rl.training.sweep_report import (
+    ITERATION_KEY,
+    TrialRow,
+    group_curves,
+    read_sweep,
+    write_sweep_groups,
+    write_sweep_tables,
+)
 from smorphi_rl.training.topk import episode_bests
 
 SWEEP_COPY = "sweep.yaml"
@@ -239,13 +246,16 @@ def _trial_dirname(trial: Any) -> str:
 
 
 def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:
-    """sweep.csv, sweep.md and sweep_curves.png (the paper's Figure 5 per algorithm and map)."""
+    """sweep.csv, sweep.md, sweep_groups.md (over seeds, with intervals) and sweep_curves.png (the paper's Figure 5
+    per algorithm and map)."""
     from smorphi_rl.plots import plot_sweep_curves
 
     if not rows:
         return {}
-    files = {"csv": exp / "sweep.csv", "md": exp / "sweep.md", "png": exp / "sweep_curves.png"}
+    files = {"csv": exp / "sweep.csv", "md": exp / "sweep.md", "groups": exp / "sweep_groups.md",
+             "png": exp / "sweep_curves.png"}  # fmt: skip
     write_sweep_tables(rows, files["csv"], files["md"])
+    write_sweep_groups(rows, files["groups"])
     plot_sweep_curves(group_curves(rows), files["png"])
     return files
 
@@ -262,7 +272,9 @@ def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
         hp = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.hyperparameters.items())
         lines.append(f"  {r.algo:<6} {r.maps:<14} seed {r.seed} {hp} best R1 {b.R1:.2f} {b.angles} "
                      f"({r.env_steps:,} steps, {fmt_duration(r.wall_s)})")  # fmt: skip
-    for key, label in (("md", "table"), ("png", "curves")):
+    if "groups" in s.files and s.files["groups"].is_file():
+        lines.extend(["", *s.files["groups"].read_text().splitlines()[2:], ""])
+    for key, label in (("md", "table"), ("groups", "over seeds"), ("png", "curves")):
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")
     lines.append(f"trials: {rel(s.experiment_dir)}")

@@ -9,7 +9,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.stats import band, mean_interval
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
@@ -136,12 +136,37 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     md_path.write_text("\n".join(md) + "\n")
 
 
-def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarray]]]:
-    """{map set: {algo and hyperparameters: {env_steps, <metric>_mean/_lo/_hi}}}: seeds averaged on a common grid."""
-    groups: dict[str, dict[str, list[TrialRow]]] = {}
+def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
+    """Trials that differ only by seed, keyed by (map set, algorithm and hyperparameters)."""
+    groups: dict[tuple[str, str], list[TrialRow]] = {}
     for r in rows:
         hp = " ".join(f"{k}={_fmt(v)}" for k, v in sorted(r.hyperparameters.items()))
-        groups.setdefault(r.maps, {}).setdefault(f"{r.algo.upper()} {hp}".strip(), []).append(r)
+        groups.setdefault((r.maps, f"{r.algo.upper()} {hp}".strip()), []).append(r)
+    return groups
+
+
+def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> list[str]:
+    """sweep_groups.md: each algorithm and hyperparameters on each map set over its seeds, means with 95 %
+    bootstrap intervals; a trial that never converged is counted as such, not as a number. Returns the lines."""
+    lines = ["Over seeds: mean [95 % bootstrap interval]; env steps to converge over the converged trials only.", "",
+             "| maps | algorithm and hyperparameters | seeds | plateau greedy settled R1 | converged "
+             "| env steps to converge | best R1 |", "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    for (maps, label), trials in _groups(rows).items():
+        steps = [float(t.converged_at) for t in trials if t.converged_at is not None]
+        plateau = mean_interval([t.settled_R1_plateau for t in trials])
+        best = mean_interval([t.best.R1 for t in trials if t.best is not None])
+        lines.append(f"| {maps} | {label} | {len(trials)} | {plateau.text()} | {len(steps)} of {len(trials)} "
+                     f"| {mean_interval(steps).text(',.0f')} | {best.text()} |")  # fmt: skip
+    md_path.write_text("\n".join(lines) + "\n")
+    return lines
+
+
+def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarray]]]:
+    """{map set: {algo and hyperparameters: {env_steps, <metric>_mean/_lo/_hi}}}: seeds averaged on a common grid,
+    with the 95 % bootstrap band of the mean."""
+    groups: dict[str, dict[str, list[TrialRow]]] = {}
+    for (maps, label), trials in _groups(rows).items():
+        groups.setdefault(maps, {})[label] = trials
     out: dict[str, dict[str, dict[str, np.ndarray]]] = {}
     for maps, lines in groups.items():
         for label, trials in lines.items():
@@ -150,11 +175,7 @@ def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarr
             line: dict[str, np.ndarray] = {"env_steps": grid}
             for key in ("episode_return_mean", CURVE_KEY):
                 ys = np.array([_interp(grid, t.curve["env_steps"], t.curve[key]) for t in trials])
-                with warnings.catch_warnings():  # grid points before any trial's first episode stay NaN
-                    warnings.simplefilter("ignore", RuntimeWarning)
-                    line[f"{key}_mean"] = np.nanmean(ys, axis=0)
-                    line[f"{key}_lo"] = np.nanmin(ys, axis=0)
-                    line[f"{key}_hi"] = np.nanmax(ys, axis=0)
+                line[f"{key}_mean"], line[f"{key}_lo"], line[f"{key}_hi"] = band(ys)
             out.setdefault(maps, {})[f"{label} ({len(trials)} seed{'s' if len(trials) > 1 else ''})"] = line
     return out
 

@@ -1,0 +1,41 @@
+"""A sweep's tables over seeds, from synthetic trials (no Ray): intervals, and trials that never converged."""
+
+import numpy as np
+
+from smorphi_rl.stats import band
+from smorphi_rl.training.sweep_report import TrialRow, group_curves, write_sweep_groups
+from smorphi_rl.training.topk import Found
+
+
+def _trial(seed: int, lr: float, plateau: float, converged_at: float | None) -> TrialRow:
+    steps = [0.0, 5_000.0, 10_000.0]
+    curve = {"env_steps": steps, "episode_return_mean": [1.0, 2.0, 3.0], "eval_R1": [80.0, 85.0 + seed, plateau]}
+    best = Found("ppo", "map-1", (1.0, 2.0, 3.0), 95.0, 60, 89.0 + seed / 10, 100)
+    return TrialRow(f"t{seed}-{lr}", "ppo", "map-1", seed, {"lr": lr}, 10_000, 5, 60.0, best, converged_at, plateau,
+                    curve)  # fmt: skip
+
+
+def test_groups_table_gives_intervals_over_seeds_and_counts_non_converged(tmp_path):
+    rows = [_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, 6_000), _trial(2, 1e-3, 87.1, None),
+            _trial(0, 3e-4, 86.0, None)]  # fmt: skip
+    lines = write_sweep_groups(rows, tmp_path / "groups.md")
+    first = next(line for line in lines if "lr=0.001" in line)
+    cells = [c.strip() for c in first.strip("|").split("|")]
+    assert cells[2] == "3" and cells[3].startswith("87.90 [") and cells[4] == "2 of 3"
+    assert cells[5].startswith("5,000 [")
+    lone = next(line for line in lines if "lr=0.0003" in line)
+    assert "(1 seed)" in lone and "0 of 1" in lone
+    assert (tmp_path / "groups.md").read_text().count("| map-1 |") == 2
+
+
+def test_curves_are_banded_by_the_bootstrap_interval_of_the_mean():
+    curves = group_curves([_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 89.0, 6_000), _trial(2, 1e-3, 90.0, None)])
+    line = next(iter(curves["map-1"].values()))
+    mean, lo, hi = line["eval_R1_mean"], line["eval_R1_lo"], line["eval_R1_hi"]
+    assert np.isclose(mean[-1], 89.0) and lo[-1] < 89.0 < hi[-1] and hi[-1] <= 90.0 and lo[-1] >= 88.0
+
+
+def test_band_of_one_curve_is_the_curve():
+    mean, lo, hi = band(np.array([[1.0, 2.0, np.nan]]))
+    assert np.array_equal(hi[:2], mean[:2])
+    assert np.array_equal(mean[:2], [1.0, 2.0]) and np.array_equal(lo[:2], mean[:2]) and np.isnan(mean[2])
