@@ -32,6 +32,7 @@ from smorphi_rl.env import EnvConfig, MorphologyEnv
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import prepare_run_dir
+from smorphi_rl.score import r1 as score_r1
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values
 from smorphi_rl.search.local import run_local
@@ -133,7 +134,7 @@ def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarr
     name = load_map(map_path).name
     result = run_exhaustive(map_path, block_side_m=env.block_side_m)
     n = round(len(result.thetas) ** (1 / 3))
-    r1 = np.where(result.feasible, env.w1 * result.P_c - env.w2 * result.P_len, 0.0).reshape(n, n, n)
+    r1 = np.where(result.feasible, score_r1(result.P_c, result.P_len, env.w1, env.w2), 0.0).reshape(n, n, n)
     gamma = PRESETS["fast"]["ppo"].gamma
     rows = []
     for reward in (r for r in rewards if r in IDEAL_MODES):

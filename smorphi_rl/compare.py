@@ -16,7 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.search.pareto import pareto_front, r1
+from smorphi_rl.score import r1
+from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
 

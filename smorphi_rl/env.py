@@ -61,6 +61,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
+from smorphi_rl.score import r1
 
 ENV_ID = "smorphi_rl/Morphology-v0"
 DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
@@ -218,8 +219,8 @@ def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float) -> tuple[
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
     batch = Evaluator(load_map(map_path), block_side_m).evaluate_many(thetas)
-    r1 = w1 * batch.P_c - w2 * batch.P_len
-    return float(np.mean(r1)), max(float(np.std(r1)), 1e-6)
+    values = r1(batch.P_c, batch.P_len, w1, w2)
+    return float(np.mean(values)), max(float(np.std(values)), 1e-6)
 
 
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
@@ -310,7 +311,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def score(self, theta: tuple[float, float, float]) -> dict[str, Any]:
         """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""
         result = self._evaluator().evaluate(Morphology.of(theta))
-        r1 = self.config.w1 * result.P_c - self.config.w2 * result.P_len
+        score = r1(result.P_c, result.P_len, self.config.w1, self.config.w2)
         return {
             "theta": tuple(float(t) for t in theta),
             "P_c": result.P_c,
@@ -318,7 +319,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             "P_len": result.P_len,
             "path_length_m": result.path_length_m,
             "feasible": result.feasible,
-            "R1": r1,
+            "R1": score,
             "map": self._maps[self._map_index].name,
         }
 

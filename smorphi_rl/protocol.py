@@ -76,10 +76,12 @@ class Optimum:
     def of(cls, thetas: np.ndarray, P_c: np.ndarray, P_len: np.ndarray, w1: float, w2: float,
            step_deg: float = 1.0) -> Optimum:  # fmt: skip
         """The best row by R1 = w1 P_c - w2 P_len of a scored lattice (the first of equal ones)."""
-        r1 = w1 * P_c - w2 * P_len
-        i = int(np.argmax(r1))
+        from smorphi_rl.score import r1
+
+        scores = r1(P_c, P_len, w1, w2)
+        i = int(np.argmax(scores))
         t1, t2, t3 = (float(v) for v in thetas[i])
-        return cls((t1, t2, t3), float(r1[i]), float(P_c[i]), int(P_len[i]), step_deg)
+        return cls((t1, t2, t3), float(scores[i]), float(P_c[i]), int(P_len[i]), step_deg)
 
 
 NO_OPTIMUM = Optimum((math.nan, math.nan, math.nan), math.nan, math.nan, 0)

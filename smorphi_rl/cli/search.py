@@ -22,7 +22,7 @@ from smorphi_rl.cli.common import (
 )
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map
-from smorphi_rl.search.pareto import r1
+from smorphi_rl.score import r1
 
 METHODS = (
     ("random", "uniformly random integer shapes (paper Table 4)"),

@@ -19,8 +19,3 @@ def pareto_front(p_c: np.ndarray, p_len: np.ndarray) -> np.ndarray:
             front.append(int(i))
             best = p_c[i]
     return np.asarray(front, dtype=np.int64)
-
-
-def r1(p_c: np.ndarray, p_len: np.ndarray, w1: float, w2: float) -> np.ndarray:
-    """The env's R1 = w1 P_c - w2 P_len for arrays of results."""
-    return w1 * np.asarray(p_c, dtype=np.float64) - w2 * np.asarray(p_len, dtype=np.float64)

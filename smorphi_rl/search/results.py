@@ -14,7 +14,8 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import write_atomic
-from smorphi_rl.search.pareto import pareto_front, r1
+from smorphi_rl.score import r1
+from smorphi_rl.search.pareto import pareto_front
 
 RESULTS_FILE = "results.npz"
 

@@ -162,18 +162,19 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     from smorphi_rl.env import RewardMode, r1_stats
     from smorphi_rl.evaluate import Evaluator
     from smorphi_rl.maps import load_map
+    from smorphi_rl.score import r1
 
     rng = np.random.default_rng(0)
     thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
-    r1 = []
+    per_map = []
     for path in env.maps:
         batch = Evaluator(load_map(path), env.block_side_m).evaluate_many(thetas)
-        values = env.w1 * batch.P_c - env.w2 * batch.P_len
+        values = r1(batch.P_c, batch.P_len, env.w1, env.w2)
         if env.reward != RewardMode.PAPER.value:
             mu, sigma = r1_stats(path, env.w1, env.w2, env.block_side_m)
             values = (values - (mu if env.reward == RewardMode.LEVEL.value else 0.0)) / sigma
-        r1.append(values)
-    values = np.concatenate(r1)
+        per_map.append(values)
+    values = np.concatenate(per_map)
     spread = max(float(values.max() - values.min()), 1e-3)
     if env.reward == RewardMode.IMPROVEMENT.value:
         return 0.0, spread
