@@ -12,10 +12,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.protocol import WITHIN
 from smorphi_rl.score import r1
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
@@ -36,6 +38,9 @@ class MethodScore:
     hv_fraction: float
     front_len: np.ndarray
     front_pc: np.ndarray
+    protocol: str = "-"
+    """The evaluation protocol's figures from the fixed starts (median settled gap, share within 1 %), for
+    methods that settle from starts (trained policies, hill climbing, annealing); '-' for the others."""
 
 
 def hypervolume(p_len: np.ndarray, p_c: np.ndarray, ref_len: float, ref_pc: float) -> float:
@@ -52,8 +57,9 @@ def hypervolume(p_len: np.ndarray, p_c: np.ndarray, ref_len: float, ref_pc: floa
     return area
 
 
-Points = tuple[str, str, np.ndarray, np.ndarray, np.ndarray]
-"""(label, budget, thetas, P_c, P_len) of one method's run."""
+Points = tuple[str, str, np.ndarray, np.ndarray, np.ndarray, Any]
+"""(label, budget, thetas, P_c, P_len, settled) of one method's run; `settled` is the protocol's summary of a
+trained policy (dict), the settled R1 of each start of a local search (list), or None."""
 
 
 def points_of_run(run_dir: Path, map_name: str) -> Points:
@@ -67,8 +73,9 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
         steps = json.loads((run_dir / "summary.json").read_text()).get("env_steps", 0)
         thetas = np.array([f.theta for f in rows], dtype=float)
         label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
+        evaluation = json.loads((run_dir / "summary.json").read_text()).get("evaluation") or {}
         return (label, f"{steps:,} env steps", thetas, np.array([f.P_c for f in rows]),
-                np.array([f.P_len for f in rows]))  # fmt: skip
+                np.array([f.P_len for f in rows]), evaluation.get(map_name))  # fmt: skip
     if not (run_dir / "results.npz").is_file():
         raise SmorphiError(
             f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"
@@ -78,7 +85,7 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
     ok = result.feasible
     return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
-            result.P_c[ok], result.P_len[ok])  # fmt: skip
+            result.P_c[ok], result.P_len[ok], result.params.get("settled_R1"))  # fmt: skip
 
 
 def score_methods(
@@ -91,7 +98,8 @@ def score_methods(
     hv_exact = hypervolume(exact.P_len[exact_front], exact.P_c[exact_front], ref_len, ref_pc)
     optimum = float(r1(exact.P_c[exact.best(w1, w2)], exact.P_len[exact.best(w1, w2)], w1, w2))
 
-    def score(label: str, budget: str, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray) -> MethodScore:
+    def score(label: str, budget: str, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray,
+              settled: Any = None) -> MethodScore:  # fmt: skip
         scores = r1(p_c, p_len, w1, w2)
         b = int(np.argmax(scores))
         front = pareto_front(p_c, p_len)
@@ -99,13 +107,23 @@ def score_methods(
         t1, t2, t3 = (float(t) for t in thetas[b])
         return MethodScore(label, budget, (t1, t2, t3), float(p_c[b]), int(p_len[b]), float(scores[b]),
                            optimum - float(scores[b]), hv / hv_exact if hv_exact else float("nan"),
-                           p_len[front].astype(float), p_c[front])  # fmt: skip
+                           p_len[front].astype(float), p_c[front], _protocol_text(settled, optimum))  # fmt: skip
 
     step = exact.params.get("step_deg")
     label = f"exact ({step:g}-degree lattice)" if isinstance(step, int | float) else "exact"
     budget = f"{exact.evaluations:,} FBCPP evaluations"
     exact_score = score(label, budget, exact.thetas[ok], exact.P_c[ok], exact.P_len[ok])
     return exact_score, [score(*points) for points in runs]
+
+
+def _protocol_text(settled: Any, optimum: float) -> str:
+    """'median gap (share within 1 %)' from a trained run's summary or a local search's settled R1 per start."""
+    if isinstance(settled, dict) and "median_gap" in settled:
+        return f"{float(settled['median_gap']):.2f} ({100 * float(settled['share_within_1pct']):.0f} %)"
+    if isinstance(settled, list) and settled:
+        gaps = optimum - np.asarray(settled, dtype=float)
+        return f"{float(np.median(gaps)):.2f} ({100 * float(np.mean(gaps <= WITHIN * abs(optimum))):.0f} %)"
+    return "-"
 
 
 def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float,
@@ -119,13 +137,18 @@ def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, 
         f"R1 = {w1:g} P_c - {w2:g} P_len. Hypervolume in (P_len, P_c) against the lattice nadir "
         "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
         "",
-        "| Method | Budget | Best shape (θ1, θ2, θ3) | P_c (%) | P_len | R1 | Gap to optimum | Hypervolume |",
-        "|---|---|---|---:|---:|---:|---:|---:|",
+        "Best shape: the best any shape the method scored (visited). Settled from the fixed starts: the evaluation "
+        "protocol's median gap of the shape each start ends on, and the share of starts within 1 % of the optimum "
+        "(trained policies: greedy roll-outs; hill climbing and annealing: where each start ended).",
+        "",
+        "| Method | Budget | Best shape (θ1, θ2, θ3) | P_c (%) | P_len | R1 | Gap to optimum | Hypervolume "
+        "| Settled from the fixed starts: median gap (within 1 %) |",
+        "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for m in [exact, *methods]:
         theta = "(" + ", ".join(f"{t:g}" for t in m.best_theta) + ")"
         lines.append(f"| {m.label} | {m.budget} | {theta} | {m.best_P_c:.2f} | {m.best_P_len} | {m.best_R1:.2f} "
-                     f"| {m.gap_R1:.2f} | {m.hv_fraction:.4f} |")  # fmt: skip
+                     f"| {m.gap_R1:.2f} | {m.hv_fraction:.4f} | {m.protocol} |")  # fmt: skip
     files = {"report": run_dir / "report.md"}
     files["plot"] = plot_pareto(
         {m.label: (m.front_len, m.front_pc) for m in methods},
