@@ -87,27 +87,12 @@ def _register_train(sub: Any) -> None:
     tr.add_argument("--env-runners", type=int, default=None, metavar="N",
                     help="remote env runners; 0 samples in the trial process (default: the preset's, "
                          "0 for PPO and 2 for IMPALA/APPO on the fast preset)")  # fmt: skip
-    tr.add_argument(
-        "--envs-per-runner",
-        type=int,
-        default=defaults.envs_per_runner,
-        metavar="N",
-        help=f"envs each runner steps together, one forward pass for all (default {defaults.envs_per_runner})",
-    )
-    tr.add_argument(
-        "--eval-every",
-        type=int,
-        default=defaults.eval_every,
-        metavar="N",
-        help=f"greedy evaluation from fixed starts every N iterations (default {defaults.eval_every}; 0: off)",
-    )
-    tr.add_argument(
-        "--eval-starts",
-        type=int,
-        default=defaults.eval_starts,
-        metavar="N",
-        help=f"fixed seeded start shapes per map in each evaluation (default {defaults.eval_starts})",
-    )
+    for flag, default, text in (
+        ("--envs-per-runner", defaults.envs_per_runner, "envs each runner steps together, one forward pass for all"),
+        ("--eval-every", defaults.eval_every, "greedy evaluation from fixed starts every N iterations (0: off)"),
+        ("--eval-starts", defaults.eval_starts, "fixed seeded start shapes per map in each evaluation"),
+    ):
+        tr.add_argument(flag, type=int, default=default, metavar="N", help=f"{text}; default {default}")
     record_option(tr)
     tr.set_defaults(func=cmd_train)
 
