@@ -1,0 +1,9 @@
+"""Figures that summarise seeds: they are written and shade the interval of the mean."""
+
+from smorphi_rl.plots import plot_gap_curves
+
+
+def test_gap_curves_are_written_for_several_seeds_and_for_one(tmp_path):
+    runs = [([0.0, 10.0, 20.0], [4.0, 3.0, 2.0]), ([0.0, 10.0, 20.0], [5.0, 3.0, 1.0]), ([0.0, 10.0], [4.0, 2.0])]
+    out = plot_gap_curves({"PPO level": runs, "one seed": runs[:1]}, tmp_path / "gaps.png")
+    assert out.is_file() and out.stat().st_size > 5_000
