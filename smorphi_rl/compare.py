@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.protocol import WITHIN
+from smorphi_rl.protocol import within_band
 from smorphi_rl.score import r1
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
@@ -70,10 +70,11 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
         rows = [f for f in read_csv(run_dir / FOUND_CSV) if f.map == map_name]
         if not rows:
             raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
-        steps = json.loads((run_dir / "summary.json").read_text()).get("env_steps", 0)
+        summary = json.loads((run_dir / "summary.json").read_text())
+        steps = summary.get("env_steps", 0)
         thetas = np.array([f.theta for f in rows], dtype=float)
         label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
-        evaluation = json.loads((run_dir / "summary.json").read_text()).get("evaluation") or {}
+        evaluation = summary.get("evaluation") or {}
         return (label, f"{steps:,} env steps", thetas, np.array([f.P_c for f in rows]),
                 np.array([f.P_len for f in rows]), evaluation.get(map_name))  # fmt: skip
     if not (run_dir / "results.npz").is_file():
@@ -122,7 +123,7 @@ def _protocol_text(settled: Any, optimum: float) -> str:
         return f"{float(settled['median_gap']):.2f} ({100 * float(settled['share_within_1pct']):.0f} %)"
     if isinstance(settled, list) and settled:
         gaps = optimum - np.asarray(settled, dtype=float)
-        return f"{float(np.median(gaps)):.2f} ({100 * float(np.mean(gaps <= WITHIN * abs(optimum))):.0f} %)"
+        return f"{float(np.median(gaps)):.2f} ({100 * float(np.mean(within_band(gaps, optimum))):.0f} %)"
     return "-"
 
 

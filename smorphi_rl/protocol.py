@@ -20,6 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
+from smorphi_rl.score import r1
+
 EVAL_KEY = "eval"
 """The training result key of the periodic greedy evaluation (TensorBoard: ray/tune/eval/...)."""
 EVAL_EVERY = 5
@@ -76,8 +78,6 @@ class Optimum:
     def of(cls, thetas: np.ndarray, P_c: np.ndarray, P_len: np.ndarray, w1: float, w2: float,
            step_deg: float = 1.0) -> Optimum:  # fmt: skip
         """The best row by R1 = w1 P_c - w2 P_len of a scored lattice (the first of equal ones)."""
-        from smorphi_rl.score import r1
-
         scores = r1(P_c, P_len, w1, w2)
         i = int(np.argmax(scores))
         t1, t2, t3 = (float(v) for v in thetas[i])
@@ -88,6 +88,11 @@ NO_OPTIMUM = Optimum((math.nan, math.nan, math.nan), math.nan, math.nan, 0)
 """Stands for an optimum not computed (a map too large to enumerate): gaps are NaN."""
 OPTIMUM_MAX_CELLS = 250_000
 """Maps with more cells than this (500 x 500) get no exact optimum during training: it would take minutes."""
+
+
+def within_band(gaps: np.ndarray, optimum_R1: float) -> np.ndarray:
+    """Which gaps to R1* count as 'reaches the optimum' (within WITHIN of |R1*|): the protocol's one rule."""
+    return np.asarray(gaps, dtype=float) <= WITHIN * abs(optimum_R1) + 1e-9
 
 
 @dataclass(frozen=True)
@@ -111,7 +116,7 @@ class MapEvaluation:
     @property
     def within(self) -> int:
         """Starts whose settled shape is within WITHIN of R1*."""
-        return int(np.sum(self.gaps <= WITHIN * abs(self.optimum.R1) + 1e-9))
+        return int(np.sum(within_band(self.gaps, self.optimum.R1)))
 
     @property
     def mean_R1(self) -> float:

@@ -221,16 +221,16 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
     """Table 5's claim per held-out map, over seeds: the speed-up with its interval; runs that never converged
     are named, and a map where no fine-tuned or no scratch run converged gives no ratio."""
     from smorphi_rl.stats import mean_interval, ratio_interval
+    from smorphi_rl.training.transfer import converged_steps
 
     out = []
     claim = "*A pretrained policy converges about five times faster.*"
     for map_name in dict.fromkeys(r.map_name for r in runs):
-        tuned = [float(r.converged_at) for r in runs if r.map_name == map_name and r.mode == "fine-tune"
-                 and r.converged_at is not None]  # fmt: skip
-        scratch = [float(r.converged_at) for r in runs if r.map_name == map_name and r.mode == "scratch"
-                   and r.converged_at is not None]  # fmt: skip
-        n = sum(1 for r in runs if r.map_name == map_name) // 2
-        counts = f"converged: fine-tuned {len(tuned)} of {n}, scratch {len(scratch)} of {n}"
+        tuned_runs = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
+        scratch_runs = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
+        tuned, scratch = converged_steps(tuned_runs), converged_steps(scratch_runs)
+        counts = (f"converged: fine-tuned {len(tuned)} of {len(tuned_runs)}, "
+                  f"scratch {len(scratch)} of {len(scratch_runs)}")  # fmt: skip
         if not tuned or not scratch:
             out.append(f"- {map_name}: {claim} Not testable here ({counts}).")
             continue

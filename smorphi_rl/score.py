@@ -3,15 +3,9 @@ the protocol's optimum, the critic's scale). Scalars or numpy arrays alike."""
 
 from __future__ import annotations
 
-from typing import TypeVar
-
-import numpy as np
-
-T = TypeVar("T", float, np.ndarray)
+from typing import Any
 
 
-def r1(p_c: T, p_len: T | int, w1: float, w2: float) -> T:
-    """The env's R1 of one result or of arrays of them."""
-    if isinstance(p_c, np.ndarray) or isinstance(p_len, np.ndarray):
-        return w1 * np.asarray(p_c, dtype=np.float64) - w2 * np.asarray(p_len, dtype=np.float64)  # type: ignore[return-value]
-    return w1 * float(p_c) - w2 * float(p_len)  # type: ignore[return-value]
+def r1(p_c: Any, p_len: Any, w1: float, w2: float) -> Any:
+    """The env's R1 of one result (floats) or of arrays of them (float64 arrays)."""
+    return w1 * p_c - w2 * p_len

@@ -14,7 +14,6 @@ U - phi where U solves level's equation for the reward (1 - gamma) phi, a positi
 from __future__ import annotations
 
 import itertools
-from collections.abc import Callable
 
 import numpy as np
 from scipy import ndimage
@@ -36,7 +35,6 @@ def move_values(
     mode: str,
     gamma: float,
     beta: float = 1.0,
-    progress: Callable[[int, float], None] | None = None,
 ) -> np.ndarray:
     """W[s'] = reward of arriving at s' + gamma V(s') (paper mode: for a move that changes the shape),
     for R1 on the full (n, n, n) lattice; the optimal action from s moves to its best neighbour by W."""
@@ -49,7 +47,7 @@ def move_values(
         reward = (reward - reward.mean()) / max(float(reward.std()), 1e-9)
     tol = TOLERANCE * max(float(np.ptp(reward)), 1e-9)
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
-    for sweep in range(1, MAX_SWEEPS + 1):
+    for _ in range(MAX_SWEEPS):
         arrive = reward + gamma * values
         if mode == "paper":  # standing still (or pushing into the box's edge) pays R1 - beta
             moved = ndimage.maximum_filter(arrive, footprint=_NOT_SELF, mode="constant", cval=-np.inf)
@@ -58,8 +56,6 @@ def move_values(
             new = ndimage.maximum_filter(arrive, size=3, mode="nearest")
         delta = float(np.abs(new - values).max())
         values = new
-        if progress is not None and sweep % 50 == 0:
-            progress(sweep, delta)
         if delta < tol:
             break
     return reward + gamma * values

@@ -118,7 +118,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     for map_name in dict.fromkeys(r.map_name for r in runs):
         tuned = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
         scratch = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
-        t_steps, s_steps = _converged_steps(tuned), _converged_steps(scratch)
+        t_steps, s_steps = converged_steps(tuned), converged_steps(scratch)
         ratio = ratio_interval(s_steps, t_steps)
         best = f"{max(r.best_R1 for r in tuned):.2f} / {max(r.best_R1 for r in scratch):.2f}"
         lines.append(
@@ -133,6 +133,6 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     return files
 
 
-def _converged_steps(runs: list[TransferRun]) -> list[float]:
+def converged_steps(runs: list[TransferRun]) -> list[float]:
     """Env steps to convergence of the runs that converged."""
     return [float(r.converged_at) for r in runs if r.converged_at is not None]
