@@ -37,6 +37,7 @@ from smorphi_rl.training.sweep_report import (
     TrialRow,
     group_curves,
     read_sweep,
+    sweep_group_lines,
     write_sweep_groups,
     write_sweep_tables,
 )
@@ -272,8 +273,8 @@ def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
         hp = " ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in r.hyperparameters.items())
         lines.append(f"  {r.algo:<6} {r.maps:<14} seed {r.seed} {hp} best R1 {b.R1:.2f} {b.angles} "
                      f"({r.env_steps:,} steps, {fmt_duration(r.wall_s)})")  # fmt: skip
-    if "groups" in s.files and s.files["groups"].is_file():
-        lines.extend(["", *s.files["groups"].read_text().splitlines()[2:], ""])
+    if s.rows:
+        lines.extend(["", *sweep_group_lines(s.rows)[2:], ""])
     for key, label in (("md", "table"), ("groups", "over seeds"), ("png", "curves")):
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")

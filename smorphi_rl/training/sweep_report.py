@@ -145,9 +145,14 @@ def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
     return groups
 
 
-def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> list[str]:
-    """sweep_groups.md: each algorithm and hyperparameters on each map set over its seeds, means with 95 %
-    bootstrap intervals; a trial that never converged is counted as such, not as a number. Returns the lines."""
+def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
+    """sweep_groups.md: the table of `sweep_group_lines`."""
+    md_path.write_text("\n".join(sweep_group_lines(rows)) + "\n")
+
+
+def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
+    """Each algorithm and hyperparameters on each map set over its seeds, means with 95 % bootstrap intervals;
+    a trial that never converged is counted as such, not as a number (a note, a blank line, the table)."""
     lines = ["Over seeds: mean [95 % bootstrap interval]; env steps to converge over the converged trials only.", "",
              "| maps | algorithm and hyperparameters | seeds | plateau greedy settled R1 | converged "
              "| env steps to converge | best R1 |", "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
@@ -157,7 +162,6 @@ def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> list[str]:
         best = mean_interval([t.best.R1 for t in trials if t.best is not None])
         lines.append(f"| {maps} | {label} | {len(trials)} | {plateau.text()} | {len(steps)} of {len(trials)} "
                      f"| {mean_interval(steps).text(',.0f')} | {best.text()} |")  # fmt: skip
-    md_path.write_text("\n".join(lines) + "\n")
     return lines
 
 
