@@ -39,7 +39,6 @@ from smorphi_rl.training.finetune import PRETRAINED_KEY, check_pretrained, fine_
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
 
-STEPS_KEY = keys.STEPS
 TOP_PLOT = 4
 """Morphologies drawn in top_morphologies.png (the paper's Figure 6 shows 2 per algorithm)."""
 
@@ -139,7 +138,7 @@ class _Progress:
         self.__dict__.update(state, out=sys.stderr)
 
     def on_result(self, result: dict[str, Any]) -> None:
-        steps = int(result.get(STEPS_KEY) or 0)
+        steps = int(result.get(keys.STEPS) or 0)
         bests = episode_bests(result)
         self.top.add_episode_bests(self.cfg.algo, bests, steps)
         runners = result.get(keys.ENV_RUNNERS, {})
@@ -261,7 +260,7 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
     register_env()
     config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, name))
     progress = _Progress(cfg, out, label)
-    stop: dict[str, int] = {STEPS_KEY: cfg.timesteps}
+    stop: dict[str, int] = {keys.STEPS: cfg.timesteps}
     if cfg.max_iterations is not None:
         stop[keys.ITERATION] = cfg.max_iterations
     tuner = tune.Tuner(

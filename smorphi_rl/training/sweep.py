@@ -20,6 +20,7 @@ import yaml
 
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
+from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import find_checkpoint
 from smorphi_rl.training.config import (
     CPUS_FOR_TRIAL,
@@ -30,7 +31,7 @@ from smorphi_rl.training.config import (
 )
 from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
 from smorphi_rl.training.quiet import quiet
-from smorphi_rl.training.run import STEPS_KEY, TrainingError, fmt_duration
+from smorphi_rl.training.run import TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
     ITERATION_KEY,
@@ -81,7 +82,7 @@ def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
             reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
         while True:
             result = algo.train()
-            steps = int(result.get(STEPS_KEY) or 0)
+            steps = int(result.get(keys.STEPS) or 0)
             done = steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
             metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
             metrics[ITERATION_KEY] = algo.iteration
@@ -118,7 +119,7 @@ class _SweepProgress:
         for b in episode_bests(result):
             if self.best[0] < b.R1:
                 self.best = (b.R1, f"{b.angles} on {b.map}")
-        steps = int(result.get(STEPS_KEY) or 0)
+        steps = int(result.get(keys.STEPS) or 0)
         maps = "+".join(Path(m).stem for m in config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
                    f"{steps:,}/{self.sweep.timesteps:,} steps")  # fmt: skip
