@@ -26,6 +26,11 @@ EPISODE_BEST_KEY = "smorphi_episode_best"
 `EpisodeBest.to_row`). A string, so TensorBoard skips it and the driver parses it."""
 
 
+def angles_text(theta: tuple[float, float, float]) -> str:
+    """Hinge angles as the tables show them: (135, 56, 125)."""
+    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
+
+
 @dataclass(frozen=True)
 class EpisodeBest:
     """The best shape one episode reached (by R1), as the env runners report it to the driver."""
@@ -50,7 +55,7 @@ class EpisodeBest:
 
     @property
     def angles(self) -> str:
-        return "(" + ", ".join(f"{t:g}" for t in self.theta) + ")"
+        return angles_text(self.theta)
 
 
 def encode_bests(rows: Iterable[Any]) -> str:
@@ -81,7 +86,7 @@ class Found:
 
     @property
     def angles(self) -> str:
-        return "(" + ", ".join(f"{t:g}" for t in self.theta) + ")"
+        return angles_text(self.theta)
 
 
 class TopMorphologies:
