@@ -139,12 +139,12 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             raise TrainConfigError(f"hyperparameter '{name}' applies to ppo only, not {algo}")
         integer = name in ("train_batch_size", "num_epochs", "minibatch_size")
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
-        if not ok or (name in ("gamma", "lambda_") and not 0 <= value <= 1):
+        if not ok or (name in ("gamma", "lambda_", "value_lambda") and not 0 <= value <= 1):
             kind = (
                 "a non-negative integer"
                 if integer
                 else "a number in [0, 1]"
-                if name in ("gamma", "lambda_")
+                if name in ("gamma", "lambda_", "value_lambda")
                 else "a non-negative number"
             )
             raise TrainConfigError(f"hyperparameter '{name}' must be {kind}, got {value!r}")
@@ -224,6 +224,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
     from smorphi_rl.training.callbacks import MorphologyCallbacks
+    from smorphi_rl.training.learners import LEARNERS, VALUE_LAMBDA_KEY
     from smorphi_rl.training.module import MorphologyModule
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
 
@@ -247,11 +248,11 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
+        if hp.value_lambda is not None:
+            training["learner_config_dict"] = {VALUE_LAMBDA_KEY: hp.value_lambda}
     else:
-        from smorphi_rl.training.learners import LEARNERS
-
-        training["learner_class"] = LEARNERS[cfg.algo]  # v-trace advantages standardised per batch
         training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size}
+    training["learner_class"] = LEARNERS[cfg.algo]  # see learners.py
     config = (
         config_cls()
         .environment(

@@ -1,4 +1,13 @@
-"""IMPALA and APPO learners whose v-trace policy-gradient advantages are normalised per batch.
+"""Learners: PPO whose critic learns from longer returns than its policy, and IMPALA and APPO whose v-trace
+policy-gradient advantages are normalised per batch.
+
+PPO computes its advantages and the critic's targets with one GAE lambda. A small lambda keeps the
+advantages' noise down but makes the critic a slow fixed-point iteration: each full fit shrinks its error
+only by the factor gamma (1 - lambda) / (1 - gamma lambda) (0.99 at gamma 0.995, lambda 0.5), so after a
+run's few hundred fits it still sees a fraction of the future and the policy acts almost
+myopically (it climbs to the nearest per-hinge peak). `TwoLambdaPPOLearner` takes the critic's targets
+with `value_lambda` (near 1: returns measured over the rest of the episode) and the advantages with PPO's
+own lambda.
 
 PPO standardises its GAE advantages in every minibatch; RLlib's IMPALA and APPO do not, so their policy
 step scales with the return's units and the critic's error, and on this env they drifted instead of
@@ -16,6 +25,9 @@ from typing import Any
 import torch
 from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
 from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
+from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
+from ray.rllib.connectors.learner import GeneralAdvantageEstimation
+from ray.rllib.evaluation.postprocessing import Postprocessing
 
 ADVANTAGE_EPS = 1e-8
 
@@ -56,5 +68,59 @@ class NormalisedAPPOLearner(APPOTorchLearner):
         return _loss_with_normalised_advantages(self, APPOTorchLearner, kwargs)
 
 
-LEARNERS: dict[str, type] = {"impala": NormalisedIMPALALearner, "appo": NormalisedAPPOLearner}
-"""The learner class each asynchronous algorithm trains with (PPO keeps RLlib's own)."""
+VALUE_LAMBDA_KEY = "value_lambda"
+"""The `learner_config_dict` key that carries the critic's GAE lambda to `TwoLambdaPPOLearner`."""
+
+
+class TwoLambdaGAE(GeneralAdvantageEstimation):
+    """GAE whose advantages use `lambda_` and whose value targets use `value_lambda` (one critic pass).
+
+    RLlib computes both from one `compute_value_targets` call inside `__call__`; for the duration of the
+    call that function is wrapped to also compute the `value_lambda` targets, which then replace the
+    batch's value targets (single-agent: one module)."""
+
+    def __init__(self, *args: Any, value_lambda: float, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.value_lambda = value_lambda
+
+    def __call__(self, **kwargs: Any) -> Any:
+        module = inspect.getmodule(GeneralAdvantageEstimation)
+        original = module.compute_value_targets  # type: ignore[union-attr]
+        critic_targets: list[Any] = []
+
+        def both(**args: Any) -> Any:
+            critic_targets.append(original(**(args | {"lambda_": self.value_lambda})))
+            return original(**args)
+
+        module.compute_value_targets = both  # type: ignore[union-attr]
+        try:
+            batch = super().__call__(**kwargs)
+        finally:
+            module.compute_value_targets = original  # type: ignore[union-attr]
+        columns = [b for b in batch.values() if Postprocessing.VALUE_TARGETS in b]
+        for column, targets in zip(columns, critic_targets, strict=True):
+            old = column[Postprocessing.VALUE_TARGETS]
+            column[Postprocessing.VALUE_TARGETS] = torch.as_tensor(targets, dtype=old.dtype, device=old.device)
+        return batch
+
+
+class TwoLambdaPPOLearner(PPOTorchLearner):
+    """PPO whose critic's targets use `learner_config_dict["value_lambda"]` (advantages keep `lambda_`)."""
+
+    def build(self) -> None:
+        super().build()
+        value_lambda = self.config.learner_config_dict.get(VALUE_LAMBDA_KEY)
+        if value_lambda is None or self._learner_connector is None:
+            return
+        self._learner_connector.remove("GeneralAdvantageEstimation")
+        self._learner_connector.append(
+            TwoLambdaGAE(gamma=self.config.gamma, lambda_=self.config.lambda_, value_lambda=value_lambda)  # type: ignore[attr-defined]
+        )
+
+
+LEARNERS: dict[str, type] = {
+    "ppo": TwoLambdaPPOLearner,
+    "impala": NormalisedIMPALALearner,
+    "appo": NormalisedAPPOLearner,
+}
+"""The learner class each algorithm trains with."""

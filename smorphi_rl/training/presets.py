@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 ALGORITHMS = ("ppo", "impala", "appo")
-PPO_ONLY = ("lambda_",)
+PPO_ONLY = ("lambda_", "value_lambda")
 """Hyperparameters only PPO uses (IMPALA and APPO use v-trace instead of GAE)."""
 
 
@@ -20,6 +20,8 @@ class Preset:
     grad_clip: float
     train_batch_size: int
     lambda_: float = 0.95  # PPO only (IMPALA/APPO use v-trace)
+    value_lambda: float | None = None
+    """PPO only: GAE lambda of the critic's targets; None: `lambda_` (RLlib's one lambda)."""
     num_epochs: int = 1
     minibatch_size: int | None = None
     """IMPALA/APPO: a multiple of `rollout_fragment_length` (RLlib's rule); None: the whole batch."""
