@@ -258,6 +258,9 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
         .environment(
             TUNE_ENV_NAME,
             env_config=env_dict | {SEED_KEY: cfg.seed} | ({RECORDING_KEY: recording} if recording else {}),
+            # discrete actions: nothing to unsquash or clip, and the pass deep-copies every action (8 % of sampling)
+            normalize_actions=False,
+            clip_actions=False,
         )
         .framework("torch")
         .env_runners(
