@@ -20,7 +20,7 @@ from pathlib import Path
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.run import train
-from smorphi_rl.training.transfer import run_transfer, write_transfer_report
+from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 TARGET_RATIO = 5.0
@@ -47,8 +47,8 @@ def main() -> None:
             pretrained = pre.run_dir
             print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
         vals = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)]
-        job_dir, runs = run_transfer(pretrained, vals, [args.seed], args.steps, name="transfer", log_dir=root,
-                                     out=quiet)  # fmt: skip
+        job = TransferJob(pretrained, tuple(vals), (args.seed,), args.steps)
+        job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=quiet)
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
     for map_name in dict.fromkeys(r.map_name for r in runs):

@@ -90,7 +90,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     from smorphi_rl.search.results import SearchResult, save
     from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.run import train
-    from smorphi_rl.training.transfer import run_transfer, summary_curve, write_transfer_report
+    from smorphi_rl.training.transfer import TransferJob, run_transfer, summary_curve, write_transfer_report
 
     if budget_name not in BUDGETS:
         raise SmorphiError(f"unknown budget '{budget_name}' (choose from {', '.join(BUDGETS)})")
@@ -127,10 +127,9 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
         f"seeds {', '.join(map(str, b.transfer_seeds))}"
     )
-    job_dir, transfer_runs = run_transfer(pre.run_dir, [_map(m) for m in b.val_maps], list(b.transfer_seeds),
-                                          b.transfer_steps,
-                                          name="transfer", log_dir=root, out=out,
-                                          envs_per_runner=b.envs_per_runner)  # fmt: skip
+    job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
+                      envs_per_runner=b.envs_per_runner)  # fmt: skip
+    job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [

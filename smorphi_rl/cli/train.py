@@ -19,7 +19,6 @@ from smorphi_rl.cli.common import (
     seed_arg,
     weight_options,
 )
-from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map
 
 
@@ -129,22 +128,15 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_transfer(args: argparse.Namespace) -> int:
     """Fine-tune a pretrained policy and train from scratch on each held-out map; the paper's Table 5."""
-    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
 
-    TrainConfig(
-        algo=args.algo, timesteps=args.timesteps, preset=args.preset, record_every=args.record_every
-    )  # options checked before anything runs
-    for seed in args.seeds:
-        if seed < 0:
-            raise SmorphiError(f"--seeds must be non-negative integers, got {seed}")
+    # the options and maps are checked before anything runs
+    job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
+                      args.algo, args.preset, args.record_every)  # fmt: skip
     for path in args.maps:
         load_map(path)
-    from smorphi_rl.training.transfer import run_transfer, write_transfer_report
-
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
-    job_dir, runs = run_transfer(args.pretrained, [str(m) for m in args.maps], args.seeds, args.timesteps,
-                                 args.algo, args.preset, name, args.log_dir, args.address,
-                                 record_every=args.record_every)  # fmt: skip
+    job_dir, runs = run_transfer(job, name, args.log_dir, args.address)
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
     missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]

@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.env import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 from smorphi_rl.stats import mean_interval, ratio_interval
-from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig
+from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig, TrainConfigError
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 
@@ -36,47 +37,64 @@ class TransferRun:
     curve: dict[str, list[float]]
 
 
+@dataclass(frozen=True)
+class TransferJob:
+    """What a transfer job runs: fine-tune `pretrained` and train from scratch on each held-out map, per seed.
+
+    Checked when made (the training options as TrainConfig checks them, the seeds), before anything runs."""
+
+    pretrained: str | Path
+    maps: tuple[str, ...]
+    seeds: tuple[int, ...] = (TrainConfig.seed,)
+    timesteps: int = TrainConfig.timesteps
+    algo: str = TrainConfig.algo
+    preset: str = TrainConfig.preset
+    record_every: int = DEFAULT_RECORD_EVERY
+    envs_per_runner: int = ENVS_PER_RUNNER
+
+    def __post_init__(self) -> None:
+        for seed in self.seeds:
+            if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+                raise TrainConfigError(f"seeds must be non-negative integers, got {seed!r}")
+        self.train_config()
+
+    def train_config(self, env: EnvConfig | None = None) -> TrainConfig:
+        """The training run of one map (its env given; else the default env) before seed and mode are set."""
+        return TrainConfig(algo=self.algo, env=env or EnvConfig(), timesteps=self.timesteps, preset=self.preset,
+                           record_every=self.record_every, envs_per_runner=self.envs_per_runner)  # fmt: skip
+
+
 def run_transfer(
-    pretrained: str | Path,
-    maps: list[str],
-    seeds: list[int],
-    timesteps: int,
-    algo: str = TrainConfig.algo,
-    preset: str = TrainConfig.preset,
+    job: TransferJob,
     name: str = "transfer",
     log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     out: Any = None,
-    record_every: int = DEFAULT_RECORD_EVERY,
-    envs_per_runner: int = ENVS_PER_RUNNER,
 ) -> tuple[Path, list[TransferRun]]:
-    """For every held-out map and seed: fine-tune from `pretrained` and train from scratch, same budget."""
-    from smorphi_rl.env import EnvConfig
+    """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget."""
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.convergence import CURVE_KEY, convergence
     from smorphi_rl.training.finetune import check_pretrained
     from smorphi_rl.training.run import train
 
-    checkpoint = find_checkpoint(pretrained)
+    checkpoint = find_checkpoint(job.pretrained)
     env = EnvConfig.from_dict(dict(load_module(checkpoint).model_config.get("env_config") or {}))
     configs = []
-    for path in maps:  # every map and the checkpoint are checked before the first run starts
-        cfg = TrainConfig(algo=algo, env=replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps),
-                          timesteps=timesteps, preset=preset, record_every=record_every,
-                          envs_per_runner=envs_per_runner)  # fmt: skip
+    for path in job.maps:  # every map and the checkpoint are checked before the first run starts
+        cfg = job.train_config(replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps))
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)
     job_dir = prepare_run_dir(log_dir, name)
     runs: list[TransferRun] = []
     for cfg in configs:
         map_name = Path(cfg.env.maps[0]).stem
-        for seed in seeds:
+        for seed in job.seeds:
             for mode in ("fine-tune", "scratch"):
                 run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
                 run_name = safe_name(f"{map_name}-{mode}-seed{seed}")
                 summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{algo.upper()} {run_name}")  # fmt: skip
+                                label=f"{job.algo.upper()} {run_name}")  # fmt: skip
                 curve = summary_curve(summary.run_dir)
                 at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
                 best = summary.best.R1 if summary.best else float("nan")

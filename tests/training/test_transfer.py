@@ -34,3 +34,17 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
     assert cells[3].startswith("8,000 [") and cells[4] == "3 of 3"
     assert cells[5].startswith("2.67 [")  # 8,000 / 3,000, with its interval
     assert files["png"].is_file()
+
+
+def test_a_transfer_job_is_checked_when_made():
+    import pytest
+
+    from smorphi_rl.training.config import TrainConfigError
+    from smorphi_rl.training.transfer import TransferJob
+
+    job = TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0, 1), timesteps=5_000)
+    assert job.train_config().timesteps == 5_000 and job.train_config().algo == "ppo"
+    with pytest.raises(TrainConfigError, match="seeds"):
+        TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0, -1))
+    with pytest.raises(TrainConfigError, match="unknown algorithm"):
+        TransferJob("ckpt", ("maps/val-1.yaml",), algo="a3c")
