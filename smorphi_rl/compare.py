@@ -127,17 +127,9 @@ def _protocol_text(settled: Any, optimum: float) -> str:
     return "-"
 
 
-def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float,
-                 run_dir: Path) -> dict[str, Path]:  # fmt: skip
-    """report.md and compare.png under `run_dir`."""
-    from smorphi_rl.plots import plot_pareto
-
+def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
+    """The Markdown lines of every method's row against the exact optimum, with the paragraph that reads them."""
     lines = [
-        f"# Every method against the exact optimum on {map_name}",
-        "",
-        f"R1 = {w1:g} P_c - {w2:g} P_len. Hypervolume in (P_len, P_c) against the lattice nadir "
-        "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
-        "",
         "Best shape: the best any shape the method scored (visited). Settled from the fixed starts: the evaluation "
         "protocol's median gap of the shape each start ends on, and the share of starts within 1 % of the optimum "
         "(trained policies: greedy roll-outs; hill climbing and annealing: where each start ended).",
@@ -150,6 +142,27 @@ def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, 
         theta = "(" + ", ".join(f"{t:g}" for t in m.best_theta) + ")"
         lines.append(f"| {m.label} | {m.budget} | {theta} | {m.best_P_c:.2f} | {m.best_P_len} | {m.best_R1:.2f} "
                      f"| {m.gap_R1:.2f} | {m.hv_fraction:.4f} | {m.protocol} |")  # fmt: skip
+    return lines
+
+
+def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float) -> list[str]:
+    """The comparison as Markdown lines: title, how to read it, and the table (what `compare` prints)."""
+    return [
+        f"# Every method against the exact optimum on {map_name}",
+        "",
+        f"R1 = {w1:g} P_c - {w2:g} P_len. Hypervolume in (P_len, P_c) against the lattice nadir "
+        "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
+        "",
+        *method_table(exact, methods),
+    ]
+
+
+def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float,
+                 run_dir: Path) -> dict[str, Path]:  # fmt: skip
+    """report.md (`report_lines` and the plot) and compare.png under `run_dir`."""
+    from smorphi_rl.plots import plot_pareto
+
+    lines = report_lines(exact, methods, map_name, w1, w2)
     files = {"report": run_dir / "report.md"}
     files["plot"] = plot_pareto(
         {m.label: (m.front_len, m.front_pc) for m in methods},

@@ -164,6 +164,7 @@ def _map_section(map_name: str, training: dict[tuple[str, str], Path], b: Budget
                  scores: list[MethodScore], files: dict[str, Path], curves: dict[str, Any],
                  root: Path) -> list[str]:  # fmt: skip
     """Tables 2-4 and 6 and Figures 5-7 for one map."""
+    from smorphi_rl.compare import method_table
     from smorphi_rl.plots import plot_learning_curves
 
     curve_png = plot_learning_curves(curves, root / f"curves-{map_name}.png", exact.best_R1)
@@ -173,7 +174,7 @@ def _map_section(map_name: str, training: dict[tuple[str, str], Path], b: Budget
         lines += [(run_dir / "top_morphologies.md").read_text().rstrip(), "",
                   f"![top {algo}]({(run_dir / 'top_morphologies.png').relative_to(root)})", ""]  # fmt: skip
     lines += ["### Every method against the exact front (Tables 4 and 6, Figure 7)", "",
-              files["report"].read_text().split("\n\n", 2)[2].split("\n\n![")[0], "",
+              *method_table(exact, scores), "",
               f"![pareto]({files['plot'].relative_to(root)})", "",
               "### Learning curves (Figure 5)", "", f"![curves]({curve_png.relative_to(root)})"]  # fmt: skip
     return lines

@@ -157,7 +157,7 @@ def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
-    from smorphi_rl.compare import points_of_run, score_methods, write_report
+    from smorphi_rl.compare import points_of_run, report_lines, score_methods, write_report
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -176,6 +176,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
         exact = run_exhaustive(str(args.map), args.step, progress=progress_line("exact front"))
     exact_score, methods = score_methods(exact, runs, w.w1, w.w2)
     files = write_report(exact_score, methods, grid_map.name, w.w1, w.w2, run_dir)
-    print(files["report"].read_text().split("\n\n![")[0])
+    print("\n".join(report_lines(exact_score, methods, grid_map.name, w.w1, w.w2)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0
