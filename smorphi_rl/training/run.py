@@ -157,9 +157,12 @@ class _Progress:
         self.curve.wall_s.append(time.monotonic() - self.t0)
         if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
             self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)
-        self._show(steps, runners.get(keys.METRIC_PREFIX, {}), done=steps >= self.cfg.timesteps)
+        mean_r1 = runners.get(keys.METRIC_PREFIX, {}).get("R1_mean")
+        if isinstance(mean_r1, int | float) and math.isfinite(mean_r1):
+            self._last_mean = float(mean_r1)  # iterations in which no episode ended report NaN: keep the last
+        self._show(steps, done=steps >= self.cfg.timesteps)
 
-    def _show(self, steps: int, ours: dict[str, Any], done: bool) -> None:
+    def _show(self, steps: int, done: bool) -> None:
         now = time.monotonic()
         if not self.tty and not done and now - self._last_print < 10:
             return
@@ -169,12 +172,12 @@ class _Progress:
         bar = "#" * int(24 * frac) + "-" * (24 - int(24 * frac))
         best = self.top.top(1)
         best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
-        mean_r1 = ours.get("R1_mean")
-        if isinstance(mean_r1, int | float) and math.isfinite(mean_r1):
-            self._last_mean = float(mean_r1)  # iterations in which no episode ended report NaN: keep the last
         mean_txt = f"episode mean R1 {self._last_mean:.2f}" if math.isfinite(self._last_mean) else ""
+        ev = self.last_eval
+        settled_txt = (f"greedy: gap {ev['median_gap']:.2f}, {ev['share_within_1pct'] * 100:.0f} % within 1 %"
+                       if ev and "median_gap" in ev else "")  # fmt: skip
         line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {fmt_duration(now - self.t0)}  "
-                f"{best_txt}  {mean_txt}")  # fmt: skip
+                f"{best_txt}  {mean_txt}  {settled_txt}").rstrip()  # fmt: skip
         if self.tty:
             self.out.write("\r" + line[:160].ljust(160) + ("\n" if done else ""))
         else:
