@@ -4,10 +4,10 @@ policy-gradient advantages are normalised per batch.
 PPO computes its advantages and the critic's targets with one GAE lambda. A small lambda keeps the
 advantages' noise down but makes the critic a slow fixed-point iteration: each full fit shrinks its error
 only by the factor gamma (1 - lambda) / (1 - gamma lambda) (0.99 at gamma 0.995, lambda 0.5), so after a
-run's few hundred fits it still sees a fraction of the future and the policy acts almost
-myopically (it climbs to the nearest per-hinge peak). `TwoLambdaPPOLearner` takes the critic's targets
-with `value_lambda` (near 1: returns measured over the rest of the episode) and the advantages with PPO's
-own lambda.
+run's few hundred fits it still sees a fraction of the future. `TwoLambdaPPOLearner` takes the critic's
+targets with `value_lambda` (near 1: returns measured over the rest of the episode) and the advantages
+with PPO's own lambda. Off by default: it brings the critic's values 3-4x closer to the true ones, but
+did not by itself improve where the greedy policy settles (README, "Learning").
 
 PPO standardises its GAE advantages in every minibatch; RLlib's IMPALA and APPO do not, so their policy
 step scales with the return's units and the critic's error, and on this env they drifted instead of
