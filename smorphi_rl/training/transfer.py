@@ -17,8 +17,7 @@ import numpy as np
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 from smorphi_rl.stats import mean_interval, ratio_interval
-from smorphi_rl.training.config import DEFAULT_RECORD_EVERY, TrainConfig, TrainConfigError
-from smorphi_rl.training.presets import ENVS_PER_RUNNER
+from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
 
 @dataclass(frozen=True)
@@ -49,8 +48,8 @@ class TransferJob:
     timesteps: int = TrainConfig.timesteps
     algo: str = TrainConfig.algo
     preset: str = TrainConfig.preset
-    record_every: int = DEFAULT_RECORD_EVERY
-    envs_per_runner: int = ENVS_PER_RUNNER
+    record_every: int = TrainConfig.record_every
+    envs_per_runner: int = TrainConfig.envs_per_runner
 
     def __post_init__(self) -> None:
         for seed in self.seeds:
