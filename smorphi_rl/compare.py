@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.protocol import within_band
 from smorphi_rl.score import r1
 from smorphi_rl.search.pareto import pareto_front
@@ -139,9 +140,8 @@ def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
         "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for m in [exact, *methods]:
-        theta = "(" + ", ".join(f"{t:g}" for t in m.best_theta) + ")"
-        lines.append(f"| {m.label} | {m.budget} | {theta} | {m.best_P_c:.2f} | {m.best_P_len} | {m.best_R1:.2f} "
-                     f"| {m.gap_R1:.2f} | {m.hv_fraction:.4f} | {m.protocol} |")  # fmt: skip
+        lines.append(f"| {m.label} | {m.budget} | {angles_text(m.best_theta)} | {m.best_P_c:.2f} | {m.best_P_len} "
+                     f"| {m.best_R1:.2f} | {m.gap_R1:.2f} | {m.hv_fraction:.4f} | {m.protocol} |")  # fmt: skip
     return lines
 
 

@@ -32,6 +32,11 @@ UNIT_SQUARE = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
 Point = tuple[float, float]
 
 
+def angles_text(theta: Sequence[float]) -> str:
+    """Hinge angles as every table and report shows them: (135, 56, 125)."""
+    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
+
+
 @dataclass(frozen=True)
 class Morphology:
     """Three hinge angles in degrees, each in [0, 180]; validated on construction."""

@@ -6,11 +6,12 @@ import argparse
 import math
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
@@ -71,12 +72,8 @@ def map_paths(value: object) -> list[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 
-def theta_text(theta: Sequence[float]) -> str:
-    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
-
-
 def scored_text(d: dict[str, object]) -> str:
-    return f"{theta_text(d['theta'])} P_c {d['P_c']:.2f} %, P_len {d['P_len']}, R1 {d['R1']:.2f}"  # type: ignore[arg-type]
+    return f"{angles_text(d['theta'])} P_c {d['P_c']:.2f} %, P_len {d['P_len']}, R1 {d['R1']:.2f}"  # type: ignore[arg-type]
 
 
 def weight_options(parser: argparse.ArgumentParser) -> None:

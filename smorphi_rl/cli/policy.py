@@ -7,8 +7,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, seed_arg, theta_text
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
 
 GIF_MAX_FRAMES = 120
@@ -58,7 +59,7 @@ def _replay_listing(directory: Path) -> int:
         assert b is not None
         flag = " (cut short)" if ep.truncated else ""
         print(f"{f.name:<44} {b['map']:<8} {ep.metadata.get('algorithm', '-'):<8} {len(ep.steps) - 1:>5}  "
-              f"{b['R1']:>7.2f}  {theta_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
+              f"{b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
     print(f"{len(files)} recordings in {rel(directory)}")
     if unreadable == len(files):
         raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
@@ -78,7 +79,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     meta, steps, best = ep.metadata, ep.steps, ep.best
     assert best is not None
     run = f"{meta.get('run', '-')} ({meta.get('algorithm', '-').upper()}, seed {meta.get('seed', '-')})"
-    start, final = theta_text(steps[0]["theta"]), theta_text(steps[-1]["theta"])
+    start, final = angles_text(steps[0]["theta"]), angles_text(steps[-1]["theta"])
     rows = [
         ("episode", rel(target)),
         ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}"),
@@ -95,7 +96,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         for st in steps:
             action = "-" if st["action"] is None else ",".join(str(a) for a in st["action"])
             reward = "-" if st["reward"] is None else f"{st['reward']:.2f}"
-            print(f"{st['step']:>5}  {theta_text(st['theta']):<18} {action:<9} {reward:>8} {st['R1']:>7.2f} "
+            print(f"{st['step']:>5}  {angles_text(st['theta']):<18} {action:<9} {reward:>8} {st['R1']:>7.2f} "
                   f"{st['P_c']:>7.2f} {st['P_len']:>5}  {'yes' if st['feasible'] else 'no'}")  # fmt: skip
     if args.png or args.gif:
         _draw_replay(ep, args.png, args.gif)
@@ -111,7 +112,7 @@ def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
 
     def title(i: int) -> str:
         st = steps[i]
-        shape = f"{theta_text(st['theta'])}  P_c {st['P_c']:.2f} %  P_len {st['P_len']}  R1 {st['R1']:.2f}"
+        shape = f"{angles_text(st['theta'])}  P_c {st['P_c']:.2f} %  P_len {st['P_len']}  R1 {st['R1']:.2f}"
         return f"step {st['step']}: {shape}"
 
     if png:
@@ -207,10 +208,10 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
                                               "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
             continue
         opt = ev.optimum
-        print(f"{ev.map}: exact optimum {theta_text(opt.theta)} R1 {opt.R1:.2f}; greedy from {len(ev.outcomes)} "
+        print(f"{ev.map}: exact optimum {angles_text(opt.theta)} R1 {opt.R1:.2f}; greedy from {len(ev.outcomes)} "
               f"fixed starts: {ev.within}/{len(ev.outcomes)} settle within 1 %, median gap {ev.median_gap:.2f}, "
               f"mean settled R1 {ev.mean_R1:.2f}, {ev.mean_evaluations:.0f} FBCPP evaluations a start")  # fmt: skip
         for o in ev.outcomes:
-            print(f"  start {theta_text(o.start):<17} settled {theta_text(o.settled):<17} R1 {o.R1:6.2f}  "
+            print(f"  start {angles_text(o.start):<17} settled {angles_text(o.settled):<17} R1 {o.R1:6.2f}  "
                   f"gap {opt.R1 - o.R1:5.2f}")  # fmt: skip
     return 0

@@ -16,11 +16,11 @@ from smorphi_rl.cli.common import (
     rel,
     run_options,
     seed_arg,
-    theta_text,
     weight_options,
     weights,
 )
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
 from smorphi_rl.score import r1
 
@@ -146,10 +146,10 @@ def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: 
              f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
     for row in front_rows:
         lines.append(
-            f"  {theta_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
+            f"  {angles_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
         )
     b = result.best(w1, w2)
-    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:g}): {theta_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
+    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:g}): {angles_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
                  f"P_len {result.P_len[b]}, R1 {float(r1(result.P_c[b], result.P_len[b], w1, w2)):.2f}")  # fmt: skip
     lines.extend(f"{key + ':':<9} {rel(files[key])}" for key in ("results", "front", "summary", "plot"))
     return "\n".join(lines)

@@ -14,6 +14,8 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl.geometry import angles_text
+
 FOUND_CSV = "morphologies.csv"
 """Every distinct morphology a training run found, best first (next to the top-k tables)."""
 CSV_FIELDS = (
@@ -24,11 +26,6 @@ CSV_FIELDS = (
 EPISODE_BEST_KEY = "smorphi_episode_best"
 """Result key holding, as a JSON string, the best shape of each episode finished in an iteration (rows of
 `EpisodeBest.to_row`). A string, so TensorBoard skips it and the driver parses it."""
-
-
-def angles_text(theta: tuple[float, float, float]) -> str:
-    """Hinge angles as the tables show them: (135, 56, 125)."""
-    return "(" + ", ".join(f"{t:g}" for t in theta) + ")"
 
 
 @dataclass(frozen=True)
