@@ -129,6 +129,10 @@ class TrainConfig:
         return out
 
 
+FRACTIONS = ("gamma", "lambda_", "value_lambda")
+"""Hyperparameters that must lie in [0, 1]."""
+
+
 def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
     """Every override names a hyperparameter that `algo` uses, with a positive number (gamma, lambda_ <= 1)."""
     known = {f.name for f in fields(Preset)} - set(LAYOUT)
@@ -139,12 +143,12 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             raise TrainConfigError(f"hyperparameter '{name}' applies to ppo only, not {algo}")
         integer = name in ("train_batch_size", "num_epochs", "minibatch_size")
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
-        if not ok or (name in ("gamma", "lambda_", "value_lambda") and not 0 <= value <= 1):
+        if not ok or (name in FRACTIONS and not 0 <= value <= 1):
             kind = (
                 "a non-negative integer"
                 if integer
                 else "a number in [0, 1]"
-                if name in ("gamma", "lambda_", "value_lambda")
+                if name in FRACTIONS
                 else "a non-negative number"
             )
             raise TrainConfigError(f"hyperparameter '{name}' must be {kind}, got {value!r}")
