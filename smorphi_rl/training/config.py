@@ -256,7 +256,6 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             training["learner_config_dict"] = {VALUE_LAMBDA_KEY: hp.value_lambda}
     else:
         training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size}
-    training["learner_class"] = LEARNERS[cfg.algo]  # see learners.py
     config = (
         config_cls()
         .environment(
@@ -274,7 +273,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             num_cpus_per_env_runner=CPUS_PER_ENV_RUNNER,  # type: ignore[arg-type]  # RLlib takes fractions
             rollout_fragment_length=hp.rollout_fragment_length,
         )
-        .learners(num_learners=0)
+        .learners(num_learners=0, learner_class=LEARNERS[cfg.algo])  # see learners.py
         .training(**training)
         .rl_module(
             rl_module_spec=RLModuleSpec(

@@ -14,6 +14,9 @@ step scales with the return's units and the critic's error, and on this env they
 learning. These learners standardise v-trace's `pg_advantages` (zero mean, unit spread over the batch)
 and leave the value targets alone. RLlib computes both inside `compute_loss_for_module` with no hook
 between them, so the loss is run with its module's `vtrace_torch` wrapped for the duration of the call.
+
+Every learner ends its connector pipeline with `PackMaps`, which hands the module the batch's maps as
+int64 words: RLlib's per-epoch shuffle then moves a quarter of the time's bytes-as-bytes work.
 """
 
 from __future__ import annotations
@@ -26,8 +29,12 @@ import torch
 from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
 from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
 from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
+from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.connectors.learner import GeneralAdvantageEstimation
+from ray.rllib.core.columns import Columns
 from ray.rllib.evaluation.postprocessing import Postprocessing
+
+from smorphi_rl.training.module import MAP_KEY, pack_maps
 
 ADVANTAGE_EPS = 1e-8
 
@@ -54,8 +61,33 @@ def _loss_with_normalised_advantages(learner: Any, parent: Any, kwargs: dict[str
         module.vtrace_torch = original  # type: ignore[union-attr]
 
 
+class PackMaps(ConnectorV2):
+    """The learner pipeline's last piece: every module's map observations as int64 words (`pack_maps`).
+
+    RLlib shuffles the whole train batch row by row once an epoch; indexing 2,000 uint8 maps of 2 x 64 x 64
+    took 17 ms, the same rows as 1,024 int64 words each 4 ms (15 % of PPO's learner time before). The
+    module reads either layout."""
+
+    def __call__(self, *, batch: dict[str, Any], **kwargs: Any) -> Any:
+        for column in batch.values():
+            obs = column.get(Columns.OBS) if isinstance(column, dict) else None
+            if isinstance(obs, dict) and isinstance(obs.get(MAP_KEY), torch.Tensor):
+                obs[MAP_KEY] = pack_maps(obs[MAP_KEY])
+        return batch
+
+
+def _end_with_pack_maps(learner: Any) -> None:
+    """Append `PackMaps` to a built learner's connector pipeline (after RLlib's own pieces)."""
+    if learner._learner_connector is not None:
+        learner._learner_connector.append(PackMaps())
+
+
 class NormalisedIMPALALearner(IMPALATorchLearner):
     """IMPALA with per-batch standardised v-trace advantages."""
+
+    def build(self) -> None:
+        super().build()
+        _end_with_pack_maps(self)
 
     def compute_loss_for_module(self, **kwargs: Any) -> Any:
         return _loss_with_normalised_advantages(self, IMPALATorchLearner, kwargs)
@@ -63,6 +95,10 @@ class NormalisedIMPALALearner(IMPALATorchLearner):
 
 class NormalisedAPPOLearner(APPOTorchLearner):
     """APPO with per-batch standardised v-trace advantages."""
+
+    def build(self) -> None:
+        super().build()
+        _end_with_pack_maps(self)
 
     def compute_loss_for_module(self, **kwargs: Any) -> Any:
         return _loss_with_normalised_advantages(self, APPOTorchLearner, kwargs)
@@ -109,13 +145,15 @@ class TwoLambdaPPOLearner(PPOTorchLearner):
 
     def build(self) -> None:
         super().build()
-        value_lambda = self.config.learner_config_dict.get(VALUE_LAMBDA_KEY)
-        if value_lambda is None or self._learner_connector is None:
+        if self._learner_connector is None:
             return
-        self._learner_connector.remove("GeneralAdvantageEstimation")
-        self._learner_connector.append(
-            TwoLambdaGAE(gamma=self.config.gamma, lambda_=self.config.lambda_, value_lambda=value_lambda)  # type: ignore[attr-defined]
-        )
+        value_lambda = self.config.learner_config_dict.get(VALUE_LAMBDA_KEY)
+        if value_lambda is not None:
+            self._learner_connector.remove("GeneralAdvantageEstimation")
+            self._learner_connector.append(
+                TwoLambdaGAE(gamma=self.config.gamma, lambda_=self.config.lambda_, value_lambda=value_lambda)  # type: ignore[attr-defined]
+            )
+        _end_with_pack_maps(self)
 
 
 LEARNERS: dict[str, type] = {

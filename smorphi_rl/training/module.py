@@ -30,6 +30,25 @@ ANGLE_FREQUENCIES = 8
 few degrees, and these let the value and policy nets resolve it without first learning the features."""
 MAP_LEVELS = 255.0
 """The env's map channels are uint8 fractions times 255."""
+MAP_KEY = "map"
+"""The observation's map entry."""
+WORD = torch.int64
+
+
+def pack_maps(maps: torch.Tensor) -> torch.Tensor:
+    """A uint8 batch of maps (B, C, S, S) as int64 words (B, C S S / 8), the same bytes (no copy), so that
+    indexing rows moves words instead of bytes; other tensors come back unchanged."""
+    flat = maps.reshape(maps.shape[0], -1) if maps.dim() > 1 else maps
+    if maps.dtype != torch.uint8 or maps.dim() < 2 or flat.shape[1] % 8 or not flat.is_contiguous():
+        return maps
+    return flat.view(WORD)
+
+
+def unpack_maps(maps: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
+    """The uint8 maps (B, *shape) of a batch that may have been packed by `pack_maps`."""
+    if maps.dtype == WORD:
+        return maps.view(torch.uint8).reshape(maps.shape[0], *shape)
+    return maps
 
 
 def distinct_rows(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
@@ -91,6 +110,7 @@ class _Net(nn.Module):
         if map_shape is None:  # pragma: no cover (the env always declares it)
             raise TypeError("the observation's map has no shape")
         channels, size, _ = map_shape
+        self._map_shape = tuple(int(d) for d in map_shape)
         self.cnn = nn.Sequential(
             nn.Conv2d(channels, 8, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
@@ -117,6 +137,7 @@ class _Net(nn.Module):
 
     def encode_maps(self, maps: torch.Tensor) -> torch.Tensor:
         """Map features for every row, computing the CNN once per distinct map of the batch."""
+        maps = unpack_maps(maps, self._map_shape)
         groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
         if groups is not None:
             first, inverse = groups
@@ -124,7 +145,7 @@ class _Net(nn.Module):
         return self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
-        map_features = self.encode_maps(obs["map"])
+        map_features = self.encode_maps(obs[MAP_KEY])
         angles = obs["angles"]
         freqs: torch.Tensor = self._freqs  # type: ignore[assignment]  # a registered buffer
         phases = (angles.unsqueeze(-1) * freqs).flatten(-2)  # angles are theta / 180, so k pi theta / 180

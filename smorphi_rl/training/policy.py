@@ -70,6 +70,7 @@ def greedy_outcomes(module: Any, envs: list[Any], starts: np.ndarray) -> list[Ou
     observations = [env.reset(seed=0, options={"theta": tuple(float(t) for t in start)})[0]
                     for env, start in zip(envs, starts, strict=True)]  # fmt: skip
     histories = [[env.unwrapped.theta] for env in envs]
+    seen = [{history[0]: 0} for history in histories]
     committed: list[tuple[float, float, float] | None] = [None] * len(envs)
     live = list(range(len(envs)))
     while live:
@@ -77,11 +78,17 @@ def greedy_outcomes(module: Any, envs: list[Any], starts: np.ndarray) -> list[Ou
         still = []
         for action, i in zip(actions, live, strict=True):
             observations[i], _, terminated, truncated, info = envs[i].step(action)
-            histories[i].append(tuple(info["theta"]))
+            theta = tuple(info["theta"])
+            histories[i].append(theta)
             if terminated and envs[i].unwrapped.config.reward == RewardMode.COMMIT.value:
-                committed[i] = tuple(info["theta"])
-            if not (terminated or truncated):
-                still.append(i)
+                committed[i] = theta
+            if terminated or truncated:
+                continue
+            if theta in seen[i] and envs[i] is envs[i].unwrapped:
+                repeat_cycle(histories[i], seen[i][theta], envs[i].config.max_steps)
+                continue
+            seen[i][theta] = len(histories[i]) - 1
+            still.append(i)
         live = still
     outcomes = []
     for env, start, history, commit in zip(envs, starts, histories, committed, strict=True):
@@ -90,6 +97,18 @@ def greedy_outcomes(module: Any, envs: list[Any], starts: np.ndarray) -> list[Ou
         outcomes.append(Outcome(tuple(float(t) for t in start), theta, float(scored["R1"]),  # type: ignore[arg-type]
                                 float(scored["P_c"]), int(scored["P_len"]), len(set(history))))  # fmt: skip
     return outcomes
+
+
+def repeat_cycle(history: list[Any], first: int, max_steps: int) -> None:
+    """Extend a greedy roll-out whose last shape was also its shape at step `first` to its truncation.
+
+    The observation is a function of the shape and the map alone, and the greedy policy is deterministic,
+    so from a revisited shape the roll-out repeats the same cycle until `max_steps`: the rest of its
+    history is known without stepping (a settled policy stops after its first step in place). Not used
+    when the env records its episodes."""
+    period = len(history) - 1 - first
+    while len(history) < max_steps + 1:
+        history.append(history[len(history) - period])
 
 
 def evaluate_policy(

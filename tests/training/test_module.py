@@ -8,7 +8,8 @@ from ray.rllib.core.columns import Columns
 from torch import nn
 
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.training.module import MorphologyModule
+from smorphi_rl.training.learners import PackMaps
+from smorphi_rl.training.module import MorphologyModule, pack_maps, unpack_maps
 
 MODE_DEPENDENT = (nn.modules.dropout._DropoutNd, nn.modules.batchnorm._NormBase)
 
@@ -35,3 +36,29 @@ def test_sampling_passes_leave_the_mode_alone_and_match_the_plain_forward():
     for forward in (module.forward_exploration, module.forward_inference):
         out = forward(batch)[Columns.ACTION_DIST_INPUTS]
         assert module.training and torch.equal(out, plain) and not out.requires_grad
+
+
+def test_packed_maps_give_the_same_outputs():
+    """The learners hand the module int64-packed maps (PackMaps); both layouts must read the same."""
+    module, batch = _module_and_batch()
+    packed = {Columns.OBS: dict(batch[Columns.OBS], map=pack_maps(batch[Columns.OBS]["map"]))}
+    assert packed[Columns.OBS]["map"].dtype == torch.int64
+    assert packed[Columns.OBS]["map"].shape == (4, 2 * 64 * 64 // 8)
+    with torch.no_grad():
+        assert torch.equal(module._forward(batch)[Columns.ACTION_DIST_INPUTS],
+                           module._forward(packed)[Columns.ACTION_DIST_INPUTS])  # fmt: skip
+        assert torch.equal(module.compute_values(batch), module.compute_values(packed))
+
+
+def test_pack_maps_leaves_what_it_cannot_pack():
+    odd = torch.zeros(3, 1, 3, 3, dtype=torch.uint8)  # 9 bytes a row: not whole words
+    floats = torch.zeros(3, 2, 4, 4)
+    assert pack_maps(odd) is odd and pack_maps(floats) is floats
+
+
+def test_pack_maps_connector_packs_every_module_batch():
+    _, batch = _module_and_batch()
+    maps = batch[Columns.OBS]["map"].clone()
+    out = PackMaps()(batch={"default_policy": {Columns.OBS: batch[Columns.OBS]}}, rl_module=None, episodes=[])
+    packed = out["default_policy"][Columns.OBS]["map"]
+    assert packed.dtype == torch.int64 and torch.equal(unpack_maps(packed, (2, 64, 64)), maps)

@@ -1,0 +1,34 @@
+"""Greedy roll-outs: a revisited shape ends the stepping, with the same outcome as stepping to the end."""
+
+from __future__ import annotations
+
+import gymnasium as gym
+import torch
+
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.protocol import eval_starts
+from smorphi_rl.training.module import MorphologyModule
+from smorphi_rl.training.policy import greedy_outcomes, repeat_cycle
+
+
+def test_repeat_cycle_continues_the_period_to_truncation():
+    history = ["a", "b", "c", "d", "b"]  # step 4 revisits step 1: the cycle b, c, d
+    repeat_cycle(history, 1, max_steps=9)
+    assert history == ["a", "b", "c", "d", "b", "c", "d", "b", "c", "d"]
+    settled = ["x", "y", "y"]  # a policy that stays: period 1
+    repeat_cycle(settled, 1, max_steps=5)
+    assert settled == ["x", "y", "y", "y", "y", "y"]
+
+
+def test_stopping_at_a_revisited_shape_changes_no_outcome():
+    """Wrapped envs (as when recording) are stepped to truncation; plain ones stop at a revisit."""
+    torch.manual_seed(3)
+    first = MorphologyEnv({"max_steps": 60})
+    module = MorphologyModule(observation_space=first.observation_space, action_space=first.action_space,
+                              model_config={})  # fmt: skip
+    starts = eval_starts(8)
+    plain = [first] + [first.sibling() for _ in range(7)]
+    wrapped = [gym.Wrapper(first.sibling()) for _ in range(8)]
+    fast, full = greedy_outcomes(module, plain, starts), greedy_outcomes(module, wrapped, starts)
+    assert fast == full
+    assert sum(env.unwrapped._steps for env in plain) < sum(env.unwrapped._steps for env in wrapped)
