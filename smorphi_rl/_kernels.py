@@ -16,10 +16,11 @@ import numpy as np
 from numba import njit
 
 # Columns of the per-morphology result rows written by the batch kernels.
-COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS = range(10)
-N_COLS = 10
-STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE, STATUS_PAD_TOO_SMALL = 0, 1, 2, 3
+COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS, COL_BOUND = range(11)
+N_COLS = 11
+STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE, STATUS_PAD_TOO_SMALL, STATUS_TILE_START_FIT = 0, 1, 2, 3, 4
 START_AUTO, START_TILE, START_CELL = 0, 1, 2
+PLANNER_PAPER, PLANNER_FIT = 0, 1
 
 _HINGE_X = np.array([1.0, 1.0, 1.0])
 _HINGE_Y = np.array([0.0, 1.0, 0.0])
@@ -180,7 +181,7 @@ def plan_into(
     covered: np.ndarray,
     path: np.ndarray,
 ) -> tuple[int, int, int, int, int, int]:
-    """FBCPP sections 4-6 for footprint f (l x w).
+    """FBCPP sections 4-6 for footprint f (l x w): the paper's planner.
 
     `padded` is the map as 0 (free) / 1 (not free), padded below and right with 1s by at least
     twice the footprint; `prefix` the (H+1) x (W+1) cumulative free counts of the map. Fills
@@ -212,7 +213,52 @@ def plan_into(
         start = sa * nc + sb
     if start < 0 or not trav[start]:
         return STATUS_START_BLOCKED, 0, 0, 0, 0, 0
-    # distance transform from the start
+    edge_e = np.zeros(n, np.bool_)  # tiles are joined where both are traversable (FBCPP.md section 5)
+    edge_n = np.zeros(n, np.bool_)
+    for t in range(n):
+        if trav[t]:
+            edge_e[t] = t % nc + 1 < nc and trav[t + 1]
+            edge_n[t] = t // nc + 1 < nr and trav[t + nc]
+    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, start, 0, 0, path, covered, h, wd)
+    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
+
+
+@njit(cache=True)
+def _joined(t: int, k: int, nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray) -> int:
+    """The node joined to node t in direction k (east, north, west, south), or -1."""
+    a, b = t // nc, t % nc
+    if k == 0:
+        return t + 1 if b + 1 < nc and edge_e[t] else -1
+    if k == 1:
+        return t + nc if a + 1 < nr and edge_n[t] else -1
+    if k == 2:
+        return t - 1 if b > 0 and edge_e[t - 1] else -1
+    return t - nc if a > 0 and edge_n[t - nc] else -1
+
+
+@njit(cache=True)
+def _walk(
+    padded: np.ndarray,
+    f: np.ndarray,
+    nr: int,
+    nc: int,
+    edge_e: np.ndarray,
+    edge_n: np.ndarray,
+    start: int,
+    oy: int,
+    ox: int,
+    path: np.ndarray,
+    covered: np.ndarray,
+    h: int,
+    wd: int,
+) -> tuple[int, int, int, int, int]:
+    """FBCPP.md sections 5-6 on an nr x nc lattice of nodes whose node (a, b) puts F's corner at cell
+    (oy + a l, ox + b w), joined where `edge_e` (to b + 1) and `edge_n` (to a + 1) say: distance transform,
+    greedy walk with breadth-first escapes from dead ends, and the footprint swept along every move.
+    Returns (covered free cells, P_len, east/west moves, north/south moves, path nodes)."""
+    l, w = f.shape
+    stride = padded.shape[1]
+    n = nr * nc
     dist = np.full(n, -1, np.int32)
     queue = np.empty(n, np.int32)
     dist[start] = 0
@@ -221,15 +267,12 @@ def plan_into(
     while head < tail:
         t = queue[head]
         head += 1
-        a, b = t // nc, t % nc
         for k in range(4):
-            na, nb = a + _DR[k], b + _DC[k]
-            if 0 <= na < nr and 0 <= nb < nc:
-                u = na * nc + nb
-                if trav[u] and dist[u] < 0:
-                    dist[u] = dist[t] + 1
-                    queue[tail] = u
-                    tail += 1
+            u = _joined(t, k, nr, nc, edge_e, edge_n)
+            if u >= 0 and dist[u] < 0:
+                dist[u] = dist[t] + 1
+                queue[tail] = u
+                tail += 1
     reachable = tail
     # swept masks: F shifted by 0..w columns (east/west moves) and by 0..l rows (north/south)
     swept_x = np.zeros((l, 2 * w), np.bool_)
@@ -243,7 +286,8 @@ def plan_into(
                     swept_y[i + k, j] = True
     off_f, off_x, off_y = _offsets(f, stride), _offsets(swept_x, stride), _offsets(swept_y, stride)
     work = padded.ravel().copy()
-    n_cov = _stamp(off_f, (start // nc) * l * stride + (start % nc) * w, work)
+    origin = oy * stride + ox
+    n_cov = _stamp(off_f, origin + (start // nc) * l * stride + (start % nc) * w, work)
     swept_ew = np.zeros(n, np.bool_)  # edge (a, b)-(a, b+1) stored at a*nc + b
     swept_ns = np.zeros(n, np.bool_)  # edge (a, b)-(a+1, b) stored at a*nc + b
     visited = np.zeros(n, np.bool_)
@@ -256,19 +300,16 @@ def plan_into(
         path[0, 0], path[0, 1] = start // nc, start % nc
     cur, generation = start, 0
     while n_visited < reachable:
-        a, b = cur // nc, cur % nc
         best, best_d = -1, -1
         for k in range(4):
-            na, nb = a + _DR[k], b + _DC[k]
-            if 0 <= na < nr and 0 <= nb < nc:
-                u = na * nc + nb
-                if trav[u] and not visited[u] and dist[u] > best_d:
-                    best, best_d = u, dist[u]
+            u = _joined(cur, k, nr, nc, edge_e, edge_n)
+            if u >= 0 and not visited[u] and dist[u] > best_d:
+                best, best_d = u, dist[u]
         n_route = 0
         if best >= 0:
             route[0] = best
             n_route = 1
-        else:  # dead end: breadth-first to the nearest unvisited tile
+        else:  # dead end: breadth-first to the nearest unvisited node
             generation += 1
             seen[cur] = generation
             queue[0] = cur
@@ -276,19 +317,16 @@ def plan_into(
             while head < tail and target < 0:
                 t = queue[head]
                 head += 1
-                ta, tb = t // nc, t % nc
                 for k in range(4):
-                    na, nb = ta + _DR[k], tb + _DC[k]
-                    if 0 <= na < nr and 0 <= nb < nc:
-                        u = na * nc + nb
-                        if trav[u] and seen[u] != generation:
-                            seen[u] = generation
-                            parent[u] = t
-                            queue[tail] = u
-                            tail += 1
-                            if not visited[u]:  # first enqueued = first dequeued (FIFO)
-                                target = u
-                                break
+                    u = _joined(t, k, nr, nc, edge_e, edge_n)
+                    if u >= 0 and seen[u] != generation:
+                        seen[u] = generation
+                        parent[u] = t
+                        queue[tail] = u
+                        tail += 1
+                        if not visited[u]:  # first enqueued = first dequeued (FIFO)
+                            target = u
+                            break
             t = target
             while t != cur:
                 route[n_route] = t
@@ -303,13 +341,13 @@ def plan_into(
                 e = pa * nc + min(pb, qb)
                 if not swept_ew[e]:
                     swept_ew[e] = True
-                    n_cov += _stamp(off_x, pa * l * stride + min(pb, qb) * w, work)
+                    n_cov += _stamp(off_x, origin + pa * l * stride + min(pb, qb) * w, work)
             else:
                 n_ns += 1
                 e = min(pa, qa) * nc + pb
                 if not swept_ns[e]:
                     swept_ns[e] = True
-                    n_cov += _stamp(off_y, min(pa, qa) * l * stride + pb * w, work)
+                    n_cov += _stamp(off_y, origin + min(pa, qa) * l * stride + pb * w, work)
             if n_path < path.shape[0]:
                 path[n_path, 0], path[n_path, 1] = qa, qb
             n_path += 1
@@ -322,7 +360,211 @@ def plan_into(
         for y in range(h):
             for x in range(wd):
                 covered[y, x] = work[y * stride + x] == 2
-    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
+    return n_cov, p_len, n_ew, n_ns, n_path
+
+
+@njit(cache=True)
+def _safe_placements(padded: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.ndarray:
+    """safe[y * wd + x]: F with its corner on cell (y, x) overlaps only free cells of the map."""
+    flat = padded.ravel()
+    off = _offsets(f, padded.shape[1])
+    safe = np.zeros(h * wd, np.bool_)
+    for y in range(h):
+        for x in range(wd):
+            base = y * padded.shape[1] + x
+            ok = True
+            for o in off:
+                if flat[base + o] != 0:
+                    ok = False
+                    break
+            safe[y * wd + x] = ok
+    return safe
+
+
+@njit(cache=True)
+def components(safe: np.ndarray, h: int, wd: int) -> np.ndarray:
+    """Label (0, 1, ...) of each safe placement's group under one-cell moves between safe placements; -1
+    where unsafe. Labels follow the raster order of each group's first placement."""
+    label = np.full(h * wd, -1, np.int32)
+    queue = np.empty(h * wd, np.int32)
+    n_labels = 0
+    for p0 in range(h * wd):
+        if not safe[p0] or label[p0] >= 0:
+            continue
+        label[p0] = n_labels
+        queue[0] = p0
+        head, tail = 0, 1
+        while head < tail:
+            p = queue[head]
+            head += 1
+            y, x = p // wd, p % wd
+            for k in range(4):
+                ny, nx = y + _DR[k], x + _DC[k]
+                if 0 <= ny < h and 0 <= nx < wd:
+                    q = ny * wd + nx
+                    if safe[q] and label[q] < 0:
+                        label[q] = n_labels
+                        queue[tail] = q
+                        tail += 1
+        n_labels += 1
+    return label
+
+
+@njit(cache=True)
+def _fit_candidates(
+    safe: np.ndarray, label: np.ndarray, area: np.ndarray, f: np.ndarray, h: int, wd: int, start_kind: int,
+    sp: int, sq: int,
+) -> np.ndarray:  # fmt: skip
+    """Start placements to try (docs/fbcpp-fit.md section 3), in raster order."""
+    l, w = f.shape
+    out = np.empty(h * wd, np.int64)
+    n = 0
+    if start_kind == START_CELL:  # every safe placement whose stamp holds the start cell
+        for p in range(h * wd):
+            y, x = p // wd, p % wd
+            i, j = sp - y, sq - x
+            if 0 <= i < l and 0 <= j < w and f[i, j] and safe[p]:
+                out[n] = p
+                n += 1
+        return out[:n]
+    fi, fj = -1, -1  # F's first cell in raster order
+    for i in range(l):
+        for j in range(w):
+            if f[i, j] and fi < 0:
+                fi, fj = i, j
+    n_labels = label.max() + 1
+    count = np.zeros(max(n_labels, 1), np.int64)
+    first = np.full(max(n_labels, 1), h * wd, np.int64)
+    for p in range(h * wd):
+        if safe[p] and area[(p // wd + fi) * wd + p % wd + fj]:
+            count[label[p]] += 1
+            first[label[p]] = min(first[label[p]], p)
+    best = -1
+    for g in range(n_labels):
+        if count[g] > 0 and (
+            best < 0 or count[g] > count[best] or (count[g] == count[best] and first[g] < first[best])
+        ):
+            best = g
+    if best < 0:
+        return out[:0]
+    taken = np.zeros(l * w, np.bool_)
+    for p in range(h * wd):
+        if label[p] == best and area[(p // wd + fi) * wd + p % wd + fj]:
+            c = (p // wd % l) * w + p % wd % w
+            if not taken[c]:
+                taken[c] = True
+                out[n] = p
+                n += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def _fit_lattice(
+    safe: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int
+) -> tuple[int, int, np.ndarray, np.ndarray, int]:
+    """The lattice through placement (y0, x0): (rows, columns, east edges, north edges, start node). Nodes are
+    safe placements; an edge joins neighbours when every placement along the move is safe."""
+    oy, ox = y0 % l, x0 % w
+    nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
+    n = nr * nc
+    edge_e = np.zeros(n, np.bool_)
+    edge_n = np.zeros(n, np.bool_)
+    for a in range(nr):
+        for b in range(nc):
+            y, x = oy + a * l, ox + b * w
+            if not safe[y * wd + x]:
+                continue
+            if b + 1 < nc:
+                ok = True
+                for k in range(1, w + 1):
+                    if not safe[y * wd + x + k]:
+                        ok = False
+                        break
+                edge_e[a * nc + b] = ok
+            if a + 1 < nr:
+                ok = True
+                for k in range(1, l + 1):
+                    if not safe[(y + k) * wd + x]:
+                        ok = False
+                        break
+                edge_n[a * nc + b] = ok
+    return nr, nc, edge_e, edge_n, ((y0 - oy) // l) * nc + (x0 - ox) // w
+
+
+@njit(cache=True)
+def plan_fit_into(
+    padded: np.ndarray,
+    h: int,
+    wd: int,
+    area: np.ndarray,
+    f: np.ndarray,
+    start_kind: int,
+    sp: int,
+    sq: int,
+    covered: np.ndarray,
+    path: np.ndarray,
+) -> tuple[int, int, int, int, int, int, int, int, int]:
+    """The footprint-safe planner (docs/fbcpp-fit.md) for footprint f (l x w).
+
+    `padded` as for `plan_into`; `area` (H*W, uint8) marks the largest free area. Fills `covered` and up to
+    len(path) placements (row, column of F's corner) as `plan_into` does. Returns (status, covered free
+    cells, P_len, east/west moves, north/south moves, path length, coverable-bound cells, start row, start
+    column); a shape with no safe start covers nothing (start -1, -1)."""
+    l, w = f.shape
+    if padded.shape[0] < h + 2 * l or padded.shape[1] < wd + 2 * w:
+        return STATUS_PAD_TOO_SMALL, 0, 0, 0, 0, 0, 0, -1, -1
+    if start_kind == START_TILE:
+        return STATUS_TILE_START_FIT, 0, 0, 0, 0, 0, 0, -1, -1
+    safe = _safe_placements(padded, h, wd, f)
+    label = components(safe, h, wd)
+    candidates = _fit_candidates(safe, label, area, f, h, wd, start_kind, sp, sq)
+    if candidates.shape[0] == 0:
+        return STATUS_OK, 0, 0, 0, 0, 0, 0, -1, -1
+    no_path = np.zeros((0, 2), np.int32)
+    no_covered = np.zeros((0, 0), np.uint8)
+    best, best_cov, best_len = -1, -1, 0
+    for c in range(candidates.shape[0]):
+        y0, x0 = candidates[c] // wd, candidates[c] % wd
+        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, h, wd, l, w, y0, x0)
+        n_cov, p_len, _, _, _ = _walk(padded, f, nr, nc, edge_e, edge_n, s, y0 % l, x0 % w, no_path, no_covered, h, wd)
+        if n_cov > best_cov or (n_cov == best_cov and p_len < best_len):
+            best, best_cov, best_len = c, n_cov, p_len
+    y0, x0 = candidates[best] // wd, candidates[best] % wd
+    oy, ox = y0 % l, x0 % w
+    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, h, wd, l, w, y0, x0)
+    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, s, oy, ox, path, covered, h, wd)
+    for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
+        path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
+    work = padded.ravel().copy()  # the coverable bound: F over every placement of the start's group
+    off = _offsets(f, padded.shape[1])
+    n_bound = 0
+    group = label[y0 * wd + x0]
+    for p in range(h * wd):
+        if label[p] == group:
+            n_bound += _stamp(off, (p // wd) * padded.shape[1] + p % wd, work)
+    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, n_bound, y0, x0
+
+
+@njit(cache=True)
+def plan_any(
+    planner: int,
+    padded: np.ndarray,
+    prefix: np.ndarray,
+    area: np.ndarray,
+    f: np.ndarray,
+    start_kind: int,
+    sp: int,
+    sq: int,
+    covered: np.ndarray,
+    path: np.ndarray,
+) -> tuple[int, int, int, int, int, int, int, int, int]:
+    """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage:
+    it covers every reachable tile, and its start is the corner of its start tile)."""
+    if planner == PLANNER_FIT:
+        h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
+        return plan_fit_into(padded, h, wd, area, f, start_kind, sp, sq, covered, path)
+    status, n_cov, p_len, n_ew, n_ns, n_path = plan_into(padded, prefix, f, start_kind, sp, sq, covered, path)
+    return status, n_cov, p_len, n_ew, n_ns, n_path, n_cov, -1, -1
 
 
 @njit(cache=True)
@@ -336,6 +578,8 @@ def evaluate_batch(
     sp: int,
     sq: int,
     side: int,
+    planner: int,
+    area: np.ndarray,
 ) -> np.ndarray:
     """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*)."""
     out = np.zeros((thetas.shape[0], N_COLS))
@@ -347,9 +591,10 @@ def evaluate_batch(
         out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
         out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
         if feasible and l > 0:
-            res = plan_into(padded, prefix, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
+            res = plan_any(planner, padded, prefix, area, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
             out[i, COL_STATUS] = res[0]
             out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
+            out[i, COL_BOUND] = res[6]
     return out
 
 
@@ -377,6 +622,8 @@ def plan_batch(
     sp: int,
     sq: int,
     side: int,
+    planner: int,
+    area: np.ndarray,
 ) -> np.ndarray:
     """Plan every footprint (bits rows, shapes rows (l, w)); result rows with the plan columns."""
     out = np.zeros((bits.shape[0], N_COLS))
@@ -385,7 +632,8 @@ def plan_batch(
     for i in range(bits.shape[0]):
         l, w = shapes[i, 0], shapes[i, 1]
         f = bits[i].reshape((side, side))[:l, :w]
-        res = plan_into(padded, prefix, f, start_kind, sp, sq, no_covered, no_path)
+        res = plan_any(planner, padded, prefix, area, f, start_kind, sp, sq, no_covered, no_path)
         out[i, COL_STATUS] = res[0]
         out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
+        out[i, COL_BOUND] = res[6]
     return out

@@ -1,4 +1,5 @@
-"""FBCPP (FBCPP.md sections 4-7) on the compiled fast path: value types and one full plan.
+"""FBCPP (FBCPP.md sections 4-7, and the footprint-safe planner of docs/fbcpp-fit.md) on the compiled
+fast path: value types and one full plan.
 
 `plan_coverage` returns the path and covered mask for plots and replays; `evaluate.Evaluator`
 is the cached, batched entry point for everything that only needs the metrics.
@@ -16,10 +17,36 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import Cell, Map
 
 
+class Planner(enum.Enum):
+    """Which coverage planner scores a shape."""
+
+    PAPER = "paper"
+    """FBCPP.md: tiles from the map's corner, traversable when any cell is free (the robot may stand over
+    obstacles and unknown space, as in the paper)."""
+    FIT = "fit"
+    """docs/fbcpp-fit.md: F only ever over free cells, moves collision-free, a start in the largest free area."""
+
+    @property
+    def code(self) -> int:
+        """The kernels' PLANNER_* code."""
+        return 1 if self is Planner.FIT else 0
+
+
+PLANNERS = tuple(p.value for p in Planner)
+
+
+def planner_of(name: str) -> Planner:
+    """The planner named `name`, or an error that lists the choices."""
+    try:
+        return Planner(name)
+    except ValueError:
+        raise SmorphiError(f"unknown planner {name!r} (choose from {', '.join(PLANNERS)})") from None
+
+
 class StartKind(enum.IntEnum):
     """Where the coverage path starts (values match the kernels' START_* codes)."""
 
-    AUTO = 0  # first traversable tile in row-major order
+    AUTO = 0  # paper: the first traversable tile in row-major order; fit: in the largest free area
     TILE = 1  # a tile (a, b) of the resized map; must be traversable for the footprint
     CELL = 2  # the tile holding this free map cell, for every footprint
 
@@ -49,7 +76,7 @@ class Start:
 
     def describe(self) -> str:
         return {
-            StartKind.AUTO: "first traversable tile",
+            StartKind.AUTO: "default start",
             StartKind.TILE: f"tile ({self.row}, {self.col})",
             StartKind.CELL: f"cell ({self.row}, {self.col})",
         }[self.kind]
@@ -60,13 +87,17 @@ AUTO_START = Start()
 
 @dataclass(frozen=True, eq=False)
 class PreparedMap:
-    """A map with what every plan on it reuses: a 2-D prefix sum of free cells and the map as
-    0 (free) / 1 (not free) padded below and right by `pad_cells`, so stamps need no clipping."""
+    """A map with what every plan on it reuses: a 2-D prefix sum of free cells, the map as
+    0 (free) / 1 (not free) padded below and right by `pad_cells`, so stamps need no clipping, and
+    (for the fit planner) the largest free area."""
 
     grid_map: Map
     pad_cells: int
+    planner: Planner = Planner.PAPER
     free_prefix: np.ndarray = field(init=False, repr=False)
     padded: np.ndarray = field(init=False, repr=False)
+    area: np.ndarray = field(init=False, repr=False)
+    """The largest 4-connected free area as a flat uint8 mask (fit planner; empty for paper)."""
 
     def __post_init__(self) -> None:
         free = self.grid_map.cells == Cell.FREE
@@ -76,6 +107,12 @@ class PreparedMap:
         padded[: free.shape[0], : free.shape[1]] = ~free
         object.__setattr__(self, "free_prefix", prefix)
         object.__setattr__(self, "padded", padded)
+        object.__setattr__(self, "area", largest_free_area(free) if self.planner is Planner.FIT else _NO_AREA)
+
+    @property
+    def n_area(self) -> int:
+        """Free cells in the largest free area (fit), or every free cell (paper)."""
+        return int(self.area.sum()) if self.planner is Planner.FIT else self.n_free
 
     @property
     def n_free(self) -> int:
@@ -86,16 +123,37 @@ class PreparedMap:
         return self.grid_map.counts[Cell.OCCUPIED]
 
     def coverage_pct(self, n_covered: np.ndarray | float) -> tuple[np.ndarray | float, np.ndarray | float]:
-        """(P_c, coverage_free_pct) from counts of covered free cells (FBCPP.md section 6)."""
+        """(P_c, coverage_free_pct) from counts of covered free cells (FBCPP.md section 6; the fit planner
+        never covers an obstacle, so its P_c is the share of free cells covered, docs/fbcpp-fit.md)."""
+        cov_free = 100.0 * n_covered / self.n_free
+        if self.planner is Planner.FIT:
+            return cov_free, cov_free
         known = self.n_free + self.n_occupied
-        return 100.0 * (n_covered + self.n_occupied) / known, 100.0 * n_covered / self.n_free
+        return 100.0 * (n_covered + self.n_occupied) / known, cov_free
 
-    def metrics(self, n_covered: Any, p_len: Any, n_ew: Any, n_ns: Any, l: Any, w: Any) -> Metrics:
+    def metrics(self, n_covered: Any, p_len: Any, n_ew: Any, n_ns: Any, l: Any, w: Any, n_bound: Any) -> Metrics:
         """The planner kernel's counts as FBCPP.md section 7's metrics: the one place they become results.
         Works on scalars (one plan) and on arrays (a batch) alike."""
         p_c, cov_free = self.coverage_pct(n_covered)
         path_cells = n_ew * w + n_ns * l
-        return Metrics(p_c, cov_free, p_len, path_cells * self.grid_map.resolution_m, path_cells)
+        return Metrics(p_c, cov_free, p_len, path_cells * self.grid_map.resolution_m, path_cells,
+                       100.0 * n_bound / self.n_free)  # fmt: skip
+
+
+_NO_AREA = np.zeros(0, dtype=np.uint8)
+
+
+def largest_free_area(free: np.ndarray) -> np.ndarray:
+    """The largest 4-connected area of free cells as a flat uint8 mask (ties: the area holding the earliest
+    cell in row-major order, row 0 the lowest y)."""
+    from smorphi_rl import _kernels as k
+
+    h, w = free.shape
+    labels = k.components(free.ravel(), h, w)
+    if labels.max() < 0:
+        return np.zeros(free.size, dtype=np.uint8)
+    biggest = int(np.argmax(np.bincount(labels[labels >= 0])))  # labels follow raster order: first max wins
+    return (labels == biggest).astype(np.uint8)
 
 
 class Metrics(NamedTuple):
@@ -106,6 +164,8 @@ class Metrics(NamedTuple):
     P_len: Any
     path_length_m: Any
     path_length_cells: Any
+    coverable_pct: Any
+    """The coverable bound as a share of the free cells (docs/fbcpp-fit.md; the paper planner: its coverage)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -137,18 +197,26 @@ class CoverageResult:
     footprint_m: tuple[float, float]
     footprint_cells: tuple[int, int]
     path_tiles: np.ndarray | None = None
+    """Paper planner: the tiles (a, b) visited; fit planner: the lattice nodes."""
     covered: np.ndarray | None = None
+    coverable_pct: float = 0.0
+    planner: str = Planner.PAPER.value
+    placements: np.ndarray | None = None
+    """On request: the cell (row, column) of F's lowest-row, lowest-column corner at every robot position."""
+    footprint: np.ndarray | None = None
+    """On request: F (rows of 0/1, row 0 the lowest y)."""
 
     def to_dict(self) -> dict[str, object]:
         """The JSON form printed by `smorphi-rl evaluate --json`."""
         return result_dict(
             list(self.theta), self.P_c, self.coverage_free_pct, self.P_len, self.path_length_m,
-            self.feasible, list(self.footprint_cells), list(self.footprint_m),
+            self.feasible, list(self.footprint_cells), list(self.footprint_m), self.coverable_pct, self.planner,
         )  # fmt: skip
 
 
 RESULT_KEYS = (
     "theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "footprint_cells", "footprint_m",
+    "coverable_pct", "planner",
 )  # fmt: skip
 """Keys of an evaluation's JSON form, in the order `result_dict` takes its values."""
 
@@ -175,35 +243,41 @@ def raise_for_status(status: int, start: Start, footprint_cells: tuple[int, int]
         raise SmorphiError(f"footprint {l}x{w} is larger than the planner's buffer; raise PreparedMap.pad_cells")
     if status == k.STATUS_START_OUTSIDE:
         raise SmorphiError(f"start {start.describe()} is outside the {tiles} tiles of footprint {l}x{w}")
+    if status == k.STATUS_TILE_START_FIT:
+        raise SmorphiError(f"start {start.describe()}: the fit planner has no tiles; give a free point (xy:X,Y)")
     raise SmorphiError(f"start {start.describe()} is not traversable for footprint {l}x{w} on map {grid_map.name}")
 
 
 def plan_coverage(
     prepared: PreparedMap, footprint: Footprint, theta: tuple[float, float, float], start: Start = AUTO_START
 ) -> CoverageResult:
-    """Full plan with path tiles and covered mask; an infeasible footprint plans nothing."""
+    """Full plan with path, placements, F and covered mask; an infeasible footprint plans nothing."""
     from smorphi_rl import _kernels as k
 
     grid_map = prepared.grid_map
     covered = np.zeros(grid_map.cells.shape, dtype=np.uint8)
     l, w = footprint.cells
+    f = footprint.matrix.astype(np.uint8)
     if not footprint.feasible:
         return CoverageResult(
             theta, False, 0.0, 0.0, 0, 0.0, 0, (footprint.width_m, footprint.length_m), (l, w),
-            np.zeros((0, 2), np.int32), covered.astype(bool),
+            np.zeros((0, 2), np.int32), covered.astype(bool), 0.0, prepared.planner.value,
+            np.zeros((0, 2), np.int32), f,
         )  # fmt: skip
-    f = footprint.matrix.astype(np.uint8)
     capacity = 4 * grid_map.cells.size // (l * w) + 16
     while True:
         path = np.zeros((capacity, 2), dtype=np.int32)
-        status, n_cov, p_len, n_ew, n_ns, n_path = k.plan_into(
-            prepared.padded, prepared.free_prefix, f, int(start.kind), start.row, start.col, covered, path
-        )
+        status, n_cov, p_len, n_ew, n_ns, n_path, n_bound, _, _ = k.plan_any(
+            prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.area, f, int(start.kind),
+            start.row, start.col, covered, path,
+        )  # fmt: skip
         raise_for_status(status, start, (l, w), grid_map)
         if n_path <= capacity:
             break
         capacity = n_path
-    m = prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w)
+    m = prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w, n_bound)
+    nodes = path[:n_path].copy()
+    placements = nodes if prepared.planner is Planner.FIT else nodes * np.array([l, w], dtype=np.int32)
     return CoverageResult(
         theta=theta,
         feasible=True,
@@ -214,17 +288,21 @@ def plan_coverage(
         path_length_cells=int(m.path_length_cells),
         footprint_m=(footprint.width_m, footprint.length_m),
         footprint_cells=(l, w),
-        path_tiles=path[:n_path].copy(),
+        path_tiles=nodes,
         covered=covered.astype(bool),
+        coverable_pct=float(m.coverable_pct),
+        planner=prepared.planner.value,
+        placements=placements,
+        footprint=f,
     )
 
 
 def path_points_m(result: CoverageResult, grid_map: Map) -> np.ndarray:
-    """Path as (x, y) metres in the map frame: the centre of the footprint's box on each tile."""
-    if result.path_tiles is None:
+    """Path as (x, y) metres in the map frame: the centre of the footprint's box at each robot position."""
+    if result.placements is None:
         raise SmorphiError("this result was computed without its path")
     l, w = result.footprint_cells
     r = grid_map.resolution_m
-    rows = result.path_tiles[:, 0] * l + l / 2.0
-    cols = result.path_tiles[:, 1] * w + w / 2.0
+    rows = result.placements[:, 0] + l / 2.0
+    cols = result.placements[:, 1] + w / 2.0
     return np.column_stack([grid_map.origin[0] + cols * r, grid_map.origin[1] + rows * r])

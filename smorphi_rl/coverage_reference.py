@@ -8,8 +8,10 @@ exactly as written; nothing here is optimised.
 from __future__ import annotations
 
 from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from itertools import pairwise
+from typing import Any
 
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, footprint_matrix, footprint_size, is_feasible
 from smorphi_rl.maps import Cell, Map
@@ -32,27 +34,8 @@ class ReferencePlan:
         return len(self.path) - 1
 
 
-def plan_reference(cells: list[list[int]], f: list[list[bool]], start: Tile | None = None) -> ReferencePlan:
-    """Wavefront coverage of the map `cells` (row 0 lowest y) with footprint `f` (l x w)."""
-    h, wd = len(cells), len(cells[0])
-    l, w = len(f), len(f[0])
-    nr, nc = -(-h // l), -(-wd // w)
-
-    def traversable(t: Tile) -> bool:
-        a, b = t
-        return any(
-            cells[i][j] == Cell.FREE for i in range(a * l, min(a * l + l, h)) for j in range(b * w, min(b * w + w, wd))
-        )
-
-    trav = {(a, b) for a in range(nr) for b in range(nc) if traversable((a, b))}
-
-    def neighbours(t: Tile) -> list[Tile]:
-        return [(t[0] + da, t[1] + db) for da, db in NEIGHBOURS if (t[0] + da, t[1] + db) in trav]
-
-    if start is None:
-        start = min(trav)
-    if start not in trav:
-        raise ValueError(f"start tile {start} is not traversable")
+def wavefront(start: Tile, neighbours: Callable[[Tile], list[Tile]]) -> list[Tile]:
+    """FBCPP.md section 5, steps 2-3, on any 4-connected graph given by `neighbours` (in neighbour order)."""
     dist = {start: 0}
     queue = deque([start])
     while queue:
@@ -87,6 +70,31 @@ def plan_reference(cells: list[list[int]], f: list[list[bool]], start: Tile | No
         path.extend(reversed(route))
         visited.update(route)
         cur = t
+    return path
+
+
+def plan_reference(cells: list[list[int]], f: list[list[bool]], start: Tile | None = None) -> ReferencePlan:
+    """Wavefront coverage of the map `cells` (row 0 lowest y) with footprint `f` (l x w)."""
+    h, wd = len(cells), len(cells[0])
+    l, w = len(f), len(f[0])
+    nr, nc = -(-h // l), -(-wd // w)
+
+    def traversable(t: Tile) -> bool:
+        a, b = t
+        return any(
+            cells[i][j] == Cell.FREE for i in range(a * l, min(a * l + l, h)) for j in range(b * w, min(b * w + w, wd))
+        )
+
+    trav = {(a, b) for a in range(nr) for b in range(nc) if traversable((a, b))}
+
+    def neighbours(t: Tile) -> list[Tile]:
+        return [(t[0] + da, t[1] + db) for da, db in NEIGHBOURS if (t[0] + da, t[1] + db) in trav]
+
+    if start is None:
+        start = min(trav)
+    if start not in trav:
+        raise ValueError(f"start tile {start} is not traversable")
+    path = wavefront(start, neighbours)
     covered: set[Tile] = set()
 
     def stamp(y: int, x: int) -> None:
@@ -134,3 +142,140 @@ def evaluate_reference(
         "path_length_cells": plan.n_ew * w + plan.n_ns * l,
         "path": plan.path,
     }
+
+
+# --- planner `fit` (docs/fbcpp-fit.md), literally as written there ---------------------------------
+
+
+@dataclass(frozen=True)
+class FitReferencePlan:
+    """Counts, start and path of one footprint-safe plan (docs/fbcpp-fit.md); placements are (row, col)."""
+
+    n_covered: int
+    n_bound: int
+    start: Tile | None
+    placements: list[Tile]
+    n_ew: int
+    n_ns: int
+
+    @property
+    def p_len(self) -> int:
+        return max(len(self.placements) - 1, 0)
+
+
+def free_areas(cells: list[list[int]]) -> list[set[Tile]]:
+    """The 4-connected areas of free cells, largest first (ties: the one holding the earliest cell)."""
+    h, wd = len(cells), len(cells[0])
+    seen: set[Tile] = set()
+    areas = []
+    for y in range(h):
+        for x in range(wd):
+            if cells[y][x] != Cell.FREE or (y, x) in seen:
+                continue
+            area, queue = {(y, x)}, deque([(y, x)])
+            seen.add((y, x))
+            while queue:
+                cy, cx = queue.popleft()
+                for dy, dx in NEIGHBOURS:
+                    n = (cy + dy, cx + dx)
+                    if 0 <= n[0] < h and 0 <= n[1] < wd and cells[n[0]][n[1]] == Cell.FREE and n not in seen:
+                        seen.add(n)
+                        area.add(n)
+                        queue.append(n)
+            areas.append(area)
+    return sorted(areas, key=lambda a: (-len(a), min(a)))
+
+
+def plan_fit_reference(cells: list[list[int]], f: list[list[bool]], start_cell: Tile | None = None) -> FitReferencePlan:
+    """The footprint-safe wavefront of docs/fbcpp-fit.md on `cells` (row 0 lowest y) with footprint `f`."""
+    h, wd = len(cells), len(cells[0])
+    l, w = len(f), len(f[0])
+    stamp_cells = [(i, j) for i in range(l) for j in range(w) if f[i][j]]
+
+    def safe(p: Tile) -> bool:
+        return all(0 <= p[0] + i < h and 0 <= p[1] + j < wd and cells[p[0] + i][p[1] + j] == Cell.FREE
+                   for i, j in stamp_cells)  # fmt: skip
+
+    placements = sorted(p for p in ((y, x) for y in range(h) for x in range(wd)) if safe(p))
+    safe_set = set(placements)
+
+    def component(p0: Tile) -> set[Tile]:
+        found, queue = {p0}, deque([p0])
+        while queue:
+            p = queue.popleft()
+            for dy, dx in NEIGHBOURS:
+                q = (p[0] + dy, p[1] + dx)
+                if q in safe_set and q not in found:
+                    found.add(q)
+                    queue.append(q)
+        return found
+
+    if start_cell is not None:  # every safe placement whose stamp holds the start cell
+        candidates = [p for p in placements if (start_cell[0] - p[0], start_cell[1] - p[1]) in stamp_cells]
+    else:  # the component of placements with the most in the largest free area; its first in each lattice class
+        areas = free_areas(cells)
+        first_i, first_j = stamp_cells[0]
+        inside = [p for p in placements if areas and (p[0] + first_i, p[1] + first_j) in areas[0]]
+        best_group: tuple[int, set[Tile]] | None = None
+        done: set[Tile] = set()
+        for p in inside:
+            if p not in done:
+                group = component(p)
+                done |= group
+                size = sum(1 for q in inside if q in group)
+                if best_group is None or size > best_group[0]:
+                    best_group = (size, group)
+        classes: dict[Tile, Tile] = {}
+        for p in inside:
+            if best_group is not None and p in best_group[1]:
+                classes.setdefault((p[0] % l, p[1] % w), p)
+        candidates = sorted(classes.values())
+    best: tuple[tuple[int, int, int], FitReferencePlan] | None = None
+    for order, start in enumerate(candidates):
+        plan = _fit_walk(safe, stamp_cells, l, w, start)
+        key = (-plan.n_covered, plan.p_len, order)
+        if best is None or key < best[0]:
+            best = (key, plan)
+    if best is None:
+        return FitReferencePlan(0, 0, None, [], 0, 0)
+    plan = best[1]
+    start = plan.placements[0]
+    bound = {(p[0] + i, p[1] + j) for p in component(start) for i, j in stamp_cells}
+    return FitReferencePlan(plan.n_covered, len(bound), start, plan.placements, plan.n_ew, plan.n_ns)
+
+
+def _fit_walk(safe: Any, stamp_cells: list[Tile], l: int, w: int, start: Tile) -> FitReferencePlan:
+    """The wavefront on the lattice of placements through `start` (docs/fbcpp-fit.md section 5); no bound."""
+    oy, ox = start[0] % l, start[1] % w
+
+    def node(t: Tile) -> Tile:
+        return (oy + t[0] * l, ox + t[1] * w)
+
+    def passable(t: Tile, u: Tile) -> bool:
+        p, q = node(t), node(u)
+        if not (u[0] >= 0 and u[1] >= 0 and safe(q)):
+            return False
+        steps = w if p[0] == q[0] else l
+        dy, dx = (q[0] - p[0]) // steps, (q[1] - p[1]) // steps
+        return all(safe((p[0] + dy * k, p[1] + dx * k)) for k in range(steps + 1))
+
+    def neighbours(t: Tile) -> list[Tile]:
+        return [u for u in ((t[0] + da, t[1] + db) for da, db in NEIGHBOURS) if passable(t, u)]
+
+    path = wavefront(((start[0] - oy) // l, (start[1] - ox) // w), neighbours)
+    covered: set[Tile] = set()
+
+    def stamp(p: Tile) -> None:
+        assert safe(p), f"placement {p} is not safe"  # the edge rule guarantees it
+        covered.update((p[0] + i, p[1] + j) for i, j in stamp_cells)
+
+    stamp(node(path[0]))
+    n_ew = n_ns = 0
+    for t, u in pairwise(path):
+        p, q = node(t), node(u)
+        steps = w if p[0] == q[0] else l
+        n_ew, n_ns = (n_ew + 1, n_ns) if p[0] == q[0] else (n_ew, n_ns + 1)
+        dy, dx = (q[0] - p[0]) // steps, (q[1] - p[1]) // steps
+        for k in range(1, steps + 1):
+            stamp((p[0] + dy * k, p[1] + dx * k))
+    return FitReferencePlan(len(covered), 0, start, [node(t) for t in path], n_ew, n_ns)

@@ -17,6 +17,7 @@ from smorphi_rl.coverage import (
     AUTO_START,
     CoverageResult,
     Footprint,
+    Planner,
     PreparedMap,
     Start,
     plan_coverage,
@@ -27,7 +28,7 @@ from smorphi_rl.errors import MorphologyError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import Map
 
-_PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS]  # what the cache holds per F
+_PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_BOUND]  # what the cache holds per F
 
 
 @dataclass(frozen=True, eq=False)
@@ -43,6 +44,8 @@ class BatchResult:
     path_length_cells: np.ndarray  # (N,) int
     footprint_cells: np.ndarray  # (N, 2) int: l, w
     footprint_m: np.ndarray  # (N, 2): w_fp, l_fp
+    coverable_pct: np.ndarray
+    planner: str = Planner.PAPER.value
 
     def __len__(self) -> int:
         return int(self.theta.shape[0])
@@ -60,6 +63,8 @@ class BatchResult:
             path_length_cells=int(self.path_length_cells[i]),
             footprint_m=(float(self.footprint_m[i, 0]), float(self.footprint_m[i, 1])),
             footprint_cells=(l, w),
+            coverable_pct=float(self.coverable_pct[i]),
+            planner=self.planner,
         )
 
     def __iter__(self) -> Iterator[CoverageResult]:
@@ -78,6 +83,8 @@ class BatchResult:
                 self.feasible.tolist(),
                 self.footprint_cells.tolist(),
                 self.footprint_m.tolist(),
+                self.coverable_pct.tolist(),
+                [self.planner] * len(self),
                 strict=True,
             )
         )
@@ -98,7 +105,7 @@ def validate_thetas(thetas: np.ndarray) -> np.ndarray:
 class Evaluator:
     """FBCPP metrics of morphologies on one map, cached by footprint matrix.
 
-    One instance per map (and block side, start); the env keeps one per map for its lifetime."""
+    One instance per map (and block side, start, planner); the env keeps one per map for its lifetime."""
 
     def __init__(
         self,
@@ -106,12 +113,14 @@ class Evaluator:
         block_side_m: float = DEFAULT_BLOCK_SIDE_M,
         start: Start = AUTO_START,
         cache: bool = True,
+        planner: Planner = Planner.PAPER,
     ) -> None:
         self.block_side_m = check_block_side(block_side_m, grid_map.resolution_m)
         self.start = start
         self.use_cache = cache
+        self.planner = planner
         self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
-        self.prepared = PreparedMap(grid_map, pad_cells=2 * self._side)
+        self.prepared = PreparedMap(grid_map, pad_cells=2 * self._side, planner=planner)
         self._buf = np.zeros((self._side, self._side), dtype=np.uint8)
         self._no_covered = np.zeros((0, 0), dtype=np.uint8)
         self._no_path = np.zeros((0, 2), dtype=np.int32)
@@ -144,29 +153,25 @@ class Evaluator:
         """Metrics of one morphology (no path): the env's per-step call."""
         feasible, l, w, w_m, l_m = self._rasterise(morphology)
         if not feasible:
-            return CoverageResult(morphology.angles, False, 0.0, 0.0, 0, 0.0, 0, (w_m, l_m), (l, w))
+            return CoverageResult(morphology.angles, False, 0.0, 0.0, 0, 0.0, 0, (w_m, l_m), (l, w),
+                                  planner=self.planner.value)  # fmt: skip
         key = self._buf.tobytes()
         counts = self._cache.get(key) if self.use_cache else None
         if counts is None:
             self.misses += 1
-            status, *plan = k.plan_into(
-                self.prepared.padded,
-                self.prepared.free_prefix,
-                self._buf[:l, :w],
-                int(self.start.kind),
-                self.start.row,
-                self.start.col,
-                self._no_covered,
-                self._no_path,
-            )
+            prepared = self.prepared
+            status, *plan = k.plan_any(
+                self.planner.code, prepared.padded, prepared.free_prefix, prepared.area, self._buf[:l, :w],
+                int(self.start.kind), self.start.row, self.start.col, self._no_covered, self._no_path,
+            )  # fmt: skip
             raise_for_status(status, self.start, (l, w), self.grid_map)
-            counts = tuple(float(v) for v in plan[:4])
+            counts = tuple(float(plan[i]) for i in (0, 1, 2, 3, 5))  # covered, P_len, E/W, N/S, bound
             if self.use_cache:
                 self._cache[key] = counts
         else:
             self.hits += 1
-        n_cov, p_len, n_ew, n_ns = counts
-        m = self.prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w)
+        n_cov, p_len, n_ew, n_ns, n_bound = counts
+        m = self.prepared.metrics(n_cov, p_len, n_ew, n_ns, l, w, n_bound)
         return CoverageResult(
             theta=morphology.angles,
             feasible=True,
@@ -177,6 +182,8 @@ class Evaluator:
             path_length_cells=int(m.path_length_cells),
             footprint_m=(w_m, l_m),
             footprint_cells=(l, w),
+            coverable_pct=float(m.coverable_pct),
+            planner=self.planner.value,
         )
 
     def plan(self, morphology: Morphology) -> CoverageResult:
@@ -194,8 +201,9 @@ class Evaluator:
             self.start.row,
             self.start.col,
         )
+        code, area = self.planner.code, self.prepared.area
         if not self.use_cache:
-            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side)
+            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side, code, area)
             self.misses += int(out[:, k.COL_FEASIBLE].sum())
             self._check_statuses(out)
             return self._to_batch(arr, out)
@@ -216,7 +224,7 @@ class Evaluator:
         if missing:
             rows = np.flatnonzero(feasible)[first[missing]]
             shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
-            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side)
+            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side, code, area)
             fresh[:, [k.COL_L, k.COL_W]] = shapes
             self._check_statuses(fresh)
             plans[missing] = fresh[:, _PLAN_COLS]
@@ -236,7 +244,8 @@ class Evaluator:
         feasible = out[:, k.COL_FEASIBLE] > 0
         l, w = out[:, k.COL_L], out[:, k.COL_W]
         n_cov = np.where(feasible, out[:, k.COL_COVERED], 0.0)
-        m = self.prepared.metrics(n_cov, out[:, k.COL_PLEN], out[:, k.COL_EW], out[:, k.COL_NS], l, w)
+        n_bound = np.where(feasible, out[:, k.COL_BOUND], 0.0)
+        m = self.prepared.metrics(n_cov, out[:, k.COL_PLEN], out[:, k.COL_EW], out[:, k.COL_NS], l, w, n_bound)
         return BatchResult(
             theta=thetas,
             feasible=feasible,
@@ -247,6 +256,8 @@ class Evaluator:
             path_length_cells=m.path_length_cells.astype(np.int64),
             footprint_cells=np.column_stack([l, w]).astype(np.int64),
             footprint_m=out[:, [k.COL_W_M, k.COL_L_M]],
+            coverable_pct=np.asarray(m.coverable_pct, dtype=float),
+            planner=self.planner.value,
         )
 
 

@@ -78,21 +78,21 @@ def draw_coverage(
 ) -> None:
     """The map with the covered area, (optionally) the tile grid, the coverage path and the robot at its start."""
     draw_map(ax, grid_map, result.covered)
-    if not (result.feasible and result.path_tiles is not None and len(result.path_tiles)):
+    if not (result.feasible and result.placements is not None and len(result.placements)):
         return
     r = grid_map.resolution_m
     l, w = result.footprint_cells
     x0, x1, y0, y1 = _extent(grid_map)
-    if tiles:
-        for x in np.arange(x0, x1 + 1e-9, w * r):
+    row0, col0 = (int(v) for v in result.placements[0])
+    if tiles:  # the lattice the path moves on (the paper's tiles start at the map's corner)
+        for x in np.arange(x0 + (col0 % w) * r, x1 + 1e-9, w * r):
             ax.axvline(x, color="#4a90d9", lw=0.4, alpha=0.5)
-        for y in np.arange(y0, y1 + 1e-9, l * r):
+        for y in np.arange(y0 + (row0 % l) * r, y1 + 1e-9, l * r):
             ax.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
     pts = path_points_m(result, grid_map)
     ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=1.4, label="coverage path")
     ax.plot(pts[0, 0], pts[0, 1], "o", color="#d62728", ms=6, label="start")
-    a, b = (int(v) for v in result.path_tiles[0])
-    draw_morphology(ax, morphology, block_side_m, (x0 + b * w * r, y0 + a * l * r))
+    draw_morphology(ax, morphology, block_side_m, (x0 + col0 * r, y0 + row0 * r))
 
 
 def plot_coverage(

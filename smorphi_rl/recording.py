@@ -123,12 +123,11 @@ def grid_message(grid_map: Map, ns: int) -> dict[str, Any]:
 def robot_offset(plan: CoverageResult, grid_map: Map) -> tuple[float, float]:
     """Where the footprint's lower-left corner sits: the first tile of the coverage path (else the map origin)."""
     x0, y0 = float(grid_map.origin[0]), float(grid_map.origin[1])
-    if not (plan.feasible and plan.path_tiles is not None and len(plan.path_tiles)):
+    if not (plan.feasible and plan.placements is not None and len(plan.placements)):
         return x0, y0
-    l, w = plan.footprint_cells
-    a, b = (int(v) for v in plan.path_tiles[0])
+    row, col = (int(v) for v in plan.placements[0])
     r = grid_map.resolution_m
-    return x0 + b * w * r, y0 + a * l * r
+    return x0 + col * r, y0 + row * r
 
 
 def _entity(entity_id: str, ns: int, theta: tuple[float, ...], **primitives: list[Any]) -> dict[str, Any]:
@@ -142,7 +141,7 @@ def _entity(entity_id: str, ns: int, theta: tuple[float, ...], **primitives: lis
 
 def path_line(plan: CoverageResult, grid_map: Map) -> dict[str, Any] | None:
     """The coverage path as a foxglove LinePrimitive (LINE_STRIP); None for an infeasible shape."""
-    if not (plan.feasible and plan.path_tiles is not None and len(plan.path_tiles)):
+    if not (plan.feasible and plan.placements is not None and len(plan.placements)):
         return None
     pts = np.round(path_points_m(plan, grid_map), 4).tolist()
     return {
