@@ -76,7 +76,7 @@ class Start:
 
     def describe(self) -> str:
         return {
-            StartKind.AUTO: "default start",
+            StartKind.AUTO: "first traversable tile",
             StartKind.TILE: f"tile ({self.row}, {self.col})",
             StartKind.CELL: f"cell ({self.row}, {self.col})",
         }[self.kind]

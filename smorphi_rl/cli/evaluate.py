@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, seed_arg
-from smorphi_rl.coverage import CoverageResult, Start
+from smorphi_rl.coverage import PLANNERS, CoverageResult, Planner, Start
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Cell, Map, load_map
@@ -30,7 +30,14 @@ def register(sub: Any) -> None:
     ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
     ev.add_argument("--block-side", type=float, default=DEFAULT_BLOCK_SIDE_M, help="block side in metres")
-    ev.add_argument("--start", help="start tile 'tile:A,B' or free point 'xy:X,Y' in metres (default: first tile)")
+    ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
+                    "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
+    ev.add_argument("--planner", choices=PLANNERS, default=Planner.PAPER.value,
+                    help="paper: FBCPP.md (the robot may stand over obstacles); fit: docs/fbcpp-fit.md (never over "
+                    "an occupied, unknown or outside cell)")  # fmt: skip
+    ev.add_argument("--path", action="store_true",
+                    help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
+                    "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip
     ev.set_defaults(func=cmd_evaluate)
 
     maps = sub.add_parser("maps", help="generate or inspect maps")
@@ -137,12 +144,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
     if args.angles_file is not None and args.plot is not None:
         raise SmorphiError("--plot draws one morphology: use it with --angles")
+    if args.path and not (args.json and args.angles):
+        raise SmorphiError("--path adds the plan to --json output of one morphology: use it with --angles and --json")
     if not args.block_side > 0:
         raise SmorphiError(f"--block-side must be > 0 m, got {args.block_side}")
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
-    evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map))
+    evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
+                          planner=Planner(args.planner))  # fmt: skip
     if thetas is not None:
         batch = evaluator.evaluate_many(thetas)
         if args.json:
@@ -154,17 +164,35 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
-    result = evaluator.plan(morphology) if args.plot else evaluator.evaluate(morphology)
+    fit = evaluator.planner is Planner.FIT
+    result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
     plot_path = None
     if args.plot:
         from smorphi_rl.plots import plot_coverage
 
         plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
     if args.json:
-        print(json.dumps(result.to_dict()))
+        record = result.to_dict()
+        if args.path:
+            record["footprint"] = [] if result.footprint is None else result.footprint.astype(int).tolist()
+            record["placements"] = [] if result.placements is None else result.placements.tolist()
+        print(json.dumps(record))
         return 0
-    print(format_result(result, grid_map, evaluator.start.describe(), plot_path))
+    print(format_result(result, grid_map, start_text(evaluator, result), plot_path))
     return 0
+
+
+def start_text(evaluator: Any, result: CoverageResult) -> str:
+    """Where the plan starts, as the report says it (the fit planner names the area and the placement)."""
+    if evaluator.planner is not Planner.FIT:
+        return str(evaluator.start.describe())
+    prepared = evaluator.prepared
+    where = (f"the largest free area ({100 * prepared.n_area / max(prepared.n_free, 1):.1f} % of the free cells)"
+             if evaluator.start.kind == 0 else evaluator.start.describe())  # fmt: skip
+    if result.placements is None or not len(result.placements):
+        return f"{where}: no safe position for this footprint, nothing covered"
+    row, col = (int(v) for v in result.placements[0])
+    return f"{where}, F's corner on cell ({row}, {col})"
 
 
 def _csv_row(r: CoverageResult) -> str:
@@ -185,9 +213,13 @@ def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: 
         ("theta", f"({theta}) deg"),
         ("feasible", "yes" if result.feasible else "no: blocks overlap, metrics are 0"),
         ("footprint", f"{result.footprint_m[0]:.3f} x {result.footprint_m[1]:.3f} m (w x l), F {l} x {w} cells"),
+        ("planner", result.planner),
         ("start", start),
-        ("P_c", f"{result.P_c:.4f} % (covered + obstacle cells over all known cells)"),
+        ("P_c", f"{result.P_c:.4f} % " + ("(covered free cells over all free cells)" if result.planner == "fit"
+                                          else "(covered + obstacle cells over all known cells)")),
         ("coverage", f"{result.coverage_free_pct:.4f} % of free cells"),
+        ("coverable", f"{result.coverable_pct:.4f} % of free cells (every safe position the start reaches)"
+                      if result.planner == "fit" else "every reachable tile (the paper's planner covers them all)"),
         ("P_len", f"{result.P_len} tile moves"),
         ("path length", f"{result.path_length_m:.2f} m ({result.path_length_cells} cells)"),
     ]  # fmt: skip
