@@ -56,7 +56,7 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from smorphi_rl.coverage import CoverageResult
+from smorphi_rl.coverage import PLANNERS, CoverageResult, Planner
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
@@ -120,11 +120,17 @@ class EnvConfig:
     for reproduction), improvement (R1 gained, scaled) or commit (R1 of the committed shape)."""
     step_cost: float = 0.0
     """`commit` mode: what every step that does not commit costs (in units of sigma_map)."""
+    planner: str = Planner.PAPER.value
+    """Coverage planner: paper (FBCPP.md; the robot may stand over obstacles) or fit (docs/fbcpp-fit.md)."""
 
     def __post_init__(self) -> None:
         if self.reward not in REWARD_MODES:
             raise EnvConfigError(
                 f"env_config 'reward': unknown mode '{self.reward}' (choose from {', '.join(REWARD_MODES)})"
+            )
+        if self.planner not in PLANNERS:
+            raise EnvConfigError(
+                f"env_config 'planner': unknown planner '{self.planner}' (choose from {', '.join(PLANNERS)})"
             )
         if self.step_cost < 0:
             raise EnvConfigError(f"env_config 'step_cost' must be >= 0, got {self.step_cost}")
@@ -178,6 +184,10 @@ def _coerce(name: str, value: Any) -> Any:
             if not isinstance(value, str | RewardMode):
                 raise TypeError
             return RewardMode(value).value if value in REWARD_MODES else str(value)
+        if name == "planner":
+            if not isinstance(value, str | Planner):
+                raise TypeError
+            return Planner(value).value if value in PLANNERS else str(value)
         if name in ("max_steps", "obs_size"):
             if isinstance(value, bool) or int(value) != value:
                 raise TypeError
@@ -213,12 +223,12 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float) -> tuple[float, float]:
+def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float, planner: str = "paper") -> tuple[float, float]:
     """(mu_map, sigma_map): mean and standard deviation of R1 over SIGMA_SAMPLES seeded random integer shapes
     on the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
-    batch = Evaluator(load_map(map_path), block_side_m).evaluate_many(thetas)
+    batch = Evaluator(load_map(map_path), block_side_m, planner=Planner(planner)).evaluate_many(thetas)
     values = r1(batch.P_c, batch.P_len, w1, w2)
     return float(np.mean(values)), max(float(np.std(values)), 1e-6)
 
@@ -241,10 +251,11 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._scores: dict[tuple[int, int, int, int], dict[str, Any]] = {}
         self._map_obs = [self._map_channels(m) for m in self._maps]
         self._mode = RewardMode(self.config.reward)
+        cfg = self.config
         self._stats = [
-            r1_stats(p, self.config.w1, self.config.w2, self.config.block_side_m) if self._mode is not RewardMode.PAPER
+            r1_stats(p, cfg.w1, cfg.w2, cfg.block_side_m, cfg.planner) if self._mode is not RewardMode.PAPER
             else (0.0, 1.0)
-            for p in self.config.maps
+            for p in cfg.maps
         ]  # fmt: skip
         self._lattice_max = round(180 / self.config.angle_step_deg)
         size = self.config.obs_size
@@ -280,7 +291,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def _evaluator(self) -> Evaluator:
         if self._map_index not in self._evaluators:
-            self._evaluators[self._map_index] = Evaluator(self._maps[self._map_index], self.config.block_side_m)
+            self._evaluators[self._map_index] = Evaluator(
+                self._maps[self._map_index], self.config.block_side_m, planner=Planner(self.config.planner)
+            )
         return self._evaluators[self._map_index]
 
     @property

@@ -138,31 +138,36 @@ class MapEvaluation:
                 "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
 
 
-def map_key(map_path: str, w1: float, w2: float, block_side_m: float) -> str:
-    """A digest of the map's cells and resolution and the weights: what the optimum depends on."""
+def map_key(map_path: str, w1: float, w2: float, block_side_m: float, planner: str = "paper") -> str:
+    """A digest of the map's cells and resolution, the weights and the planner: what the optimum depends on
+    (the paper planner's keys are those from before there was a choice, so their cached optima stay valid)."""
     from smorphi_rl.maps import load_map
 
     grid_map = load_map(map_path)
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
     h.update(json.dumps([grid_map.cells.shape, grid_map.resolution_m, w1, w2, block_side_m]).encode())
+    if planner != "paper":
+        h.update(planner.encode())
     return h.hexdigest()
 
 
 @lru_cache(maxsize=32)
-def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, block_side_m: float) -> Optimum:
+def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, block_side_m: float, planner: str) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
-    result = run_exhaustive(map_path, 1.0, block_side_m)
+    result = run_exhaustive(map_path, 1.0, block_side_m, planner=planner)
     return Optimum.of(result.thetas, result.P_c, result.P_len, w1, w2)
 
 
-def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cache_dir: Path | None = None) -> Optimum:
+def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cache_dir: Path | None = None,
+                  planner: str = "paper") -> Optimum:  # fmt: skip
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
-    process and, given `cache_dir`, in a small JSON file there keyed by the map's content and the weights."""
+    process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
+    the planner."""
     from smorphi_rl.rundir import write_atomic
 
-    key = map_key(map_path, w1, w2, block_side_m)
+    key = map_key(map_path, w1, w2, block_side_m, planner)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
         try:
@@ -170,7 +175,7 @@ def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cach
             return Optimum(tuple(raw["theta"]), float(raw["R1"]), float(raw["P_c"]), int(raw["P_len"]))  # type: ignore[arg-type]
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a damaged cache entry is recomputed and rewritten
-    optimum = _optimum_in_process(key, str(map_path), w1, w2, block_side_m)
+    optimum = _optimum_in_process(key, str(map_path), w1, w2, block_side_m, planner)
     if file is not None:
         file.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(file, json.dumps(asdict(optimum)).encode())

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import os
+from itertools import pairwise
+from pathlib import Path
+
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, settings
@@ -39,6 +43,21 @@ CORRIDOR = """
 ######..######
 """
 
+WALLED = """
+################
+#......#.......#
+#......#.......#
+#..............#
+#..............#
+#.....???......#
+#.....???......#
+#..............#
+#....####......#
+#..............#
+################
+"""
+"""docs/fbcpp-fit.md section 8: a walled room with an unknown patch."""
+
 GOLDEN_THETAS = [(0, 0, 0), (0, 180, 0), (90, 90, 90), (95, 59, 103), (15, 15, 39)]
 
 
@@ -50,6 +69,34 @@ def room12() -> Map:
 @pytest.fixture(scope="session")
 def corridor() -> Map:
     return Map.from_text(CORRIDOR, 0.1, name="corridor")
+
+
+@pytest.fixture(scope="session")
+def walled() -> Map:
+    return Map.from_text(WALLED, 0.1, name="walled")
+
+
+REALMAPS = Path(os.environ.get("SMORPHI_RL_REALMAPS", Path(__file__).resolve().parents[2] / "shared" / "realmaps"))
+"""Real ROS maps recorded by robots (the workplace's shared/realmaps, beside the project; not copied into it)."""
+
+
+def realmap(name: str) -> Path:
+    """The map_server YAML of a real map, or skip the test where the shared maps are not beside the project."""
+    path = REALMAPS / f"{name}.yaml"
+    if not path.is_file():
+        pytest.skip(f"real map {path} not found (set SMORPHI_RL_REALMAPS)")
+    return path
+
+
+def sweep_positions(placements: list[list[int]]) -> list[tuple[int, int]]:
+    """Every position of F's corner along a plan: its placements and each one-cell shift of the straight moves
+    between them (docs/fbcpp-fit.md section 6; FBCPP.md section 6 for the paper's tiles)."""
+    out = [(int(placements[0][0]), int(placements[0][1]))]
+    for (r0, c0), (r1, c1) in pairwise(placements):
+        steps = abs(r1 - r0) + abs(c1 - c0)
+        assert steps > 0 and (r0 == r1 or c0 == c1), "a move is one straight lattice step"
+        out += [(r0 + (r1 - r0) * k // steps, c0 + (c1 - c0) * k // steps) for k in range(1, steps + 1)]
+    return out
 
 
 def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_unknown: float = 0.0) -> Map:

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from conftest import sweep_positions
 from PIL import Image
 
 from smorphi_rl.cli import main
@@ -39,6 +40,33 @@ def test_evaluate_json(capsys):
     assert code == 0 and doc.keys() >= JSON_KEYS
     assert doc["theta"] == [0, 180, 0] and doc["footprint_cells"] == [3, 3] and doc["feasible"] is True
     assert doc["P_c"] == 100.0  # the O-shape fills its tile
+
+
+@pytest.mark.parametrize("planner", ["paper", "fit"])
+def test_evaluate_json_path_lets_anyone_check_the_plan(capsys, planner):
+    """--path adds F and the robot's placements: re-stamping F there must give the reported coverage."""
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--json", "--path",
+                       "--planner", planner)  # fmt: skip
+    doc = json.loads(out)
+    assert code == 0 and doc["planner"] == planner and len(doc["placements"]) == doc["P_len"] + 1
+    f = np.array(doc["footprint"], dtype=bool)
+    assert f.shape == tuple(doc["footprint_cells"])
+    from smorphi_rl.maps import Cell, load_map
+
+    grid = load_map(MAP_1).cells
+    swept = np.zeros_like(grid, dtype=bool)
+    rows, cols = np.nonzero(f)
+    for r, c in sweep_positions(doc["placements"]):
+        inside = (r + rows < grid.shape[0]) & (c + cols < grid.shape[1])
+        swept[r + rows[inside], c + cols[inside]] = True
+    covered = swept & (grid == Cell.FREE)
+    assert covered.sum() == round(doc["coverage_free_pct"] * (grid == Cell.FREE).sum() / 100)
+    assert planner == "paper" or not (swept & (grid != Cell.FREE)).any()
+
+
+def test_evaluate_path_needs_json_and_one_shape(capsys):
+    code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--path")
+    assert code != 0 and "--path" in err and "Traceback" not in err
 
 
 def test_angles_file_json_lines_in_input_order(capsys, tmp_path):

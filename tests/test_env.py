@@ -206,6 +206,20 @@ def test_unknown_reward_mode_is_named():
         MorphologyEnv({"reward": "greedy"})
 
 
+def test_unknown_planner_is_named():
+    with pytest.raises(EnvConfigError, match="env_config 'planner': unknown planner 'astar'"):
+        MorphologyEnv({"planner": "astar"})
+
+
+def test_fit_planner_scores_every_step_with_the_footprint_safe_plan():
+    env = MorphologyEnv({"planner": "fit", "reward": "paper"})
+    _, info = env.reset(seed=0, options={"theta": (0.0, 180.0, 0.0)})
+    assert info["P_c"] == info["coverage_free_pct"] < 100.0  # the O-shape no longer covers the walls it stood on
+    paper = MorphologyEnv({"reward": "paper"})
+    _, paper_info = paper.reset(seed=0, options={"theta": (0.0, 180.0, 0.0)})
+    assert paper_info["P_c"] == 100.0 and paper_info["P_len"] > info["P_len"]
+
+
 def test_block_smaller_than_a_cell_is_refused_before_any_planning():
     with pytest.raises(EnvConfigError, match="smaller than one cell"):
         MorphologyEnv({"block_side_m": 0.01})

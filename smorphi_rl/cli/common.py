@@ -82,6 +82,16 @@ def weight_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
 
 
+def planner_option(parser: argparse.ArgumentParser, default: str | None) -> None:
+    """--planner paper|fit: which coverage planner scores shapes."""
+    from smorphi_rl.coverage import PLANNERS
+
+    parser.add_argument("--planner", choices=PLANNERS, default=default,
+                        help="paper: FBCPP.md, the robot may stand over obstacles (the paper's model); fit: "
+                        "docs/fbcpp-fit.md, never over an occupied, unknown or outside cell "
+                        f"(default: {default or 'the env' + chr(39) + 's, paper'})")  # fmt: skip
+
+
 def weights(args: argparse.Namespace) -> EnvConfig:
     """The env configuration with --w1 / --w2 applied (validated there, defaults from there)."""
     from smorphi_rl.env import EnvConfig

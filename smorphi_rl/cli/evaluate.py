@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, seed_arg
-from smorphi_rl.coverage import PLANNERS, CoverageResult, Planner, Start
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, planner_option, seed_arg
+from smorphi_rl.coverage import CoverageResult, Planner, Start
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Cell, Map, load_map
@@ -32,9 +32,7 @@ def register(sub: Any) -> None:
     ev.add_argument("--block-side", type=float, default=DEFAULT_BLOCK_SIDE_M, help="block side in metres")
     ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
                     "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
-    ev.add_argument("--planner", choices=PLANNERS, default=Planner.PAPER.value,
-                    help="paper: FBCPP.md (the robot may stand over obstacles); fit: docs/fbcpp-fit.md (never over "
-                    "an occupied, unknown or outside cell)")  # fmt: skip
+    planner_option(ev, Planner.PAPER.value)
     ev.add_argument("--path", action="store_true",
                     help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
                     "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip

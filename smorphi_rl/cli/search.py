@@ -12,6 +12,7 @@ import numpy as np
 from smorphi_rl.cli.common import (
     DEFAULT_MAP,
     Parser,
+    planner_option,
     progress_line,
     rel,
     run_options,
@@ -43,6 +44,7 @@ def register(sub: Any) -> None:
         run_options(m)
         m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
         weight_options(m)
+        planner_option(m, "paper")
         if method == "random":
             m.add_argument("--samples", type=int, default=1000, help="shapes to draw")
         if method == "nsga2":
@@ -90,18 +92,19 @@ def _run(args: argparse.Namespace, w1: float, w2: float) -> Any:
     if args.method == "exhaustive":
         from smorphi_rl.search.exhaustive import run_exhaustive
 
-        return run_exhaustive(map_path, args.step, progress=progress_line("exhaustive"))
+        return run_exhaustive(map_path, args.step, progress=progress_line("exhaustive"), planner=args.planner)
     if args.method == "random":
         from smorphi_rl.search.random import run_random
 
-        return run_random(map_path, args.samples, args.seed)
+        return run_random(map_path, args.samples, args.seed, planner=args.planner)
     if args.method in ("hillclimb", "anneal"):
         from smorphi_rl.search.local import run_local_search
 
-        return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, {"w1": w1, "w2": w2})
+        env = {"w1": w1, "w2": w2, "planner": args.planner}
+        return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, env)
     from smorphi_rl.search.nsga2 import run_nsga2
 
-    return run_nsga2(map_path, args.pop, args.generations, args.seed)
+    return run_nsga2(map_path, args.pop, args.generations, args.seed, planner=args.planner)
 
 
 def cmd_search(args: argparse.Namespace) -> int:

@@ -13,6 +13,7 @@ from smorphi_rl.cli.common import (
     EXIT_INTERRUPTED,
     PROG,
     map_paths,
+    planner_option,
     record_option,
     rel,
     run_options,
@@ -83,6 +84,7 @@ def _register_train(sub: Any) -> None:
     tr.add_argument("--reward", choices=REWARD_MODES, default=None,
                     help="reward mode (ENV.md): level, paper, improvement or commit (default: the env's)")  # fmt: skip
     weight_options(tr)
+    planner_option(tr, None)
     tr.add_argument("--env-runners", type=int, default=None, metavar="N",
                     help="remote env runners; 0 samples in the trial process (default: the preset's, "
                          "0 for PPO and 2 for IMPALA/APPO on the fast preset)")  # fmt: skip
@@ -101,7 +103,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from smorphi_rl.env import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
-    env_options = {"maps": map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2}
+    env_options = {"maps": map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2,
+                   "planner": args.planner}  # fmt: skip
     cfg = TrainConfig(
         algo=args.algo,
         env=EnvConfig.from_dict({k: v for k, v in env_options.items() if v is not None}),
