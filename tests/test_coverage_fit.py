@@ -113,3 +113,15 @@ def test_on_a_real_floor_the_robot_never_stands_over_anything_but_free_cells(the
     paper = Evaluator(grid_map).plan(morphology)
     paper_under = {c for p in paper.placements.tolist() for c in _cells_under(f, *p, grid_map.cells.shape)}
     assert (-1, -1) in paper_under or any(grid_map.cells[c] != Cell.FREE for c in paper_under)
+
+
+def test_a_corridor_narrower_than_every_footprint_covers_nothing(corridor):
+    batch = Evaluator(corridor, planner=Planner.FIT).evaluate_many(np.array(GOLDEN_THETAS, dtype=float))
+    assert batch.feasible.all() and not batch.P_c.any() and not batch.P_len.any() and not batch.coverable_pct.any()
+
+
+def test_a_tile_start_is_refused_by_the_fit_planner(room12):
+    from smorphi_rl.errors import SmorphiError
+
+    with pytest.raises(SmorphiError, match="fit planner has no tiles"):
+        Evaluator(room12, start=Start.tile(0, 0), planner=Planner.FIT).evaluate(Morphology.of((0, 180, 0)))
