@@ -58,7 +58,7 @@ from gymnasium import spaces
 
 from smorphi_rl.coverage import PLANNERS, CoverageResult, Planner
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator
+from smorphi_rl.evaluate import Evaluator, Planning
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
 from smorphi_rl.score import r1
@@ -122,6 +122,9 @@ class EnvConfig:
     """`commit` mode: what every step that does not commit costs (in units of sigma_map)."""
     planner: str = Planner.PAPER.value
     """Coverage planner: paper (FBCPP.md; the robot may stand over obstacles) or fit (docs/fbcpp-fit.md)."""
+    start_xy: tuple[float, float] | None = None
+    """Where every coverage plan starts: a free point (x, y) in metres, map frame; None: the planner's default
+    (paper: the first traversable tile; fit: in the largest free area)."""
 
     def __post_init__(self) -> None:
         if self.reward not in REWARD_MODES:
@@ -169,6 +172,11 @@ class EnvConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def planning(self) -> Planning:
+        """How this env plans every shape (block side, planner, start)."""
+        return Planning(self.block_side_m, Planner(self.planner), self.start_xy)
+
 
 def _coerce(name: str, value: Any) -> Any:
     """Check one env_config value's type; lists become tuples, numbers floats or ints."""
@@ -178,6 +186,13 @@ def _coerce(name: str, value: Any) -> Any:
             return tuple(str(Path(v).resolve()) for v in items)
         if name == "start_theta":
             return None if value is None else tuple(float(v) for v in value)
+        if name == "start_xy":
+            if value is None:
+                return None
+            point = tuple(_real(v) for v in value)
+            if len(point) != 2:
+                raise TypeError
+            return point
         if name == "coverage_threshold":
             return None if value is None else _real(value)
         if name == "reward":
@@ -223,12 +238,12 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
 
 
 @lru_cache(maxsize=64)
-def r1_stats(map_path: str, w1: float, w2: float, block_side_m: float, planner: str = "paper") -> tuple[float, float]:
+def r1_stats(map_path: str, w1: float, w2: float, planning: Planning) -> tuple[float, float]:
     """(mu_map, sigma_map): mean and standard deviation of R1 over SIGMA_SAMPLES seeded random integer shapes
     on the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
-    batch = Evaluator(load_map(map_path), block_side_m, planner=Planner(planner)).evaluate_many(thetas)
+    batch = planning.evaluator(load_map(map_path)).evaluate_many(thetas)
     values = r1(batch.P_c, batch.P_len, w1, w2)
     return float(np.mean(values)), max(float(np.std(values)), 1e-6)
 
@@ -246,6 +261,10 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 check_block_side(self.config.block_side_m, grid_map.resolution_m)
             except SmorphiError as exc:
                 raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
+            try:
+                self.config.planning.start_on(grid_map)
+            except SmorphiError as exc:
+                raise EnvConfigError(f"env_config 'start_xy': {exc}") from None
         self._evaluators: dict[int, Evaluator] = {}
         self._plans: dict[tuple[int, bool, tuple[int, ...], bytes], CoverageResult] = {}
         self._scores: dict[tuple[int, int, int, int], dict[str, Any]] = {}
@@ -253,7 +272,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._mode = RewardMode(self.config.reward)
         cfg = self.config
         self._stats = [
-            r1_stats(p, cfg.w1, cfg.w2, cfg.block_side_m, cfg.planner) if self._mode is not RewardMode.PAPER
+            r1_stats(p, cfg.w1, cfg.w2, cfg.planning) if self._mode is not RewardMode.PAPER
             else (0.0, 1.0)
             for p in cfg.maps
         ]  # fmt: skip
@@ -291,9 +310,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def _evaluator(self) -> Evaluator:
         if self._map_index not in self._evaluators:
-            self._evaluators[self._map_index] = Evaluator(
-                self._maps[self._map_index], self.config.block_side_m, planner=Planner(self.config.planner)
-            )
+            self._evaluators[self._map_index] = self.config.planning.evaluator(self._maps[self._map_index])
         return self._evaluators[self._map_index]
 
     @property

@@ -261,6 +261,37 @@ class Evaluator:
         )
 
 
+@dataclass(frozen=True)
+class Planning:
+    """How every shape on a map is planned: the block side, the planner and the start point. The one value
+    handed to whatever scores shapes (the env, the searches, the exact optimum, the reward scales), so
+    they all plan alike; hashable, so per-map figures can be cached under it."""
+
+    block_side_m: float = DEFAULT_BLOCK_SIDE_M
+    planner: Planner = Planner.PAPER
+    start_xy: tuple[float, float] | None = None
+    """A free point (metres, map frame) the plan starts from; None: the planner's default start."""
+
+    def start_on(self, grid_map: Map) -> Start:
+        """The start on `grid_map` (the point must be free there)."""
+        return AUTO_START if self.start_xy is None else Start.point(grid_map, *self.start_xy)
+
+    def evaluator(self, grid_map: Map, cache: bool = True) -> Evaluator:
+        """An evaluator that plans this way on `grid_map`."""
+        return Evaluator(grid_map, self.block_side_m, self.start_on(grid_map), cache, self.planner)
+
+    def key(self) -> list[object]:
+        """What a cache of results keys on (the paper planner's default start keeps its old key)."""
+        key: list[object] = [self.block_side_m]
+        if self.planner is not Planner.PAPER or self.start_xy is not None:
+            key += [self.planner.value, None if self.start_xy is None else list(self.start_xy)]
+        return key
+
+
+PAPER_PLANNING = Planning()
+"""The paper's planning: FBCPP.md with its default start and the commercial block."""
+
+
 def lattice_thetas(step_deg: float) -> np.ndarray:
     """Every (t1, t2, t3) on the `step_deg` lattice of [0, 180]^3, as an (N, 3) array."""
     g = np.arange(0.0, 180.0 + 1e-9, step_deg)

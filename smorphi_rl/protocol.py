@@ -17,10 +17,14 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from smorphi_rl.score import r1
+
+if TYPE_CHECKING:
+    from smorphi_rl.evaluate import Planning
 
 EVAL_KEY = "eval"
 """The training result key of the periodic greedy evaluation (TensorBoard: ray/tune/eval/...)."""
@@ -138,36 +142,33 @@ class MapEvaluation:
                 "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
 
 
-def map_key(map_path: str, w1: float, w2: float, block_side_m: float, planner: str = "paper") -> str:
-    """A digest of the map's cells and resolution, the weights and the planner: what the optimum depends on
-    (the paper planner's keys are those from before there was a choice, so their cached optima stay valid)."""
+def map_key(map_path: str, w1: float, w2: float, planning: Planning) -> str:
+    """A digest of the map's cells and resolution, the weights and the planning: what the optimum depends on
+    (the paper planner's default keys are those from before there was a choice: their cached optima stay)."""
     from smorphi_rl.maps import load_map
 
     grid_map = load_map(map_path)
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
-    h.update(json.dumps([grid_map.cells.shape, grid_map.resolution_m, w1, w2, block_side_m]).encode())
-    if planner != "paper":
-        h.update(planner.encode())
+    h.update(json.dumps([grid_map.cells.shape, grid_map.resolution_m, w1, w2, *planning.key()]).encode())
     return h.hexdigest()
 
 
 @lru_cache(maxsize=32)
-def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, block_side_m: float, planner: str) -> Optimum:
+def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, planning: Planning) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
-    result = run_exhaustive(map_path, 1.0, block_side_m, planner=planner)
+    result = run_exhaustive(map_path, 1.0, planning)
     return Optimum.of(result.thetas, result.P_c, result.P_len, w1, w2)
 
 
-def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cache_dir: Path | None = None,
-                  planner: str = "paper") -> Optimum:  # fmt: skip
+def exact_optimum(map_path: str, w1: float, w2: float, planning: Planning, cache_dir: Path | None = None) -> Optimum:
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
-    the planner."""
+    the planning."""
     from smorphi_rl.rundir import write_atomic
 
-    key = map_key(map_path, w1, w2, block_side_m, planner)
+    key = map_key(map_path, w1, w2, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
         try:
@@ -175,7 +176,7 @@ def exact_optimum(map_path: str, w1: float, w2: float, block_side_m: float, cach
             return Optimum(tuple(raw["theta"]), float(raw["R1"]), float(raw["P_c"]), int(raw["P_len"]))  # type: ignore[arg-type]
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a damaged cache entry is recomputed and rewritten
-    optimum = _optimum_in_process(key, str(map_path), w1, w2, block_side_m, planner)
+    optimum = _optimum_in_process(key, str(map_path), w1, w2, planning)
     if file is not None:
         file.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(file, json.dumps(asdict(optimum)).encode())

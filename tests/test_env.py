@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
 
+from smorphi_rl.coverage import Planner
 from smorphi_rl.env import ENV_ID, EnvConfig, EnvConfigError, MorphologyEnv, resample
 from smorphi_rl.errors import SmorphiError
 
@@ -188,7 +189,7 @@ def test_level_reward_is_standardised_r1_without_penalty():
 
     env = MorphologyEnv({"reward": "level", "start_theta": [90, 90, 90]})
     _, info = env.reset(seed=0)
-    mu, sigma = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.block_side_m)
+    mu, sigma = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
     _, still, *_rest, info = env.step(NOOP)  # standing still costs nothing
     assert still == pytest.approx((info["R1"] - mu) / sigma)
 
@@ -232,3 +233,21 @@ def test_sibling_shares_tables_but_not_state():
     twin.reset(seed=2)
     assert twin._scores is env._scores and twin._evaluators is env._evaluators
     assert twin.np_random is not env.np_random and twin.theta != env.theta
+
+
+def test_start_xy_moves_every_plan_and_must_be_free():
+    default = MorphologyEnv({"planner": "fit", "reward": "paper"})
+    moved = MorphologyEnv({"planner": "fit", "reward": "paper", "start_xy": [4.65, 4.65]})
+    theta = {"theta": (0.0, 180.0, 0.0)}
+    assert moved.reset(seed=0, options=theta)[1]["P_len"] != default.reset(seed=0, options=theta)[1]["P_len"]
+    with pytest.raises(EnvConfigError, match=r"env_config 'start_xy'.*(occupied|outside)"):
+        MorphologyEnv({"start_xy": [-3.0, 0.2]})
+    with pytest.raises(EnvConfigError, match="env_config 'start_xy': bad value"):
+        MorphologyEnv({"start_xy": [1.0]})
+
+
+def test_the_paper_planning_keeps_its_cache_key():
+    """Optima cached before the planner became a choice stay valid: the default key is the block side alone."""
+    from smorphi_rl.evaluate import Planning
+
+    assert Planning().key() == [0.17] and Planning(planner=Planner.FIT).key() != [0.17]

@@ -17,6 +17,8 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
 if TYPE_CHECKING:
     from smorphi_rl.env import EnvConfig
+    from smorphi_rl.evaluate import Planning
+    from smorphi_rl.maps import Map
 
 PROG = "smorphi-rl"
 DEFAULT_MAP = Path("maps") / SHIPPED_DEFAULT_MAP.name
@@ -82,14 +84,30 @@ def weight_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
 
 
-def planner_option(parser: argparse.ArgumentParser, default: str | None) -> None:
-    """--planner paper|fit: which coverage planner scores shapes."""
+def planner_option(parser: argparse.ArgumentParser, default: str | None, start: bool = True) -> None:
+    """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start."""
     from smorphi_rl.coverage import PLANNERS
 
     parser.add_argument("--planner", choices=PLANNERS, default=default,
                         help="paper: FBCPP.md, the robot may stand over obstacles (the paper's model); fit: "
                         "docs/fbcpp-fit.md, never over an occupied, unknown or outside cell "
                         f"(default: {default or 'the env' + chr(39) + 's, paper'})")  # fmt: skip
+    if start:
+        parser.add_argument("--start-xy", nargs=2, type=float, metavar=("X", "Y"), default=None,
+                            help="a free point (metres, map frame) every coverage plan starts from (default: "
+                            "paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
+
+
+def planning_of(args: argparse.Namespace, grid_map: Map | None = None) -> Planning:
+    """The Planning the --planner / --start-xy options ask for (checked on `grid_map` when given)."""
+    from smorphi_rl.coverage import Planner
+    from smorphi_rl.evaluate import Planning
+
+    start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
+    planning = Planning(planner=Planner(args.planner or Planner.PAPER.value), start_xy=start)
+    if grid_map is not None:
+        planning.start_on(grid_map)  # a start on a wall or outside the map fails here, naming the point
+    return planning
 
 
 def weights(args: argparse.Namespace) -> EnvConfig:

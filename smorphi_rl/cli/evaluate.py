@@ -32,7 +32,7 @@ def register(sub: Any) -> None:
     ev.add_argument("--block-side", type=float, default=DEFAULT_BLOCK_SIDE_M, help="block side in metres")
     ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
                     "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
-    planner_option(ev, Planner.PAPER.value)
+    planner_option(ev, Planner.PAPER.value, start=False)
     ev.add_argument("--path", action="store_true",
                     help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
                     "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip

@@ -13,6 +13,7 @@ from smorphi_rl.cli.common import (
     DEFAULT_MAP,
     Parser,
     planner_option,
+    planning_of,
     progress_line,
     rel,
     run_options,
@@ -89,22 +90,23 @@ def _check(args: argparse.Namespace) -> None:
 def _run(args: argparse.Namespace, w1: float, w2: float) -> Any:
     """Run the chosen method on the map: a SearchResult."""
     map_path = str(args.map)
+    planning = planning_of(args)
     if args.method == "exhaustive":
         from smorphi_rl.search.exhaustive import run_exhaustive
 
-        return run_exhaustive(map_path, args.step, progress=progress_line("exhaustive"), planner=args.planner)
+        return run_exhaustive(map_path, args.step, planning, progress=progress_line("exhaustive"))
     if args.method == "random":
         from smorphi_rl.search.random import run_random
 
-        return run_random(map_path, args.samples, args.seed, planner=args.planner)
+        return run_random(map_path, args.samples, args.seed, planning)
     if args.method in ("hillclimb", "anneal"):
         from smorphi_rl.search.local import run_local_search
 
-        env = {"w1": w1, "w2": w2, "planner": args.planner}
+        env = {"w1": w1, "w2": w2, "planner": args.planner, "start_xy": planning.start_xy}
         return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, env)
     from smorphi_rl.search.nsga2 import run_nsga2
 
-    return run_nsga2(map_path, args.pop, args.generations, args.seed, planner=args.planner)
+    return run_nsga2(map_path, args.pop, args.generations, args.seed, planning)
 
 
 def cmd_search(args: argparse.Namespace) -> int:
@@ -115,7 +117,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     from smorphi_rl.search.results import save
 
     w = weights(args)
-    load_map(args.map)  # a bad map fails here, before anything is written
+    planning_of(args, load_map(args.map))  # a bad map or start fails here, before anything is written
     _check(args)
     suffix = f"step{args.step:g}" if args.method == "exhaustive" else f"seed{args.seed}"
     run_dir = prepare_run_dir(

@@ -16,10 +16,8 @@ from concurrent.futures import ProcessPoolExecutor
 
 import numpy as np
 
-from smorphi_rl.coverage import Planner
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator, lattice_thetas
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M
+from smorphi_rl.evaluate import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.maps import load_map
 from smorphi_rl.search.results import SearchResult
 
@@ -44,9 +42,9 @@ _reported = 0
 """How many of this worker's cached footprints earlier chunks already reported."""
 
 
-def _init(map_path: str, block_side_m: float, planner: str) -> None:
+def _init(map_path: str, planning: Planning) -> None:
     global _worker
-    _worker = Evaluator(load_map(map_path), block_side_m, planner=Planner(planner))
+    _worker = planning.evaluator(load_map(map_path))
 
 
 def _chunk(thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
@@ -64,13 +62,12 @@ def _chunk(thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[
 def run_exhaustive(
     map_path: str,
     step_deg: float = 1.0,
-    block_side_m: float = DEFAULT_BLOCK_SIDE_M,
+    planning: Planning = PAPER_PLANNING,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
-    planner: str = Planner.PAPER.value,
 ) -> SearchResult:
-    """Evaluate every triple at `step_deg` on the map with `planner`, on `workers` processes (default: every
-    core)."""
+    """Evaluate every triple at `step_deg` on the map, planned as `planning` says, on `workers` processes
+    (default: every core)."""
     step = check_step(step_deg)
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
@@ -78,7 +75,7 @@ def run_exhaustive(
     n_chunks = max(1, min(len(thetas) // 1000, n_workers * CHUNKS_PER_WORKER))
     chunks = np.array_split(thetas, n_chunks)
     # compile (or load) the kernels before forking
-    Evaluator(grid_map, block_side_m, planner=Planner(planner)).evaluate_many(thetas[:2])
+    planning.evaluator(grid_map).evaluate_many(thetas[:2])
     p_c = np.zeros(len(thetas))
     p_len = np.zeros(len(thetas), dtype=np.int32)
     feasible = np.zeros(len(thetas), dtype=bool)
@@ -86,7 +83,7 @@ def run_exhaustive(
     t0 = time.perf_counter()
     context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     with ProcessPoolExecutor(n_workers, mp_context=context, initializer=_init,
-                             initargs=(str(map_path), block_side_m, planner)) as pool:  # fmt: skip
+                             initargs=(str(map_path), planning)) as pool:  # fmt: skip
         offsets = np.cumsum([0] + [len(c) for c in chunks])
         done = 0
         for i, (c_pc, c_len, c_ok, c_digests) in enumerate(pool.map(_chunk, chunks)):
@@ -96,6 +93,11 @@ def run_exhaustive(
             done += hi - lo
             if progress is not None:
                 progress(done, len(thetas))
-    params = {"step_deg": step, "workers": n_workers, "distinct_footprints": len(digests), "planner": planner}
+    params = {
+        "step_deg": step,
+        "workers": n_workers,
+        "distinct_footprints": len(digests),
+        "planner": planning.planner.value,
+    }
     return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, feasible, len(thetas),
                         time.perf_counter() - t0, params)  # fmt: skip

@@ -18,10 +18,8 @@ from pymoo.operators.repair.rounding import RoundingRepair
 from pymoo.operators.sampling.rnd import IntegerRandomSampling
 from pymoo.optimize import minimize
 
-from smorphi_rl.coverage import Planner
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M
+from smorphi_rl.evaluate import PAPER_PLANNING, Evaluator, Planning
 from smorphi_rl.maps import load_map
 from smorphi_rl.search.results import SearchResult
 
@@ -42,16 +40,15 @@ class _MorphologyProblem(Problem):
 
 
 def run_nsga2(
-    map_path: str, pop: int, generations: int, seed: int, block_side_m: float = DEFAULT_BLOCK_SIDE_M,
-    planner: str = "paper",
-) -> SearchResult:  # fmt: skip
+    map_path: str, pop: int, generations: int, seed: int, planning: Planning = PAPER_PLANNING
+) -> SearchResult:
     """NSGA-II with `pop` individuals for `generations` generations."""
     if pop < 2:
         raise SmorphiError(f"--pop must be >= 2, got {pop}")
     if generations < 1:
         raise SmorphiError(f"--generations must be >= 1, got {generations}")
     grid_map = load_map(map_path)
-    problem = _MorphologyProblem(Evaluator(grid_map, block_side_m, planner=Planner(planner)))
+    problem = _MorphologyProblem(planning.evaluator(grid_map))
     algorithm = NSGA2(
         pop_size=pop,
         sampling=IntegerRandomSampling(),

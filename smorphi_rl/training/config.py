@@ -163,9 +163,7 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     `improvement`, the R1 gained in sigma_map units; `commit`, one shape's R1 in sigma_map units."""
     import numpy as np
 
-    from smorphi_rl.coverage import Planner
     from smorphi_rl.env import RewardMode, r1_stats
-    from smorphi_rl.evaluate import Evaluator
     from smorphi_rl.maps import load_map
     from smorphi_rl.score import r1
 
@@ -173,10 +171,10 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
     per_map = []
     for path in env.maps:
-        batch = Evaluator(load_map(path), env.block_side_m, planner=Planner(env.planner)).evaluate_many(thetas)
+        batch = env.planning.evaluator(load_map(path)).evaluate_many(thetas)
         values = r1(batch.P_c, batch.P_len, env.w1, env.w2)
         if env.reward != RewardMode.PAPER.value:
-            mu, sigma = r1_stats(path, env.w1, env.w2, env.block_side_m, env.planner)
+            mu, sigma = r1_stats(path, env.w1, env.w2, env.planning)
             values = (values - (mu if env.reward == RewardMode.LEVEL.value else 0.0)) / sigma
         per_map.append(values)
     values = np.concatenate(per_map)

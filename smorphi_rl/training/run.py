@@ -16,10 +16,8 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.coverage import Planner
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
@@ -214,7 +212,7 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
         write_csv(progress.top.top(len(progress.top)), files["found_csv"])
     for path in cfg.env.maps:
         grid_map = load_map(path)
-        evaluator = Evaluator(grid_map, cfg.env.block_side_m, planner=Planner(cfg.env.planner))
+        evaluator = cfg.env.planning.evaluator(grid_map)
         top = progress.top.top(TOP_PLOT, grid_map.name)
         if top:
             items = []
@@ -253,8 +251,7 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             continue
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {cache})\n")
         out.flush()
-        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, cfg.env.w2, cfg.env.block_side_m, cache,
-                                              cfg.env.planner)  # fmt: skip
+        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, cfg.env.w2, cfg.env.planning, cache)
     return optima
 
 
