@@ -54,6 +54,28 @@ def register(sub: Any) -> None:
     show.add_argument("map", help="map_server YAML")
     show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
     show.set_defaults(func=cmd_maps_show)
+    prep = maps_sub.add_parser("prepare", help="crop a real map to its recorded area, coarsen it, drop free islands")
+    prep.add_argument("map", help="map_server YAML to read (left as it is)")
+    prep.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
+    prep.add_argument("--margin", type=float, default=0.2, metavar="M",
+                      help="metres kept around the known cells (default 0.2)")  # fmt: skip
+    prep.add_argument("--no-crop", action="store_true", help="keep the full grid")
+    prep.add_argument(
+        "--factor",
+        type=int,
+        default=1,
+        metavar="K",
+        help="coarsen K x K cells into one (occupied if any is, else unknown if any is; default 1)",
+    )
+    prep.add_argument(
+        "--min-island",
+        type=float,
+        default=0.0,
+        metavar="M2",
+        help="drop free areas smaller than this many square metres (default 0: keep all)",
+    )
+    prep.add_argument("--force", action="store_true", help="overwrite an existing map")
+    prep.set_defaults(func=cmd_maps_prepare)
 
 
 def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
@@ -249,6 +271,35 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    return 0
+
+
+def cmd_maps_prepare(args: argparse.Namespace) -> int:
+    """Crop, coarsen and clean a map into a new map_server YAML; print both maps' sizes."""
+    from smorphi_rl.maps import save_map
+    from smorphi_rl.maptools import coarsen, crop_to_known, drop_islands
+
+    out = Path(args.out)
+    if out.suffix != ".yaml":
+        raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
+    if not args.force and (out.exists() or out.with_suffix(".pgm").exists()):
+        raise SmorphiError(f"{out} exists; pass --force to overwrite it")
+    if Path(args.map).resolve() == out.resolve():
+        raise SmorphiError(f"--out {out} is the input map: write the prepared map somewhere else")
+    source = load_map(args.map)
+    grid_map = source if args.no_crop else crop_to_known(source, args.margin)
+    grid_map = coarsen(grid_map, args.factor)
+    grid_map, islands = drop_islands(grid_map, args.min_island)
+    save_map(grid_map, out)
+
+    def size(m: Map) -> str:
+        r = m.resolution_m
+        free = 100 * m.fraction(Cell.FREE)
+        return f"{m.width} x {m.height} cells at {r:g} m ({m.width * r:g} x {m.height * r:g} m), {free:.1f} % free"
+
+    print(f"{'read':<8} {args.map}: {size(source)}")
+    print(f"{'wrote':<8} {out}: {size(grid_map)}")
+    print(f"{'islands':<8} {islands.count} dropped ({islands.area_m2:.2f} m^2 of free floor marked unknown)")
     return 0
 
 

@@ -1,0 +1,66 @@
+"""Map preparation: cropping keeps every cell where it was, coarsening is conservative, small islands go."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from conftest import random_map, realmap
+
+from smorphi_rl.cli import main
+from smorphi_rl.errors import MapError
+from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.maptools import coarsen, crop_to_known, drop_islands
+
+ISLANDS = """
+????????????
+?...#####.??
+?...#...#.??
+?...#####.??
+???????????.
+"""
+
+
+def test_crop_keeps_every_known_cell_at_its_world_position():
+    grid_map = Map.from_text(ISLANDS, 0.5, name="islands")
+    cropped = crop_to_known(grid_map)
+    assert cropped.cells.shape == (4, 11) and cropped.counts[Cell.FREE] == grid_map.counts[Cell.FREE]
+    for row, col in np.argwhere(grid_map.cells != Cell.UNKNOWN):
+        x = grid_map.origin[0] + (col + 0.5) * 0.5
+        y = grid_map.origin[1] + (row + 0.5) * 0.5
+        assert cropped.cells[cropped.cell_of(x, y)] == grid_map.cells[row, col]
+    assert crop_to_known(grid_map, margin_m=0.5).cells.shape == (5, 12)  # one cell each side, clipped
+
+
+def test_coarsening_is_conservative():
+    rng = np.random.default_rng(3)
+    fine = random_map(rng, 30, 41, 0.05, 0.02)
+    coarse = coarsen(fine, 3)
+    assert coarse.resolution_m == pytest.approx(0.3) and coarse.cells.shape == (10, 14)
+    for row, col in np.argwhere(coarse.cells == Cell.FREE):
+        assert (fine.cells[3 * row : 3 * row + 3, 3 * col : 3 * col + 3] == Cell.FREE).all()
+    assert coarsen(fine, 1) is fine
+    with pytest.raises(MapError, match="whole number"):
+        coarsen(fine, 0)
+
+
+def test_small_islands_are_dropped_and_the_largest_area_kept():
+    grid_map = Map.from_text(ISLANDS, 0.5, name="islands")
+    kept, dropped = drop_islands(grid_map, min_area_m2=1.0)  # areas of 9, 3, 3 and 1 cells of 0.25 m^2
+    assert dropped.count == 3 and dropped.area_m2 == pytest.approx(0.75 + 0.75 + 0.25)
+    assert kept.counts[Cell.FREE] == 9
+    assert drop_islands(grid_map, 0.5)[1].count == 1  # only the single cell
+    assert drop_islands(grid_map, 0.0)[1].count == 0
+    everything, _ = drop_islands(grid_map, 1e9)
+    assert everything.counts[Cell.FREE] == 9  # the largest area stays, however small
+
+
+def test_maps_prepare_writes_a_smaller_real_map_and_refuses_to_overwrite(tmp_path, capsys):
+    source = realmap("tb3_world")
+    out = tmp_path / "tb3.yaml"
+    assert main(["maps", "prepare", str(source), "--out", str(out), "--factor", "2", "--min-island", "0.05"]) == 0
+    printed = capsys.readouterr().out
+    prepared, original = load_map(out), load_map(source)
+    assert "wrote" in printed and "islands" in printed and prepared.resolution_m == 0.1
+    assert prepared.cells.size * 20 < original.cells.size
+    assert main(["maps", "prepare", str(source), "--out", str(out)]) != 0
+    assert "exists" in capsys.readouterr().err and load_map(out).cells.shape == prepared.cells.shape
