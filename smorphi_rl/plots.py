@@ -222,6 +222,21 @@ def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str
     return path
 
 
+def plot_planners(
+    rows: list[tuple[Map, Morphology, list[CoverageResult]]], block_side_m: float, out: str | Path
+) -> Path:
+    """One row per map, one column per planner: the same shape's covered area and path (README figure)."""
+    n_cols = max(len(results) for _, _, results in rows)
+    fig, axes = plt.subplots(len(rows), n_cols, figsize=(5.2 * n_cols, 5.0 * len(rows)), squeeze=False)
+    for (grid_map, morphology, results), ax_row in zip(rows, axes, strict=True):
+        for result, ax in zip(results, ax_row, strict=False):
+            draw_coverage(ax, result, grid_map, morphology, block_side_m, tiles=False)
+            theta = ", ".join(f"{t:g}" for t in morphology.angles)
+            ax.set_title(f"{grid_map.name}, ({theta}), planner {result.planner}\n"
+                         f"free covered {result.coverage_free_pct:.1f} %, P_len {result.P_len}", fontsize=9)  # fmt: skip
+    return _save(fig, out)
+
+
 def plot_map(grid_map: Map, out: str | Path) -> Path:
     """The map alone, with its size and cell fractions in the title."""
     fig, ax = plt.subplots(figsize=(6, 6))
