@@ -60,8 +60,9 @@ def main() -> None:
         morphology = Morphology.of(theta)
         results = [Planning(planner=p).evaluator(grid_map).plan(morphology) for p in Planner]
         for r in results:
+            over = share_over_non_free(r, grid_map)
             print(f"{grid_map.name:<10} {theta!s:<18} {r.planner:<6} free covered {r.coverage_free_pct:6.2f} %  "
-                  f"P_len {r.P_len:4d}  positions over non-free cells {share_over_non_free(r, grid_map):5.1f} %")  # fmt: skip
+                  f"P_len {r.P_len:4d}  positions over non-free cells {over:5.1f} %")  # fmt: skip
         rows.append((grid_map, morphology, results))
     print(f"figure: {plot_planners(rows, 0.17, args.out)}")
 

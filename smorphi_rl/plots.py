@@ -232,8 +232,8 @@ def plot_planners(
         for result, ax in zip(results, ax_row, strict=False):
             draw_coverage(ax, result, grid_map, morphology, block_side_m, tiles=False)
             theta = ", ".join(f"{t:g}" for t in morphology.angles)
-            ax.set_title(f"{grid_map.name}, ({theta}), planner {result.planner}\n"
-                         f"free covered {result.coverage_free_pct:.1f} %, P_len {result.P_len}", fontsize=9)  # fmt: skip
+            title = f"{grid_map.name}, ({theta}), planner {result.planner}"
+            ax.set_title(f"{title}\nfree covered {result.coverage_free_pct:.1f} %, P_len {result.P_len}", fontsize=9)
     return _save(fig, out)
 
 
