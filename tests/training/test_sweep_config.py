@@ -126,3 +126,11 @@ def test_missing_file(tmp_path):
 def test_silent_acceptance_is_refused(tmp_path, text, message):
     with pytest.raises(SweepConfigError, match=message):
         load_sweep(write(tmp_path, text))
+
+
+def test_a_sweep_can_plan_with_the_footprint_safe_planner(tmp_path):
+    cfg = load_sweep(write(tmp_path, base("env: {planner: fit, start_xy: [2.5, 0.5]}\n")))
+    train = cfg.base_config("ppo", (MAP_1,), 0, {})
+    assert train.env.planner == "fit" and train.env.start_xy == (2.5, 0.5)
+    with pytest.raises(SweepConfigError, match="planner"):
+        load_sweep(write(tmp_path, base("env: {planner: astar}\n")))
