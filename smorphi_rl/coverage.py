@@ -35,20 +35,12 @@ class Planner(enum.Enum):
 PLANNERS = tuple(p.value for p in Planner)
 
 
-def planner_of(name: str) -> Planner:
-    """The planner named `name`, or an error that lists the choices."""
-    try:
-        return Planner(name)
-    except ValueError:
-        raise SmorphiError(f"unknown planner {name!r} (choose from {', '.join(PLANNERS)})") from None
-
-
 class StartKind(enum.IntEnum):
     """Where the coverage path starts (values match the kernels' START_* codes)."""
 
     AUTO = 0  # paper: the first traversable tile in row-major order; fit: in the largest free area
     TILE = 1  # a tile (a, b) of the resized map; must be traversable for the footprint
-    CELL = 2  # the tile holding this free map cell, for every footprint
+    CELL = 2  # paper: the tile holding this free map cell; fit: the safe placements whose F holds it
 
 
 @dataclass(frozen=True)
@@ -197,7 +189,7 @@ class CoverageResult:
     footprint_m: tuple[float, float]
     footprint_cells: tuple[int, int]
     path_tiles: np.ndarray | None = None
-    """Paper planner: the tiles (a, b) visited; fit planner: the lattice nodes."""
+    """Paper planner: the tiles (a, b) visited; fit planner (which has no tiles): the same as `placements`."""
     covered: np.ndarray | None = None
     coverable_pct: float = 0.0
     planner: str = Planner.PAPER.value

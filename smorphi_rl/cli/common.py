@@ -88,10 +88,10 @@ def planner_option(parser: argparse.ArgumentParser, default: str | None, start: 
     """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start."""
     from smorphi_rl.coverage import PLANNERS
 
+    shown = default or "the env's, paper"
     parser.add_argument("--planner", choices=PLANNERS, default=default,
-                        help="paper: FBCPP.md, the robot may stand over obstacles (the paper's model); fit: "
-                        "docs/fbcpp-fit.md, never over an occupied, unknown or outside cell "
-                        f"(default: {default or 'the env' + chr(39) + 's, paper'})")  # fmt: skip
+                        help="paper: FBCPP.md, the robot may stand over obstacles (the paper's model); "
+                        f"fit: docs/fbcpp-fit.md, never over an occupied, unknown or outside cell (default: {shown})")  # fmt: skip
     if start:
         parser.add_argument("--start-xy", nargs=2, type=float, metavar=("X", "Y"), default=None,
                             help="a free point (metres, map frame) every coverage plan starts from (default: "
