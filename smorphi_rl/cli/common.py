@@ -89,9 +89,9 @@ def planner_option(parser: argparse.ArgumentParser, default: str | None, start: 
     from smorphi_rl.coverage import PLANNERS
 
     shown = default or "the env's, paper"
-    parser.add_argument("--planner", choices=PLANNERS, default=default,
-                        help="paper: FBCPP.md, the robot may stand over obstacles (the paper's model); "
-                        f"fit: docs/fbcpp-fit.md, never over an occupied, unknown or outside cell (default: {shown})")  # fmt: skip
+    text = ("paper: FBCPP.md, the robot may stand over obstacles (the paper's model); fit: docs/fbcpp-fit.md, "
+            f"never over an occupied, unknown or outside cell (default: {shown})")  # fmt: skip
+    parser.add_argument("--planner", choices=PLANNERS, default=default, help=text)
     if start:
         parser.add_argument("--start-xy", nargs=2, type=float, metavar=("X", "Y"), default=None,
                             help="a free point (metres, map frame) every coverage plan starts from (default: "
