@@ -558,8 +558,8 @@ def plan_any(
     covered: np.ndarray,
     path: np.ndarray,
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
-    """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage:
-    it covers every reachable tile, and its start is the corner of its start tile)."""
+    """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage, as
+    it covers every reachable tile; its start placement is not reported: -1, -1)."""
     if planner == PLANNER_FIT:
         h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
         return plan_fit_into(padded, h, wd, area, f, start_kind, sp, sq, covered, path)
