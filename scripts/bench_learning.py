@@ -87,7 +87,8 @@ def main() -> None:
     for map_path in args.maps:
         name = load_map(map_path).name
         base_env = EnvConfig.from_dict({"maps": [map_path]})
-        optimum = exact_optimum(map_path, base_env.w1, base_env.w2, base_env.planning, ROOT / "logs" / ".cache")
+        w2 = base_env.w2_on(load_map(map_path))
+        optimum = exact_optimum(map_path, base_env.w1, w2, base_env.planning, ROOT / "logs" / ".cache")
         print(f"{name}: exact optimum R1* {optimum.R1:.2f} at {optimum.theta} (1-degree lattice); "
               f"1 % band: R1 >= {optimum.R1 - 0.01 * abs(optimum.R1):.2f}", flush=True)  # fmt: skip
         for algo in args.algos:
@@ -134,7 +135,8 @@ def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarr
     name = load_map(map_path).name
     result = run_exhaustive(map_path, planning=env.planning)
     n = round(len(result.thetas) ** (1 / 3))
-    r1 = np.where(result.feasible, score_r1(result.P_c, result.P_len, env.w1, env.w2), 0.0).reshape(n, n, n)
+    w2 = env.w2_on(load_map(map_path))
+    r1 = np.where(result.feasible, score_r1(result.P_c, result.P_len, env.w1, w2), 0.0).reshape(n, n, n)
     gamma = PRESETS["fast"]["ppo"].gamma
     rows = []
     for reward in (r for r in rewards if r in IDEAL_MODES):

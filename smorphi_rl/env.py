@@ -61,7 +61,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator, Planning
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
-from smorphi_rl.score import r1
+from smorphi_rl.score import PATH_TERMS, effective_w2, r1
 
 ENV_ID = "smorphi_rl/Morphology-v0"
 DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
@@ -103,6 +103,9 @@ class EnvConfig:
     """Weight of P_c (percent) in R1."""
     w2: float = 0.1
     """Weight of P_len (tile moves) in R1: 10 moves cost as much as 1 % of coverage."""
+    path_term: str = "moves"
+    """How w2 charges the path: `moves` (per tile move, the paper's) or `per_area` (per tile move per 25 m^2
+    of free floor, so a weight means the same on every floor size; `score.py`)."""
     beta: float = 1.0
     """Penalty R2 for an action that leaves the shape unchanged."""
     coverage_threshold: float | None = None
@@ -130,6 +133,10 @@ class EnvConfig:
         if self.reward not in REWARD_MODES:
             raise EnvConfigError(
                 f"env_config 'reward': unknown mode '{self.reward}' (choose from {', '.join(REWARD_MODES)})"
+            )
+        if self.path_term not in PATH_TERMS:
+            raise EnvConfigError(
+                f"env_config 'path_term': unknown path term '{self.path_term}' (choose from {', '.join(PATH_TERMS)})"
             )
         if self.planner not in PLANNERS:
             raise EnvConfigError(
@@ -172,6 +179,11 @@ class EnvConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    def w2_on(self, grid_map: Map) -> float:
+        """The weight of P_len in effect on `grid_map` (`path_term`)."""
+        free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2
+        return effective_w2(self.w2, self.path_term, free_m2)
+
     @property
     def planning(self) -> Planning:
         """How this env plans every shape (block side, planner, start)."""
@@ -199,6 +211,10 @@ def _coerce(name: str, value: Any) -> Any:
             if not isinstance(value, str | RewardMode):
                 raise TypeError
             return RewardMode(value).value if value in REWARD_MODES else str(value)
+        if name == "path_term":
+            if not isinstance(value, str):
+                raise TypeError
+            return value
         if name == "planner":
             if not isinstance(value, str | Planner):
                 raise TypeError
@@ -270,11 +286,11 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._scores: dict[tuple[int, int, int, int], dict[str, Any]] = {}
         self._map_obs = [self._map_channels(m) for m in self._maps]
         self._mode = RewardMode(self.config.reward)
+        self._w2 = [self.config.w2_on(m) for m in self._maps]
         cfg = self.config
         self._stats = [
-            r1_stats(p, cfg.w1, cfg.w2, cfg.planning) if self._mode is not RewardMode.PAPER
-            else (0.0, 1.0)
-            for p in cfg.maps
+            r1_stats(p, cfg.w1, w2, cfg.planning) if self._mode is not RewardMode.PAPER else (0.0, 1.0)
+            for p, w2 in zip(cfg.maps, self._w2, strict=True)
         ]  # fmt: skip
         self._lattice_max = round(180 / self.config.angle_step_deg)
         size = self.config.obs_size
@@ -341,7 +357,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def score(self, theta: tuple[float, float, float]) -> dict[str, Any]:
         """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""
         result = self._evaluator().evaluate(Morphology.of(theta))
-        score = r1(result.P_c, result.P_len, self.config.w1, self.config.w2)
+        score = r1(result.P_c, result.P_len, self.config.w1, self._w2[self._map_index])
         return {
             "theta": tuple(float(t) for t in theta),
             "P_c": result.P_c,

@@ -1,6 +1,7 @@
 """R1, the one formula every ranking uses."""
 
 import numpy as np
+import pytest
 
 from smorphi_rl.score import r1
 
@@ -9,3 +10,25 @@ def test_r1_of_one_result_and_of_arrays():
     assert r1(97.0, 66, 1.0, 0.1) == 97.0 - 6.6
     out = r1(np.array([97.0, 90.0]), np.array([66, 50]), 1.0, 0.1)
     assert out.dtype == np.float64 and np.allclose(out, [90.4, 85.0])
+
+
+def test_the_per_area_path_term_states_w2_for_25_square_metres_of_floor():
+    from smorphi_rl.score import effective_w2
+
+    assert effective_w2(0.1, "moves", 400.0) == 0.1
+    assert effective_w2(0.1, "per_area", 25.0) == pytest.approx(0.1)
+    assert effective_w2(0.1, "per_area", 100.0) == pytest.approx(0.025)
+    with pytest.raises(ValueError, match="unknown path term"):
+        effective_w2(0.1, "per_metre", 25.0)
+
+
+def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
+    from smorphi_rl.env import EnvConfigError, MorphologyEnv
+    from smorphi_rl.maps import Cell
+
+    env = MorphologyEnv({"path_term": "per_area", "reward": "paper"})
+    scored = env.score((95.0, 59.0, 103.0))
+    free_m2 = env.grid_map.counts[Cell.FREE] * env.grid_map.resolution_m**2
+    assert scored["R1"] == pytest.approx(scored["P_c"] - 0.1 * 25.0 / free_m2 * scored["P_len"])
+    with pytest.raises(EnvConfigError, match="env_config 'path_term': unknown path term 'metres'"):
+        MorphologyEnv({"path_term": "metres"})

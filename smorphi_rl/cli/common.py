@@ -80,8 +80,13 @@ def scored_text(d: dict[str, object]) -> str:
 
 def weight_options(parser: argparse.ArgumentParser) -> None:
     """--w1 / --w2: the reward weights that rank shapes by R1 = w1 P_c - w2 P_len (the env's defaults)."""
+    from smorphi_rl.score import PATH_TERMS
+
     parser.add_argument("--w1", type=float, help="weight of P_c in R1 (default: the env's)")
     parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
+    parser.add_argument("--path-term", choices=PATH_TERMS, default=None,
+                        help="moves: w2 per tile move (the paper's); per_area: w2 per tile move per 25 m^2 of free "
+                        "floor, the same trade-off on every floor size (default: the env's, moves)")  # fmt: skip
 
 
 def planner_option(parser: argparse.ArgumentParser, default: str | None, start: bool = True) -> None:
@@ -114,7 +119,7 @@ def weights(args: argparse.Namespace) -> EnvConfig:
     """The env configuration with --w1 / --w2 applied (validated there, defaults from there)."""
     from smorphi_rl.env import EnvConfig
 
-    return EnvConfig.from_dict({k: v for k in ("w1", "w2") if (v := getattr(args, k)) is not None})
+    return EnvConfig.from_dict({k: v for k in ("w1", "w2", "path_term") if (v := getattr(args, k)) is not None})
 
 
 def run_options(parser: argparse.ArgumentParser, what: str = "run name: results go to LOG_DIR/NAME") -> None:

@@ -70,6 +70,7 @@ def register(sub: Any) -> None:
     co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     weight_options(co)
+    planner_option(co, "paper")  # the exact front's planner: compare runs made with the same one
     co.set_defaults(func=cmd_compare)
 
 
@@ -87,7 +88,7 @@ def _check(args: argparse.Namespace) -> None:
         raise SmorphiError(f"--pop must be >= 2 and --generations >= 1, got {args.pop} and {args.generations}")
 
 
-def _run(args: argparse.Namespace, w1: float, w2: float) -> Any:
+def _run(args: argparse.Namespace, weights: Any) -> Any:
     """Run the chosen method on the map: a SearchResult."""
     map_path = str(args.map)
     planning = planning_of(args)
@@ -102,7 +103,8 @@ def _run(args: argparse.Namespace, w1: float, w2: float) -> Any:
     if args.method in ("hillclimb", "anneal"):
         from smorphi_rl.search.local import run_local_search
 
-        env = {"w1": w1, "w2": w2, "planner": args.planner, "start_xy": planning.start_xy}
+        env = {"w1": weights.w1, "w2": weights.w2, "path_term": weights.path_term, "planner": args.planner,
+               "start_xy": planning.start_xy}  # fmt: skip
         return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, env)
     from smorphi_rl.search.nsga2 import run_nsga2
 
@@ -117,16 +119,18 @@ def cmd_search(args: argparse.Namespace) -> int:
     from smorphi_rl.search.results import save
 
     w = weights(args)
-    planning_of(args, load_map(args.map))  # a bad map or start fails here, before anything is written
+    grid_map = load_map(args.map)
+    planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
     _check(args)
+    w1, w2 = w.w1, w.w2_on(grid_map)
     suffix = f"step{args.step:g}" if args.method == "exhaustive" else f"seed{args.seed}"
     run_dir = prepare_run_dir(
         args.log_dir, args.name or safe_name(f"{args.method}-{Path(str(args.map)).stem}-{suffix}")
     )
-    result = _run(args, w.w1, w.w2)
-    files = save(result, run_dir, w.w1, w.w2)
-    front_rows = result.front_records(w.w1, w.w2)
-    b = result.best(w.w1, w.w2)
+    result = _run(args, w)
+    files = save(result, run_dir, w1, w2)
+    front_rows = result.front_records(w1, w2)
+    b = result.best(w1, w2)
     files["plot"] = plot_pareto(
         {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
         run_dir / "pareto.png",
@@ -137,7 +141,7 @@ def cmd_search(args: argparse.Namespace) -> int:
         for row in front_rows:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         return 0
-    print(format_search(result, front_rows, w.w1, w.w2, files))
+    print(format_search(result, front_rows, w1, w2, files))
     return 0
 
 
@@ -154,7 +158,7 @@ def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: 
             f"  {angles_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
         )
     b = result.best(w1, w2)
-    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:g}): {angles_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
+    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:.4g}): {angles_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
                  f"P_len {result.P_len[b]}, R1 {float(r1(result.P_c[b], result.P_len[b], w1, w2)):.2f}")  # fmt: skip
     lines.extend(f"{key + ':':<9} {rel(files[key])}" for key in ("results", "front", "summary", "plot"))
     return "\n".join(lines)
@@ -172,15 +176,17 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
     grid_map = load_map(args.map)
     w = weights(args)
+    w1, w2 = w.w1, w.w2_on(grid_map)
+    planning = planning_of(args, grid_map)
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
-        exact = run_exhaustive(str(args.map), args.step, progress=progress_line("exact front"))
-    exact_score, methods = score_methods(exact, runs, w.w1, w.w2)
-    files = write_report(exact_score, methods, grid_map.name, w.w1, w.w2, run_dir)
-    print("\n".join(report_lines(exact_score, methods, grid_map.name, w.w1, w.w2)))
+        exact = run_exhaustive(str(args.map), args.step, planning, progress=progress_line("exact front"))
+    exact_score, methods = score_methods(exact, runs, w1, w2)
+    files = write_report(exact_score, methods, grid_map.name, w1, w2, run_dir)
+    print("\n".join(report_lines(exact_score, methods, grid_map.name, w1, w2)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0

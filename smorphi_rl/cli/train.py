@@ -104,7 +104,7 @@ def cmd_train(args: argparse.Namespace) -> int:
     from smorphi_rl.training.config import TrainConfig
 
     env_options = {"maps": map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2,
-                   "planner": args.planner, "start_xy": args.start_xy}  # fmt: skip
+                   "path_term": args.path_term, "planner": args.planner, "start_xy": args.start_xy}  # fmt: skip
     cfg = TrainConfig(
         algo=args.algo,
         env=EnvConfig.from_dict({k: v for k, v in env_options.items() if v is not None}),

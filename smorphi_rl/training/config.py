@@ -171,10 +171,11 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
     per_map = []
     for path in env.maps:
-        batch = env.planning.evaluator(load_map(path)).evaluate_many(thetas)
-        values = r1(batch.P_c, batch.P_len, env.w1, env.w2)
+        grid_map = load_map(path)
+        batch = env.planning.evaluator(grid_map).evaluate_many(thetas)
+        values = r1(batch.P_c, batch.P_len, env.w1, env.w2_on(grid_map))
         if env.reward != RewardMode.PAPER.value:
-            mu, sigma = r1_stats(path, env.w1, env.w2, env.planning)
+            mu, sigma = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
             values = (values - (mu if env.reward == RewardMode.LEVEL.value else 0.0)) / sigma
         per_map.append(values)
     values = np.concatenate(per_map)

@@ -251,7 +251,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             continue
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {cache})\n")
         out.flush()
-        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, cfg.env.w2, cfg.env.planning, cache)
+        w2 = cfg.env.w2_on(grid_map)
+        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, w2, cfg.env.planning, cache)
     return optima
 
 
