@@ -364,13 +364,20 @@ def _walk(
 
 
 @njit(cache=True)
-def _safe_placements(padded: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.ndarray:
-    """safe[y * wd + x]: F with its corner on cell (y, x) overlaps only free cells of the map."""
+def _safe_placements(padded: np.ndarray, prefix: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.ndarray:
+    """safe[y * wd + x]: F with its corner on cell (y, x) overlaps only free cells of the map. A placement
+    whose whole l x w box is free (one look at the free-cell prefix sums) needs no cell-by-cell check."""
     flat = padded.ravel()
+    l, w = f.shape
     off = _offsets(f, padded.shape[1])
     safe = np.zeros(h * wd, np.bool_)
     for y in range(h):
         for x in range(wd):
+            if y + l <= h and x + w <= wd:
+                free = prefix[y + l, x + w] - prefix[y, x + w] - prefix[y + l, x] + prefix[y, x]
+                if free == l * w:
+                    safe[y * wd + x] = True
+                    continue
             base = y * padded.shape[1] + x
             ok = True
             for o in off:
@@ -459,11 +466,25 @@ def _fit_candidates(
 
 
 @njit(cache=True)
+def _safe_runs(safe: np.ndarray, h: int, wd: int) -> tuple[np.ndarray, np.ndarray]:
+    """Prefix counts of safe placements along each row (h x wd+1) and each column (h+1 x wd), so that
+    "every placement of a straight move is safe" is one subtraction."""
+    rows = np.zeros((h, wd + 1), np.int32)
+    cols = np.zeros((h + 1, wd), np.int32)
+    for y in range(h):
+        for x in range(wd):
+            s = 1 if safe[y * wd + x] else 0
+            rows[y, x + 1] = rows[y, x] + s
+            cols[y + 1, x] = cols[y, x] + s
+    return rows, cols
+
+
+@njit(cache=True)
 def _fit_lattice(
-    safe: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int
+    safe: np.ndarray, rows: np.ndarray, cols: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int
 ) -> tuple[int, int, np.ndarray, np.ndarray, int]:
     """The lattice through placement (y0, x0): (rows, columns, east edges, north edges, start node). Nodes are
-    safe placements; an edge joins neighbours when every placement along the move is safe."""
+    safe placements; an edge joins neighbours when every placement along the move is safe (`_safe_runs`)."""
     oy, ox = y0 % l, x0 % w
     nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
     n = nr * nc
@@ -475,27 +496,36 @@ def _fit_lattice(
             if not safe[y * wd + x]:
                 continue
             if b + 1 < nc:
-                ok = True
-                for k in range(1, w + 1):
-                    if not safe[y * wd + x + k]:
-                        ok = False
-                        break
-                edge_e[a * nc + b] = ok
+                edge_e[a * nc + b] = rows[y, x + w + 1] - rows[y, x] == w + 1
             if a + 1 < nr:
-                ok = True
-                for k in range(1, l + 1):
-                    if not safe[(y + k) * wd + x]:
-                        ok = False
-                        break
-                edge_n[a * nc + b] = ok
+                edge_n[a * nc + b] = cols[y + l + 1, x] - cols[y, x] == l + 1
     return nr, nc, edge_e, edge_n, ((y0 - oy) // l) * nc + (x0 - ox) // w
+
+
+@njit(cache=True)
+def _reach(nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray, start: int) -> int:
+    """How many nodes breadth-first search reaches from `start` over joined edges."""
+    seen = np.zeros(nr * nc, np.bool_)
+    queue = np.empty(nr * nc, np.int32)
+    seen[start] = True
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        t = queue[head]
+        head += 1
+        for k in range(4):
+            u = _joined(t, k, nr, nc, edge_e, edge_n)
+            if u >= 0 and not seen[u]:
+                seen[u] = True
+                queue[tail] = u
+                tail += 1
+    return tail
 
 
 @njit(cache=True)
 def plan_fit_into(
     padded: np.ndarray,
-    h: int,
-    wd: int,
+    prefix: np.ndarray,
     area: np.ndarray,
     f: np.ndarray,
     start_kind: int,
@@ -506,43 +536,71 @@ def plan_fit_into(
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """The footprint-safe planner (docs/fbcpp-fit.md) for footprint f (l x w).
 
-    `padded` as for `plan_into`; `area` (H*W, uint8) marks the largest free area. Fills `covered` and up to
+    `padded` and `prefix` as for `plan_into`; `area` (H*W, uint8) marks the largest free area. Fills `covered` and up to
     len(path) placements (row, column of F's corner) as `plan_into` does. Returns (status, covered free
     cells, P_len, east/west moves, north/south moves, path length, coverable-bound cells, start row, start
     column); a shape with no safe start covers nothing (start -1, -1)."""
+    h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
     l, w = f.shape
     if padded.shape[0] < h + 2 * l or padded.shape[1] < wd + 2 * w:
         return STATUS_PAD_TOO_SMALL, 0, 0, 0, 0, 0, 0, -1, -1
     if start_kind == START_TILE:
         return STATUS_TILE_START_FIT, 0, 0, 0, 0, 0, 0, -1, -1
-    safe = _safe_placements(padded, h, wd, f)
+    safe = _safe_placements(padded, prefix, h, wd, f)
+    rows, cols = _safe_runs(safe, h, wd)
     label = components(safe, h, wd)
     candidates = _fit_candidates(safe, label, area, f, h, wd, start_kind, sp, sq)
     if candidates.shape[0] == 0:
         return STATUS_OK, 0, 0, 0, 0, 0, 0, -1, -1
-    no_path = np.zeros((0, 2), np.int32)
-    no_covered = np.zeros((0, 0), np.uint8)
-    best, best_cov, best_len = -1, -1, 0
-    for c in range(candidates.shape[0]):
+    best, best_reach = -1, -1
+    for c in range(candidates.shape[0]):  # the lattice that reaches the most usable nodes; the earliest of equal
         y0, x0 = candidates[c] // wd, candidates[c] % wd
-        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, h, wd, l, w, y0, x0)
-        n_cov, p_len, _, _, _ = _walk(padded, f, nr, nc, edge_e, edge_n, s, y0 % l, x0 % w, no_path, no_covered, h, wd)
-        if n_cov > best_cov or (n_cov == best_cov and p_len < best_len):
-            best, best_cov, best_len = c, n_cov, p_len
+        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0)
+        reach = _reach(nr, nc, edge_e, edge_n, s)
+        if reach > best_reach:
+            best, best_reach = c, reach
     y0, x0 = candidates[best] // wd, candidates[best] % wd
     oy, ox = y0 % l, x0 % w
-    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, h, wd, l, w, y0, x0)
+    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0)
     n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, s, oy, ox, path, covered, h, wd)
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
-    work = padded.ravel().copy()  # the coverable bound: F over every placement of the start's group
-    off = _offsets(f, padded.shape[1])
-    n_bound = 0
-    group = label[y0 * wd + x0]
-    for p in range(h * wd):
-        if label[p] == group:
-            n_bound += _stamp(off, (p // wd) * padded.shape[1] + p % wd, work)
-    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, n_bound, y0, x0
+    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, _bound(label, label[y0 * wd + x0], f, h, wd), y0, x0
+
+
+@njit(cache=True)
+def _bound(label: np.ndarray, group: int, f: np.ndarray, h: int, wd: int) -> int:
+    """Cells under F at some placement of `group` (all free: every placement of the group is safe). A run of
+    placements along a row, stamped with one run of a row of F, covers one contiguous range of cells, so
+    the union is filled range by range."""
+    l, w = f.shape
+    runs = np.empty((l * w, 3), np.int64)  # (row of F, first column, one past the last)
+    n_runs = 0
+    for i in range(l):
+        j = 0
+        while j < w:
+            if f[i, j]:
+                j0 = j
+                while j < w and f[i, j]:
+                    j += 1
+                runs[n_runs, 0], runs[n_runs, 1], runs[n_runs, 2] = i, j0, j
+                n_runs += 1
+            else:
+                j += 1
+    under = np.zeros(h * wd, np.bool_)
+    for y in range(h):
+        x = 0
+        while x < wd:
+            if label[y * wd + x] != group:
+                x += 1
+                continue
+            xa = x
+            while x < wd and label[y * wd + x] == group:
+                x += 1
+            for r in range(n_runs):
+                row = (y + runs[r, 0]) * wd
+                under[row + xa + runs[r, 1] : row + x - 1 + runs[r, 2]] = True
+    return int(under.sum())
 
 
 @njit(cache=True)
@@ -561,8 +619,7 @@ def plan_any(
     """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage, as
     it covers every reachable tile; its start placement is not reported: -1, -1)."""
     if planner == PLANNER_FIT:
-        h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
-        return plan_fit_into(padded, h, wd, area, f, start_kind, sp, sq, covered, path)
+        return plan_fit_into(padded, prefix, area, f, start_kind, sp, sq, covered, path)
     status, n_cov, p_len, n_ew, n_ns, n_path = plan_into(padded, prefix, f, start_kind, sp, sq, covered, path)
     return status, n_cov, p_len, n_ew, n_ns, n_path, n_cov, -1, -1
 

@@ -123,8 +123,10 @@ def evaluate_reference(
     theta: tuple[float, float, float],
     block_side_m: float = DEFAULT_BLOCK_SIDE_M,
     start: Tile | None = None,
+    planner: str = "paper",
 ) -> dict[str, object]:
-    """Geometry plus plan, all in plain Python: the metrics FBCPP.md section 7 names."""
+    """Geometry plus plan, all in plain Python: the metrics FBCPP.md section 7 names (`planner` "fit":
+    docs/fbcpp-fit.md's, with `start` a start cell instead of a tile)."""
     m = Morphology.of(theta)
     w_m, l_m = footprint_size(m, block_side_m)
     f = footprint_matrix(m, grid_map.resolution_m, block_side_m)
@@ -133,8 +135,18 @@ def evaluate_reference(
     result["footprint_m"] = (w_m, l_m)
     if not result["feasible"]:
         return result | {"P_c": 0.0, "coverage_free_pct": 0.0, "P_len": 0, "path_length_cells": 0}
-    plan = plan_reference(grid_map.cells.tolist(), f.tolist(), start)
     n_free, n_occ = grid_map.counts[Cell.FREE], grid_map.counts[Cell.OCCUPIED]
+    if planner == "fit":
+        fit = plan_fit_reference(grid_map.cells.tolist(), f.tolist(), start)
+        return result | {
+            "P_c": 100.0 * fit.n_covered / n_free,
+            "coverage_free_pct": 100.0 * fit.n_covered / n_free,
+            "P_len": fit.p_len,
+            "path_length_cells": fit.n_ew * w + fit.n_ns * l,
+            "coverable_pct": 100.0 * fit.n_bound / n_free,
+            "path": fit.placements,
+        }
+    plan = plan_reference(grid_map.cells.tolist(), f.tolist(), start)
     return result | {
         "P_c": 100.0 * (plan.n_covered + n_occ) / (n_free + n_occ),
         "coverage_free_pct": 100.0 * plan.n_covered / n_free,
@@ -230,22 +242,30 @@ def plan_fit_reference(cells: list[list[int]], f: list[list[bool]], start_cell: 
             if best_group is not None and p in best_group[1]:
                 classes.setdefault((p[0] % l, p[1] % w), p)
         candidates = sorted(classes.values())
-    best: tuple[tuple[int, int, int], FitReferencePlan] | None = None
-    for order, start in enumerate(candidates):
-        plan = _fit_walk(safe, stamp_cells, l, w, start)
-        key = (-plan.n_covered, plan.p_len, order)
-        if best is None or key < best[0]:
-            best = (key, plan)
+    best: tuple[int, Tile] | None = None
+    for start in candidates:  # the lattice that reaches the most usable nodes; the earliest of equal ones
+        s0, _, neighbours = _fit_lattice(safe, l, w, start)
+        reached, queue = {s0}, deque([s0])
+        while queue:
+            for u in neighbours(queue.popleft()):
+                if u not in reached:
+                    reached.add(u)
+                    queue.append(u)
+        if best is None or len(reached) > best[0]:
+            best = (len(reached), start)
     if best is None:
         return FitReferencePlan(0, 0, None, [], 0, 0)
-    plan = best[1]
+    plan = _fit_walk(safe, stamp_cells, l, w, best[1])
     start = plan.placements[0]
     bound = {(p[0] + i, p[1] + j) for p in component(start) for i, j in stamp_cells}
     return FitReferencePlan(plan.n_covered, len(bound), start, plan.placements, plan.n_ew, plan.n_ns)
 
 
-def _fit_walk(safe: Any, stamp_cells: list[Tile], l: int, w: int, start: Tile) -> FitReferencePlan:
-    """The wavefront on the lattice of placements through `start` (docs/fbcpp-fit.md section 5); no bound."""
+def _fit_lattice(
+    safe: Any, l: int, w: int, start: Tile
+) -> tuple[Tile, Callable[[Tile], Tile], Callable[[Tile], list[Tile]]]:
+    """The lattice through `start` (docs/fbcpp-fit.md section 4): its start node, node -> placement, and the
+    joined neighbours of a node in neighbour order."""
     oy, ox = start[0] % l, start[1] % w
 
     def node(t: Tile) -> Tile:
@@ -262,7 +282,13 @@ def _fit_walk(safe: Any, stamp_cells: list[Tile], l: int, w: int, start: Tile) -
     def neighbours(t: Tile) -> list[Tile]:
         return [u for u in ((t[0] + da, t[1] + db) for da, db in NEIGHBOURS) if passable(t, u)]
 
-    path = wavefront(((start[0] - oy) // l, (start[1] - ox) // w), neighbours)
+    return ((start[0] - oy) // l, (start[1] - ox) // w), node, neighbours
+
+
+def _fit_walk(safe: Any, stamp_cells: list[Tile], l: int, w: int, start: Tile) -> FitReferencePlan:
+    """The wavefront on the lattice of placements through `start` (docs/fbcpp-fit.md section 5); no bound."""
+    s0, node, neighbours = _fit_lattice(safe, l, w, start)
+    path = wavefront(s0, neighbours)
     covered: set[Tile] = set()
 
     def stamp(p: Tile) -> None:
