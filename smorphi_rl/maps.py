@@ -184,6 +184,10 @@ def cells_from_image(
 def load_map(yaml_path: str | Path) -> Map:
     """Load a ROS map_server / nav2 map: YAML with `image` (relative to it), `resolution`, ..."""
     path = Path(yaml_path)
+    if path.suffix.lower() in (*IMAGE_SUFFIXES, ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif"):
+        beside = path.with_suffix(".yaml")
+        hint = f" (is {beside} its YAML?)" if beside.is_file() else ""
+        raise MapError(f"{path} is an image: give the map_server YAML that names it{hint}")
     try:
         text = path.read_text()
     except FileNotFoundError:

@@ -56,6 +56,42 @@ def crop_to_known(grid_map: Map, margin_m: float = 0.0) -> Map:
     return Map(grid_map.cells[r0:r1, c0:c1], r, (x0 + c0 * r, y0 + r0 * r, yaw), grid_map.name)
 
 
+def crop_to_rect(grid_map: Map, x0: float, y0: float, x1: float, y1: float) -> Map:
+    """The cells of the map inside the rectangle [x0, x1] x [y0, y1] metres (map frame); the rectangle must
+    lie on the map and hold at least one free cell."""
+    rect = f"crop rectangle ({x0:g}, {y0:g}) - ({x1:g}, {y1:g}) m"
+    if not (x1 > x0 and y1 > y0):
+        raise MapError(f"{rect} is empty: give X0 Y0 X1 Y1 with X1 > X0 and Y1 > Y0")
+    ox, oy, yaw = grid_map.origin
+    r = grid_map.resolution_m
+    extent = (ox, oy, ox + grid_map.width * r, oy + grid_map.height * r)
+    if x0 < extent[0] - 1e-9 or y0 < extent[1] - 1e-9 or x1 > extent[2] + 1e-9 or y1 > extent[3] + 1e-9:
+        raise MapError(
+            f"{rect} is not inside map {grid_map.name}, which spans "
+            f"({extent[0]:g}, {extent[1]:g}) - ({extent[2]:g}, {extent[3]:g}) m"
+        )
+    c0, r0 = int(np.floor((x0 - ox) / r + 1e-9)), int(np.floor((y0 - oy) / r + 1e-9))
+    c1, r1 = int(np.ceil((x1 - ox) / r - 1e-9)), int(np.ceil((y1 - oy) / r - 1e-9))
+    cells = grid_map.cells[r0:r1, c0:c1]
+    if not (cells == Cell.FREE).any():
+        raise MapError(f"{rect} holds no free cell of {grid_map.name}")
+    return Map(cells, r, (ox + c0 * r, oy + r0 * r, yaw), grid_map.name)
+
+
+def resample(grid_map: Map, resolution_m: float) -> Map:
+    """The map at `resolution_m` metres a cell, a whole multiple of its own (`coarsen`)."""
+    factor = resolution_m / grid_map.resolution_m
+    if not np.isfinite(factor) or factor < 1 - 1e-9:
+        raise MapError(
+            f"map {grid_map.name} is at {grid_map.resolution_m:g} m a cell: resample only to a coarser resolution, "
+            f"not {resolution_m:g} m"
+        )
+    if abs(factor - round(factor)) > 1e-6:
+        own = grid_map.resolution_m
+        raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m")
+    return coarsen(grid_map, round(factor))
+
+
 def coarsen(grid_map: Map, factor: int) -> Map:
     """The map at `factor` times its cell size. A coarse cell is occupied if any cell under it is, else
     unknown if any is, else free: conservative, so a footprint safe on the coarse map is safe on the fine one.

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from conftest import random_map, realmap
@@ -11,6 +13,7 @@ from smorphi_rl.errors import MapError
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.maptools import coarsen, crop_to_known, drop_islands
 
+ROOT = Path(__file__).resolve().parents[1]
 ISLANDS = """
 ????????????
 ?...#####.??
@@ -54,13 +57,33 @@ def test_small_islands_are_dropped_and_the_largest_area_kept():
     assert everything.counts[Cell.FREE] == 9  # the largest area stays, however small
 
 
-def test_maps_prepare_writes_a_smaller_real_map_and_refuses_to_overwrite(tmp_path, capsys):
+def test_maps_crop_then_resample_a_real_map_and_refuse_to_overwrite(tmp_path, capsys):
     source = realmap("tb3_world")
-    out = tmp_path / "tb3.yaml"
-    assert main(["maps", "prepare", str(source), "--out", str(out), "--factor", "2", "--min-island", "0.05"]) == 0
+    cropped, coarse = tmp_path / "tb3.yaml", tmp_path / "tb3-10cm.yaml"
+    assert main(["maps", "crop", str(source), "--out", str(cropped), "--min-island", "0.05"]) == 0
+    assert main(["maps", "resample", str(cropped), "--resolution", "0.1", "--out", str(coarse)]) == 0
     printed = capsys.readouterr().out
-    prepared, original = load_map(out), load_map(source)
-    assert "wrote" in printed and "islands" in printed and prepared.resolution_m == 0.1
+    prepared, original = load_map(coarse), load_map(source)
+    assert printed.count("wrote") == 2 and "islands  3 dropped" in printed and prepared.resolution_m == 0.1
     assert prepared.cells.size * 20 < original.cells.size
-    assert main(["maps", "prepare", str(source), "--out", str(out)]) != 0
-    assert "exists" in capsys.readouterr().err and load_map(out).cells.shape == prepared.cells.shape
+    assert main(["maps", "crop", str(source), "--out", str(cropped)]) != 0
+    assert "exists" in capsys.readouterr().err and load_map(cropped).cells.shape == (112, 121)
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (["maps", "resample", "maps/map-1.yaml", "--resolution", "0.05"], "only to a coarser resolution"),
+        (["maps", "resample", "maps/map-1.yaml", "--resolution", "0.25"], "not a whole multiple"),
+        (["maps", "crop", "maps/map-1.yaml", "--rect", "4", "4", "6", "6"], "is not inside map map-1"),
+        (["maps", "crop", "maps/map-1.yaml", "--rect", "2", "2", "1", "3"], "is empty"),
+        (["maps", "show", "maps/map-1.pgm"], "is an image: give the map_server YAML"),
+    ],
+)
+def test_bad_map_tool_input_is_one_line(argv, message, tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(ROOT)
+    out = ["--out", str(tmp_path / "x.yaml")] if argv[1] in ("crop", "resample") else []
+    assert main(argv + out) != 0
+    err = capsys.readouterr().err
+    assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "x.yaml").exists()

@@ -54,28 +54,31 @@ def register(sub: Any) -> None:
     show.add_argument("map", help="map_server YAML")
     show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
     show.set_defaults(func=cmd_maps_show)
-    prep = maps_sub.add_parser("prepare", help="crop a real map to its recorded area, coarsen it, drop free islands")
-    prep.add_argument("map", help="map_server YAML to read (left as it is)")
-    prep.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
-    prep.add_argument("--margin", type=float, default=0.2, metavar="M",
-                      help="metres kept around the known cells (default 0.2)")  # fmt: skip
-    prep.add_argument("--no-crop", action="store_true", help="keep the full grid")
-    prep.add_argument(
-        "--factor",
-        type=int,
-        default=1,
-        metavar="K",
-        help="coarsen K x K cells into one (occupied if any is, else unknown if any is; default 1)",
-    )
-    prep.add_argument(
-        "--min-island",
+    crop = maps_sub.add_parser("crop", help="cut a map to its recorded (known) area or to a rectangle")
+    crop.add_argument(
+        "--rect",
+        nargs=4,
         type=float,
-        default=0.0,
-        metavar="M2",
-        help="drop free areas smaller than this many square metres (default 0: keep all)",
+        metavar=("X0", "Y0", "X1", "Y1"),
+        help="keep this rectangle, metres in the map frame (default: the known cells and a margin)",
     )
-    prep.add_argument("--force", action="store_true", help="overwrite an existing map")
-    prep.set_defaults(func=cmd_maps_prepare)
+    crop.add_argument("--margin", type=float, default=0.2, metavar="M",
+                      help="metres kept around the known cells (default 0.2)")  # fmt: skip
+    resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
+    resample.add_argument("--resolution", type=float, required=True, metavar="R",
+                          help="metres a cell; a coarse cell is free only if every cell under it is")  # fmt: skip
+    for tool, run in ((crop, cmd_maps_crop), (resample, cmd_maps_resample)):
+        tool.add_argument("map", help="map_server YAML to read (left as it is)")
+        tool.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
+        tool.add_argument(
+            "--min-island",
+            type=float,
+            default=0.0,
+            metavar="M2",
+            help="also drop free areas smaller than this many square metres (default 0: keep all)",
+        )
+        tool.add_argument("--force", action="store_true", help="overwrite an existing map")
+        tool.set_defaults(func=run)
 
 
 def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
@@ -274,22 +277,38 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     return 0
 
 
-def cmd_maps_prepare(args: argparse.Namespace) -> int:
-    """Crop, coarsen and clean a map into a new map_server YAML; print both maps' sizes."""
+def cmd_maps_crop(args: argparse.Namespace) -> int:
+    """Cut a map to its known area (or a rectangle) into a new map_server YAML."""
+    from smorphi_rl.maptools import crop_to_known, crop_to_rect
+
+    def crop(source: Map) -> Map:
+        return crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+
+    return _write_prepared(args, crop)
+
+
+def cmd_maps_resample(args: argparse.Namespace) -> int:
+    """Coarsen a map, conservatively, into a new map_server YAML."""
+    from smorphi_rl.maptools import resample
+
+    return _write_prepared(args, lambda source: resample(source, args.resolution))
+
+
+def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
+    """Read the map, transform it, drop small islands, write it (never over the input or an existing map
+    without --force) and print both maps' sizes."""
     from smorphi_rl.maps import save_map
-    from smorphi_rl.maptools import coarsen, crop_to_known, drop_islands
+    from smorphi_rl.maptools import drop_islands
 
     out = Path(args.out)
     if out.suffix != ".yaml":
         raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
+    if Path(args.map).resolve() == out.resolve():
+        raise SmorphiError(f"--out {out} is the input map: write the new map somewhere else")
     if not args.force and (out.exists() or out.with_suffix(".pgm").exists()):
         raise SmorphiError(f"{out} exists; pass --force to overwrite it")
-    if Path(args.map).resolve() == out.resolve():
-        raise SmorphiError(f"--out {out} is the input map: write the prepared map somewhere else")
     source = load_map(args.map)
-    grid_map = source if args.no_crop else crop_to_known(source, args.margin)
-    grid_map = coarsen(grid_map, args.factor)
-    grid_map, islands = drop_islands(grid_map, args.min_island)
+    grid_map, islands = drop_islands(transform(source), args.min_island)
     save_map(grid_map, out)
 
     def size(m: Map) -> str:
