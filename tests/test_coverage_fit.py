@@ -125,3 +125,46 @@ def test_a_tile_start_is_refused_by_the_fit_planner(room12):
 
     with pytest.raises(SmorphiError, match="fit planner has no tiles"):
         Evaluator(room12, start=Start.tile(0, 0), planner=Planner.FIT).evaluate(Morphology.of((0, 180, 0)))
+
+
+@pytest.mark.parametrize("name", ["tb3_world", "depot"])
+def test_kernel_matches_the_reference_on_crops_of_real_maps(name):
+    from smorphi_rl.maptools import crop_to_rect
+
+    grid_map = load_map(str(realmap(name)))
+    ox, oy, _ = grid_map.origin
+    rows, cols = np.nonzero(grid_map.cells == Cell.FREE)
+    cy, cx = oy + rows.mean() * grid_map.resolution_m, ox + cols.mean() * grid_map.resolution_m
+    crop = crop_to_rect(grid_map, cx - 1.0, cy - 1.0, cx + 1.0, cy + 1.0)  # 40 x 40 cells at 0.05 m
+    for theta in ((0, 180, 0), (95, 59, 103)):
+        f = footprint_matrix(Morphology.of(theta), crop.resolution_m)
+        ref = plan_fit_reference(crop.cells.tolist(), f.tolist())
+        plan = Evaluator(crop, planner=Planner.FIT).plan(Morphology.of(theta))
+        assert [tuple(p) for p in plan.placements.tolist()] == ref.placements and plan.covered.sum() == ref.n_covered
+
+
+def _collisions(grid_map: Map, placements: list[list[int]], f: np.ndarray) -> int:
+    """Robot positions along a plan whose footprint leaves the map or touches a cell that is not free."""
+    rows, cols = np.nonzero(f)
+    bad = 0
+    for r, c in sweep_positions(placements):
+        y, x = r + rows, c + cols
+        inside = (y < grid_map.height) & (x < grid_map.width)
+        bad += bool((~inside).any() or (grid_map.cells[y[inside], x[inside]] != Cell.FREE).any())
+    return bad
+
+
+@pytest.mark.slow
+def test_no_collision_on_any_shipped_or_real_map():
+    """The target: zero collisions on every real and shipped map, checked from the plan's own placements."""
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    paths = [*sorted((root / "maps").glob("*.yaml")), realmap("tb3_world"), realmap("depot")]
+    for path in paths:
+        grid_map = load_map(str(path))
+        for theta in ((0, 180, 0), (110, 60, 67)):
+            plan = Evaluator(grid_map, planner=Planner.FIT).plan(Morphology.of(theta))
+            assert plan.placements is not None and plan.footprint is not None
+            if len(plan.placements):
+                assert _collisions(grid_map, plan.placements.tolist(), plan.footprint.astype(bool)) == 0, path.name
