@@ -17,7 +17,7 @@ import numpy as np
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, planner_option, seed_arg
 from smorphi_rl.coverage import CoverageResult, Planner, Start
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, angles_text
 from smorphi_rl.maps import Cell, Map, load_map
 
 
@@ -189,6 +189,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise SmorphiError("give --angles T1 T2 T3")
     fit = evaluator.planner is Planner.FIT
     result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
+    if fit and result.feasible and result.placements is not None and not len(result.placements):
+        where = "nowhere on the map" if evaluator.start.kind == 0 else f"at {evaluator.start.describe()}"
+        l, w = result.footprint_cells
+        raise SmorphiError(f"shape {angles_text(morphology.angles)}: its footprint ({l} x {w} cells) fits {where} "
+                           f"{grid_map.name} without touching an occupied, unknown or outside cell")  # fmt: skip
     plot_path = None
     if args.plot:
         from smorphi_rl.plots import plot_coverage
