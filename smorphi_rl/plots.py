@@ -22,21 +22,48 @@ BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 MAP_COLOURS = ListedColormap(["#ffffff", "#202020", "#b0b0b0", "#7bd389"])
 
 
+MAX_GRID_LINES = 60
+"""Tile lattices with more lines than this across are not drawn (they would grey the map over)."""
+
+
 def _extent(grid_map: Map) -> tuple[float, float, float, float]:
     x0, y0 = grid_map.origin[0], grid_map.origin[1]
     r = grid_map.resolution_m
     return (x0, x0 + grid_map.width * r, y0, y0 + grid_map.height * r)
 
 
+def known_extent(grid_map: Map, margin_m: float = 0.2) -> tuple[float, float, float, float]:
+    """(x0, x1, y0, y1) metres of the known (free or occupied) cells and a margin: what a plot shows of a
+    recorded map, which is mostly unknown space."""
+    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    x0, x1, y0, y1 = _extent(grid_map)
+    if rows.size == 0:
+        return x0, x1, y0, y1
+    r = grid_map.resolution_m
+    ox, oy = grid_map.origin[0], grid_map.origin[1]
+    return (max(x0, ox + cols.min() * r - margin_m), min(x1, ox + (cols.max() + 1) * r + margin_m),
+            max(y0, oy + rows.min() * r - margin_m), min(y1, oy + (rows.max() + 1) * r + margin_m))  # fmt: skip
+
+
 def draw_map(ax: plt.Axes, grid_map: Map, covered: np.ndarray | None = None) -> None:
-    """Free white, occupied black, unknown grey and, if given, covered free cells green."""
+    """Free white, occupied black, unknown grey and, if given, covered free cells green; zoomed to the known
+    cells."""
     image = grid_map.cells.astype(np.int8).copy()
     if covered is not None:
         image[covered & (grid_map.cells == Cell.FREE)] = 3
     ax.imshow(image, cmap=MAP_COLOURS, vmin=0, vmax=3, origin="lower", extent=_extent(grid_map), interpolation="none")
+    x0, x1, y0, y1 = known_extent(grid_map)
+    ax.set_xlim(x0, x1)
+    ax.set_ylim(y0, y1)
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_aspect("equal")
+
+
+def path_width(n_points: int) -> float:
+    """Line width of a coverage path: thinner as it gets longer, so a long path stays a path, not a red
+    area (1.4 pt up to about 300 positions, 0.3 pt from about 7,000)."""
+    return float(np.clip(25.0 / np.sqrt(max(n_points, 1)), 0.3, 1.4))
 
 
 def draw_morphology(
@@ -84,14 +111,16 @@ def draw_coverage(
     l, w = result.footprint_cells
     x0, x1, y0, y1 = _extent(grid_map)
     row0, col0 = (int(v) for v in result.placements[0])
-    if tiles:  # the lattice the path moves on (the paper's tiles start at the map's corner)
+    if tiles and grid_map.width <= MAX_GRID_LINES * w and grid_map.height <= MAX_GRID_LINES * l:
+        # the lattice the path moves on (the paper's tiles start at the map's corner); left out when it
+        # would grey a large map over
         for x in np.arange(x0 + (col0 % w) * r, x1 + 1e-9, w * r):
             ax.axvline(x, color="#4a90d9", lw=0.4, alpha=0.5)
         for y in np.arange(y0 + (row0 % l) * r, y1 + 1e-9, l * r):
             ax.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
     pts = path_points_m(result, grid_map)
-    ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=1.4, label="coverage path")
-    ax.plot(pts[0, 0], pts[0, 1], "o", color="#d62728", ms=6, label="start")
+    ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=path_width(len(pts)), label="coverage path")
+    ax.plot(pts[0, 0], pts[0, 1], "o", color="#ffd700", mec="black", mew=1.2, ms=9, zorder=5, label="start")
     draw_morphology(ax, morphology, block_side_m, (x0 + col0 * r, y0 + row0 * r))
 
 
