@@ -10,7 +10,8 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
 ## Observation Space
 `Dict`, the same shape for every map so one policy transfers between maps:
 - `map`: `Box(0, 255, (2, S, S), uint8)`, the fraction of occupied (channel 0) and unknown
-  (channel 1) cells of the map resampled to S x S (`obs_size`, default 64), times 255 and rounded
+  (channel 1) cells of the map's known area (the bounding box of its free and occupied cells)
+  resampled to S x S (`obs_size`, default 64), times 255 and rounded
   (a quarter of float32's bytes through every connector; the policy divides by 255);
 - `angles`: `Box(0, 1, (3,))`, theta / 180;
 - `metrics`: `Box(0, 1, (2,))`, P_c / 100 and P_len / (P_len + 100) of the current shape.
@@ -39,7 +40,9 @@ action; truncated after `max_steps`.
 
 ## Version History
 - v0: first version; the map channels became uint8 and the `improvement` and `commit` reward modes
-  were added without a version bump (no policy had been published).
+  were added without a version bump (no policy had been published); likewise the map channels now
+  cover the known cells' bounding box (identical on maps with no unknown border, such as the shipped
+  ones) and the config took `planner`, `start_xy` and `path_term` (defaults: the old behaviour).
 """
 
 from __future__ import annotations
@@ -318,8 +321,12 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     # -- helpers ---------------------------------------------------------------------------
     def _map_channels(self, grid_map: Map) -> np.ndarray:
+        """The observation's map: occupied and unknown fractions over the known cells' bounding box (a
+        recorded map is mostly unknown space around the floor; the policy sees the floor, not the frame)."""
         size = self.config.obs_size
-        fractions = np.stack([resample(grid_map.cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
+        rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+        cells = grid_map.cells[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+        fractions = np.stack([resample(cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
         channels = np.rint(fractions * MAP_LEVELS).astype(np.uint8)
         channels.setflags(write=False)  # shared by every observation of this map
         return channels

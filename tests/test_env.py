@@ -251,3 +251,19 @@ def test_the_paper_planning_keeps_its_cache_key():
     from smorphi_rl.evaluate import Planning
 
     assert Planning().key() == [0.17] and Planning(planner=Planner.FIT).key() != [0.17]
+
+
+def test_the_map_view_covers_the_known_cells_not_the_frame(tmp_path):
+    """A recorded map is mostly unknown space: the observation resamples the known cells' box only."""
+    from conftest import ROOM12
+
+    from smorphi_rl.maps import Map, save_map
+
+    room = Map.from_text(ROOM12, 0.1, name="room")
+    framed = np.full((60, 60), 2, dtype=np.uint8)  # the room inside a wide unknown frame
+    framed[20:32, 30:42] = room.cells
+    paths = [
+        save_map(Map(c, 0.1, name=n), tmp_path / f"{n}.yaml") for c, n in ((room.cells, "room"), (framed, "framed"))
+    ]
+    views = [MorphologyEnv({"maps": [str(p)], "obs_size": 12}).reset(seed=0)[0]["map"] for p in paths]
+    assert np.array_equal(views[0], views[1]) and views[1][1].max() == 0  # no unknown left in view
