@@ -481,15 +481,17 @@ def _safe_runs(safe: np.ndarray, h: int, wd: int) -> tuple[np.ndarray, np.ndarra
 
 @njit(cache=True)
 def _fit_lattice(
-    safe: np.ndarray, rows: np.ndarray, cols: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int
-) -> tuple[int, int, np.ndarray, np.ndarray, int]:
-    """The lattice through placement (y0, x0): (rows, columns, east edges, north edges, start node). Nodes are
-    safe placements; an edge joins neighbours when every placement along the move is safe (`_safe_runs`)."""
+    safe: np.ndarray, rows: np.ndarray, cols: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int,
+    edge_e: np.ndarray, edge_n: np.ndarray,
+) -> tuple[int, int, np.ndarray, np.ndarray, int]:  # fmt: skip
+    """The lattice through placement (y0, x0): (rows, columns, east edges, north edges, start node), the
+    edges written into the given buffers (at least H*W long; reused across candidates). Nodes are safe
+    placements; an edge joins neighbours when every placement along the move is safe (`_safe_runs`)."""
     oy, ox = y0 % l, x0 % w
     nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
     n = nr * nc
-    edge_e = np.zeros(n, np.bool_)
-    edge_n = np.zeros(n, np.bool_)
+    edge_e[:n] = False
+    edge_n[:n] = False
     for a in range(nr):
         for b in range(nc):
             y, x = oy + a * l, ox + b * w
@@ -503,10 +505,12 @@ def _fit_lattice(
 
 
 @njit(cache=True)
-def _reach(nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray, start: int) -> int:
-    """How many nodes breadth-first search reaches from `start` over joined edges."""
-    seen = np.zeros(nr * nc, np.bool_)
-    queue = np.empty(nr * nc, np.int32)
+def _reach(
+    nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray, start: int, seen: np.ndarray, queue: np.ndarray
+) -> int:
+    """How many nodes breadth-first search reaches from `start` over joined edges (`seen` and `queue`:
+    buffers at least nr * nc long)."""
+    seen[: nr * nc] = False
     seen[start] = True
     queue[0] = start
     head, tail = 0, 1
@@ -553,15 +557,17 @@ def plan_fit_into(
     if candidates.shape[0] == 0:
         return STATUS_OK, 0, 0, 0, 0, 0, 0, -1, -1
     best, best_reach = -1, -1
+    edge_e, edge_n = np.zeros(h * wd, np.bool_), np.zeros(h * wd, np.bool_)
+    seen, queue = np.zeros(h * wd, np.bool_), np.empty(h * wd, np.int32)
     for c in range(candidates.shape[0]):  # the lattice that reaches the most usable nodes; the earliest of equal
         y0, x0 = candidates[c] // wd, candidates[c] % wd
-        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0)
-        reach = _reach(nr, nc, edge_e, edge_n, s)
+        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0, edge_e, edge_n)
+        reach = _reach(nr, nc, edge_e, edge_n, s, seen, queue)
         if reach > best_reach:
             best, best_reach = c, reach
     y0, x0 = candidates[best] // wd, candidates[best] % wd
     oy, ox = y0 % l, x0 % w
-    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0)
+    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0, edge_e, edge_n)
     n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, s, oy, ox, path, covered, h, wd)
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
