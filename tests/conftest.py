@@ -76,8 +76,17 @@ def walled() -> Map:
     return Map.from_text(WALLED, 0.1, name="walled")
 
 
-REALMAPS = Path(os.environ.get("SMORPHI_RL_REALMAPS", Path(__file__).resolve().parents[2] / "shared" / "realmaps"))
-"""Real ROS maps recorded by robots (the workplace's shared/realmaps, beside the project; not copied into it)."""
+def _realmaps() -> Path:
+    """The workplace's shared/realmaps: $SMORPHI_RL_REALMAPS, else the nearest `shared/realmaps` above the tests."""
+    if "SMORPHI_RL_REALMAPS" in os.environ:
+        return Path(os.environ["SMORPHI_RL_REALMAPS"])
+    here = Path(__file__).resolve()
+    found = [p / "shared" / "realmaps" for p in here.parents if (p / "shared" / "realmaps").is_dir()]
+    return found[0] if found else here.parents[2] / "shared" / "realmaps"
+
+
+REALMAPS = _realmaps()
+"""Real ROS maps recorded by robots (used from where the workplace keeps them; not copied into the project)."""
 
 
 def realmap(name: str) -> Path:
