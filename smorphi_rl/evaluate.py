@@ -114,6 +114,7 @@ class Evaluator:
         start: Start = AUTO_START,
         cache: bool = True,
         planner: Planner = Planner.PAPER,
+        cache_limit: int | None = None,
     ) -> None:
         self.block_side_m = check_block_side(block_side_m, grid_map.resolution_m)
         self.start = start
@@ -125,6 +126,9 @@ class Evaluator:
         self._no_covered = np.zeros((0, 0), dtype=np.uint8)
         self._no_path = np.zeros((0, 2), dtype=np.int32)
         self._cache: dict[bytes, tuple[float, ...]] = {}
+        self.cache_limit = cache_limit
+        """At most this many footprints are kept (the cache is emptied when full); None: no limit."""
+        self._planned: list[bytes] = []
         self.hits = 0
         self.misses = 0
 
@@ -135,9 +139,18 @@ class Evaluator:
     def cache_size(self) -> int:
         return len(self._cache)
 
-    def cached_footprints(self) -> list[bytes]:
-        """The bits of every distinct feasible F planned so far (the cache keys)."""
-        return list(self._cache)
+    def drain_planned(self) -> list[bytes]:
+        """The bits of every F planned since the last call (each once per plan; with a cache limit, an F
+        planned again after the cache was emptied comes back again)."""
+        planned, self._planned = self._planned, []
+        return planned
+
+    def _remember(self, key: bytes, counts: tuple[float, ...]) -> None:
+        """Keep one plan's counts under F's bits, emptying a full cache first (bounded memory on huge runs)."""
+        if self.cache_limit is not None and len(self._cache) >= self.cache_limit:
+            self._cache.clear()
+        self._cache[key] = counts
+        self._planned.append(key)
 
     def footprint(self, morphology: Morphology) -> Footprint:
         """F and the footprint size of one morphology (compiled rasteriser)."""
@@ -167,7 +180,7 @@ class Evaluator:
             raise_for_status(status, self.start, (l, w), self.grid_map)
             counts = tuple(float(plan[i]) for i in (0, 1, 2, 3, 5))  # covered, P_len, E/W, N/S, bound
             if self.use_cache:
-                self._cache[key] = counts
+                self._remember(key, counts)
         else:
             self.hits += 1
         n_cov, p_len, n_ew, n_ns, n_bound = counts
@@ -229,7 +242,7 @@ class Evaluator:
             self._check_statuses(fresh)
             plans[missing] = fresh[:, _PLAN_COLS]
             for u, plan in zip(missing, plans[missing], strict=True):
-                self._cache[unique_keys[u].tobytes()] = tuple(float(v) for v in plan)
+                self._remember(unique_keys[u].tobytes(), tuple(float(v) for v in plan))
         out[np.flatnonzero(feasible)[:, None], _PLAN_COLS] = plans[inverse.ravel()]
         return self._to_batch(arr, out)
 
@@ -276,9 +289,9 @@ class Planning:
         """The start on `grid_map` (the point must be free there)."""
         return AUTO_START if self.start_xy is None else Start.point(grid_map, *self.start_xy)
 
-    def evaluator(self, grid_map: Map, cache: bool = True) -> Evaluator:
+    def evaluator(self, grid_map: Map, cache: bool = True, cache_limit: int | None = None) -> Evaluator:
         """An evaluator that plans this way on `grid_map`."""
-        return Evaluator(grid_map, self.block_side_m, self.start_on(grid_map), cache, self.planner)
+        return Evaluator(grid_map, self.block_side_m, self.start_on(grid_map), cache, self.planner, cache_limit)
 
     def key(self) -> list[object]:
         """What a cache of results keys on (the paper planner's default start keeps its old key)."""
