@@ -63,6 +63,17 @@ Points = tuple[str, str, np.ndarray, np.ndarray, np.ndarray, Any]
 trained policy (dict), the settled R1 of each start of a local search (list), or None."""
 
 
+def planner_of_run(run_dir: Path) -> str:
+    """The coverage planner a training or search run scored its shapes with ("paper" for runs from before
+    there was a choice)."""
+    config = run_dir / "config.json"
+    if config.is_file():
+        return str((json.loads(config.read_text()).get("env") or {}).get("planner", "paper"))
+    if (run_dir / "results.npz").is_file():
+        return str(load(run_dir).params.get("planner", "paper"))
+    return "paper"
+
+
 def points_of_run(run_dir: Path, map_name: str) -> Points:
     """What a training run directory or a search run directory found on `map_name`."""
     if not run_dir.is_dir():

@@ -70,3 +70,16 @@ def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
     err = capsys.readouterr().err
     assert code == 1 and message in err and err.count("\n") == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_compare_refuses_runs_scored_by_another_planner(tmp_path, capsys):
+    from smorphi_rl.cli import main
+
+    assert (
+        main(["search", "random", "--samples", "20", "--planner", "fit", "--log-dir", str(tmp_path), "--name", "r"])
+        == 0
+    )
+    capsys.readouterr()
+    assert main(["compare", "--random", str(tmp_path / "r"), "--log-dir", str(tmp_path), "--step", "30"]) != 0
+    err = capsys.readouterr().err
+    assert "scored by the fit planner" in err and "--planner fit" in err and not (tmp_path / "compare-map-1").exists()

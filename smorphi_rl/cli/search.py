@@ -166,7 +166,7 @@ def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: 
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
-    from smorphi_rl.compare import points_of_run, report_lines, score_methods, write_report
+    from smorphi_rl.compare import planner_of_run, points_of_run, report_lines, score_methods, write_report
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -178,6 +178,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     w = weights(args)
     w1, w2 = w.w1, w.w2_on(grid_map)
     planning = planning_of(args, grid_map)
+    for d in dirs:  # shapes scored by another planner cannot be set against this front
+        if (made_with := planner_of_run(d)) != planning.planner.value:
+            raise SmorphiError(f"{d}: its shapes were scored by the {made_with} planner, the exact front here by "
+                               f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:

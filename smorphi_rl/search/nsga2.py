@@ -60,6 +60,6 @@ def run_nsga2(
     minimize(problem, algorithm, ("n_gen", generations), seed=seed, verbose=False)
     wall = time.perf_counter() - t0
     seen = np.vstack(problem.seen)
-    params = {"pop": pop, "generations": generations, "seed": seed}
+    params = {"pop": pop, "generations": generations, "seed": seed, "planner": planning.planner.value}
     return SearchResult("nsga2", grid_map.name, seen[:, :3], seen[:, 3], seen[:, 4].astype(np.int64),
                         seen[:, 5] > 0, len(seen), wall, params)  # fmt: skip
