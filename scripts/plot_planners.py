@@ -64,7 +64,8 @@ def main() -> None:
             print(f"{grid_map.name:<10} {theta!s:<18} {r.planner:<6} free covered {r.coverage_free_pct:6.2f} %  "
                   f"P_len {r.P_len:4d}  positions over non-free cells {over:5.1f} %")  # fmt: skip
         rows.append((grid_map, morphology, results))
-    print(f"figure: {plot_planners(rows, 0.17, args.out)}")
+    figure = plot_planners(rows, 0.17, args.out).resolve()
+    print(f"figure: {figure.relative_to(Path.cwd()) if figure.is_relative_to(Path.cwd()) else figure}")
 
 
 if __name__ == "__main__":
