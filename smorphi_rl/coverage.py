@@ -135,6 +135,19 @@ class PreparedMap:
 _NO_AREA = np.zeros(0, dtype=np.uint8)
 
 
+def free_area_share(grid_map: Map, cell: tuple[int, int] | None = None) -> float:
+    """Percent of the free cells in the 4-connected free area holding `cell` (None: the largest area): what
+    share of the free space a plan starting there can reach at most."""
+    from smorphi_rl import _kernels as k
+
+    free = grid_map.cells == Cell.FREE
+    labels = k.components(free.ravel(), *free.shape)
+    if cell is None:
+        return 100.0 * float(largest_free_area(free).sum()) / max(int(free.sum()), 1)
+    own = labels[cell[0] * free.shape[1] + cell[1]]
+    return 100.0 * float(np.count_nonzero(labels == own)) / max(int(free.sum()), 1) if own >= 0 else 0.0
+
+
 def largest_free_area(free: np.ndarray) -> np.ndarray:
     """The largest 4-connected area of free cells as a flat uint8 mask (ties: the area holding the earliest
     cell in row-major order, row 0 the lowest y)."""

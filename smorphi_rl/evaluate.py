@@ -20,6 +20,7 @@ from smorphi_rl.coverage import (
     Planner,
     PreparedMap,
     Start,
+    free_area_share,
     plan_coverage,
     raise_for_status,
     result_dict,
@@ -292,6 +293,26 @@ class Planning:
     def evaluator(self, grid_map: Map, cache: bool = True, cache_limit: int | None = None) -> Evaluator:
         """An evaluator that plans this way on `grid_map`."""
         return Evaluator(grid_map, self.block_side_m, self.start_on(grid_map), cache, self.planner, cache_limit)
+
+    @property
+    def is_paper_default(self) -> bool:
+        """The paper's planner from its default start: what the paper models, and what reports leave unsaid."""
+        return self.planner is Planner.PAPER and self.start_xy is None
+
+    def describe(self, grid_map: Map) -> str:
+        """One line for reports: the planner, where plans start and what share of the free space that
+        start's area holds (the most any plan from there can cover)."""
+        spec = "docs/fbcpp-fit.md" if self.planner is Planner.FIT else "FBCPP.md"
+        start = self.start_on(grid_map)
+        if self.start_xy is not None:
+            x, y = self.start_xy
+            where, cell = f"at ({x:g}, {y:g}) m", (start.row, start.col)
+        elif self.planner is Planner.FIT:
+            where, cell = "in the largest free area", None
+        else:
+            return f"planner paper ({spec}): plans start at the first traversable tile"
+        share = free_area_share(grid_map, cell)
+        return f"planner {self.planner.value} ({spec}): plans start {where}, {share:.1f} % of the free cells"
 
     def key(self) -> list[object]:
         """What a cache of results keys on (the paper planner's default start keeps its old key)."""

@@ -123,3 +123,16 @@ def test_optimum_of_a_scored_lattice_is_the_brute_force_argmax(room12):
     scores = [(r.P_c - 0.5 * r.P_len, r.theta) for r in (evaluator.evaluate(Morphology.of(t)) for t in thetas)]
     assert abs(best.R1 - max(s for s, _ in scores)) < 1e-9 and best.step_deg == 30.0
     assert best.theta == tuple(float(v) for v in max(scores, key=lambda s: s[0])[1])
+
+
+def test_planning_says_where_plans_start_and_what_share_that_area_holds():
+    from smorphi_rl.coverage import Planner
+    from smorphi_rl.evaluate import Planning
+    from smorphi_rl.maps import Map
+
+    two_rooms = Map.from_text("......#..\n......#..\n......#..", 0.5, name="two")  # 18 and 6 free cells
+    assert "first traversable tile" in Planning().describe(two_rooms) and Planning().is_paper_default
+    fit = Planning(planner=Planner.FIT)
+    assert "largest free area, 75.0 % of the free cells" in fit.describe(two_rooms) and not fit.is_paper_default
+    small = Planning(start_xy=(4.0, 0.25))  # the small room, right of the wall
+    assert "at (4, 0.25) m, 25.0 % of the free cells" in small.describe(two_rooms)

@@ -120,7 +120,7 @@ def cmd_search(args: argparse.Namespace) -> int:
 
     w = weights(args)
     grid_map = load_map(args.map)
-    planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
+    planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
     _check(args)
     w1, w2 = w.w1, w.w2_on(grid_map)
     suffix = f"step{args.step:g}" if args.method == "exhaustive" else f"seed{args.seed}"
@@ -141,17 +141,22 @@ def cmd_search(args: argparse.Namespace) -> int:
         for row in front_rows:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         return 0
-    print(format_search(result, front_rows, w1, w2, files))
+    said = "" if planning.is_paper_default else planning.describe(grid_map)
+    print(format_search(result, front_rows, w1, w2, files, said))
     return 0
 
 
-def format_search(result: Any, front_rows: list[dict[str, Any]], w1: float, w2: float, files: dict[str, Path]) -> str:
-    """The human-readable report of a search: its size, its front, its best shape and where the files are."""
+def format_search(
+    result: Any, front_rows: list[dict[str, Any]], w1: float, w2: float, files: dict[str, Path], planning: str = ""
+) -> str:
+    """The human-readable report of a search: its size, (a non-default) planning, its front, its best shape and
+    where the files are."""
     extra = result.params.get("distinct_footprints")
     footprints = f", {extra:,} distinct footprints" if extra is not None else ""
     feasible = int(np.count_nonzero(result.feasible))
     lines = [f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
              f"{result.wall_s:.1f} s ({feasible:,} feasible)",
+             *([planning] if planning else []),
              f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
     for row in front_rows:
         lines.append(

@@ -18,7 +18,7 @@ from typing import Any
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import Morphology
+from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
@@ -244,6 +244,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     optima: dict[str, Optimum] = {}
     for path in cfg.env.maps:
         grid_map = load_map(path)
+        if not cfg.env.planning.is_paper_default:
+            out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
             out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
                       f"{OPTIMUM_MAX_CELLS:,}); gaps are not reported\n")  # fmt: skip
@@ -372,7 +374,7 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
                      f"(first found at {b.env_steps:,} env steps)")  # fmt: skip
         opt = s.optimum.get(b.map)
         if opt is not None and math.isfinite(opt.R1):
-            t = "(" + ", ".join(f"{v:g}" for v in opt.theta) + ")"
+            t = angles_text(opt.theta)
             pct = 100 * b.R1 / opt.R1 if opt.R1 else math.nan
             lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
