@@ -9,12 +9,11 @@ one-cell position along the path) whose footprint lies over an occupied, unknown
 from __future__ import annotations
 
 import argparse
-from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
 
-from smorphi_rl.coverage import CoverageResult, Planner
+from smorphi_rl.coverage import CoverageResult, Planner, sweep_positions
 from smorphi_rl.evaluate import Planning
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import Cell, Map, load_map
@@ -24,22 +23,12 @@ from smorphi_rl.plots import plot_planners
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def positions(result: CoverageResult) -> list[tuple[int, int]]:
-    """Every one-cell position of F's corner along the plan (docs/fbcpp-fit.md section 6)."""
-    places = [] if result.placements is None else result.placements.tolist()
-    out = [tuple(places[0])] if places else []
-    for (r0, c0), (r1, c1) in pairwise(places):
-        steps = abs(r1 - r0) + abs(c1 - c0)
-        out += [(r0 + (r1 - r0) * k // steps, c0 + (c1 - c0) * k // steps) for k in range(1, steps + 1)]
-    return out
-
-
 def share_over_non_free(result: CoverageResult, grid_map: Map) -> float:
     """Percent of robot positions whose footprint touches a cell that is not free (or leaves the map)."""
     if result.footprint is None:
         return 0.0
     rows, cols = np.nonzero(result.footprint)
-    spots = positions(result)
+    spots = sweep_positions([] if result.placements is None else result.placements.tolist())
     bad = 0
     for r, c in spots:
         y, x = r + rows, c + cols

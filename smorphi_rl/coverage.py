@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass, field
+from itertools import pairwise
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -142,10 +143,11 @@ def free_area_share(grid_map: Map, cell: tuple[int, int] | None = None) -> float
 
     free = grid_map.cells == Cell.FREE
     labels = k.components(free.ravel(), *free.shape)
+    sizes = np.bincount(labels[labels >= 0])
     if cell is None:
-        return 100.0 * float(largest_free_area(free).sum()) / max(int(free.sum()), 1)
+        return 100.0 * float(sizes.max()) / max(int(free.sum()), 1) if sizes.size else 0.0
     own = labels[cell[0] * free.shape[1] + cell[1]]
-    return 100.0 * float(np.count_nonzero(labels == own)) / max(int(free.sum()), 1) if own >= 0 else 0.0
+    return 100.0 * float(sizes[own]) / max(int(free.sum()), 1) if own >= 0 else 0.0
 
 
 def largest_free_area(free: np.ndarray) -> np.ndarray:
@@ -300,6 +302,19 @@ def plan_coverage(
         placements=placements,
         footprint=f,
     )
+
+
+def sweep_positions(placements: Any) -> list[tuple[int, int]]:
+    """Every position of F's corner along a plan: its placements and each one-cell shift of the straight
+    moves between them (docs/fbcpp-fit.md section 6); what re-checking a plan from `--json --path` needs."""
+    places = [(int(r), int(c)) for r, c in placements]
+    out = places[:1]
+    for (r0, c0), (r1, c1) in pairwise(places):
+        steps = abs(r1 - r0) + abs(c1 - c0)
+        if steps == 0 or (r0 != r1 and c0 != c1):
+            raise SmorphiError(f"placements {(r0, c0)} -> {(r1, c1)} are not one straight lattice move")
+        out += [(r0 + (r1 - r0) * k // steps, c0 + (c1 - c0) * k // steps) for k in range(1, steps + 1)]
+    return out
 
 
 def path_points_m(result: CoverageResult, grid_map: Map) -> np.ndarray:

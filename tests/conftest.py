@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-from itertools import pairwise
 from pathlib import Path
 
 import numpy as np
@@ -98,14 +97,10 @@ def realmap(name: str) -> Path:
 
 
 def sweep_positions(placements: list[list[int]]) -> list[tuple[int, int]]:
-    """Every position of F's corner along a plan: its placements and each one-cell shift of the straight moves
-    between them (docs/fbcpp-fit.md section 6; FBCPP.md section 6 for the paper's tiles)."""
-    out = [(int(placements[0][0]), int(placements[0][1]))]
-    for (r0, c0), (r1, c1) in pairwise(placements):
-        steps = abs(r1 - r0) + abs(c1 - c0)
-        assert steps > 0 and (r0 == r1 or c0 == c1), "a move is one straight lattice step"
-        out += [(r0 + (r1 - r0) * k // steps, c0 + (c1 - c0) * k // steps) for k in range(1, steps + 1)]
-    return out
+    """The package's own walk along a plan (`coverage.sweep_positions`)."""
+    from smorphi_rl.coverage import sweep_positions as walk
+
+    return walk(placements)
 
 
 def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_unknown: float = 0.0) -> Map:
