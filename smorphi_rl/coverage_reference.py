@@ -13,6 +13,9 @@ from dataclasses import dataclass
 from itertools import pairwise
 from typing import Any
 
+import numpy as np
+
+from smorphi_rl.coverage import CoverageResult, Planner
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, footprint_matrix, footprint_size, is_feasible
 from smorphi_rl.maps import Cell, Map
 
@@ -305,3 +308,50 @@ def _fit_walk(safe: Any, stamp_cells: list[Tile], l: int, w: int, start: Tile) -
         for k in range(1, steps + 1):
             stamp((p[0] + dy * k, p[1] + dx * k))
     return FitReferencePlan(len(covered), 0, start, [node(t) for t in path], n_ew, n_ns)
+
+
+# --- one shape, answered without the compiled kernels -----------------------------------------------
+
+QUICK_MAX_CELLS = {Planner.PAPER: 40_000, Planner.FIT: 10_000}
+"""Map sizes (cells) up to which planning one shape here beats loading the compiled kernels (about 1.3 s of
+numba start-up on a 2-core machine); above them the compiled path is faster even with its start-up."""
+
+
+def largest_free_area_pct(grid_map: Map) -> float:
+    """Percent of the free cells in the largest 4-connected free area (where the fit planner starts)."""
+    areas = free_areas(grid_map.cells.tolist())
+    return 100.0 * len(areas[0]) / max(grid_map.counts[Cell.FREE], 1) if areas else 0.0
+
+
+def quick_result(grid_map: Map, morphology: Morphology, block_side_m: float, planner: Planner) -> CoverageResult | None:
+    """One shape from the default start, planned by this module's planners and reported exactly as
+    `evaluate.Evaluator.evaluate` reports it (the tests hold the two equal), or None on a map too big for
+    that to be quick. `smorphi-rl evaluate` of one shape uses it to answer without numba."""
+    if grid_map.cells.size > QUICK_MAX_CELLS[planner]:
+        return None
+    fields: dict[str, Any] = evaluate_reference(grid_map, morphology.angles, block_side_m, planner=planner.value)
+    w_m, l_m = fields["footprint_m"]
+    l, w = fields["footprint_cells"]
+    cells = int(fields["path_length_cells"])
+    feasible = bool(fields["feasible"])
+    if planner is Planner.PAPER:
+        coverable = float(fields["coverage_free_pct"]) if feasible else 0.0
+    else:
+        coverable = float(fields.get("coverable_pct", 0.0))
+    placements = None
+    if planner is Planner.FIT and feasible:
+        placements = np.asarray(fields["path"], dtype=np.int64).reshape(-1, 2)
+    return CoverageResult(
+        theta=morphology.angles,
+        feasible=feasible,
+        P_c=float(fields["P_c"]),
+        coverage_free_pct=float(fields["coverage_free_pct"]),
+        P_len=int(fields["P_len"]),
+        path_length_m=cells * grid_map.resolution_m,
+        path_length_cells=cells,
+        footprint_m=(w_m, l_m),
+        footprint_cells=(l, w),
+        coverable_pct=coverable,
+        planner=planner.value,
+        placements=placements,
+    )

@@ -225,3 +225,19 @@ def test_default_map_runs_from_any_directory(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr
     assert json.loads(proc.stdout)["footprint_cells"] == [8, 4]
+
+
+@pytest.mark.parametrize("planner", ["paper", "fit"])
+def test_evaluate_one_shape_answers_without_the_compiled_kernels(planner):
+    """One shape on a small map is planned in plain Python: numba (over a second to start) is never imported,
+    and the report is the one the kernels give (`quick_result` is held equal to them in its own tests)."""
+    code = (
+        "import sys; from smorphi_rl.cli import main; "
+        f"rc = main(['evaluate', '--map', {MAP_1!r}, '--angles', '90', '90', '90', '--planner', '{planner}', '--json']); "
+        "print('numba' in sys.modules); sys.exit(rc)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
+    assert proc.returncode == 0, proc.stderr
+    record, numba_loaded = proc.stdout.splitlines()
+    assert numba_loaded == "False"
+    assert json.loads(record)["planner"] == planner

@@ -15,9 +15,9 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, planner_option, seed_arg
-from smorphi_rl.coverage import CoverageResult, Planner, Start
+from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, angles_text
+from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, angles_text, check_block_side
 from smorphi_rl.maps import Cell, Map, load_map
 
 
@@ -161,8 +161,6 @@ def parse_start(text: str | None, grid_map: Map) -> Start:
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
-    from smorphi_rl.evaluate import Evaluator
-
     if (args.angles is None) == (args.angles_file is None):
         raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
     if args.angles_file is not None and args.plot is not None:
@@ -174,9 +172,11 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
-    evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
-                          planner=Planner(args.planner))  # fmt: skip
     if thetas is not None:
+        from smorphi_rl.evaluate import Evaluator
+
+        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
+                              planner=Planner(args.planner))  # fmt: skip
         batch = evaluator.evaluate_many(thetas)
         if args.json:
             lines = [json.dumps(r) for r in batch.records()]
@@ -187,10 +187,32 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
-    fit = evaluator.planner is Planner.FIT
-    result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
-    if fit and result.feasible and result.placements is not None and not len(result.placements):
-        where = "nowhere on the map" if evaluator.start.kind == 0 else f"at {evaluator.start.describe()}"
+    return _one_shape(args, grid_map, morphology)
+
+
+def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology) -> int:
+    """Report one shape. Without a plot, a path or a chosen start, a small map is planned in plain Python
+    (`coverage_reference.quick_result`, equal to the kernels by test), so the answer skips numba's start-up."""
+    planner = Planner(args.planner)
+    check_block_side(args.block_side, grid_map.resolution_m)
+    result: CoverageResult | None = None
+    if not (args.plot or args.path or args.start):
+        from smorphi_rl.coverage_reference import largest_free_area_pct, quick_result
+
+        result = quick_result(grid_map, morphology, args.block_side, planner)
+        start = AUTO_START
+        area_pct = largest_free_area_pct(grid_map) if result is not None and planner is Planner.FIT else 0.0
+    if result is None:
+        from smorphi_rl.evaluate import Evaluator
+
+        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
+                              planner=planner)  # fmt: skip
+        start, prepared = evaluator.start, evaluator.prepared
+        area_pct = 100 * prepared.n_area / max(prepared.n_free, 1)
+        fit = planner is Planner.FIT
+        result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
+    if planner is Planner.FIT and result.feasible and result.placements is not None and not len(result.placements):
+        where = "nowhere on the map" if start.kind == 0 else f"at {start.describe()}"
         l, w = result.footprint_cells
         raise SmorphiError(f"shape {angles_text(morphology.angles)}: its footprint ({l} x {w} cells) fits {where} "
                            f"{grid_map.name} without touching an occupied, unknown or outside cell")  # fmt: skip
@@ -206,17 +228,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             record["placements"] = [] if result.placements is None else result.placements.tolist()
         print(json.dumps(record))
         return 0
-    print(format_result(result, grid_map, start_text(evaluator, result), plot_path))
+    print(format_result(result, grid_map, start_text(start, area_pct, result), plot_path))
     return 0
 
 
-def start_text(evaluator: Any, result: CoverageResult) -> str:
+def start_text(start: Start, area_pct: float, result: CoverageResult) -> str:
     """Where the plan starts, as the report says it (the fit planner names the area and the placement)."""
-    if evaluator.planner is not Planner.FIT:
-        return str(evaluator.start.describe())
-    prepared = evaluator.prepared
-    where = (f"the largest free area ({100 * prepared.n_area / max(prepared.n_free, 1):.1f} % of the free cells)"
-             if evaluator.start.kind == 0 else evaluator.start.describe())  # fmt: skip
+    if result.planner != Planner.FIT.value:
+        return str(start.describe())
+    where = f"the largest free area ({area_pct:.1f} % of the free cells)" if start.kind == 0 else start.describe()
     if result.placements is None or not len(result.placements):
         return f"{where}: no safe position for this footprint, nothing covered"
     row, col = (int(v) for v in result.placements[0])
