@@ -12,10 +12,8 @@ def pareto_front(p_c: np.ndarray, p_len: np.ndarray) -> np.ndarray:
     p_c = np.asarray(p_c, dtype=np.float64)
     p_len = np.asarray(p_len, dtype=np.float64)
     order = np.lexsort((-p_c, p_len))
-    front: list[int] = []
-    best = -np.inf
-    for i in order:
-        if p_c[i] > best:
-            front.append(int(i))
-            best = p_c[i]
-    return np.asarray(front, dtype=np.int64)
+    ranked = p_c[order]
+    best_before = np.empty_like(ranked)  # the best P_c of every point earlier in that order
+    best_before[:1] = -np.inf
+    np.maximum.accumulate(ranked[:-1], out=best_before[1:])
+    return order[ranked > best_before].astype(np.int64)
