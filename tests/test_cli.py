@@ -233,7 +233,8 @@ def test_evaluate_one_shape_answers_without_the_compiled_kernels(planner):
     and the report is the one the kernels give (`quick_result` is held equal to them in its own tests)."""
     code = (
         "import sys; from smorphi_rl.cli import main; "
-        f"rc = main(['evaluate', '--map', {MAP_1!r}, '--angles', '90', '90', '90', '--planner', '{planner}', '--json']); "
+        f"rc = main(['evaluate', '--map', {MAP_1!r}, '--angles', '90', '90', '90', '--planner', '{planner}', "
+        "'--json']); "
         "print('numba' in sys.modules); sys.exit(rc)"
     )
     proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=False)
