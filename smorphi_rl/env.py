@@ -23,12 +23,17 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
 - `level`: `R = (R1(s') - mu_map) / sigma_map`, no `R2`: the return is the discounted sum of the
   standardised R1 of every shape visited, so the best behaviour is to walk to the best shape fast
   and stay there; each step's reward says directly how good the shape reached is.
+- `peak`: `R = softplus(PEAK_SHARPNESS (R1(s') - q90_map) / sigma_map)`: `level` with the top of the
+  landscape stretched. Most random shapes score within a few tenths of sigma_map of the best, so under
+  `level` a near-best plateau pays almost what the best does; here a shape pays about nothing below the
+  map's 90th percentile and PEAK_SHARPNESS units per sigma_map above it. A monotone transform of R1, so
+  the best shape to settle on is the same.
 - `improvement`: `R = (R1(s') - R1(s)) / sigma_map`; the return telescopes to the final shape's R1
   minus the start's, so standing still at the optimum costs nothing.
 - `commit`: the all-zero action ends the episode and pays `R1(s) / sigma_map`; any other step pays
   `-step_cost`, and truncation pays the final shape's `R1 / sigma_map` as well.
-`mu_map` and `sigma_map` are the mean and standard deviation of R1 over a fixed seeded sample of
-random shapes on the map.
+`mu_map`, `sigma_map` and `q90_map` are the mean, standard deviation and 90th percentile of R1 over a
+fixed seeded sample of random shapes on the map.
 
 ## Starting State
 A map drawn from `maps`, and theta uniform on the `angle_step_deg` lattice (or `start_theta`, or
@@ -53,7 +58,7 @@ from dataclasses import asdict, dataclass, fields, replace
 from enum import Enum
 from functools import lru_cache
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
@@ -75,11 +80,14 @@ class RewardMode(str, Enum):
 
     PAPER = "paper"
     LEVEL = "level"
+    PEAK = "peak"
     IMPROVEMENT = "improvement"
     COMMIT = "commit"
 
 
 REWARD_MODES = tuple(m.value for m in RewardMode)
+PEAK_SHARPNESS = 10.0
+"""`peak` mode: reward units per sigma_map of R1 above the map's 90th percentile (20 did worse on map-1)."""
 SIGMA_SAMPLES = 256
 """Random shapes whose R1 spread scales the design rewards (seeded, so every process agrees)."""
 MAP_LEVELS = 255
@@ -256,15 +264,27 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
     return (total / area).astype(np.float32)
 
 
+class R1Stats(NamedTuple):
+    """R1 over a fixed seeded sample of random shapes on one map: what scales the design rewards."""
+
+    mu: float
+    sigma: float
+    q90: float
+
+    def peak(self, value: float) -> float:
+        """The `peak` reward of a shape scoring R1 = value."""
+        return float(np.logaddexp(0.0, PEAK_SHARPNESS * (value - self.q90) / self.sigma))
+
+
 @lru_cache(maxsize=64)
-def r1_stats(map_path: str, w1: float, w2: float, planning: Planning) -> tuple[float, float]:
-    """(mu_map, sigma_map): mean and standard deviation of R1 over SIGMA_SAMPLES seeded random integer shapes
-    on the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
+def r1_stats(map_path: str, w1: float, w2: float, planning: Planning) -> R1Stats:
+    """Mean, standard deviation and 90th percentile of R1 over SIGMA_SAMPLES seeded random integer shapes on
+    the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
     batch = planning.evaluator(load_map(map_path)).evaluate_many(thetas)
     values = r1(batch.P_c, batch.P_len, w1, w2)
-    return float(np.mean(values)), max(float(np.std(values)), 1e-6)
+    return R1Stats(float(np.mean(values)), max(float(np.std(values)), 1e-6), float(np.quantile(values, 0.9)))
 
 
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
@@ -292,7 +312,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._w2 = [self.config.w2_on(m) for m in self._maps]
         cfg = self.config
         self._stats = [
-            r1_stats(p, cfg.w1, w2, cfg.planning) if self._mode is not RewardMode.PAPER else (0.0, 1.0)
+            r1_stats(p, cfg.w1, w2, cfg.planning) if self._mode is not RewardMode.PAPER else R1Stats(0.0, 1.0, 0.0)
             for p, w2 in zip(cfg.maps, self._w2, strict=True)
         ]  # fmt: skip
         self._lattice_max = round(180 / self.config.angle_step_deg)
@@ -389,7 +409,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     @property
     def sigma_map(self) -> float:
         """The R1 spread that scales the design rewards on the current map (1 in `paper` mode)."""
-        return self._stats[self._map_index][1]
+        return self._stats[self._map_index].sigma
 
     def _observe(self) -> dict[str, np.ndarray]:
         p_c, p_len = self._last["P_c"], self._last["P_len"]
@@ -455,8 +475,10 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if self._mode is RewardMode.PAPER:
             reward = scored["R1"] - (self.config.beta if unchanged else 0.0)
         elif self._mode is RewardMode.LEVEL:
-            mu, sigma = self._stats[self._map_index]
-            reward = (scored["R1"] - mu) / sigma
+            stats = self._stats[self._map_index]
+            reward = (scored["R1"] - stats.mu) / stats.sigma
+        elif self._mode is RewardMode.PEAK:
+            reward = self._stats[self._map_index].peak(scored["R1"])
         elif self._mode is RewardMode.IMPROVEMENT:
             reward = (scored["R1"] - before["R1"]) / self.sigma_map
         else:

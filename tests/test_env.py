@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import gymnasium as gym
@@ -189,9 +190,22 @@ def test_level_reward_is_standardised_r1_without_penalty():
 
     env = MorphologyEnv({"reward": "level", "start_theta": [90, 90, 90]})
     _, info = env.reset(seed=0)
-    mu, sigma = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
+    mu, sigma, _ = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
     _, still, *_rest, info = env.step(NOOP)  # standing still costs nothing
     assert still == pytest.approx((info["R1"] - mu) / sigma)
+
+
+def test_peak_reward_stretches_the_top_and_keeps_the_order():
+    from smorphi_rl.env import PEAK_SHARPNESS, r1_stats
+
+    env = MorphologyEnv({"reward": "peak", "start_theta": [90, 90, 90]})
+    env.reset(seed=0)
+    stats = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
+    _, paid, *_rest, info = env.step(NOOP)
+    assert paid == pytest.approx(math.log1p(math.exp(PEAK_SHARPNESS * (info["R1"] - stats.q90) / stats.sigma)))
+    low, q90, high = stats.q90 - stats.sigma, stats.q90, stats.q90 + 0.2 * stats.sigma
+    assert 0 < stats.peak(low) < 1e-3 < stats.peak(q90) < stats.peak(high)  # monotone, ~0 below q90
+    assert stats.peak(high) - stats.peak(q90) > 5 * 0.2  # 0.2 sigma at the top: 0.2 under `level`, over 1 here
 
 
 def test_reset_option_theta_sets_the_start():

@@ -18,9 +18,10 @@ import itertools
 import numpy as np
 from scipy import ndimage
 
+from smorphi_rl.env import PEAK_SHARPNESS
 from smorphi_rl.protocol import settled_theta
 
-IDEAL_MODES = ("level", "improvement", "paper")
+IDEAL_MODES = ("level", "improvement", "peak", "paper")
 TOLERANCE = 1e-4
 """Stop when no value moves by more than this fraction of the reward's spread in one backup (the greedy
 policy has long stopped changing by then)."""
@@ -45,6 +46,8 @@ def move_values(
     reward = r1.astype(np.float64)
     if mode != "paper":  # level and improvement: the same policy (module docstring); the scale is irrelevant
         reward = (reward - reward.mean()) / max(float(reward.std()), 1e-9)
+    if mode == "peak":  # the env's transform, with the whole lattice's quantile rather than its 256-shape sample
+        reward = np.logaddexp(0.0, PEAK_SHARPNESS * (reward - float(np.quantile(reward, 0.9))))
     tol = TOLERANCE * max(float(np.ptp(reward)), 1e-9)
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
     for _ in range(MAX_SWEEPS):

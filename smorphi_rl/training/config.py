@@ -160,7 +160,8 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     Starting the critic at the random-shape return level and scaling its head to the spread lets it
     learn in a few iterations instead of a few hundred. Returns by reward mode: `paper`, R1 a step
     over ~1/(1-gamma) steps (thousands); `level`, the same in standard units (centred on 0);
-    `improvement`, the R1 gained in sigma_map units; `commit`, one shape's R1 in sigma_map units."""
+    `peak`, the same in its units; `improvement`, the R1 gained in sigma_map units; `commit`, one shape's R1
+    in sigma_map units."""
     import numpy as np
 
     from smorphi_rl.env import RewardMode, r1_stats
@@ -174,9 +175,12 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
         grid_map = load_map(path)
         batch = env.planning.evaluator(grid_map).evaluate_many(thetas)
         values = r1(batch.P_c, batch.P_len, env.w1, env.w2_on(grid_map))
-        if env.reward != RewardMode.PAPER.value:
-            mu, sigma = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
-            values = (values - (mu if env.reward == RewardMode.LEVEL.value else 0.0)) / sigma
+        if env.reward == RewardMode.PEAK.value:
+            stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
+            values = np.array([stats.peak(v) for v in values])
+        elif env.reward != RewardMode.PAPER.value:
+            stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
+            values = (values - (stats.mu if env.reward == RewardMode.LEVEL.value else 0.0)) / stats.sigma
         per_map.append(values)
     values = np.concatenate(per_map)
     spread = max(float(values.max() - values.min()), 1e-3)
