@@ -398,6 +398,24 @@ def _blocked_bits(padded: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def _or_shifted(acc: np.ndarray, row: np.ndarray, j: int, nw: int, down: bool) -> None:
+    """acc |= `row` (a bit set over cells of one row) moved by j cells, over the first nw words: down, bit x
+    takes bit x + j (row must have a word past nw); up, bit x + j takes bit x."""
+    if j == 0:
+        for k in range(nw):
+            acc[k] |= row[k]
+    elif down:
+        right, left = np.uint64(j), np.uint64(64 - j)
+        for k in range(nw):
+            acc[k] |= (row[k] >> right) | (row[k + 1] << left)
+    else:
+        left, right = np.uint64(j), np.uint64(64 - j)
+        acc[0] |= row[0] << left
+        for k in range(1, nw):
+            acc[k] |= (row[k] << left) | (row[k - 1] >> right)
+
+
+@njit(cache=True)
 def _safe_placements(padded: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.ndarray:
     """safe[y * wd + x]: F with its corner on cell (y, x) overlaps only free cells of the map. Word-parallel:
     a row of placements is unsafe where some cell (i, j) of F meets a blocked cell, i.e. the OR over F's
@@ -412,15 +430,8 @@ def _safe_placements(padded: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.n
         for i in range(l):
             row = bits[y + i]
             for j in range(w):
-                if not f[i, j]:
-                    continue
-                if j == 0:
-                    for k in range(nw):
-                        acc[k] |= row[k]
-                else:
-                    right, left = np.uint64(j), np.uint64(64 - j)
-                    for k in range(nw):
-                        acc[k] |= (row[k] >> right) | (row[k + 1] << left)
+                if f[i, j]:
+                    _or_shifted(acc, row, j, nw, True)
         for x in range(wd):
             safe[y * wd + x] = (acc[x >> 6] >> np.uint64(x & 63)) & _ONE == 0
     return safe
@@ -670,16 +681,8 @@ def _bound(label: np.ndarray, group: int, f: np.ndarray, h: int, wd: int) -> int
         for i in range(l):
             out = under[y + i]
             for j in range(w):
-                if not f[i, j]:
-                    continue
-                if j == 0:
-                    for k in range(nw):
-                        out[k] |= row[k]
-                else:
-                    left, right = np.uint64(j), np.uint64(64 - j)
-                    out[0] |= row[0] << left
-                    for k in range(1, nw):
-                        out[k] |= (row[k] << left) | (row[k - 1] >> right)
+                if f[i, j]:
+                    _or_shifted(out, row, j, nw, False)
     total = 0
     for y in range(h):
         for k in range(nw):
