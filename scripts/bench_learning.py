@@ -10,7 +10,7 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala] [--rewards paper level] [--seeds 0 1 2] [--timesteps 150000] [--no-ideal]
+        [--algos ppo impala] [--rewards paper peak] [--seeds 0 1 2] [--timesteps 150000] [--no-ideal]
         [--out DIR]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
@@ -74,7 +74,7 @@ def main() -> None:
         "--maps", nargs="+", default=[str(ROOT / "maps" / "map-1.yaml"), str(ROOT / "maps" / "map-2.yaml")]
     )
     parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
-    parser.add_argument("--rewards", nargs="+", default=["paper", "level"])
+    parser.add_argument("--rewards", nargs="+", default=["paper", "peak"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")

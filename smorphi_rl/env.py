@@ -129,9 +129,10 @@ class EnvConfig:
     """Fixed start morphology; random on the lattice when None."""
     block_side_m: float = DEFAULT_BLOCK_SIDE_M
     """Side of one block in metres."""
-    reward: str = RewardMode.LEVEL.value
-    """Reward mode: level (standardised R1 of each shape reached: learns best, see the README), paper (R1 + R2,
-    for reproduction), improvement (R1 gained, scaled) or commit (R1 of the committed shape)."""
+    reward: str = RewardMode.PEAK.value
+    """Reward mode: peak (level with the top stretched: learns best, see the README), level (standardised R1 of
+    each shape reached), paper (R1 + R2, for reproduction), improvement (R1 gained, scaled) or commit (R1 of the
+    committed shape)."""
     step_cost: float = 0.0
     """`commit` mode: what every step that does not commit costs (in units of sigma_map)."""
     planner: str = Planner.PAPER.value

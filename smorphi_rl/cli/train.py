@@ -82,7 +82,7 @@ def _register_train(sub: Any) -> None:
                     help="iterations between checkpoints (and at the end)")  # fmt: skip
     tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
     tr.add_argument("--reward", choices=REWARD_MODES, default=None,
-                    help="reward mode (ENV.md): level, paper, improvement or commit (default: the env's)")  # fmt: skip
+                    help="reward mode (ENV.md): peak, level, paper, improvement or commit (default: peak)")  # fmt: skip
     weight_options(tr)
     planner_option(tr, None)
     tr.add_argument("--env-runners", type=int, default=None, metavar="N",

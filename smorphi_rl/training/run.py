@@ -251,7 +251,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                       f"{OPTIMUM_MAX_CELLS:,}); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = NO_OPTIMUM
             continue
-        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {cache})\n")
+        shown = cache.relative_to(Path.cwd()) if cache.is_relative_to(Path.cwd()) else cache
+        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {shown})\n")
         out.flush()
         w2 = cfg.env.w2_on(grid_map)
         optima[grid_map.name] = exact_optimum(path, cfg.env.w1, w2, cfg.env.planning, cache)
