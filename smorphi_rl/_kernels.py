@@ -586,16 +586,29 @@ def _reach(
 @njit(cache=True)
 def _class_bounds(safe: np.ndarray, label: np.ndarray, candidates: np.ndarray, l: int, w: int, wd: int) -> np.ndarray:
     """For each candidate, the safe placements of its lattice class (row mod l, column mod w) in its group:
-    the most nodes its lattice can reach (a lattice move only passes safe placements, so it stays in the group)."""
-    n_groups = label.max() + 1
-    count = np.zeros((max(n_groups, 1), l * w), np.int64)
-    for p in range(safe.shape[0]):
-        if safe[p]:
-            count[label[p], (p // wd % l) * w + p % wd % w] += 1
+    the most nodes its lattice can reach (a lattice move only passes safe placements, so it stays in the group).
+    Counted only for the candidates' groups (one, from the default start), so memory stays at l * w a group."""
+    slot = np.full(label.max() + 1, -1, np.int64)  # group -> row of `count`
+    n_slots = 0
+    for c in range(candidates.shape[0]):
+        g = label[candidates[c]]
+        if slot[g] < 0:
+            slot[g] = n_slots
+            n_slots += 1
+    count = np.zeros((n_slots, l * w), np.int64)
+    h = safe.shape[0] // wd
+    for y in range(h):  # nested loops: no divisions (as in `_fit_candidates`)
+        cy = (y % l) * w
+        cx = 0
+        for x in range(wd):
+            p = y * wd + x
+            if safe[p] and slot[label[p]] >= 0:
+                count[slot[label[p]], cy + cx] += 1
+            cx = cx + 1 if cx + 1 < w else 0
     upper = np.empty(candidates.shape[0], np.int64)
     for c in range(candidates.shape[0]):
         p = candidates[c]
-        upper[c] = count[label[p], (p // wd % l) * w + p % wd % w]
+        upper[c] = count[slot[label[p]], (p // wd % l) * w + p % wd % w]
     return upper
 
 
