@@ -265,6 +265,11 @@ def resample(mask: np.ndarray, size: int) -> np.ndarray:
     return (total / area).astype(np.float32)
 
 
+def peak_reward(value: Any, q90: float, sigma: float) -> Any:
+    """The `peak` reward of R1 = value (a number or an array): softplus of PEAK_SHARPNESS sigmas above q90."""
+    return np.logaddexp(0.0, PEAK_SHARPNESS * (np.asarray(value, dtype=np.float64) - q90) / sigma)
+
+
 class R1Stats(NamedTuple):
     """R1 over a fixed seeded sample of random shapes on one map: what scales the design rewards."""
 
@@ -274,7 +279,7 @@ class R1Stats(NamedTuple):
 
     def peak(self, value: float) -> float:
         """The `peak` reward of a shape scoring R1 = value."""
-        return float(np.logaddexp(0.0, PEAK_SHARPNESS * (value - self.q90) / self.sigma))
+        return float(peak_reward(value, self.q90, self.sigma))
 
 
 @lru_cache(maxsize=64)

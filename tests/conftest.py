@@ -96,13 +96,6 @@ def realmap(name: str) -> Path:
     return path
 
 
-def sweep_positions(placements: list[list[int]]) -> list[tuple[int, int]]:
-    """The package's own walk along a plan (`coverage.sweep_positions`)."""
-    from smorphi_rl.coverage import sweep_positions as walk
-
-    return walk(placements)
-
-
 def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_unknown: float = 0.0) -> Map:
     """A map of independent random cells with at least one free cell."""
     u = rng.random((h, w))

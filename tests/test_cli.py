@@ -10,10 +10,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import sweep_positions
 from PIL import Image
 
 from smorphi_rl.cli import main
+from smorphi_rl.coverage import sweep_positions
 
 ROOT = Path(__file__).resolve().parent.parent
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")

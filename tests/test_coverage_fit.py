@@ -5,9 +5,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import GOLDEN_THETAS, random_map, realmap, sweep_positions
+from conftest import GOLDEN_THETAS, random_map, realmap
 
-from smorphi_rl.coverage import Planner, Start
+from smorphi_rl.coverage import Planner, Start, sweep_positions
 from smorphi_rl.coverage_reference import plan_fit_reference
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology, footprint_matrix

@@ -18,7 +18,7 @@ import itertools
 import numpy as np
 from scipy import ndimage
 
-from smorphi_rl.env import PEAK_SHARPNESS
+from smorphi_rl.env import peak_reward
 from smorphi_rl.protocol import settled_theta
 
 IDEAL_MODES = ("level", "improvement", "peak", "paper")
@@ -44,10 +44,11 @@ def move_values(
     if not 0 < gamma < 1:
         raise ValueError(f"value iteration needs a discount in (0, 1), got {gamma}")
     reward = r1.astype(np.float64)
-    if mode != "paper":  # level and improvement: the same policy (module docstring); the scale is irrelevant
-        reward = (reward - reward.mean()) / max(float(reward.std()), 1e-9)
-    if mode == "peak":  # the env's transform, with the whole lattice's quantile rather than its 256-shape sample
-        reward = np.logaddexp(0.0, PEAK_SHARPNESS * (reward - float(np.quantile(reward, 0.9))))
+    spread = max(float(reward.std()), 1e-9)
+    if mode == "peak":  # the env's transform, with the whole lattice's figures rather than its 256-shape sample
+        reward = peak_reward(reward, float(np.quantile(reward, 0.9)), spread)
+    elif mode != "paper":  # level and improvement: the same policy (module docstring); the scale is irrelevant
+        reward = (reward - reward.mean()) / spread
     tol = TOLERANCE * max(float(np.ptp(reward)), 1e-9)
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
     for _ in range(MAX_SWEEPS):

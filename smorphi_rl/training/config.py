@@ -164,7 +164,7 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     in sigma_map units."""
     import numpy as np
 
-    from smorphi_rl.env import RewardMode, r1_stats
+    from smorphi_rl.env import RewardMode, peak_reward, r1_stats
     from smorphi_rl.maps import load_map
     from smorphi_rl.score import r1
 
@@ -177,7 +177,7 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
         values = r1(batch.P_c, batch.P_len, env.w1, env.w2_on(grid_map))
         if env.reward == RewardMode.PEAK.value:
             stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
-            values = np.array([stats.peak(v) for v in values])
+            values = peak_reward(values, stats.q90, stats.sigma)
         elif env.reward != RewardMode.PAPER.value:
             stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
             values = (values - (stats.mu if env.reward == RewardMode.LEVEL.value else 0.0)) / stats.sigma
