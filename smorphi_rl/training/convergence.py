@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 
 CURVE_KEY = "eval_R1"
-"""The curve (in `Curve.as_dict()` and `sweep_report.result_curve`) that convergence is measured on."""
+"""The curve (of `sweep_report.curve_point`, which every report reads) that convergence is measured on."""
 TOLERANCE = 0.02
 PLATEAU_FRACTION = 0.2
 

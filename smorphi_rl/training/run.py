@@ -1,4 +1,5 @@
-"""`smorphi-rl train`: one RLlib algorithm through Ray Tune, on a local Ray or an existing cluster.
+"""`smorphi-rl train`: one RLlib algorithm through Ray Tune, on a local Ray or an existing cluster: a one-trial
+experiment on the trainable `sweep` runs too (`trial.run_trial`).
 
 Everything lands under `logs/<run>/`: the resolved configuration, Tune's trial directory
 (TensorBoard events, result.json, checkpoints), the top-k tables and figures, and summary.json.
@@ -26,17 +27,12 @@ from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
-from smorphi_rl.training.config import (
-    EPISODES_DIR,
-    TrainConfig,
-    algorithm_config,
-    default_run_name,
-    recording_settings,
-    register_env,
-)
+from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
 from smorphi_rl.training.finetune import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
 from smorphi_rl.training.quiet import quiet
+from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
+from smorphi_rl.training.trial import resources, run_trial
 
 TOP_PLOT = 4
 """Morphologies drawn in top_morphologies.png (the paper's Figure 6 shows 2 per algorithm)."""
@@ -44,25 +40,6 @@ TOP_PLOT = 4
 
 class TrainingError(SmorphiError):
     """The run could not start or a trial failed."""
-
-
-@dataclass
-class Curve:
-    """What the driver keeps of each iteration: enough for the progress line, plots and the summary."""
-
-    env_steps: list[float] = field(default_factory=list)
-    episode_return_mean: list[float] = field(default_factory=list)
-    best_R1: list[float] = field(default_factory=list)
-    final_R1: list[float] = field(default_factory=list)
-    eval_R1: list[float] = field(default_factory=list)
-    eval_gap: list[float] = field(default_factory=list)
-    eval_within: list[float] = field(default_factory=list)
-    wall_s: list[float] = field(default_factory=list)
-
-    def as_dict(self) -> dict[str, list[float]]:
-        return {"env_steps": self.env_steps, "episode_return_mean": self.episode_return_mean, "best_R1": self.best_R1,
-                "final_R1": self.final_R1, "eval_R1": self.eval_R1, "eval_gap": self.eval_gap,
-                "eval_within": self.eval_within}  # fmt: skip
 
 
 @dataclass
@@ -119,7 +96,7 @@ class _Progress:
         self.cfg = cfg
         self.label = label or cfg.algo.upper()
         self.top = TopMorphologies()
-        self.curve = Curve()
+        self.curve: dict[str, list[float]] = {k: [] for k in CURVE_NAMES}
         self.out = out
         self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
@@ -140,20 +117,12 @@ class _Progress:
         steps = int(result.get(keys.STEPS) or 0)
         bests = episode_bests(result)
         self.top.add_episode_bests(self.cfg.algo, bests, steps)
+        for k, v in curve_point(result).items():
+            self.curve[k].append(v)
         runners = result.get(keys.ENV_RUNNERS, {})
-        ret = runners.get(keys.EPISODE_RETURN_MEAN, math.nan)
-        best_iter = max((b.R1 for b in bests), default=math.nan)
-        self.curve.env_steps.append(steps)
-        self.curve.episode_return_mean.append(float(ret) if ret is not None else math.nan)
-        self.curve.best_R1.append(float(best_iter))
-        self.curve.final_R1.append(float(runners.get(keys.METRIC_PREFIX, {}).get("R1_final", math.nan)))
         ev = result.get(EVAL_KEY) or {}
-        self.curve.eval_R1.append(float(ev.get("settled_R1_mean", math.nan)))
-        self.curve.eval_gap.append(float(ev.get("median_gap", math.nan)))
-        self.curve.eval_within.append(float(ev.get("share_within_1pct", math.nan)))
         if ev:
             self.last_eval = ev
-        self.curve.wall_s.append(time.monotonic() - self.t0)
         if PRETRAINED_KEY in result and self.pretrained_in_runners is None:
             self.pretrained_in_runners = bool(result[PRETRAINED_KEY] == 1.0)
         mean_r1 = runners.get(keys.METRIC_PREFIX, {}).get("R1_mean")
@@ -223,10 +192,10 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
             key = "top_png" if single else f"top_png_{grid_map.name}"
             png = run_dir / ("top_morphologies.png" if single else f"top_morphologies_{grid_map.name}.png")
             files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, png)
-    if progress.curve.env_steps:
+    if progress.curve["env_steps"]:
         reference = next(iter(optimum.values())).R1 if len(optimum) == 1 else None
         files["curves_png"] = plot_learning_curves(
-            {cfg.algo.upper(): progress.curve.as_dict()}, run_dir / "learning_curves.png", reference
+            {cfg.algo.upper(): progress.curve}, run_dir / "learning_curves.png", reference
         )
     return files
 
@@ -259,25 +228,25 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     return optima
 
 
+def _train_trainable(config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path) -> None:
+    """`train`'s one trial: the project's one trainable, recording (if on) under the run's folder."""
+    run_trial(cfg, callbacks, run_dir)
+
+
 def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None) -> Any:
     """The Tune run itself (a local Ray or a cluster is already up): results, the progress kept, wall time."""
     from ray import tune
 
-    register_env()
-    config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, name))
     progress = _Progress(cfg, out, label)
-    stop: dict[str, int] = {keys.STEPS: cfg.timesteps}
-    if cfg.max_iterations is not None:
-        stop[keys.ITERATION] = cfg.max_iterations
+    trainable = tune.with_resources(
+        tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir), resources(cfg)
+    )
     tuner = tune.Tuner(
-        config.algo_class,
-        param_space=config,
+        trainable,
         tune_config=tune.TuneConfig(trial_dirname_creator=lambda trial: f"{cfg.algo}-{trial.trial_id}"),
         run_config=tune.RunConfig(
             name=name,
             storage_path=str(run_dir.parent),
-            stop=stop,
-            checkpoint_config=tune.CheckpointConfig(checkpoint_frequency=cfg.checkpoint_every, checkpoint_at_end=True),
             callbacks=[_tune_callback(progress)],
             verbose=0,
         ),
@@ -331,16 +300,16 @@ def train(
         raise TrainingError(f"training failed: {first[-1] if first else type(errors[0]).__name__} "
                             f"(full error under {run_dir})")  # fmt: skip
     files = write_outputs(run_dir, cfg, progress, optima)
-    steps = int(progress.curve.env_steps[-1]) if progress.curve.env_steps else 0
+    steps = int(progress.curve["env_steps"][-1]) if progress.curve["env_steps"] else 0
     checkpoints = checkpoints_under(run_dir)
     best = progress.top.top(1)
     summary = RunSummary(
         run_dir=run_dir,
         algorithm=cfg.algo,
         env_steps=steps,
-        iterations=len(progress.curve.env_steps),
+        iterations=len(progress.curve["env_steps"]),
         wall_s=wall,
-        interrupted=steps < cfg.timesteps and len(progress.curve.env_steps) != cfg.max_iterations,
+        interrupted=steps < cfg.timesteps and len(progress.curve["env_steps"]) != cfg.max_iterations,
         best=best[0] if best else None,
         optimum=optima,
         checkpoint=checkpoints[-1] if checkpoints else None,

@@ -1,16 +1,14 @@
 """`smorphi-rl sweep`: a validated sweep file run as one Ray Tune experiment, resumable after an interruption.
 
-Each trial is a function trainable that builds the RLlib algorithm for its (algorithm, maps, seed,
-hyperparameters), trains to the budget, and checkpoints through Tune, so `Tuner.restore` picks
-every unfinished trial up from its last checkpoint. A trial asks for 1 CPU plus 0.5 per env
-runner, so Tune queues trials to fit the machine or the cluster.
+Each trial is the project's one trainable (`trial.run_trial`, which `train` runs too) on its (algorithm,
+maps, seed, hyperparameters); it checkpoints through Tune, so `Tuner.restore` picks every unfinished
+trial up from its last checkpoint.
 """
 
 from __future__ import annotations
 
 import shutil
 import sys
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -22,19 +20,11 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import find_checkpoint
-from smorphi_rl.training.config import (
-    CPUS_FOR_TRIAL,
-    CPUS_PER_ENV_RUNNER,
-    algorithm_config,
-    recording_settings,
-    register_env,
-)
-from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks, push_module_to_runners, reseed_runners
+from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
-    ITERATION_KEY,
     TrialRow,
     group_curves,
     read_sweep,
@@ -43,6 +33,7 @@ from smorphi_rl.training.sweep_report import (
     write_sweep_tables,
 )
 from smorphi_rl.training.topk import episode_bests
+from smorphi_rl.training.trial import resources, run_trial
 
 SWEEP_COPY = "sweep.yaml"
 """The sweep file as it was when the experiment started; --resume checks the file still matches."""
@@ -61,41 +52,13 @@ class SweepSummary:
 
 
 def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
-    """One trial: build the algorithm, restore Tune's checkpoint if resuming, train to the budget, report."""
-    from ray import tune
-    from ray.tune.result import AUTO_RESULT_KEYS
-
+    """One trial of the sweep: its grid point's TrainConfig, run by the project's one trainable."""
     cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
     callbacks = None
     if cfg.pretrained is not None:
         pretrained = find_checkpoint(cfg.pretrained)
         callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
-    register_env()
-    trial_dir = Path(tune.get_context().get_trial_dir())
-    algo = algorithm_config(cfg, callbacks, recording_settings(cfg, trial_dir, trial_dir.name)).build_algo()
-    try:
-        resume = tune.get_checkpoint()
-        if resume is not None:
-            with resume.as_directory() as path:
-                algo.restore_from_path(path)
-            push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
-            reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
-        while True:
-            result = algo.train()
-            steps = int(result.get(keys.STEPS) or 0)
-            done = steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
-            metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
-            metrics[ITERATION_KEY] = algo.iteration
-            if done or algo.iteration % cfg.checkpoint_every == 0:
-                with tempfile.TemporaryDirectory() as path:
-                    algo.save_to_path(path)
-                    tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
-            else:
-                tune.report(metrics)
-            if done:
-                return
-    finally:
-        algo.stop()
+    run_trial(cfg, callbacks)
 
 
 class _SweepProgress:
@@ -198,12 +161,10 @@ def run_sweep(
     with cluster.ray_session(address):
         from ray import tune
 
-        def resources(config: dict[str, Any]) -> Any:
-            runners = sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}).env_runners
-            bundles = [{"CPU": CPUS_FOR_TRIAL}] + [{"CPU": CPUS_PER_ENV_RUNNER}] * runners
-            return tune.PlacementGroupFactory(bundles)
+        def trial_resources(config: dict[str, Any]) -> Any:
+            return resources(sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}))
 
-        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep), resources)
+        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep), trial_resources)
         run_config = tune.RunConfig(
             name=sweep.name,
             storage_path=str(exp.parent),

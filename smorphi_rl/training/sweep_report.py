@@ -21,8 +21,6 @@ from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
-ITERATION_KEY = "smorphi_iteration"
-"""The algorithm's own iteration count, reported by the sweep trainable; survives restores."""
 CURVE_POINTS = 100
 
 
@@ -53,27 +51,37 @@ def result_rows(result_json: Path) -> list[dict[str, Any]]:
             row = json.loads(line)
         except json.JSONDecodeError:
             continue
-        by_iter[int(row.get(ITERATION_KEY, row.get(keys.ITERATION, 0)))] = row
+        by_iter[int(row.get(keys.ALGO_ITERATION, row.get(keys.ITERATION, 0)))] = row
     return [by_iter[i] for i in sorted(by_iter)]
 
 
+CURVE_NAMES = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
+"""The learning curves every report draws (`train`, `transfer`, `sweep`), one point per result row."""
+
+
+def curve_point(row: dict[str, Any]) -> dict[str, float]:
+    """One result row's point of each curve: env steps, mean episode return, the iteration's best R1, the
+    final-shape R1 and the greedy evaluation (settled R1, median gap, share within 1 %; NaN where the
+    iteration was not evaluated)."""
+    runners = row.get(keys.ENV_RUNNERS, {})
+    ev = row.get(EVAL_KEY) or {}
+    return {
+        "env_steps": float(row.get(keys.STEPS) or 0),
+        "episode_return_mean": _num(runners.get(keys.EPISODE_RETURN_MEAN)),
+        "best_R1": max((b.R1 for b in episode_bests(row)), default=math.nan),
+        "final_R1": _num(runners.get(keys.METRIC_PREFIX, {}).get("R1_final")),
+        "eval_R1": _num(ev.get("settled_R1_mean")),
+        "eval_gap": _num(ev.get("median_gap")),
+        "eval_within": _num(ev.get("share_within_1pct")),
+    }
+
+
 def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
-    """Env steps, mean episode return, the iteration's best R1, the final-shape R1 and the greedy evaluation
-    (settled R1, median gap, share within 1 %; NaN where the iteration was not evaluated) of each row
-    (the curves of `train`, `transfer` and `sweep`)."""
-    names = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
-    curve: dict[str, list[float]] = {k: [] for k in names}
+    """The curves (CURVE_NAMES) of a trial's result rows."""
+    curve: dict[str, list[float]] = {k: [] for k in CURVE_NAMES}
     for r in rows:
-        runners = r.get(keys.ENV_RUNNERS, {})
-        bests = episode_bests(r)
-        ev = r.get(EVAL_KEY) or {}
-        curve["env_steps"].append(float(r.get(keys.STEPS) or 0))
-        curve["episode_return_mean"].append(_num(runners.get(keys.EPISODE_RETURN_MEAN)))
-        curve["best_R1"].append(max((b.R1 for b in bests), default=math.nan))
-        curve["final_R1"].append(_num(runners.get(keys.METRIC_PREFIX, {}).get("R1_final")))
-        curve["eval_R1"].append(_num(ev.get("settled_R1_mean")))
-        curve["eval_gap"].append(_num(ev.get("median_gap")))
-        curve["eval_within"].append(_num(ev.get("share_within_1pct")))
+        for k, v in curve_point(r).items():
+            curve[k].append(v)
     return curve
 
 
