@@ -34,7 +34,7 @@ from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optim
 from smorphi_rl.rundir import prepare_run_dir
 from smorphi_rl.score import r1 as score_r1
 from smorphi_rl.search.exhaustive import run_exhaustive
-from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values
+from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values, stay_move_costs
 from smorphi_rl.search.local import run_local
 from smorphi_rl.stats import mean_interval
 from smorphi_rl.training.checkpoints import load_module
@@ -141,8 +141,9 @@ def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarr
     rows = []
     for reward in (r for r in rewards if r in IDEAL_MODES):
         t0 = time.monotonic()
-        w = move_values(r1, reward, gamma, env.beta)
-        settled = greedy_settled(w, starts.astype(int), env.max_steps, env.beta if reward == "paper" else None)
+        w = move_values(r1, reward, gamma, env.beta, env.move_cost)
+        stay, move = stay_move_costs(reward, env.beta, env.move_cost)
+        settled = greedy_settled(w, starts.astype(int), env.max_steps, stay, move)
         outcomes = []
         for start, idx in zip(starts, settled, strict=True):
             flat = (idx[0] * n + idx[1]) * n + idx[2]

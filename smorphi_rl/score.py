@@ -9,6 +9,8 @@ a map is w2 * REFERENCE_AREA_M2 / (its free area), so the same w2 means the same
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 PATH_TERMS = ("moves", "per_area")
@@ -29,3 +31,32 @@ def effective_w2(w2: float, path_term: str, free_area_m2: float) -> float:
 def r1(p_c: Any, p_len: Any, w1: float, w2: float) -> Any:
     """The env's R1 of one result (floats) or of arrays of them (float64 arrays)."""
     return w1 * p_c - w2 * p_len
+
+
+@dataclass(frozen=True)
+class Scored:
+    """One shape's FBCPP metrics and R1 on one map: what a step's `info` reports, and what everything that ranks
+    shapes reads (the env, local searches, the evaluation protocol)."""
+
+    theta: tuple[float, float, float]
+    P_c: float
+    coverage_free_pct: float
+    P_len: int
+    path_length_m: float
+    feasible: bool
+    R1: float
+    map: str
+
+    @cached_property
+    def info(self) -> dict[str, Any]:
+        """The fields as `info` carries them (built once: the env memoises a shape's Scored, and steps are hot)."""
+        return {f: getattr(self, f) for f in INFO_FIELDS}
+
+    @cached_property
+    def best_info(self) -> dict[str, Any]:
+        """The fields `info` carries for the episode's best shape so far (`best_` keys)."""
+        return {f"best_{f}": getattr(self, f) for f in BEST_FIELDS}
+
+
+INFO_FIELDS = ("theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "R1", "map")
+BEST_FIELDS = ("theta", "P_c", "P_len", "R1", "coverage_free_pct", "path_length_m")

@@ -208,6 +208,26 @@ def test_peak_reward_stretches_the_top_and_keeps_the_order():
     assert stats.peak(high) - stats.peak(q90) > 5 * 0.2  # 0.2 sigma at the top: 0.2 under `level`, over 1 here
 
 
+@pytest.mark.parametrize("mode", ["level", "peak"])
+def test_a_step_that_changes_the_shape_pays_the_move_cost(mode: str):
+    """Standing still and a move into the box's edge pay the shape's reward; a real move pays it less move_cost."""
+    costs = {}
+    for cost in (0.0, 0.25):
+        env = MorphologyEnv({"reward": mode, "start_theta": [90, 90, 180], "move_cost": cost})
+        env.reset(seed=0)
+        _, still, *_ = env.step(NOOP)
+        _, edge, *_ = env.step(np.array([1, 1, 2]))  # hinge 3 pushes past 180: the shape stays
+        _, moved, *_ = env.step(np.array([2, 1, 1]))
+        costs[cost] = (still, edge, moved)
+    assert costs[0.25][:2] == pytest.approx(costs[0.0][:2])
+    assert costs[0.25][2] == pytest.approx(costs[0.0][2] - 0.25)
+
+
+def test_negative_move_cost_is_refused():
+    with pytest.raises(EnvConfigError, match="env_config 'move_cost' must be >= 0"):
+        MorphologyEnv({"move_cost": -0.1})
+
+
 def test_reset_option_theta_sets_the_start():
     env = MorphologyEnv()
     _, info = env.reset(seed=0, options={"theta": (12.0, 34.0, 56.0)})

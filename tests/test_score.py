@@ -29,6 +29,6 @@ def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
     env = MorphologyEnv({"path_term": "per_area", "reward": "paper"})
     scored = env.score((95.0, 59.0, 103.0))
     free_m2 = env.grid_map.counts[Cell.FREE] * env.grid_map.resolution_m**2
-    assert scored["R1"] == pytest.approx(scored["P_c"] - 0.1 * 25.0 / free_m2 * scored["P_len"])
+    assert pytest.approx(scored.P_c - 0.1 * 25.0 / free_m2 * scored.P_len) == scored.R1
     with pytest.raises(EnvConfigError, match="env_config 'path_term': unknown path term 'metres'"):
         MorphologyEnv({"path_term": "metres"})

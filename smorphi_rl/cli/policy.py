@@ -151,7 +151,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     if args.json:
         for i, r in enumerate(rollouts):
             record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
-                      "return": r.episode_return, "start": r.start, "settled": r.settled, "best": r.best}  # fmt: skip
+                      "return": r.episode_return, "start": r.start, "settled": r.settled.info,
+                      "best": r.best}  # fmt: skip
             print(json.dumps(record, default=float))
     else:
         print(f"policy      {checkpoint}")
@@ -159,13 +160,13 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
             print(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
                   f"return {r.episode_return:.1f})")  # fmt: skip
             print(f"  start     {scored_text(r.start)}")
-            print(f"  settled   {scored_text(r.settled)}")
+            print(f"  settled   {scored_text(r.settled.info)}")
             print(f"  best      {scored_text(r.best)}")
     if args.plot:
         from smorphi_rl.geometry import Morphology
         from smorphi_rl.plots import plot_coverage
 
-        theta = rollouts[0].settled["theta"]
+        theta = rollouts[0].settled.theta
         base.reset(seed=args.seed)  # back to the first episode's map
         png = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
                             args.plot)  # fmt: skip

@@ -83,6 +83,11 @@ def _register_train(sub: Any) -> None:
     tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
     tr.add_argument("--reward", choices=REWARD_MODES, default=None,
                     help="reward mode (ENV.md): peak, level, paper, improvement or commit (default: peak)")  # fmt: skip
+    from smorphi_rl.env import EnvConfig
+
+    tr.add_argument("--move-cost", type=float, default=None, metavar="C",
+                    help=f"level and peak: what a step that changes the shape costs, so the policy settles "
+                         f"(default {EnvConfig.move_cost}; 0: off)")  # fmt: skip
     weight_options(tr)
     planner_option(tr, None)
     tr.add_argument("--env-runners", type=int, default=None, metavar="N",
@@ -104,7 +109,8 @@ def cmd_train(args: argparse.Namespace) -> int:
     from smorphi_rl.training.config import TrainConfig
 
     env_options = {"maps": map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2,
-                   "path_term": args.path_term, "planner": args.planner, "start_xy": args.start_xy}  # fmt: skip
+                   "path_term": args.path_term, "planner": args.planner, "start_xy": args.start_xy,
+                   "move_cost": args.move_cost}  # fmt: skip
     cfg = TrainConfig(
         algo=args.algo,
         env=EnvConfig.from_dict({k: v for k, v in env_options.items() if v is not None}),

@@ -7,8 +7,9 @@ reward mode and discount: where greedy roll-outs of the *optimal* policy settle 
 starts. It needs R1 of every lattice point (the exhaustive search) and ignores truncation (the
 infinite-horizon optimum, rolled out for `max_steps`).
 
-`level` and `improvement` share one optimal policy: with phi = R1 / sigma, improvement's values are
-U - phi where U solves level's equation for the reward (1 - gamma) phi, a positive rescaling.
+`level` and `improvement` share one optimal policy when level has no move cost: with phi = R1 / sigma,
+improvement's values are U - phi where U solves level's equation for the reward (1 - gamma) phi, a
+positive rescaling.
 """
 
 from __future__ import annotations
@@ -36,9 +37,12 @@ def move_values(
     mode: str,
     gamma: float,
     beta: float = 1.0,
+    move_cost: float = 0.0,
 ) -> np.ndarray:
-    """W[s'] = reward of arriving at s' + gamma V(s') (paper mode: for a move that changes the shape),
-    for R1 on the full (n, n, n) lattice; the optimal action from s moves to its best neighbour by W."""
+    """W[s'] = reward of arriving at s' + gamma V(s') (paper mode: for a move that changes the shape; level and
+    peak: before the move cost), for R1 on the full (n, n, n) lattice; the optimal action from s moves to its
+    best neighbour by W, a move that changes the shape paying `move_cost` (level, peak) and standing still
+    paying `beta` (paper)."""
     if mode not in IDEAL_MODES:
         raise ValueError(f"no value iteration for reward mode '{mode}' (choose from {', '.join(IDEAL_MODES)})")
     if not 0 < gamma < 1:
@@ -53,9 +57,10 @@ def move_values(
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
     for _ in range(MAX_SWEEPS):
         arrive = reward + gamma * values
-        if mode == "paper":  # standing still (or pushing into the box's edge) pays R1 - beta
+        stay, move = stay_move_costs(mode, beta, move_cost)
+        if stay or move:  # standing still (or pushing into the box's edge) and moving pay differently
             moved = ndimage.maximum_filter(arrive, footprint=_NOT_SELF, mode="constant", cval=-np.inf)
-            new = np.maximum(moved, arrive - beta)
+            new = np.maximum(moved - move, arrive - stay)
         else:
             new = ndimage.maximum_filter(arrive, size=3, mode="nearest")
         delta = float(np.abs(new - values).max())
@@ -65,12 +70,19 @@ def move_values(
     return reward + gamma * values
 
 
+def stay_move_costs(mode: str, beta: float, move_cost: float) -> tuple[float, float]:
+    """What standing still and what a move that changes the shape cost on top of the arrival reward, by mode."""
+    if mode == "paper":
+        return beta, 0.0
+    return 0.0, (move_cost if mode in ("level", "peak") else 0.0)
+
+
 def greedy_settled(
-    w: np.ndarray, starts: np.ndarray, max_steps: int, beta: float | None = None
+    w: np.ndarray, starts: np.ndarray, max_steps: int, stay: float = 0.0, move: float = 0.0
 ) -> list[tuple[int, int, int]]:
     """Lattice index each start settles on when the optimal policy for `w` is followed for `max_steps`
-    (the protocol's settled shape: the one held most often over the last steps). `beta` (paper mode)
-    charges standing still."""
+    (the protocol's settled shape: the one held most often over the last steps). `stay` and `move`
+    (`stay_move_costs`) charge standing still and changing the shape."""
     top = w.shape[0] - 1
     settled = []
     for start in starts:
@@ -79,8 +91,8 @@ def greedy_settled(
         for _ in range(max_steps):
             cand = np.clip(s + _MOVES, 0, top)
             vals = w[cand[:, 0], cand[:, 1], cand[:, 2]].copy()
-            if beta is not None:
-                vals[(cand == s).all(axis=1)] -= beta
+            same = (cand == s).all(axis=1)
+            vals -= np.where(same, stay, move)
             s = cand[int(vals.argmax())]
             history.append((float(s[0]), float(s[1]), float(s[2])))
         i, j, k = settled_theta(history)

@@ -54,8 +54,8 @@ class _Budgeted:
 
     def _score(self, theta: Theta) -> float:
         scored = self.env.score(theta)
-        self.metrics[theta] = (float(scored["P_c"]), int(scored["P_len"]), bool(scored["feasible"]))
-        value = self.seen[theta] = float(scored["R1"])
+        self.metrics[theta] = (float(scored.P_c), int(scored.P_len), bool(scored.feasible))
+        value = self.seen[theta] = float(scored.R1)
         return value
 
     def neighbours(self, theta: Theta) -> list[Theta]:
@@ -154,7 +154,7 @@ def run_local(
         if visited is not None:
             visited.append(space)
         scored = env.score(end)
-        outcomes.append(Outcome(theta0, end, float(scored["R1"]), float(scored["P_c"]), int(scored["P_len"]),
+        outcomes.append(Outcome(theta0, end, float(scored.R1), float(scored.P_c), int(scored.P_len),
                                 len(space.seen)))  # fmt: skip
     return outcomes
 

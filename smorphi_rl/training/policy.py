@@ -11,6 +11,7 @@ import torch
 
 from smorphi_rl.env import EnvConfig, MorphologyEnv, RewardMode
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome, settled_theta
+from smorphi_rl.score import Scored
 from smorphi_rl.training.checkpoints import CheckpointError
 
 
@@ -19,7 +20,7 @@ class Rollout:
     """One greedy episode: the start, the shape it settles on, and the best it visited."""
 
     start: dict[str, Any]
-    settled: dict[str, Any]
+    settled: Scored
     best: dict[str, Any]
     final: dict[str, Any]
     steps: int
@@ -94,8 +95,8 @@ def greedy_outcomes(module: Any, envs: list[Any], starts: np.ndarray) -> list[Ou
     for env, start, history, commit in zip(envs, starts, histories, committed, strict=True):
         theta = commit if commit is not None else settled_theta(history)
         scored = env.unwrapped.score(theta)
-        outcomes.append(Outcome(tuple(float(t) for t in start), theta, float(scored["R1"]),  # type: ignore[arg-type]
-                                float(scored["P_c"]), int(scored["P_len"]), len(set(history))))  # fmt: skip
+        outcomes.append(Outcome(tuple(float(t) for t in start), theta, float(scored.R1),  # type: ignore[arg-type]
+                                float(scored.P_c), int(scored.P_len), len(set(history))))  # fmt: skip
     return outcomes
 
 

@@ -32,8 +32,20 @@ def test_paper_mode_pays_for_standing_still() -> None:
     """With R2 = -beta for standing still, the optimal policy steps between the peak and a neighbour."""
     r1 = _landscape()
     w = move_values(r1, "paper", gamma=0.9, beta=5.0)
-    (settled,) = greedy_settled(w, np.array([[9, 3, 10]]), max_steps=40, beta=5.0)
+    (settled,) = greedy_settled(w, np.array([[9, 3, 10]]), max_steps=40, stay=5.0)
     assert np.abs(np.array(settled) - np.array([9, 3, 10])).max() <= 1
+
+
+@pytest.mark.parametrize("mode", ["level", "peak"])
+def test_a_move_cost_keeps_the_global_peak_and_stops_the_walk_where_moving_gains_too_little(mode: str) -> None:
+    """A small move cost leaves the optimal policy's destination where it was; one larger than anything a
+    walk can gain keeps every start where it is."""
+    r1 = _landscape()
+    starts = np.array([[2, 2, 2], [0, 12, 0], [12, 12, 12], [9, 3, 10]])
+    w = move_values(r1, mode, gamma=0.99, move_cost=0.01)
+    assert greedy_settled(w, starts, max_steps=60, move=0.01) == [(9, 3, 10)] * 4
+    w = move_values(r1, mode, gamma=0.99, move_cost=1e6)
+    assert greedy_settled(w, starts, max_steps=60, move=1e6) == [tuple(s) for s in starts]
 
 
 def test_unknown_mode_and_bad_discount_are_refused() -> None:

@@ -21,14 +21,14 @@ def test_budget_seed_and_improvement(method):
         assert outcome.start == tuple(start)
         if method != "random_walk":  # a walk ends where it settles; the others keep their best
             assert outcome.evaluations <= 150
-            assert env.score(tuple(start))["R1"] <= outcome.R1
+            assert env.score(tuple(start)).R1 <= outcome.R1
 
 
 def test_hill_climbing_ends_on_a_local_maximum_of_its_neighbourhood():
     env = MorphologyEnv()
     (outcome,) = run_local("hillclimb", env, np.array([[130.0, 50.0, 120.0]]), budget=60, seed=0)
-    r1 = env.score(outcome.settled)["R1"]
-    assert r1 == outcome.R1 and r1 >= env.score((130.0, 50.0, 120.0))["R1"]
+    r1 = env.score(outcome.settled).R1
+    assert r1 == outcome.R1 and r1 >= env.score((130.0, 50.0, 120.0)).R1
 
 
 def test_bad_method_and_budget():
