@@ -11,10 +11,10 @@ lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
         [--algos ppo impala] [--rewards paper peak] [--seeds 0 1 2] [--timesteps 150000] [--no-ideal]
-        [--out DIR]
+        [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
-curves (learning_curves.png) under --out (default logs/bench-learning-<time>).
+curves (learning_curves.png) under logs/NAME (default logs/bench-learning-<time>).
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ import numpy as np
 from smorphi_rl.env import EnvConfig, MorphologyEnv
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
-from smorphi_rl.rundir import prepare_run_dir
+from smorphi_rl.rundir import RunDirError, prepare_run_dir
 from smorphi_rl.score import r1 as score_r1
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values, stay_move_costs
@@ -78,9 +78,12 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
-    parser.add_argument("--out", default=None)
+    parser.add_argument("--out", default=None, metavar="NAME", help="results go to logs/NAME")
     args = parser.parse_args()
-    out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
+    try:
+        out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
+    except RunDirError as exc:
+        raise SystemExit(f"bench_learning.py: {exc}") from None
     starts = eval_starts()
     rows: list[Row] = []
     t_all = time.monotonic()
