@@ -10,9 +10,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.errors import SmorphiError
@@ -23,22 +24,52 @@ from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 SPACE_KINDS = ("grid", "choice", "uniform", "loguniform")
 ALIASES = {"lambda": "lambda_"}
 """YAML names that differ from the Preset field (RLlib's `lambda_`)."""
-KEYS = {
-    "name": "the experiment's name: its folder under --log-dir (default: the file's name)",
-    "algorithms": "list of ppo, impala, appo",
-    "maps": "list; each item a map file, or a list of map files that one policy trains on together",
-    "seeds": "list of non-negative integers",
-    "timesteps": "env steps each trial trains for",
-    "preset": "fast or paper: the hyperparameters the search space starts from",
-    "stop": "extra stop criteria, {metric: value} as Ray Tune takes them, e.g. time_total_s: 600",
-    "checkpoint": "{every: iterations between checkpoints, keep: how many to keep (0: all)}",
-    "env": "env_config overrides (max_steps, w1, w2, ...), the same for every trial",
-    "search": "{hyperparameter: value or {grid|choice|uniform|loguniform: ...}}",
-    "num_samples": "samples of the random search parts per grid point",
-    "pretrained": "a checkpoint every trial fine-tunes from",
-    "max_iterations": "also stop each trial after this many iterations (smoke runs)",
-    "record_every": "record every Nth episode of each env to MCAP in the trial's episodes/ (0: off)",
-}
+
+
+class _Checkpoint(BaseModel):
+    """The sweep file's `checkpoint` mapping."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    every: int = Field(TrainConfig.checkpoint_every, ge=1, description="iterations between checkpoints")
+    keep: int = Field(0, ge=0, description="how many to keep (0: all)")
+
+
+class SweepFile(BaseModel):
+    """The sweep file's keys, types and ranges (unknown keys refused). The checks that need more than a type (map
+    files, stop metrics, env values, search spaces against the algorithms) follow in `load_sweep`."""
+
+    model_config = ConfigDict(extra="forbid", strict=True)
+    name: str | None = Field(None, description="the experiment's name: its folder under --log-dir (default: the "
+                                               "file's name)")  # fmt: skip
+    algorithms: list[str] = Field(min_length=1, description=f"list of {', '.join(ALGORITHMS)}")
+    maps: list[Any] = Field(min_length=1, description="list; each item a map file, or a list of map files that "
+                                                      "one policy trains on together")  # fmt: skip
+    seeds: list[Annotated[int, Field(ge=0)]] = Field(min_length=1, description="list of non-negative integers")
+    timesteps: int = Field(TrainConfig.timesteps, ge=1, description="env steps each trial trains for")
+    preset: str = Field(TrainConfig.preset, description="fast or paper: the hyperparameters the search space "
+                                                        "starts from")  # fmt: skip
+    stop: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(
+        default_factory=dict,
+        description="extra stop criteria, {metric: value} as Ray Tune takes them, e.g. time_total_s: 600",
+    )
+    checkpoint: _Checkpoint = Field(
+        _Checkpoint(every=TrainConfig.checkpoint_every, keep=0),
+        description="{every: iterations between checkpoints, keep: how many to keep (0: all)}",
+    )
+    env: dict[str, Any] = Field(default_factory=dict, description="env_config overrides (max_steps, w1, w2, "
+                                                                  "...), the same for every trial")  # fmt: skip
+    search: dict[str, Any] = Field(default_factory=dict, description="{hyperparameter: value or "
+                                   "{grid|choice|uniform|loguniform: ...}}")  # fmt: skip
+    num_samples: int = Field(1, ge=1, description="samples of the random search parts per grid point")
+    pretrained: str | None = Field(None, description="a checkpoint every trial fine-tunes from")
+    max_iterations: int | None = Field(None, ge=1, description="also stop each trial after this many iterations "
+                                                               "(smoke runs)")  # fmt: skip
+    record_every: int = Field(TrainConfig.record_every, ge=0, description="record every Nth episode of each env "
+                              "to MCAP in the trial's episodes/ (0: off)")  # fmt: skip
+
+
+KEYS = {name: field.description or "" for name, field in SweepFile.model_fields.items()}
+"""Every key a sweep file may give, with what it means (the schema's own descriptions)."""
 
 
 class SweepConfigError(SmorphiError):
@@ -150,94 +181,76 @@ def load_sweep(path: str | Path) -> SweepConfig:
     def fail(key: str, message: str) -> SweepConfigError:
         return SweepConfigError(f"{where}: key '{key}': {message}")
 
-    for key in raw:
-        if key not in KEYS:
-            raise fail(str(key), f"unknown key (known: {', '.join(KEYS)})")
-    for key in ("algorithms", "maps", "seeds"):
-        if key not in raw:
-            raise fail(key, f"missing ({KEYS[key]})")
-
-    algorithms = tuple(_list(raw["algorithms"], "algorithms", fail, str))
-    for a in algorithms:
+    empty = ("stop", "checkpoint", "env", "search")  # `key:` with nothing after it: the default, as before
+    try:
+        doc = SweepFile.model_validate({k: v for k, v in raw.items() if v is not None or k not in empty})
+    except ValidationError as exc:
+        raise _first_problem(exc, fail) from None
+    for a in doc.algorithms:
         if a not in ALGORITHMS:
             raise fail("algorithms", f"unknown algorithm '{a}' (choose from {', '.join(ALGORITHMS)})")
-    items = _list(raw["maps"], "maps", fail)
-    map_sets = tuple(_map_set(item, f"maps[{i}]", file, fail) for i, item in enumerate(items))
-    seeds = tuple(_list(raw["seeds"], "seeds", fail, int))
-    if any(s < 0 for s in seeds):
-        raise fail("seeds", "seeds must be non-negative")
-    preset = raw.get("preset", TrainConfig.preset)
-    if preset not in PRESETS:
-        raise fail("preset", f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
-    checkpoint = raw.get("checkpoint") or {}
-    if not isinstance(checkpoint, dict) or set(checkpoint) - {"every", "keep"}:
-        raise fail("checkpoint", KEYS["checkpoint"])
-    stop = raw.get("stop") or {}
-    if not isinstance(stop, dict) or not all(_is_number(v) for v in stop.values()):
-        raise fail("stop", KEYS["stop"])
-    unknown_stop = sorted(str(k) for k in stop if k not in STOP_METRICS)
+    map_sets = tuple(_map_set(item, f"maps[{i}]", file, fail) for i, item in enumerate(doc.maps))
+    if doc.preset not in PRESETS:
+        raise fail("preset", f"unknown preset {doc.preset!r} (choose from {', '.join(PRESETS)})")
+    unknown_stop = sorted(k for k in doc.stop if k not in STOP_METRICS)
     if unknown_stop:
         raise fail("stop", f"unknown metric '{unknown_stop[0]}' (known: {', '.join(STOP_METRICS)})")
-    env = raw.get("env") or {}
-    if not isinstance(env, dict):
-        raise fail("env", KEYS["env"])
-    if "maps" in env:
+    if "maps" in doc.env:
         raise fail("env.maps", "give maps at the top level ('maps')")
     try:
-        EnvConfig.from_dict({**env, "maps": list(map_sets[0])})
+        EnvConfig.from_dict({**doc.env, "maps": list(map_sets[0])})
     except SmorphiError as exc:
         raise fail("env", str(exc)) from None
-    search = raw.get("search") or {}
-    if not isinstance(search, dict):
-        raise fail("search", KEYS["search"])
-    spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in search.items()}
-    pretrained = raw.get("pretrained")
-    if pretrained is not None and not isinstance(pretrained, str):
-        raise fail("pretrained", "a checkpoint path")
+    spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in doc.search.items()}
     cfg = SweepConfig(
         path=file,
-        name=_name(raw.get("name", file.stem), fail),
-        algorithms=algorithms,
+        name=_name(file.stem if doc.name is None else doc.name, fail),
+        algorithms=tuple(doc.algorithms),
         map_sets=map_sets,
-        seeds=seeds,
-        timesteps=_positive(raw.get("timesteps", TrainConfig.timesteps), "timesteps", fail),
-        preset=preset,
-        stop={str(k): float(v) for k, v in stop.items()},
-        checkpoint_every=_positive(checkpoint.get("every", TrainConfig.checkpoint_every), "checkpoint.every", fail),
-        checkpoint_keep=_positive(checkpoint.get("keep", 0), "checkpoint.keep", fail, zero=True),
-        env=env,
+        seeds=tuple(doc.seeds),
+        timesteps=doc.timesteps,
+        preset=doc.preset,
+        stop=dict(doc.stop),
+        checkpoint_every=doc.checkpoint.every,
+        checkpoint_keep=doc.checkpoint.keep,
+        env=dict(doc.env),
         search=spaces,
-        num_samples=_positive(raw.get("num_samples", 1), "num_samples", fail),
-        pretrained=pretrained,
-        max_iterations=None if raw.get("max_iterations") is None else _positive(raw["max_iterations"],
-                                                                               "max_iterations", fail),
-        record_every=_positive(raw.get("record_every", TrainConfig.record_every), "record_every", fail, zero=True),
-    )  # fmt: skip
+        num_samples=doc.num_samples,
+        pretrained=doc.pretrained,
+        max_iterations=doc.max_iterations,
+        record_every=doc.record_every,
+    )
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
-    for algo in algorithms:  # every value of every space must suit every algorithm
+    for algo in cfg.algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
             for value in space.examples():
                 try:
-                    cfg.base_config(algo, map_sets[0], seeds[0], {key: value})
+                    cfg.base_config(algo, map_sets[0], cfg.seeds[0], {key: value})
                 except SmorphiError as exc:
                     raise fail(f"search.{key}", str(exc)) from None
     return cfg
 
 
-def _list(value: Any, key: str, fail: Any, kind: type | None = None) -> list[Any]:
-    if not isinstance(value, list) or not value:
-        raise fail(key, "expected a non-empty list")
-    if kind is not None:
-        for v in value:
-            if isinstance(v, bool) or not isinstance(v, kind):
-                raise fail(key, f"expected {kind.__name__} items, got {v!r}")
-    return value
+def _first_problem(exc: ValidationError, fail: Any) -> SweepConfigError:
+    """The schema's first complaint as one line naming the key (a list item as key[i], a nested key as a.b)."""
+    error = exc.errors()[0]
+    key = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in error["loc"]).lstrip(".")
+    top = str(error["loc"][0]) if error["loc"] else ""
+    if error["type"] == "extra_forbidden":
+        known = KEYS if len(error["loc"]) == 1 else _Checkpoint.model_fields
+        return fail(key, f"unknown key (known: {', '.join(known)})")
+    if error["type"] == "missing":
+        return fail(key, f"missing ({KEYS.get(top, '')})")
+    message = error["msg"][0].lower() + error["msg"][1:]
+    return fail(key, f"{message}, got {error['input']!r}")
 
 
 def _map_set(item: Any, key: str, file: Path, fail: Any) -> tuple[str, ...]:
     """One trial's maps: a path or a list of paths, resolved against the working directory, then the file's."""
-    items = _list(item, key, fail, str) if isinstance(item, list) else [item]
+    items = item if isinstance(item, list) else [item]
+    if not items:
+        raise fail(key, "expected a map path or a non-empty list of them")
     out = []
     for p in items:
         if not isinstance(p, str):
@@ -267,12 +280,6 @@ def _space(value: Any, key: str, fail: Any) -> Space:
 
 def _is_number(value: Any) -> bool:
     return not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
-
-
-def _positive(value: Any, key: str, fail: Any, zero: bool = False) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or value < (0 if zero else 1):
-        raise fail(key, f"expected a {'non-negative' if zero else 'positive'} integer, got {value!r}")
-    return value
 
 
 def _name(value: Any, fail: Any) -> str:
