@@ -26,20 +26,15 @@ from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
 from smorphi_rl.score import r1
 
-METHODS = (
-    ("random", "uniformly random integer shapes (paper Table 4)"),
-    ("nsga2", "NSGA-II over integer angles (paper Table 6, Figure 7)"),
-    ("exhaustive", "every triple on the lattice: the exact front and best R1"),
-    ("hillclimb", "steepest ascent over the 26 one-step moves from the protocol's fixed starts"),
-    ("anneal", "simulated annealing over the same moves from the same starts"),
-)
-
 
 def register(sub: Any) -> None:
     """Add `search METHOD` and `compare` to the command line."""
     se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")
     se_sub = se.add_subparsers(dest="method", required=True, parser_class=Parser)
-    for method, text in METHODS:
+    from smorphi_rl.search.config import LOCAL_METHODS, METHODS, SearchConfig
+
+    d = SearchConfig  # the defaults' one home
+    for method, text in METHODS.items():
         m = se_sub.add_parser(method, help=text)
         m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
         run_options(m)
@@ -47,17 +42,19 @@ def register(sub: Any) -> None:
         weight_options(m)
         planner_option(m, "paper")
         if method == "random":
-            m.add_argument("--samples", type=int, default=1000, help="shapes to draw")
+            m.add_argument("--samples", type=int, default=d.samples, help=f"shapes to draw (default {d.samples})")
         if method == "nsga2":
-            m.add_argument("--pop", type=int, default=40, help="population size")
-            m.add_argument("--generations", type=int, default=50)
-        if method in ("random", "nsga2", "hillclimb", "anneal"):
-            m.add_argument("--seed", type=seed_arg, default=0)
-        if method in ("hillclimb", "anneal"):
-            m.add_argument("--budget", type=int, default=200, help="FBCPP evaluations per start (default 200)")
-            m.add_argument("--starts", type=int, default=20, help="fixed seeded starts (default 20)")
+            m.add_argument("--pop", type=int, default=d.pop, help=f"population size (default {d.pop})")
+            m.add_argument("--generations", type=int, default=d.generations, help=f"default {d.generations}")
+        if method != "exhaustive":
+            m.add_argument("--seed", type=seed_arg, default=d.seed)
+        if method in LOCAL_METHODS:
+            m.add_argument("--budget", type=int, default=d.budget,
+                           help=f"FBCPP evaluations per start (default {d.budget})")  # fmt: skip
+            m.add_argument("--starts", type=int, default=d.starts, help=f"fixed seeded starts (default {d.starts})")
         if method == "exhaustive":
-            m.add_argument("--step", type=float, default=1.0, help="lattice step in degrees; must divide 180")
+            m.add_argument("--step", type=float, default=d.step,
+                           help=f"lattice step in degrees; must divide 180 (default {d.step:g})")  # fmt: skip
         m.set_defaults(func=cmd_search)
 
     co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
@@ -67,67 +64,30 @@ def register(sub: Any) -> None:
     co.add_argument("--random", nargs="+", help="`search random` run directories")
     co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
     co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
-    co.add_argument("--step", type=float, default=1.0, help="lattice step of the exact front when computed")
+    co.add_argument("--step", type=float, default=d.step, help="lattice step of the exact front when computed")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     weight_options(co)
     planner_option(co, "paper")  # the exact front's planner: compare runs made with the same one
     co.set_defaults(func=cmd_compare)
 
 
-def _check(args: argparse.Namespace) -> None:
-    """The method's own options, before anything is written."""
-    if args.method == "exhaustive":
-        from smorphi_rl.search.exhaustive import check_step
-
-        check_step(args.step)
-    elif args.method == "random" and args.samples < 1:
-        raise SmorphiError(f"--samples must be >= 1, got {args.samples}")
-    elif args.method in ("hillclimb", "anneal") and (args.budget < 1 or args.starts < 1):
-        raise SmorphiError(f"--budget and --starts must be >= 1, got {args.budget} and {args.starts}")
-    elif args.method == "nsga2" and (args.pop < 2 or args.generations < 1):
-        raise SmorphiError(f"--pop must be >= 2 and --generations >= 1, got {args.pop} and {args.generations}")
-
-
-def _run(args: argparse.Namespace, weights: Any) -> Any:
-    """Run the chosen method on the map: a SearchResult."""
-    map_path = str(args.map)
-    planning = planning_of(args)
-    if args.method == "exhaustive":
-        from smorphi_rl.search.exhaustive import run_exhaustive
-
-        return run_exhaustive(map_path, args.step, planning, progress=progress_line("exhaustive"))
-    if args.method == "random":
-        from smorphi_rl.search.random import run_random
-
-        return run_random(map_path, args.samples, args.seed, planning)
-    if args.method in ("hillclimb", "anneal"):
-        from smorphi_rl.search.local import run_local_search
-
-        env = {"w1": weights.w1, "w2": weights.w2, "path_term": weights.path_term, "planner": args.planner,
-               "start_xy": planning.start_xy}  # fmt: skip
-        return run_local_search(args.method, map_path, args.budget, args.seed, args.starts, env)
-    from smorphi_rl.search.nsga2 import run_nsga2
-
-    return run_nsga2(map_path, args.pop, args.generations, args.seed, planning)
-
-
 def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II, local search or the exhaustive lattice on a map; results, front and plot under
     LOG_DIR/<run>/."""
     from smorphi_rl.plots import plot_pareto
-    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.search.config import SearchConfig, run_search
     from smorphi_rl.search.results import save
 
     w = weights(args)
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
-    _check(args)
+    options = {k: getattr(args, k) for k in ("seed", "samples", "pop", "generations", "budget", "starts", "step")
+               if hasattr(args, k)}  # fmt: skip
+    cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options)
     w1, w2 = w.w1, w.w2_on(grid_map)
-    suffix = f"step{args.step:g}" if args.method == "exhaustive" else f"seed{args.seed}"
-    run_dir = prepare_run_dir(
-        args.log_dir, args.name or safe_name(f"{args.method}-{Path(str(args.map)).stem}-{suffix}")
-    )
-    result = _run(args, w)
+    run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
+    result = run_search(cfg, progress_line("exhaustive"))
     files = save(result, run_dir, w1, w2)
     front_rows = result.front_records(w1, w2)
     b = result.best(w1, w2)

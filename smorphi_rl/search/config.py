@@ -1,0 +1,100 @@
+"""`search METHOD`: one run's configuration (the only home of every method's defaults, validated once) and
+`run_search`, which runs it. The command line parses into a SearchConfig and formats what comes back."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from smorphi_rl.env import EnvConfig
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.evaluate import PAPER_PLANNING, Planning
+from smorphi_rl.protocol import EVAL_STARTS
+from smorphi_rl.search.results import SearchResult
+
+METHODS = {
+    "random": "uniformly random integer shapes (paper Table 4)",
+    "nsga2": "NSGA-II over integer angles (paper Table 6, Figure 7)",
+    "exhaustive": "every triple on the lattice: the exact front and best R1",
+    "hillclimb": "steepest ascent over the 26 one-step moves from the protocol's fixed starts",
+    "anneal": "simulated annealing over the same moves from the same starts",
+}
+LOCAL_METHODS = ("hillclimb", "anneal")
+
+
+class SearchConfigError(SmorphiError):
+    """A search option out of range, named as the command line spells it."""
+
+
+@dataclass(frozen=True)
+class SearchConfig:
+    """One `search` run on one map."""
+
+    method: str
+    map_path: str
+    planning: Planning = PAPER_PLANNING
+    w1: float = EnvConfig.w1
+    """R1's weights (only the local methods rank by R1 while they search; the others keep every front point)."""
+    w2: float = EnvConfig.w2
+    path_term: str = EnvConfig.path_term
+    seed: int = 0
+    """random, nsga2, hillclimb, anneal: the seed of the method's generator."""
+    samples: int = 1000
+    """random: shapes to draw."""
+    pop: int = 40
+    """nsga2: population size."""
+    generations: int = 50
+    """nsga2: generations."""
+    budget: int = 200
+    """hillclimb, anneal: FBCPP evaluations per start."""
+    starts: int = EVAL_STARTS
+    """hillclimb, anneal: the protocol's fixed seeded starts."""
+    step: float = 1.0
+    """exhaustive: lattice step in degrees; must divide 180."""
+
+    def __post_init__(self) -> None:
+        if self.method not in METHODS:
+            raise SearchConfigError(f"unknown search method '{self.method}' (choose from {', '.join(METHODS)})")
+        if self.method == "exhaustive":
+            from smorphi_rl.search.exhaustive import check_step
+
+            try:
+                check_step(self.step)
+            except SmorphiError as exc:
+                raise SearchConfigError(str(exc)) from None
+        elif self.method == "random" and self.samples < 1:
+            raise SearchConfigError(f"--samples must be >= 1, got {self.samples}")
+        elif self.method in LOCAL_METHODS and (self.budget < 1 or self.starts < 1):
+            raise SearchConfigError(f"--budget and --starts must be >= 1, got {self.budget} and {self.starts}")
+        elif self.method == "nsga2" and (self.pop < 2 or self.generations < 1):
+            raise SearchConfigError(f"--pop must be >= 2 and --generations >= 1, got {self.pop} and {self.generations}")
+
+    @property
+    def run_name(self) -> str:
+        """The default run folder: method, map and the step (exhaustive) or the seed."""
+        from smorphi_rl.rundir import safe_name
+
+        suffix = f"step{self.step:g}" if self.method == "exhaustive" else f"seed{self.seed}"
+        return safe_name(f"{self.method}-{Path(self.map_path).stem}-{suffix}")
+
+
+def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = None) -> SearchResult:
+    """Run the configured method on its map (`progress(done, total)`: the exhaustive search's chunks)."""
+    if cfg.method == "exhaustive":
+        from smorphi_rl.search.exhaustive import run_exhaustive
+
+        return run_exhaustive(cfg.map_path, cfg.step, cfg.planning, progress=progress)
+    if cfg.method == "random":
+        from smorphi_rl.search.random import run_random
+
+        return run_random(cfg.map_path, cfg.samples, cfg.seed, cfg.planning)
+    if cfg.method in LOCAL_METHODS:
+        from smorphi_rl.search.local import run_local_search
+
+        env = {"w1": cfg.w1, "w2": cfg.w2, "path_term": cfg.path_term, "planner": cfg.planning.planner.value,
+               "start_xy": cfg.planning.start_xy}  # fmt: skip
+        return run_local_search(cfg.method, cfg.map_path, cfg.budget, cfg.seed, cfg.starts, env)
+    from smorphi_rl.search.nsga2 import run_nsga2
+
+    return run_nsga2(cfg.map_path, cfg.pop, cfg.generations, cfg.seed, cfg.planning)
