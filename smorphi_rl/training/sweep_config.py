@@ -8,7 +8,7 @@ names the file and the key.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -102,24 +102,24 @@ class Space:
 
 @dataclass(frozen=True)
 class SweepConfig:
-    """A validated sweep file."""
+    """A validated sweep file, resolved (map paths found, search spaces parsed); its defaults are SweepFile's."""
 
     path: Path
     name: str
     algorithms: tuple[str, ...]
     map_sets: tuple[tuple[str, ...], ...]
     seeds: tuple[int, ...]
-    timesteps: int = TrainConfig.timesteps
-    preset: str = TrainConfig.preset
-    stop: dict[str, float] = field(default_factory=dict)
-    checkpoint_every: int = TrainConfig.checkpoint_every
-    checkpoint_keep: int = 0
-    env: dict[str, Any] = field(default_factory=dict)
-    search: dict[str, Space] = field(default_factory=dict)
-    num_samples: int = 1
-    pretrained: str | None = None
-    max_iterations: int | None = None
-    record_every: int = TrainConfig.record_every
+    timesteps: int
+    preset: str
+    stop: dict[str, float]
+    checkpoint_every: int
+    checkpoint_keep: int
+    env: dict[str, Any]
+    search: dict[str, Space]
+    num_samples: int
+    pretrained: str | None
+    max_iterations: int | None
+    record_every: int
 
     @property
     def num_grid_trials(self) -> int:
