@@ -28,8 +28,8 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
   `level` a near-best plateau pays almost what the best does; here a shape pays about nothing below the
   map's 90th percentile and PEAK_SHARPNESS units per sigma_map above it. A monotone transform of R1, so
   the best shape to settle on is the same.
-- In `level` and `peak`, a step that changes the shape also pays `-move_cost` (default 0.03): where no
-  move gains anything, standing still pays more than drifting, so the policy settles on a shape.
+- In `level` and `peak`, a step that changes the shape also pays `-move_cost` (default 0, off): where no
+  move gains anything, standing still then pays more than drifting, so the policy settles on a shape.
 - `improvement`: `R = (R1(s') - R1(s)) / sigma_map`; the return telescopes to the final shape's R1
   minus the start's, so standing still at the optimum costs nothing.
 - `commit`: the all-zero action ends the episode and pays `R1(s) / sigma_map`; any other step pays
@@ -50,7 +50,7 @@ action; truncated after `max_steps`.
   were added without a version bump (no policy had been published); likewise the map channels now
   cover the known cells' bounding box (identical on maps with no unknown border, such as the shipped
   ones) and the config took `planner`, `start_xy` and `path_term` (defaults: the old behaviour), and
-  `move_cost` (which changes the `level` and `peak` rewards by default; `paper` is unchanged).
+  `move_cost` (default 0: the old behaviour).
 """
 
 from __future__ import annotations
@@ -91,9 +91,9 @@ class RewardMode(str, Enum):
 REWARD_MODES = tuple(m.value for m in RewardMode)
 PEAK_SHARPNESS = 10.0
 """`peak` mode: reward units per sigma_map of R1 above the map's 90th percentile (20 did worse on map-1)."""
-DEFAULT_MOVE_COST = 0.03
-"""`level`/`peak` move cost: 0.03 settled 47 % of map-1's protocol starts within 1 % (3 seeds), 0 settled 30 %
-and 0.1 left starts in poor regions (moving there costs more than the far good shapes are worth)."""
+DEFAULT_MOVE_COST = 0.0
+"""`level`/`peak` move cost, off by default: 0.03 took PPO on map-1 from 30 to 47 % of the protocol's starts within
+1 % but map-2 from 40 to 32 % with twice the median gap, and IMPALA's gaps grew on both (README, Learning)."""
 SIGMA_SAMPLES = 256
 """Random shapes whose R1 spread scales the design rewards (seeded, so every process agrees)."""
 MAP_LEVELS = 255

@@ -87,7 +87,7 @@ def _register_train(sub: Any) -> None:
 
     tr.add_argument("--move-cost", type=float, default=None, metavar="C",
                     help=f"level and peak: what a step that changes the shape costs, so the policy settles "
-                         f"(default {EnvConfig.move_cost}; 0: off)")  # fmt: skip
+                         f"(default {EnvConfig.move_cost:g}: off)")  # fmt: skip
     weight_options(tr)
     planner_option(tr, None)
     tr.add_argument("--env-runners", type=int, default=None, metavar="N",
