@@ -507,7 +507,8 @@ def _fit_candidates(
     if best < 0:
         return out[:0]
     taken = np.zeros(l * w, np.bool_)
-    for y in range(h):
+    y = first[best] // wd  # the group's first placement in A*: none before it can be a candidate
+    while y < h and n < l * w:  # every lattice class taken: no later placement can be a candidate
         cy = (y % l) * w
         cx = 0
         for x in range(wd):
@@ -517,6 +518,7 @@ def _fit_candidates(
                 out[n] = p
                 n += 1
             cx = cx + 1 if cx + 1 < w else 0
+        y += 1
     return out[:n]
 
 
