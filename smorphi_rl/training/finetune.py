@@ -16,7 +16,13 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.training.callbacks import MorphologyCallbacks
-from smorphi_rl.training.checkpoints import MODULE_COMPONENT, MODULE_SUBDIR, CheckpointError, load_module
+from smorphi_rl.training.checkpoints import (
+    MODULE_COMPONENT,
+    MODULE_SUBDIR,
+    CheckpointError,
+    find_checkpoint,
+    load_module,
+)
 
 PRETRAINED_KEY = "smorphi_pretrained_in_runners"
 POLICY_PREFIX = "_pi."
@@ -69,6 +75,13 @@ def reseed_runners(algorithm: Any, generation: int) -> None:
             env.reseed(generation)
 
     runners.foreach_env_runner(reseed, local_env_runner=local)
+
+
+def fine_tune_from(pretrained: str | Path, env_config: dict[str, Any]) -> tuple[Path, type[MorphologyCallbacks]]:
+    """The checkpoint `pretrained` names (a checkpoint, trial or run directory), checked against the env, and the
+    callbacks that start training from it; a bad one fails here, before anything trains."""
+    checkpoint = find_checkpoint(pretrained)
+    return checkpoint, fine_tune_callbacks(checkpoint, check_pretrained(checkpoint, env_config))
 
 
 def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbacks]:

@@ -26,9 +26,9 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
-from smorphi_rl.training.checkpoints import checkpoints_under, find_checkpoint
+from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
-from smorphi_rl.training.finetune import PRETRAINED_KEY, check_pretrained, fine_tune_callbacks
+from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
@@ -271,8 +271,7 @@ def train(
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
     callbacks, pretrained = None, None
     if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
-        pretrained = find_checkpoint(cfg.pretrained)
-        callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
+        pretrained, callbacks = fine_tune_from(cfg.pretrained, cfg.env.to_dict())
     cluster.check_reachable(address)
     if address is None:
         cluster.check_capacity(cfg.cpus, cfg.env_runners, address)  # a local Ray's size is known before it starts

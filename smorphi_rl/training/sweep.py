@@ -19,8 +19,7 @@ import yaml
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.checkpoints import find_checkpoint
-from smorphi_rl.training.finetune import check_pretrained, fine_tune_callbacks
+from smorphi_rl.training.finetune import fine_tune_from
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import TrainingError, fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig
@@ -54,10 +53,7 @@ class SweepSummary:
 def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
     """One trial of the sweep: its grid point's TrainConfig, run by the project's one trainable."""
     cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
-    callbacks = None
-    if cfg.pretrained is not None:
-        pretrained = find_checkpoint(cfg.pretrained)
-        callbacks = fine_tune_callbacks(pretrained, check_pretrained(pretrained, cfg.env.to_dict()))
+    callbacks = None if cfg.pretrained is None else fine_tune_from(cfg.pretrained, cfg.env.to_dict())[1]
     run_trial(cfg, callbacks)
 
 
@@ -152,8 +148,8 @@ def run_sweep(
 ) -> SweepSummary:
     """Run (or resume) the sweep as one Tune experiment under `log_dir/<name>/`; write the table and curves."""
     if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
-        check_pretrained(find_checkpoint(sweep.pretrained), sweep.base_config(
-            sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0], {}).env.to_dict())  # fmt: skip
+        fine_tune_from(sweep.pretrained, sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0],
+                                                          {}).env.to_dict())  # fmt: skip
     cluster.check_reachable(address)
     exp = prepare_experiment(sweep, log_dir, resume)
     quiet()
