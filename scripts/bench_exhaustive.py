@@ -17,6 +17,7 @@ from pathlib import Path
 
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.score import Weights
 from smorphi_rl.search.exhaustive import run_exhaustive
 
 TARGET_S = 300.0
@@ -43,7 +44,7 @@ def main() -> None:
     result = run_exhaustive(args.map, args.step)
     wall = time.perf_counter() - t0
     rate = result.evaluations / wall
-    best = result.best(1.0, 0.1)
+    best = result.best(Weights(1.0, 0.1))
     theta = tuple(int(t) for t in result.thetas[best])
     print(f"exhaustive, {args.step:g}-degree lattice on {grid_map.name}, {result.params['workers']} processes "
           f"({os.cpu_count()} cores): {result.evaluations:,} shapes, "

@@ -32,7 +32,6 @@ from smorphi_rl.env import EnvConfig, MorphologyEnv
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import RunDirError, prepare_run_dir
-from smorphi_rl.score import r1 as score_r1
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values, stay_move_costs
 from smorphi_rl.search.local import run_local
@@ -90,8 +89,8 @@ def main() -> None:
     for map_path in args.maps:
         name = load_map(map_path).name
         base_env = EnvConfig.from_dict({"maps": [map_path]})
-        w2 = base_env.w2_on(load_map(map_path))
-        optimum = exact_optimum(map_path, base_env.w1, w2, base_env.planning, ROOT / "logs" / ".cache")
+        weights = base_env.weights_on(load_map(map_path))
+        optimum = exact_optimum(map_path, weights, base_env.planning, ROOT / "logs" / ".cache")
         print(f"{name}: exact optimum R1* {optimum.R1:.2f} at {optimum.theta} (1-degree lattice); "
               f"1 % band: R1 >= {optimum.R1 - 0.01 * abs(optimum.R1):.2f}", flush=True)  # fmt: skip
         for algo in args.algos:
@@ -138,8 +137,8 @@ def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarr
     name = load_map(map_path).name
     result = run_exhaustive(map_path, planning=env.planning)
     n = round(len(result.thetas) ** (1 / 3))
-    w2 = env.w2_on(load_map(map_path))
-    r1 = np.where(result.feasible, score_r1(result.P_c, result.P_len, env.w1, w2), 0.0).reshape(n, n, n)
+    r1 = np.where(result.feasible, env.weights_on(load_map(map_path)).r1(result.P_c, result.P_len), 0.0)
+    r1 = r1.reshape(n, n, n)
     gamma = PRESETS["fast"]["ppo"].gamma
     rows = []
     for reward in (r for r in rewards if r in IDEAL_MODES):

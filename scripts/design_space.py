@@ -18,7 +18,7 @@ import numpy as np
 from smorphi_rl.env import EnvConfig
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
-from smorphi_rl.score import r1 as score_r1
+from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 
 
@@ -36,7 +36,7 @@ def main() -> None:
     t0 = time.perf_counter()
     batch = evaluator.evaluate_many(thetas)
     elapsed = time.perf_counter() - t0
-    r1 = score_r1(batch.P_c, batch.P_len, args.w1, args.w2)
+    r1 = Weights(args.w1, args.w2).r1(batch.P_c, batch.P_len)
     front = pareto_front(batch.P_c, batch.P_len)
     print(f"{grid_map.name}: {len(thetas):,} triples at {args.step:g} deg, {evaluator.cache_size():,} distinct F, "
           f"{elapsed:.1f} s")  # fmt: skip

@@ -19,7 +19,7 @@ import numpy as np
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.protocol import within_band
-from smorphi_rl.score import r1
+from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
@@ -101,19 +101,18 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
             result.P_c[ok], result.P_len[ok], result.params.get("settled_R1"))  # fmt: skip
 
 
-def score_methods(
-    exact: SearchResult, runs: list[Points], w1: float, w2: float
-) -> tuple[MethodScore, list[MethodScore]]:
+def score_methods(exact: SearchResult, runs: list[Points], weights: Weights) -> tuple[MethodScore, list[MethodScore]]:
     """The exact front's own score and every run's, all against the same optimum and reference point."""
     ok = exact.feasible
     ref_len, ref_pc = float(exact.P_len[ok].max()), float(exact.P_c[ok].min())
     exact_front = exact.front()
     hv_exact = hypervolume(exact.P_len[exact_front], exact.P_c[exact_front], ref_len, ref_pc)
-    optimum = float(r1(exact.P_c[exact.best(w1, w2)], exact.P_len[exact.best(w1, w2)], w1, w2))
+    b = exact.best(weights)
+    optimum = float(weights.r1(exact.P_c[b], exact.P_len[b]))
 
     def score(label: str, budget: str, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray,
               settled: Any = None) -> MethodScore:  # fmt: skip
-        scores = r1(p_c, p_len, w1, w2)
+        scores = weights.r1(p_c, p_len)
         b = int(np.argmax(scores))
         front = pareto_front(p_c, p_len)
         hv = hypervolume(p_len[front], p_c[front], ref_len, ref_pc)
@@ -156,24 +155,24 @@ def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
     return lines
 
 
-def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float) -> list[str]:
+def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights) -> list[str]:
     """The comparison as Markdown lines: title, how to read it, and the table (what `compare` prints)."""
     return [
         f"# Every method against the exact optimum on {map_name}",
         "",
-        f"R1 = {w1:g} P_c - {w2:g} P_len. Hypervolume in (P_len, P_c) against the lattice nadir "
+        f"{weights.formula()}. Hypervolume in (P_len, P_c) against the lattice nadir "
         "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
         "",
         *method_table(exact, methods),
     ]
 
 
-def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, w1: float, w2: float,
+def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights,
                  run_dir: Path) -> dict[str, Path]:  # fmt: skip
     """report.md (`report_lines` and the plot) and compare.png under `run_dir`."""
     from smorphi_rl.plots import plot_pareto
 
-    lines = report_lines(exact, methods, map_name, w1, w2)
+    lines = report_lines(exact, methods, map_name, weights)
     files = {"report": run_dir / "report.md"}
     files["plot"] = plot_pareto(
         {m.label: (m.front_len, m.front_pc) for m in methods},

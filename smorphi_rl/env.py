@@ -72,7 +72,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator, Planning
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
-from smorphi_rl.score import PATH_TERMS, Scored, effective_w2, r1
+from smorphi_rl.score import PATH_TERMS, Scored, Weights, effective_w2
 
 ENV_ID = "smorphi_rl/Morphology-v0"
 DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
@@ -205,10 +205,10 @@ class EnvConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
-    def w2_on(self, grid_map: Map) -> float:
-        """The weight of P_len in effect on `grid_map` (`path_term`)."""
+    def weights_on(self, grid_map: Map) -> Weights:
+        """R1's weights in effect on `grid_map` (w2 after `path_term`)."""
         free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2
-        return effective_w2(self.w2, self.path_term, free_m2)
+        return Weights(self.w1, effective_w2(self.w2, self.path_term, free_m2))
 
     @property
     def planning(self) -> Planning:
@@ -297,13 +297,13 @@ class R1Stats(NamedTuple):
 
 
 @lru_cache(maxsize=64)
-def r1_stats(map_path: str, w1: float, w2: float, planning: Planning) -> R1Stats:
+def r1_stats(map_path: str, weights: Weights, planning: Planning) -> R1Stats:
     """Mean, standard deviation and 90th percentile of R1 over SIGMA_SAMPLES seeded random integer shapes on
     the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
     batch = planning.evaluator(load_map(map_path)).evaluate_many(thetas)
-    values = r1(batch.P_c, batch.P_len, w1, w2)
+    values = weights.r1(batch.P_c, batch.P_len)
     return R1Stats(float(np.mean(values)), max(float(np.std(values)), 1e-6), float(np.quantile(values, 0.9)))
 
 
@@ -329,11 +329,11 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._scores: dict[tuple[int, int, int, int], Scored] = {}
         self._map_obs = [self._map_channels(m) for m in self._maps]
         self._mode = RewardMode(self.config.reward)
-        self._w2 = [self.config.w2_on(m) for m in self._maps]
+        self._weights = [self.config.weights_on(m) for m in self._maps]
         cfg = self.config
         self._stats = [
-            r1_stats(p, cfg.w1, w2, cfg.planning) if self._mode is not RewardMode.PAPER else R1Stats(0.0, 1.0, 0.0)
-            for p, w2 in zip(cfg.maps, self._w2, strict=True)
+            r1_stats(p, w, cfg.planning) if self._mode is not RewardMode.PAPER else R1Stats(0.0, 1.0, 0.0)
+            for p, w in zip(cfg.maps, self._weights, strict=True)
         ]  # fmt: skip
         self._lattice_max = round(180 / self.config.angle_step_deg)
         size = self.config.obs_size
@@ -411,7 +411,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             P_len=result.P_len,
             path_length_m=result.path_length_m,
             feasible=result.feasible,
-            R1=r1(result.P_c, result.P_len, self.config.w1, self._w2[self._map_index]),
+            R1=self._weights[self._map_index].r1(result.P_c, result.P_len),
             map=self._maps[self._map_index].name,
         )
 

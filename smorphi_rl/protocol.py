@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from smorphi_rl.score import r1
+from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
     from smorphi_rl.evaluate import Planning
@@ -79,10 +79,10 @@ class Optimum:
     step_deg: float = 1.0
 
     @classmethod
-    def of(cls, thetas: np.ndarray, P_c: np.ndarray, P_len: np.ndarray, w1: float, w2: float,
+    def of(cls, thetas: np.ndarray, P_c: np.ndarray, P_len: np.ndarray, weights: Weights,
            step_deg: float = 1.0) -> Optimum:  # fmt: skip
-        """The best row by R1 = w1 P_c - w2 P_len of a scored lattice (the first of equal ones)."""
-        scores = r1(P_c, P_len, w1, w2)
+        """The best row by R1 of a scored lattice (the first of equal ones)."""
+        scores = weights.r1(P_c, P_len)
         i = int(np.argmax(scores))
         t1, t2, t3 = (float(v) for v in thetas[i])
         return cls((t1, t2, t3), float(scores[i]), float(P_c[i]), int(P_len[i]), step_deg)
@@ -142,7 +142,7 @@ class MapEvaluation:
                 "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
 
 
-def map_key(map_path: str, w1: float, w2: float, planning: Planning) -> str:
+def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
     """A digest of the map's cells and resolution, the weights and the planning: what the optimum depends on
     (the paper planner's default keys are those from before there was a choice: their cached optima stay)."""
     from smorphi_rl.maps import load_map
@@ -150,25 +150,27 @@ def map_key(map_path: str, w1: float, w2: float, planning: Planning) -> str:
     grid_map = load_map(map_path)
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
-    h.update(json.dumps([grid_map.cells.shape, grid_map.resolution_m, w1, w2, *planning.key()]).encode())
+    h.update(
+        json.dumps([grid_map.cells.shape, grid_map.resolution_m, weights.w1, weights.w2, *planning.key()]).encode()
+    )
     return h.hexdigest()
 
 
 @lru_cache(maxsize=32)
-def _optimum_in_process(key: str, map_path: str, w1: float, w2: float, planning: Planning) -> Optimum:
+def _optimum_in_process(key: str, map_path: str, weights: Weights, planning: Planning) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
     result = run_exhaustive(map_path, 1.0, planning)
-    return Optimum.of(result.thetas, result.P_c, result.P_len, w1, w2)
+    return Optimum.of(result.thetas, result.P_c, result.P_len, weights)
 
 
-def exact_optimum(map_path: str, w1: float, w2: float, planning: Planning, cache_dir: Path | None = None) -> Optimum:
+def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
     the planning."""
     from smorphi_rl.rundir import write_atomic
 
-    key = map_key(map_path, w1, w2, planning)
+    key = map_key(map_path, weights, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
         try:
@@ -176,7 +178,7 @@ def exact_optimum(map_path: str, w1: float, w2: float, planning: Planning, cache
             return Optimum(tuple(raw["theta"]), float(raw["R1"]), float(raw["P_c"]), int(raw["P_len"]))  # type: ignore[arg-type]
         except (OSError, ValueError, KeyError, TypeError):
             pass  # a damaged cache entry is recomputed and rewritten
-    optimum = _optimum_in_process(key, str(map_path), w1, w2, planning)
+    optimum = _optimum_in_process(key, str(map_path), weights, planning)
     if file is not None:
         file.parent.mkdir(parents=True, exist_ok=True)
         write_atomic(file, json.dumps(asdict(optimum)).encode())

@@ -28,9 +28,22 @@ def effective_w2(w2: float, path_term: str, free_area_m2: float) -> float:
     raise ValueError(f"unknown path term {path_term!r} (choose from {', '.join(PATH_TERMS)})")
 
 
-def r1(p_c: Any, p_len: Any, w1: float, w2: float) -> Any:
-    """The env's R1 of one result (floats) or of arrays of them (float64 arrays)."""
-    return w1 * p_c - w2 * p_len
+@dataclass(frozen=True)
+class Weights:
+    """R1's weights in effect on one map (w2 after `path_term`): the one value that ranks shapes, passed to the
+    env, the searches, compare, the protocol's optimum and the critic's scale. The reward *mode* is not part of
+    it: it only shapes the env's training signal, while everything that ranks shapes ranks by R1."""
+
+    w1: float
+    w2: float
+
+    def r1(self, p_c: Any, p_len: Any) -> Any:
+        """R1 of one result (floats) or of arrays of them (float64 arrays)."""
+        return self.w1 * p_c - self.w2 * p_len
+
+    def formula(self) -> str:
+        """`R1 = w1 P_c - w2 P_len` with the numbers, as reports print it."""
+        return f"R1 = {self.w1:g} P_c - {self.w2:g} P_len"
 
 
 @dataclass(frozen=True)

@@ -190,7 +190,7 @@ def test_level_reward_is_standardised_r1_without_penalty():
 
     env = MorphologyEnv({"reward": "level", "start_theta": [90, 90, 90]})
     _, info = env.reset(seed=0)
-    mu, sigma, _ = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
+    mu, sigma, _ = r1_stats(env.config.maps[0], env.config.weights_on(env.grid_map), env.config.planning)
     _, still, *_rest, info = env.step(NOOP)  # standing still costs nothing
     assert still == pytest.approx((info["R1"] - mu) / sigma)
 
@@ -200,7 +200,7 @@ def test_peak_reward_stretches_the_top_and_keeps_the_order():
 
     env = MorphologyEnv({"reward": "peak", "start_theta": [90, 90, 90]})
     env.reset(seed=0)
-    stats = r1_stats(env.config.maps[0], env.config.w1, env.config.w2, env.config.planning)
+    stats = r1_stats(env.config.maps[0], env.config.weights_on(env.grid_map), env.config.planning)
     _, paid, *_rest, info = env.step(NOOP)
     assert paid == pytest.approx(math.log1p(math.exp(PEAK_SHARPNESS * (info["R1"] - stats.q90) / stats.sigma)))
     low, q90, high = stats.q90 - stats.sigma, stats.q90, stats.q90 + 0.2 * stats.sigma

@@ -11,6 +11,7 @@ from smorphi_rl.errors import MorphologyError, SmorphiError
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
+from smorphi_rl.score import Weights
 
 MAP_1 = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
 
@@ -119,7 +120,7 @@ def test_optimum_of_a_scored_lattice_is_the_brute_force_argmax(room12):
     evaluator = Evaluator(room12)
     thetas = lattice_thetas(30.0)
     batch = evaluator.evaluate_many(thetas)
-    best = Optimum.of(thetas, batch.P_c, batch.P_len, 1.0, 0.5, 30.0)
+    best = Optimum.of(thetas, batch.P_c, batch.P_len, Weights(1.0, 0.5), 30.0)
     scores = [(r.P_c - 0.5 * r.P_len, r.theta) for r in (evaluator.evaluate(Morphology.of(t)) for t in thetas)]
     assert abs(best.R1 - max(s for s, _ in scores)) < 1e-9 and best.step_deg == 30.0
     assert best.theta == tuple(float(v) for v in max(scores, key=lambda s: s[0])[1])

@@ -18,6 +18,7 @@ from smorphi_rl.protocol import (
     map_key,
     settled_theta,
 )
+from smorphi_rl.score import Weights
 
 ROOT = Path(__file__).resolve().parents[1]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")
@@ -56,13 +57,13 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     from smorphi_rl.evaluate import Evaluator, Planning, lattice_thetas
     from smorphi_rl.maps import load_map
 
-    opt = exact_optimum(MAP_1, 1.0, 0.1, Planning(0.17), tmp_path)
+    opt = exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path)
     thetas = lattice_thetas(10.0)
     batch = Evaluator(load_map(MAP_1)).evaluate_many(thetas)
-    coarse = Optimum.of(thetas, batch.P_c, batch.P_len, 1.0, 0.1, 10.0)
+    coarse = Optimum.of(thetas, batch.P_c, batch.P_len, Weights(1.0, 0.1), 10.0)
     assert opt.R1 >= coarse.R1 and opt.step_deg == 1.0 and math.isfinite(opt.R1)
     (cached,) = tmp_path.glob("optimum-*.json")
-    assert map_key(MAP_1, 1.0, 0.1, Planning(0.17)) in cached.name
-    assert exact_optimum(MAP_1, 1.0, 0.1, Planning(0.17), tmp_path) == opt
+    assert map_key(MAP_1, Weights(1.0, 0.1), Planning(0.17)) in cached.name
+    assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
     cached.write_text("{broken")  # a damaged entry is recomputed
-    assert exact_optimum(MAP_1, 1.0, 0.1, Planning(0.17), tmp_path) == opt
+    assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt

@@ -3,13 +3,15 @@
 import numpy as np
 import pytest
 
-from smorphi_rl.score import r1
+from smorphi_rl.score import Weights
 
 
 def test_r1_of_one_result_and_of_arrays():
-    assert r1(97.0, 66, 1.0, 0.1) == 97.0 - 6.6
-    out = r1(np.array([97.0, 90.0]), np.array([66, 50]), 1.0, 0.1)
+    weights = Weights(1.0, 0.1)
+    assert weights.r1(97.0, 66) == 97.0 - 6.6
+    out = weights.r1(np.array([97.0, 90.0]), np.array([66, 50]))
     assert out.dtype == np.float64 and np.allclose(out, [90.4, 85.0])
+    assert weights.formula() == "R1 = 1 P_c - 0.1 P_len"
 
 
 def test_the_per_area_path_term_states_w2_for_25_square_metres_of_floor():
@@ -30,5 +32,6 @@ def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
     scored = env.score((95.0, 59.0, 103.0))
     free_m2 = env.grid_map.counts[Cell.FREE] * env.grid_map.resolution_m**2
     assert pytest.approx(scored.P_c - 0.1 * 25.0 / free_m2 * scored.P_len) == scored.R1
+    assert env.config.weights_on(env.grid_map) == Weights(1.0, pytest.approx(0.1 * 25.0 / free_m2))
     with pytest.raises(EnvConfigError, match="env_config 'path_term': unknown path term 'metres'"):
         MorphologyEnv({"path_term": "metres"})

@@ -199,7 +199,7 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
     from smorphi_rl.training.policy import evaluate_policy
 
     cache = Path(args.log_dir).resolve() / ".cache"
-    optima = {(m := load_map(p)).name: exact_optimum(p, env_config.w1, env_config.w2_on(m), env_config.planning, cache)
+    optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache)
               for p in env_config.maps}  # fmt: skip
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
         if args.json:

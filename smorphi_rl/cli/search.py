@@ -24,7 +24,7 @@ from smorphi_rl.cli.common import (
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
-from smorphi_rl.score import r1
+from smorphi_rl.score import Weights
 
 
 def register(sub: Any) -> None:
@@ -85,12 +85,12 @@ def cmd_search(args: argparse.Namespace) -> int:
     options = {k: getattr(args, k) for k in ("seed", "samples", "pop", "generations", "budget", "starts", "step")
                if hasattr(args, k)}  # fmt: skip
     cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options)
-    w1, w2 = w.w1, w.w2_on(grid_map)
+    on_map = w.weights_on(grid_map)
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
     result = run_search(cfg, progress_line("exhaustive"))
-    files = save(result, run_dir, w1, w2)
-    front_rows = result.front_records(w1, w2)
-    b = result.best(w1, w2)
+    files = save(result, run_dir, on_map)
+    front_rows = result.front_records(on_map)
+    b = result.best(on_map)
     files["plot"] = plot_pareto(
         {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
         run_dir / "pareto.png",
@@ -102,12 +102,12 @@ def cmd_search(args: argparse.Namespace) -> int:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         return 0
     said = "" if planning.is_paper_default else planning.describe(grid_map)
-    print(format_search(result, front_rows, w1, w2, files, said))
+    print(format_search(result, front_rows, on_map, files, said))
     return 0
 
 
 def format_search(
-    result: Any, front_rows: list[dict[str, Any]], w1: float, w2: float, files: dict[str, Path], planning: str = ""
+    result: Any, front_rows: list[dict[str, Any]], weights: Weights, files: dict[str, Path], planning: str = ""
 ) -> str:
     """The human-readable report of a search: its size, (a non-default) planning, its front, its best shape and
     where the files are."""
@@ -122,9 +122,10 @@ def format_search(
         lines.append(
             f"  {angles_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
         )
-    b = result.best(w1, w2)
-    lines.append(f"best R1 (w1 {w1:g}, w2 {w2:.4g}): {angles_text(result.thetas[b])} P_c {result.P_c[b]:.2f} %, "
-                 f"P_len {result.P_len[b]}, R1 {float(r1(result.P_c[b], result.P_len[b], w1, w2)):.2f}")  # fmt: skip
+    b = result.best(weights)
+    r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
+    lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "
+                 f"P_c {result.P_c[b]:.2f} %, P_len {result.P_len[b]}, R1 {r1_best:.2f}")  # fmt: skip
     lines.extend(f"{key + ':':<9} {rel(files[key])}" for key in ("results", "front", "summary", "plot"))
     return "\n".join(lines)
 
@@ -140,8 +141,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not dirs:
         raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
     grid_map = load_map(args.map)
-    w = weights(args)
-    w1, w2 = w.w1, w.w2_on(grid_map)
+    on_map = weights(args).weights_on(grid_map)
     planning = planning_of(args, grid_map)
     for d in dirs:  # shapes scored by another planner cannot be set against this front
         if (made_with := planner_of_run(d)) != planning.planner.value:
@@ -154,8 +154,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
         exact = run_exhaustive(str(args.map), args.step, planning, progress=progress_line("exact front"))
-    exact_score, methods = score_methods(exact, runs, w1, w2)
-    files = write_report(exact_score, methods, grid_map.name, w1, w2, run_dir)
-    print("\n".join(report_lines(exact_score, methods, grid_map.name, w1, w2)))
+    exact_score, methods = score_methods(exact, runs, on_map)
+    files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
+    print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0

@@ -14,7 +14,7 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import write_atomic
-from smorphi_rl.score import r1
+from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 
 RESULTS_FILE = "results.npz"
@@ -40,37 +40,37 @@ class SearchResult:
         ok = np.flatnonzero(self.feasible)
         return ok[pareto_front(self.P_c[ok], self.P_len[ok])]
 
-    def best(self, w1: float, w2: float) -> int:
+    def best(self, weights: Weights) -> int:
         """Index of the best R1 (the first among ties)."""
-        scores = np.where(self.feasible, r1(self.P_c, self.P_len, w1, w2), -np.inf)
+        scores = np.where(self.feasible, weights.r1(self.P_c, self.P_len), -np.inf)
         return int(np.argmax(scores))
 
-    def front_records(self, w1: float, w2: float) -> list[dict[str, Any]]:
+    def front_records(self, weights: Weights) -> list[dict[str, Any]]:
         """The front as JSON-ready rows: theta, P_c, P_len, R1."""
         return [
             {
                 "theta": [float(t) for t in self.thetas[i]],
                 "P_c": float(self.P_c[i]),
                 "P_len": int(self.P_len[i]),
-                "R1": float(r1(self.P_c[i], self.P_len[i], w1, w2)),
+                "R1": float(weights.r1(self.P_c[i], self.P_len[i])),
             }
             for i in self.front()
         ]
 
 
-def save(result: SearchResult, run_dir: Path, w1: float, w2: float) -> dict[str, Path]:
+def save(result: SearchResult, run_dir: Path, weights: Weights) -> dict[str, Path]:
     """results.npz (every evaluation, compressed), front.csv and summary.json; returns the paths."""
     files = {"results": run_dir / RESULTS_FILE, "front": run_dir / "front.csv", "summary": run_dir / "summary.json"}
     arrays = {"thetas": result.thetas.astype(np.float32), "P_c": result.P_c, "P_len": result.P_len.astype(np.int32),
               "feasible": result.feasible}  # fmt: skip
     write_atomic(files["results"], _npz(arrays))  # a reader never sees half an archive
-    front = result.front_records(w1, w2)
+    front = result.front_records(weights)
     with files["front"].open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(["theta1", "theta2", "theta3", "P_c", "P_len", "R1"])
         for row in front:
             writer.writerow([*(f"{t:g}" for t in row["theta"]), f"{row['P_c']:.4f}", row["P_len"], f"{row['R1']:.4f}"])
-    b = result.best(w1, w2)
+    b = result.best(weights)
     summary = {
         "method": result.method,
         "map": result.map_name,
@@ -78,9 +78,9 @@ def save(result: SearchResult, run_dir: Path, w1: float, w2: float) -> dict[str,
         "evaluations": result.evaluations,
         "distinct_shapes": len(result.thetas),
         "wall_s": round(result.wall_s, 3),
-        "weights": {"w1": w1, "w2": w2},
+        "weights": {"w1": weights.w1, "w2": weights.w2},
         "best": {"theta": [float(t) for t in result.thetas[b]], "P_c": float(result.P_c[b]),
-                 "P_len": int(result.P_len[b]), "R1": float(r1(result.P_c[b], result.P_len[b], w1, w2))},
+                 "P_len": int(result.P_len[b]), "R1": float(weights.r1(result.P_c[b], result.P_len[b]))},
         "front_size": len(front),
     }  # fmt: skip
     files["summary"].write_text(json.dumps(summary, indent=2))

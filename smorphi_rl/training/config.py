@@ -166,7 +166,6 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
 
     from smorphi_rl.env import RewardMode, peak_reward, r1_stats
     from smorphi_rl.maps import load_map
-    from smorphi_rl.score import r1
 
     rng = np.random.default_rng(0)
     thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
@@ -174,12 +173,13 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     for path in env.maps:
         grid_map = load_map(path)
         batch = env.planning.evaluator(grid_map).evaluate_many(thetas)
-        values = r1(batch.P_c, batch.P_len, env.w1, env.w2_on(grid_map))
+        weights = env.weights_on(grid_map)
+        values = weights.r1(batch.P_c, batch.P_len)
         if env.reward == RewardMode.PEAK.value:
-            stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
+            stats = r1_stats(path, weights, env.planning)
             values = peak_reward(values, stats.q90, stats.sigma)
         elif env.reward != RewardMode.PAPER.value:
-            stats = r1_stats(path, env.w1, env.w2_on(grid_map), env.planning)
+            stats = r1_stats(path, weights, env.planning)
             values = (values - (stats.mu if env.reward == RewardMode.LEVEL.value else 0.0)) / stats.sigma
         per_map.append(values)
     values = np.concatenate(per_map)

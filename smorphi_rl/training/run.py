@@ -223,8 +223,7 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
         shown = cache.relative_to(Path.cwd()) if cache.is_relative_to(Path.cwd()) else cache
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {shown})\n")
         out.flush()
-        w2 = cfg.env.w2_on(grid_map)
-        optima[grid_map.name] = exact_optimum(path, cfg.env.w1, w2, cfg.env.planning, cache)
+        optima[grid_map.name] = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
     return optima
 
 

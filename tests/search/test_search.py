@@ -11,6 +11,7 @@ import pytest
 from smorphi_rl.cli import main
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.score import Weights
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.nsga2 import run_nsga2
 from smorphi_rl.search.pareto import pareto_front
@@ -51,7 +52,7 @@ def test_front_is_non_dominated_and_holds_the_best_r1():
     result = run_exhaustive(MAP_1, step_deg=6.0, workers=2)
     front = result.front()
     assert all(not dominated(result.P_c, result.P_len, i) for i in front)
-    best = result.best(1.0, 0.1)
+    best = result.best(Weights(1.0, 0.1))
     assert (result.P_c[best], result.P_len[best]) in {(result.P_c[i], result.P_len[i]) for i in front}
 
 
@@ -66,7 +67,7 @@ def test_nsga2_and_random_are_seeded():
 
 def test_results_round_trip(tmp_path):
     result = run_random(MAP_1, samples=30, seed=2)
-    save(result, tmp_path, 1.0, 0.1)
+    save(result, tmp_path, Weights(1.0, 0.1))
     back = load(tmp_path)
     assert back.method == "random" and np.array_equal(back.P_len, result.P_len)
     assert np.array_equal(back.thetas, result.thetas) and np.array_equal(back.P_c, result.P_c)
