@@ -28,7 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
-from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.maps import load_map
 from smorphi_rl.protocol import MapEvaluation, Optimum, eval_starts, exact_optimum
 from smorphi_rl.rundir import RunDirError, prepare_run_dir

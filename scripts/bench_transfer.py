@@ -17,7 +17,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.run import train
 from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
 from smorphi_rl.score import Weights

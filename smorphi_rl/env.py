@@ -56,44 +56,27 @@ action; truncated after `max_steps`.
 from __future__ import annotations
 
 import copy
-import math
-from dataclasses import asdict, dataclass, fields, replace
-from enum import Enum
+from dataclasses import replace
 from functools import lru_cache
-from pathlib import Path
 from typing import Any, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from smorphi_rl.coverage import PLANNERS, CoverageResult, Planner
+from smorphi_rl.coverage import CoverageResult
+from smorphi_rl.env_config import EnvConfig, EnvConfigError, RewardMode
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator, Planning
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
-from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map, load_map
-from smorphi_rl.score import PATH_TERMS, Scored, Weights, effective_w2
+from smorphi_rl.geometry import Morphology, check_block_side
+from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.score import Scored, Weights
 
 ENV_ID = "smorphi_rl/Morphology-v0"
-DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
 
 
-class RewardMode(str, Enum):
-    """What an episode pays (ENV.md, "Reward modes")."""
-
-    PAPER = "paper"
-    LEVEL = "level"
-    PEAK = "peak"
-    IMPROVEMENT = "improvement"
-    COMMIT = "commit"
-
-
-REWARD_MODES = tuple(m.value for m in RewardMode)
 PEAK_SHARPNESS = 10.0
 """`peak` mode: reward units per sigma_map of R1 above the map's 90th percentile (20 did worse on map-1)."""
-DEFAULT_MOVE_COST = 0.0
-"""`level`/`peak` move cost, off by default: 0.03 took PPO on map-1 from 30 to 47 % of the protocol's starts within
-1 % but map-2 from 40 to 32 % with twice the median gap, and IMPALA's gaps grew on both (README, Learning)."""
 SIGMA_SAMPLES = 256
 """Random shapes whose R1 spread scales the design rewards (seeded, so every process agrees)."""
 MAP_LEVELS = 255
@@ -106,158 +89,6 @@ PLAN_CACHE_SIZE = 4096
 
 UNSCORED = Scored((0.0, 0.0, 0.0), 0.0, 0.0, 0, 0.0, False, 0.0, "")
 """What an env holds as its current and best shape before its first reset."""
-
-
-class EnvConfigError(SmorphiError):
-    """An `env_config` key that is unknown or has a bad value."""
-
-
-@dataclass(frozen=True)
-class EnvConfig:
-    """Everything the env takes, validated once; the only place its defaults live."""
-
-    maps: tuple[str, ...] = DEFAULT_MAPS
-    """map_server YAML paths; one is drawn per episode."""
-    angle_step_deg: float = 1.0
-    """Hinge step per action (the paper's 1-degree design space); must divide 180."""
-    w1: float = 1.0
-    """Weight of P_c (percent) in R1."""
-    w2: float = 0.1
-    """Weight of P_len (tile moves) in R1: 10 moves cost as much as 1 % of coverage."""
-    path_term: str = "moves"
-    """How w2 charges the path: `moves` (per tile move, the paper's) or `per_area` (per tile move per 25 m^2
-    of free floor, so a weight means the same on every floor size; `score.py`)."""
-    beta: float = 1.0
-    """Penalty R2 for an action that leaves the shape unchanged."""
-    coverage_threshold: float | None = None
-    """End the episode once P_c reaches this percentage (off by default)."""
-    max_steps: int = 200
-    """Episode length (truncation)."""
-    obs_size: int = 64
-    """Side of the resampled map in the observation."""
-    start_theta: tuple[float, float, float] | None = None
-    """Fixed start morphology; random on the lattice when None."""
-    block_side_m: float = DEFAULT_BLOCK_SIDE_M
-    """Side of one block in metres."""
-    reward: str = RewardMode.PEAK.value
-    """Reward mode: peak (level with the top stretched: learns best, see the README), level (standardised R1 of
-    each shape reached), paper (R1 + R2, for reproduction), improvement (R1 gained, scaled) or commit (R1 of the
-    committed shape)."""
-    step_cost: float = 0.0
-    """`commit` mode: what every step that does not commit costs (in units of sigma_map)."""
-    move_cost: float = DEFAULT_MOVE_COST
-    """`level` and `peak` modes: what a step that changes the shape costs (in reward units). With nothing to
-    gain, standing still then pays more than drifting over a plateau, so the policy settles (0: off)."""
-    planner: str = Planner.PAPER.value
-    """Coverage planner: paper (FBCPP.md; the robot may stand over obstacles) or fit (docs/fbcpp-fit.md)."""
-    start_xy: tuple[float, float] | None = None
-    """Where every coverage plan starts: a free point (x, y) in metres, map frame; None: the planner's default
-    (paper: the first traversable tile; fit: in the largest free area)."""
-
-    def __post_init__(self) -> None:
-        if self.reward not in REWARD_MODES:
-            raise EnvConfigError(
-                f"env_config 'reward': unknown mode '{self.reward}' (choose from {', '.join(REWARD_MODES)})"
-            )
-        if self.path_term not in PATH_TERMS:
-            raise EnvConfigError(
-                f"env_config 'path_term': unknown path term '{self.path_term}' (choose from {', '.join(PATH_TERMS)})"
-            )
-        if self.planner not in PLANNERS:
-            raise EnvConfigError(
-                f"env_config 'planner': unknown planner '{self.planner}' (choose from {', '.join(PLANNERS)})"
-            )
-        for name in ("step_cost", "move_cost"):
-            if getattr(self, name) < 0:
-                raise EnvConfigError(f"env_config '{name}' must be >= 0, got {getattr(self, name)}")
-        if not self.maps:
-            raise EnvConfigError("env_config 'maps': give at least one map")
-        step = self.angle_step_deg
-        if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
-            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
-        if self.max_steps < 1:
-            raise EnvConfigError(f"env_config 'max_steps' must be >= 1, got {self.max_steps}")
-        if self.obs_size < 4:
-            raise EnvConfigError(f"env_config 'obs_size' must be >= 4, got {self.obs_size}")
-        if self.coverage_threshold is not None and not 0 < self.coverage_threshold <= 100:
-            raise EnvConfigError(f"env_config 'coverage_threshold' must be in (0, 100], got {self.coverage_threshold}")
-        if self.block_side_m <= 0:
-            raise EnvConfigError(f"env_config 'block_side_m' must be > 0, got {self.block_side_m}")
-        if self.start_theta is not None:
-            try:
-                Morphology.of(self.start_theta)
-            except SmorphiError as exc:
-                raise EnvConfigError(f"env_config 'start_theta': {exc}") from None
-
-    @classmethod
-    def from_dict(cls, raw: dict[str, Any] | None) -> EnvConfig:
-        """From the plain dict RLlib passes (extra RLlib attributes such as worker_index ignored)."""
-        raw = dict(raw or {})
-        known = {f.name: f for f in fields(cls)}
-        unknown = sorted(set(raw) - set(known))
-        if unknown:
-            raise EnvConfigError(f"env_config: unknown key '{unknown[0]}' (known: {', '.join(known)})")
-        values: dict[str, Any] = {}
-        for name, value in raw.items():
-            values[name] = _coerce(name, value)
-        return cls(**values)
-
-    def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
-
-    def weights_on(self, grid_map: Map) -> Weights:
-        """R1's weights in effect on `grid_map` (w2 after `path_term`)."""
-        free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2
-        return Weights(self.w1, effective_w2(self.w2, self.path_term, free_m2))
-
-    @property
-    def planning(self) -> Planning:
-        """How this env plans every shape (block side, planner, start)."""
-        return Planning(self.block_side_m, Planner(self.planner), self.start_xy)
-
-
-def _coerce(name: str, value: Any) -> Any:
-    """Check one env_config value's type; lists become tuples, numbers floats or ints."""
-    try:
-        if name == "maps":
-            items = [value] if isinstance(value, str | Path) else list(value)
-            return tuple(str(Path(v).resolve()) for v in items)
-        if name == "start_theta":
-            return None if value is None else tuple(float(v) for v in value)
-        if name == "start_xy":
-            if value is None:
-                return None
-            point = tuple(_real(v) for v in value)
-            if len(point) != 2:
-                raise TypeError
-            return point
-        if name == "coverage_threshold":
-            return None if value is None else _real(value)
-        if name == "reward":
-            if not isinstance(value, str | RewardMode):
-                raise TypeError
-            return RewardMode(value).value if value in REWARD_MODES else str(value)
-        if name == "path_term":
-            if not isinstance(value, str):
-                raise TypeError
-            return value
-        if name == "planner":
-            if not isinstance(value, str | Planner):
-                raise TypeError
-            return Planner(value).value if value in PLANNERS else str(value)
-        if name in ("max_steps", "obs_size"):
-            if isinstance(value, bool) or int(value) != value:
-                raise TypeError
-            return int(value)
-        return _real(value)
-    except (TypeError, ValueError):
-        raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
-
-
-def _real(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise TypeError
-    return float(value)
 
 
 def resample(mask: np.ndarray, size: int) -> np.ndarray:

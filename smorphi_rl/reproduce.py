@@ -82,7 +82,7 @@ def _map(name: str) -> str:
 def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = sys.stderr) -> Path:
     """Run every experiment of `budget_name`; returns the report's path."""
     from smorphi_rl.compare import points_of_run, score_methods, write_report
-    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive

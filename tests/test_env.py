@@ -11,7 +11,8 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 from smorphi_rl.coverage import Planner
-from smorphi_rl.env import ENV_ID, EnvConfig, EnvConfigError, MorphologyEnv, resample
+from smorphi_rl.env import ENV_ID, MorphologyEnv, resample
+from smorphi_rl.env_config import EnvConfig, EnvConfigError
 from smorphi_rl.errors import SmorphiError
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"

@@ -208,7 +208,7 @@ def test_recording_config_is_validated():
 
 @pytest.mark.slow
 def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_path):
-    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.training import cluster
     from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
 

@@ -25,7 +25,8 @@ def test_the_per_area_path_term_states_w2_for_25_square_metres_of_floor():
 
 
 def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
-    from smorphi_rl.env import EnvConfigError, MorphologyEnv
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.env_config import EnvConfigError
     from smorphi_rl.maps import Cell
 
     env = MorphologyEnv({"path_term": "per_area", "reward": "paper"})

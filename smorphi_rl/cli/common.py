@@ -10,13 +10,14 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, NoReturn
 
+from smorphi_rl.cli.fields import option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
 if TYPE_CHECKING:
-    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.evaluate import Planning
     from smorphi_rl.maps import Map
 
@@ -79,28 +80,25 @@ def scored_text(d: dict[str, object]) -> str:
 
 
 def weight_options(parser: argparse.ArgumentParser) -> None:
-    """--w1 / --w2: the reward weights that rank shapes by R1 = w1 P_c - w2 P_len (the env's defaults)."""
+    """--w1 / --w2 / --path-term: the weights that rank shapes by R1 = w1 P_c - w2 P_len (the env's fields)."""
+    from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.score import PATH_TERMS
 
-    parser.add_argument("--w1", type=float, help="weight of P_c in R1 (default: the env's)")
-    parser.add_argument("--w2", type=float, help="weight of P_len in R1 (default: the env's)")
-    parser.add_argument("--path-term", choices=PATH_TERMS, default=None,
-                        help="moves: w2 per tile move (the paper's); per_area: w2 per tile move per 25 m^2 of free "
-                        "floor, the same trade-off on every floor size (default: the env's, moves)")  # fmt: skip
+    option(parser, EnvConfig, "w1", unset=True)
+    option(parser, EnvConfig, "w2", unset=True)
+    option(parser, EnvConfig, "path_term", unset=True, choices=PATH_TERMS)
 
 
-def planner_option(parser: argparse.ArgumentParser, default: str | None, start: bool = True) -> None:
-    """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start."""
+def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset: bool = False) -> None:
+    """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start
+    (the env's fields; `unset`: the planner stays None when not given, for a checkpoint's to apply)."""
     from smorphi_rl.coverage import PLANNERS
+    from smorphi_rl.env_config import EnvConfig
 
-    shown = default or "the env's, paper"
-    text = ("paper: FBCPP.md, the robot may stand over obstacles (the paper's model); fit: docs/fbcpp-fit.md, "
-            f"never over an occupied, unknown or outside cell (default: {shown})")  # fmt: skip
-    parser.add_argument("--planner", choices=PLANNERS, default=default, help=text)
+    option(parser, EnvConfig, "planner", unset=unset, choices=PLANNERS)
     if start:
-        parser.add_argument("--start-xy", nargs=2, type=float, metavar=("X", "Y"), default=None,
-                            help="a free point (metres, map frame) every coverage plan starts from (default: "
-                            "paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
+        option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=float, metavar=("X", "Y"),
+               default_text="the planner's")  # fmt: skip
 
 
 def planning_of(args: argparse.Namespace, grid_map: Map | None = None) -> Planning:
@@ -117,7 +115,7 @@ def planning_of(args: argparse.Namespace, grid_map: Map | None = None) -> Planni
 
 def weights(args: argparse.Namespace) -> EnvConfig:
     """The env configuration with --w1 / --w2 applied (validated there, defaults from there)."""
-    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.env_config import EnvConfig
 
     return EnvConfig.from_dict({k: v for k in ("w1", "w2", "path_term") if (v := getattr(args, k)) is not None})
 
@@ -131,11 +129,10 @@ def run_options(parser: argparse.ArgumentParser, what: str = "run name: results 
 
 
 def record_option(p: argparse.ArgumentParser) -> None:
-    from smorphi_rl.training.config import DEFAULT_RECORD_EVERY
+    """--record-every N (TrainConfig's field)."""
+    from smorphi_rl.training.config import TrainConfig
 
-    p.add_argument("--record-every", type=int, default=DEFAULT_RECORD_EVERY, metavar="N",
-                   help=f"record every Nth episode of each env to MCAP under the run's episodes/ "
-                        f"(default {DEFAULT_RECORD_EVERY}; 0: off)")  # fmt: skip
+    option(p, TrainConfig, "record_every", metavar="N")
 
 
 def progress_line(label: str) -> Callable[[int, int], None]:

@@ -15,10 +15,12 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, DEFAULT_MAP, Parser, number, planner_option, seed_arg
+from smorphi_rl.cli.fields import option, param_default
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology, angles_text, check_block_side
-from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.geometry import Morphology, angles_text, check_block_side
+from smorphi_rl.maps import Cell, Map, generate_map, load_map
 
 
 def register(sub: Any) -> None:
@@ -29,10 +31,10 @@ def register(sub: Any) -> None:
     ev.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
     ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
-    ev.add_argument("--block-side", type=float, default=DEFAULT_BLOCK_SIDE_M, help="block side in metres")
+    option(ev, EnvConfig, "block_side_m", "--block-side", metavar="M")
     ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
                     "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
-    planner_option(ev, Planner.PAPER.value, start=False)
+    planner_option(ev, start=False)
     ev.add_argument("--path", action="store_true",
                     help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
                     "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip
@@ -42,10 +44,11 @@ def register(sub: Any) -> None:
     maps_sub = maps.add_subparsers(dest="maps_command", required=True, parser_class=Parser)
     gen = maps_sub.add_parser("generate", help="write a map of rectangular obstacles")
     gen.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
-    gen.add_argument("--width-m", type=float, default=5.0)
-    gen.add_argument("--height-m", type=float, default=5.0)
-    gen.add_argument("--resolution", type=float, default=0.1, help="metres per cell")
-    gen.add_argument("--density", type=float, default=0.2, help="target fraction of occupied cells")
+    for flag, param, text in (("--width-m", "width_m", "metres"), ("--height-m", "height_m", "metres"),
+                              ("--resolution", "resolution_m", "metres per cell"),
+                              ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
+        default = param_default(generate_map, param)
+        gen.add_argument(flag, type=float, default=default, help=f"{text} (default: {default:g})")
     gen.add_argument("--seed", type=seed_arg, default=0)
     gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
     gen.add_argument("--force", action="store_true", help="overwrite an existing map")
@@ -278,7 +281,7 @@ def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: 
 
 def cmd_maps_generate(args: argparse.Namespace) -> int:
     """Write an indoor-like map of rectangular obstacles."""
-    from smorphi_rl.maps import generate_map, save_map
+    from smorphi_rl.maps import save_map
 
     out = Path(args.out)
     if out.suffix != ".yaml":

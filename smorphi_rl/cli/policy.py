@@ -11,6 +11,7 @@ from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
+from smorphi_rl.protocol import EVAL_STARTS
 
 GIF_MAX_FRAMES = 120
 
@@ -33,8 +34,8 @@ def register(sub: Any) -> None:
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
     ep.add_argument("--starts", type=int, default=None, metavar="N",
-                    help="the evaluation protocol instead: greedy from N fixed seeded starts (20 in training) on "
-                         "each map, against the exact optimum")  # fmt: skip
+                    help=f"the evaluation protocol instead: greedy from N fixed seeded starts ({EVAL_STARTS} in "
+                         "training) on each map, against the exact optimum")  # fmt: skip
     ep.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help="where the exact optima are cached (LOG_DIR/.cache)")
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 

@@ -21,6 +21,7 @@ from smorphi_rl.cli.common import (
     weight_options,
     weights,
 )
+from smorphi_rl.cli.fields import option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
@@ -31,30 +32,17 @@ def register(sub: Any) -> None:
     """Add `search METHOD` and `compare` to the command line."""
     se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")
     se_sub = se.add_subparsers(dest="method", required=True, parser_class=Parser)
-    from smorphi_rl.search.config import LOCAL_METHODS, METHODS, SearchConfig
+    from smorphi_rl.search.config import METHOD_FIELDS, METHODS, SearchConfig
 
-    d = SearchConfig  # the defaults' one home
     for method, text in METHODS.items():
         m = se_sub.add_parser(method, help=text)
         m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
         run_options(m)
         m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
         weight_options(m)
-        planner_option(m, "paper")
-        if method == "random":
-            m.add_argument("--samples", type=int, default=d.samples, help=f"shapes to draw (default {d.samples})")
-        if method == "nsga2":
-            m.add_argument("--pop", type=int, default=d.pop, help=f"population size (default {d.pop})")
-            m.add_argument("--generations", type=int, default=d.generations, help=f"default {d.generations}")
-        if method != "exhaustive":
-            m.add_argument("--seed", type=seed_arg, default=d.seed)
-        if method in LOCAL_METHODS:
-            m.add_argument("--budget", type=int, default=d.budget,
-                           help=f"FBCPP evaluations per start (default {d.budget})")  # fmt: skip
-            m.add_argument("--starts", type=int, default=d.starts, help=f"fixed seeded starts (default {d.starts})")
-        if method == "exhaustive":
-            m.add_argument("--step", type=float, default=d.step,
-                           help=f"lattice step in degrees; must divide 180 (default {d.step:g})")  # fmt: skip
+        planner_option(m)
+        for name in METHOD_FIELDS[method]:
+            option(m, SearchConfig, name, type=seed_arg if name == "seed" else None)
         m.set_defaults(func=cmd_search)
 
     co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
@@ -64,10 +52,10 @@ def register(sub: Any) -> None:
     co.add_argument("--random", nargs="+", help="`search random` run directories")
     co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
     co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
-    co.add_argument("--step", type=float, default=d.step, help="lattice step of the exact front when computed")
+    option(co, SearchConfig, "step", default_text=f"{SearchConfig.step:g}, when the front is computed here")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     weight_options(co)
-    planner_option(co, "paper")  # the exact front's planner: compare runs made with the same one
+    planner_option(co)  # the exact front's planner: compare runs made with the same one
     co.set_defaults(func=cmd_compare)
 
 
@@ -76,14 +64,13 @@ def cmd_search(args: argparse.Namespace) -> int:
     LOG_DIR/<run>/."""
     from smorphi_rl.plots import plot_pareto
     from smorphi_rl.rundir import prepare_run_dir
-    from smorphi_rl.search.config import SearchConfig, run_search
+    from smorphi_rl.search.config import METHOD_FIELDS, SearchConfig, run_search
     from smorphi_rl.search.results import save
 
     w = weights(args)
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
-    options = {k: getattr(args, k) for k in ("seed", "samples", "pop", "generations", "budget", "starts", "step")
-               if hasattr(args, k)}  # fmt: skip
+    options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options)
     on_map = w.weights_on(grid_map)
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)

@@ -20,27 +20,27 @@ from smorphi_rl.cli.common import (
     seed_arg,
     weight_options,
 )
+from smorphi_rl.cli.fields import field_docs, option
 from smorphi_rl.maps import load_map
 
 
 def register(sub: Any) -> None:
     """Add `train`, `transfer`, `sweep` and `reproduce` to the command line."""
     _register_train(sub)
-    from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.presets import ALGORITHMS, PRESETS
+    from smorphi_rl.training.transfer import TransferJob
 
     tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
-    tf.add_argument("--pretrained", required=True, help="checkpoint, trial or run directory of the pretrained policy")
-    tf.add_argument("--maps", nargs="+", required=True, help="held-out maps (map_server YAML)")
-    tf.add_argument(
-        "--seeds", nargs="+", type=seed_arg, default=[0], help="seeds; each map runs once per seed and mode"
-    )
-    tf.add_argument("--timesteps", type=int, default=TrainConfig.timesteps, help="env-step budget of every run")
-    tf.add_argument("--algo", choices=ALGORITHMS, default=TrainConfig.algo)
-    tf.add_argument("--preset", choices=tuple(PRESETS), default=TrainConfig.preset)
+    tf.add_argument("--pretrained", required=True, metavar="PATH", help=field_docs(TransferJob)["pretrained"])
+    tf.add_argument("--maps", nargs="+", required=True, metavar="MAP", help=field_docs(TransferJob)["maps"])
+    option(tf, TransferJob, "seeds", nargs="+", type=seed_arg, metavar="S")
+    option(tf, TransferJob, "timesteps", metavar="N")
+    option(tf, TransferJob, "algo", choices=ALGORITHMS)
+    option(tf, TransferJob, "preset", choices=tuple(PRESETS))
     tf.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     run_options(tf, "job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
-    record_option(tf)
+    option(tf, TransferJob, "record_every", metavar="N")
+    option(tf, TransferJob, "envs_per_runner", metavar="N")
     tf.set_defaults(func=cmd_transfer)
 
     sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
@@ -58,73 +58,51 @@ def register(sub: Any) -> None:
     rp.set_defaults(func=cmd_reproduce)
 
 
+TRAIN_FIELDS = ("algo", "timesteps", "seed", "preset", "checkpoint_every", "pretrained", "num_env_runners",
+                "envs_per_runner", "eval_every", "eval_starts", "record_every")  # fmt: skip
+"""TrainConfig fields `train` takes as options (the same names, dashed; num_env_runners is --env-runners)."""
+ENV_FIELDS = ("reward", "move_cost", "w1", "w2", "path_term", "planner", "start_xy")
+"""EnvConfig fields `train` takes as options; not given, they keep the env's (or the pretrained run's) value."""
+
+
 def _register_train(sub: Any) -> None:
-    from smorphi_rl.env import REWARD_MODES
+    from smorphi_rl.env_config import REWARD_MODES, EnvConfig
     from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 
-    defaults = TrainConfig()
     tr = sub.add_parser("train", help="train PPO / IMPALA / APPO on maps through Ray Tune (the main job)")
-    tr.add_argument(
-        "--algo", choices=ALGORITHMS, default=defaults.algo, help="algorithm (IMPALA serves the paper's A3C)"
-    )
     tr.add_argument(
         "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
     )
-    tr.add_argument("--timesteps", type=int, default=defaults.timesteps, help="env steps to train for")
-    tr.add_argument("--seed", type=seed_arg, default=defaults.seed)
-    tr.add_argument(
-        "--preset", choices=tuple(PRESETS), default=defaults.preset, help="fast (2 cores) or paper (Table 1)"
-    )
+    option(tr, TrainConfig, "algo", choices=ALGORITHMS)
+    option(tr, TrainConfig, "timesteps", metavar="N")
+    option(tr, TrainConfig, "seed", type=seed_arg, metavar="S")
+    option(tr, TrainConfig, "preset", choices=tuple(PRESETS))
     tr.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto); default: a local Ray")
     run_options(tr, "run name: results go to LOG_DIR/NAME (default: ALGO-MAP-TIMESTAMP)")
-    tr.add_argument("--checkpoint-every", type=int, default=defaults.checkpoint_every,
-                    help="iterations between checkpoints (and at the end)")  # fmt: skip
-    tr.add_argument("--pretrained", help="start from this checkpoint (or trial or run directory): fine-tuning")
-    tr.add_argument("--reward", choices=REWARD_MODES, default=None,
-                    help="reward mode (ENV.md): peak, level, paper, improvement or commit (default: peak)")  # fmt: skip
-    from smorphi_rl.env import EnvConfig
-
-    tr.add_argument("--move-cost", type=float, default=None, metavar="C",
-                    help=f"level and peak: what a step that changes the shape costs, so the policy settles "
-                         f"(default {EnvConfig.move_cost:g}: off)")  # fmt: skip
+    option(tr, TrainConfig, "checkpoint_every", metavar="K")
+    option(tr, TrainConfig, "pretrained", type=str, metavar="PATH")
+    option(tr, EnvConfig, "reward", unset=True, choices=REWARD_MODES)
+    option(tr, EnvConfig, "move_cost", unset=True, metavar="C")
     weight_options(tr)
-    planner_option(tr, None)
-    tr.add_argument("--env-runners", type=int, default=None, metavar="N",
-                    help="remote env runners; 0 samples in the trial process (default: the preset's, "
-                         "0 for PPO and 2 for IMPALA/APPO on the fast preset)")  # fmt: skip
-    for flag, default, text in (
-        ("--envs-per-runner", defaults.envs_per_runner, "envs each runner steps together, one forward pass for all"),
-        ("--eval-every", defaults.eval_every, "greedy evaluation from fixed starts every N iterations (0: off)"),
-        ("--eval-starts", defaults.eval_starts, "fixed seeded start shapes per map in each evaluation"),
-    ):
-        tr.add_argument(flag, type=int, default=default, metavar="N", help=f"{text}; default {default}")
+    planner_option(tr, unset=True)
+    option(tr, TrainConfig, "num_env_runners", "--env-runners", type=int, metavar="N",
+           default_text="the preset's: 0 for PPO, 2 for IMPALA/APPO on the fast preset")  # fmt: skip
+    for name in ("envs_per_runner", "eval_every", "eval_starts"):
+        option(tr, TrainConfig, name, metavar="N")
     record_option(tr)
     tr.set_defaults(func=cmd_train)
 
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train PPO, IMPALA or APPO through Ray Tune; print a progress line, then where everything is."""
-    from smorphi_rl.env import EnvConfig
+    from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
-    env_options = {"maps": map_paths(args.map), "reward": args.reward, "w1": args.w1, "w2": args.w2,
-                   "path_term": args.path_term, "planner": args.planner, "start_xy": args.start_xy,
-                   "move_cost": args.move_cost}  # fmt: skip
-    cfg = TrainConfig(
-        algo=args.algo,
-        env=EnvConfig.from_dict({k: v for k, v in env_options.items() if v is not None}),
-        timesteps=args.timesteps,
-        seed=args.seed,
-        preset=args.preset,
-        num_env_runners=args.env_runners,
-        envs_per_runner=args.envs_per_runner,
-        eval_every=args.eval_every,
-        eval_starts=args.eval_starts,
-        checkpoint_every=args.checkpoint_every,
-        pretrained=args.pretrained,
-        record_every=args.record_every,
-    )
+    env = {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
+    env["maps"] = map_paths(args.map) if args.map is not None else None
+    trained = {name: getattr(args, "env_runners" if name == "num_env_runners" else name) for name in TRAIN_FIELDS}
+    cfg = TrainConfig(env=EnvConfig.from_dict({k: v for k, v in env.items() if v is not None}), **trained)
     from smorphi_rl.training.run import format_summary, train
 
     summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address)
@@ -141,7 +119,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     # the options and maps are checked before anything runs
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
-                      args.algo, args.preset, args.record_every)  # fmt: skip
+                      args.algo, args.preset, args.record_every, args.envs_per_runner)  # fmt: skip
     for path in args.maps:
         load_map(path)
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"

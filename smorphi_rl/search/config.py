@@ -7,7 +7,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import PAPER_PLANNING, Planning
 from smorphi_rl.protocol import EVAL_STARTS
@@ -21,6 +21,14 @@ METHODS = {
     "anneal": "simulated annealing over the same moves from the same starts",
 }
 LOCAL_METHODS = ("hillclimb", "anneal")
+METHOD_FIELDS = {
+    "random": ("samples", "seed"),
+    "nsga2": ("pop", "generations", "seed"),
+    "exhaustive": ("step",),
+    "hillclimb": ("seed", "budget", "starts"),
+    "anneal": ("seed", "budget", "starts"),
+}
+"""The SearchConfig fields each method reads (its command-line options)."""
 
 
 class SearchConfigError(SmorphiError):

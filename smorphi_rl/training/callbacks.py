@@ -96,7 +96,7 @@ class MorphologyCallbacks(RLlibCallback):
         """Greedy roll-outs of the learner's current policy from the fixed starts on every training map."""
         import numpy as np
 
-        from smorphi_rl.env import EnvConfig
+        from smorphi_rl.env_config import EnvConfig
         from smorphi_rl.protocol import Optimum
         from smorphi_rl.training.policy import evaluate_policy
 

@@ -11,7 +11,7 @@ from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
@@ -46,10 +46,14 @@ class TrainConfig:
     """One training run, as the CLI or a sweep file gives it."""
 
     algo: str = "ppo"
+    """Algorithm: ppo, impala (serves the paper's A3C) or appo."""
     env: EnvConfig = field(default_factory=EnvConfig)
     timesteps: int = DEFAULT_TIMESTEPS
+    """Env steps to train for."""
     seed: int = 0
+    """Seeds the learner, every env runner and every sub-env (independent streams)."""
     preset: str = "fast"
+    """Hyperparameters: fast (2 cores) or paper (Table 1)."""
     num_env_runners: int | None = None
     """Remote env runners; None: the preset's layout (0 samples in the trial process)."""
     envs_per_runner: int = ENVS_PER_RUNNER
@@ -57,6 +61,7 @@ class TrainConfig:
     checkpoint_every: int = 10
     """Checkpoint every this many iterations (and always at the end)."""
     top_k: int = 8
+    """Best shapes kept in the run's top-k table."""
     pretrained: str | None = None
     """Checkpoint (or trial or run directory) to start from: fine-tuning, the paper's transfer."""
     max_iterations: int | None = None
@@ -164,7 +169,8 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     in sigma_map units."""
     import numpy as np
 
-    from smorphi_rl.env import RewardMode, peak_reward, r1_stats
+    from smorphi_rl.env import peak_reward, r1_stats
+    from smorphi_rl.env_config import RewardMode
     from smorphi_rl.maps import load_map
 
     rng = np.random.default_rng(0)

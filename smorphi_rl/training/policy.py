@@ -9,7 +9,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from smorphi_rl.env import EnvConfig, MorphologyEnv, RewardMode
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfig, RewardMode
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome, settled_theta
 from smorphi_rl.score import Scored
 from smorphi_rl.training.checkpoints import CheckpointError

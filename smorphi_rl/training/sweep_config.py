@@ -15,7 +15,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import TrainConfig

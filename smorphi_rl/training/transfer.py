@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 from smorphi_rl.stats import mean_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
@@ -43,13 +43,21 @@ class TransferJob:
     Checked when made (the training options as TrainConfig checks them, the seeds), before anything runs."""
 
     pretrained: str | Path
+    """Checkpoint, trial or run directory of the pretrained policy."""
     maps: tuple[str, ...]
+    """Held-out maps (map_server YAML)."""
     seeds: tuple[int, ...] = (TrainConfig.seed,)
+    """Seeds; each map runs once per seed and mode."""
     timesteps: int = TrainConfig.timesteps
+    """Env-step budget of every run."""
     algo: str = TrainConfig.algo
+    """Algorithm of every run (the pretrained policy's)."""
     preset: str = TrainConfig.preset
+    """Hyperparameters of every run: fast (2 cores) or paper (Table 1)."""
     record_every: int = TrainConfig.record_every
+    """Record every Nth episode of each env to MCAP; 0: no recording."""
     envs_per_runner: int = TrainConfig.envs_per_runner
+    """Envs each env runner steps as one vector env."""
 
     def __post_init__(self) -> None:
         for seed in self.seeds:

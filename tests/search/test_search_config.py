@@ -2,7 +2,7 @@
 
 import pytest
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.search.config import SearchConfig, SearchConfigError, run_search
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from smorphi_rl.env import EnvConfig
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig, TrainConfigError, default_run_name, value_normalisation
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 

@@ -20,7 +20,8 @@ import pytest
 from cli_runs import cli, ctrl_c_after_checkpoint
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from smorphi_rl.env import EnvConfig, MorphologyEnv
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
