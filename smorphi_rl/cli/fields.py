@@ -5,45 +5,15 @@ configuration type, and the `--help` of every command that exposes it says the s
 from __future__ import annotations
 
 import argparse
-import ast
 import inspect
-import textwrap
 from collections.abc import Callable
-from dataclasses import MISSING, Field, fields
-from functools import cache
 from typing import Any
+
+from smorphi_rl.config_fields import field_default, field_docs
 
 UNSET: Any = None
 """What an option holds when the user did not give it and the field's default is applied later (by the
 configuration, a checkpoint's configuration or a preset), rather than by argparse."""
-
-
-@cache
-def field_docs(cls: type) -> dict[str, str]:
-    """Each field's docstring (the string literal under the field in the class body), whitespace folded."""
-    body = ast.parse(textwrap.dedent(inspect.getsource(cls))).body[0]
-    assert isinstance(body, ast.ClassDef)
-    docs = {}
-    for node, after in zip(body.body, body.body[1:], strict=False):
-        if (
-            isinstance(node, ast.AnnAssign)
-            and isinstance(node.target, ast.Name)
-            and isinstance(after, ast.Expr)
-            and isinstance(after.value, ast.Constant)
-            and isinstance(after.value.value, str)
-        ):
-            docs[node.target.id] = " ".join(after.value.value.split())
-    return docs
-
-
-def field_default(cls: type, name: str) -> Any:
-    """The default of field `name` of dataclass `cls`."""
-    f: Field[Any] = {f.name: f for f in fields(cls)}[name]
-    if f.default is not MISSING:
-        return f.default
-    if f.default_factory is not MISSING:
-        return f.default_factory()
-    raise KeyError(f"{cls.__name__}.{name} has no default")
 
 
 def param_default(func: Callable[..., Any], name: str) -> Any:

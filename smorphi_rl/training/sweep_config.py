@@ -15,6 +15,7 @@ from typing import Annotated, Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training import result_keys as keys
@@ -22,6 +23,7 @@ from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 
 SPACE_KINDS = ("grid", "choice", "uniform", "loguniform")
+_DOCS = field_docs(TrainConfig)
 ALIASES = {"lambda": "lambda_"}
 """YAML names that differ from the Preset field (RLlib's `lambda_`)."""
 
@@ -30,7 +32,7 @@ class _Checkpoint(BaseModel):
     """The sweep file's `checkpoint` mapping."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
-    every: int = Field(TrainConfig.checkpoint_every, ge=1, description="iterations between checkpoints")
+    every: int = Field(TrainConfig.checkpoint_every, ge=1, description=_DOCS["checkpoint_every"])
     keep: int = Field(0, ge=0, description="how many to keep (0: all)")
 
 
@@ -45,9 +47,8 @@ class SweepFile(BaseModel):
     maps: list[Any] = Field(min_length=1, description="list; each item a map file, or a list of map files that "
                                                       "one policy trains on together")  # fmt: skip
     seeds: list[Annotated[int, Field(ge=0)]] = Field(min_length=1, description="list of non-negative integers")
-    timesteps: int = Field(TrainConfig.timesteps, ge=1, description="env steps each trial trains for")
-    preset: str = Field(TrainConfig.preset, description="fast or paper: the hyperparameters the search space "
-                                                        "starts from")  # fmt: skip
+    timesteps: int = Field(TrainConfig.timesteps, ge=1, description=_DOCS["timesteps"])
+    preset: str = Field(TrainConfig.preset, description=f"{_DOCS['preset']} The search space starts from it.")
     stop: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(
         default_factory=dict,
         description="extra stop criteria, {metric: value} as Ray Tune takes them, e.g. time_total_s: 600",
@@ -62,10 +63,8 @@ class SweepFile(BaseModel):
                                    "{grid|choice|uniform|loguniform: ...}}")  # fmt: skip
     num_samples: int = Field(1, ge=1, description="samples of the random search parts per grid point")
     pretrained: str | None = Field(None, description="a checkpoint every trial fine-tunes from")
-    max_iterations: int | None = Field(None, ge=1, description="also stop each trial after this many iterations "
-                                                               "(smoke runs)")  # fmt: skip
-    record_every: int = Field(TrainConfig.record_every, ge=0, description="record every Nth episode of each env "
-                              "to MCAP in the trial's episodes/ (0: off)")  # fmt: skip
+    max_iterations: int | None = Field(TrainConfig.max_iterations, ge=1, description=_DOCS["max_iterations"])
+    record_every: int = Field(TrainConfig.record_every, ge=0, description=_DOCS["record_every"])
 
 
 KEYS = {name: field.description or "" for name, field in SweepFile.model_fields.items()}

@@ -3,7 +3,8 @@
 import argparse
 
 from smorphi_rl.cli import build_parser
-from smorphi_rl.cli.fields import UNSET, field_docs, option
+from smorphi_rl.cli.fields import UNSET, option
+from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.search.config import SearchConfig
 from smorphi_rl.training.config import TrainConfig
