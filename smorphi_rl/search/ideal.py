@@ -20,6 +20,7 @@ import numpy as np
 from scipy import ndimage
 
 from smorphi_rl.env import peak_reward
+from smorphi_rl.env_config import EnvConfig, RewardMode
 from smorphi_rl.protocol import settled_theta
 
 IDEAL_MODES = ("level", "improvement", "peak", "paper")
@@ -36,8 +37,8 @@ def move_values(
     r1: np.ndarray,
     mode: str,
     gamma: float,
-    beta: float = 1.0,
-    move_cost: float = 0.0,
+    beta: float = EnvConfig.beta,
+    move_cost: float = EnvConfig.move_cost,
 ) -> np.ndarray:
     """W[s'] = reward of arriving at s' + gamma V(s') (paper mode: for a move that changes the shape; level and
     peak: before the move cost), for R1 on the full (n, n, n) lattice; the optimal action from s moves to its
@@ -49,9 +50,11 @@ def move_values(
         raise ValueError(f"value iteration needs a discount in (0, 1), got {gamma}")
     reward = r1.astype(np.float64)
     spread = max(float(reward.std()), 1e-9)
-    if mode == "peak":  # the env's transform, with the whole lattice's figures rather than its 256-shape sample
+    if (
+        mode == RewardMode.PEAK
+    ):  # the env's transform, with the whole lattice's figures rather than its 256-shape sample
         reward = peak_reward(reward, float(np.quantile(reward, 0.9)), spread)
-    elif mode != "paper":  # level and improvement: the same policy (module docstring); the scale is irrelevant
+    elif mode != RewardMode.PAPER:  # level and improvement: the same policy (module docstring); the scale is irrelevant
         reward = (reward - reward.mean()) / spread
     tol = TOLERANCE * max(float(np.ptp(reward)), 1e-9)
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
@@ -72,9 +75,9 @@ def move_values(
 
 def stay_move_costs(mode: str, beta: float, move_cost: float) -> tuple[float, float]:
     """What standing still and what a move that changes the shape cost on top of the arrival reward, by mode."""
-    if mode == "paper":
+    if mode == RewardMode.PAPER:
         return beta, 0.0
-    return 0.0, (move_cost if mode in ("level", "peak") else 0.0)
+    return 0.0, (move_cost if mode in (RewardMode.LEVEL, RewardMode.PEAK) else 0.0)
 
 
 def greedy_settled(

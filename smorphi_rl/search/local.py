@@ -24,6 +24,7 @@ from collections.abc import Callable
 import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import RewardMode
 from smorphi_rl.protocol import EVAL_STARTS, Outcome, eval_starts, settled_theta
 from smorphi_rl.search.results import SearchResult
 
@@ -94,7 +95,7 @@ def hill_climb(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Thet
 
 def anneal(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
     current, value = start, space.r1(start)
-    scale = space.env.sigma_map if space.env.config.reward != "paper" else 1.0
+    scale = space.env.sigma_map if space.env.config.reward != RewardMode.PAPER else 1.0
     t_hi, t_lo = 1.0 * scale, 0.01 * scale
     moves = 0
     while value is not None and len(space.seen) < space.budget and moves < ANNEAL_MOVES_PER_EVALUATION * space.budget:
