@@ -54,7 +54,7 @@ def move_values(
         mode == RewardMode.PEAK
     ):  # the env's transform, with the whole lattice's figures rather than its 256-shape sample
         reward = peak_reward(reward, float(np.quantile(reward, 0.9)), spread)
-    elif mode != RewardMode.PAPER:  # level and improvement: the same policy (module docstring); the scale is irrelevant
+    elif mode != RewardMode.PAPER:  # level and improvement: the same policy (module docstring); scale irrelevant
         reward = (reward - reward.mean()) / spread
     tol = TOLERANCE * max(float(np.ptp(reward)), 1e-9)
     values = np.full_like(reward, float(reward.max()) / (1 - gamma))  # from above: fewer sweeps
