@@ -228,6 +228,19 @@ def register_env() -> None:
     tune_register(TUNE_ENV_NAME, make_env)
 
 
+def policy_layout(pretrained: str | None) -> int:
+    """The angle frequencies the policy net sees: the module's default, or the pretrained checkpoint's (one
+    written before the policy dropped them keeps its layout, so it can still be fine-tuned)."""
+    from smorphi_rl.training.module import ANGLE_FREQUENCIES, POLICY_ANGLE_FREQUENCIES
+
+    if pretrained is None:
+        return POLICY_ANGLE_FREQUENCIES
+    from smorphi_rl.training.checkpoints import find_checkpoint, load_module
+
+    config = load_module(find_checkpoint(pretrained)).model_config or {}
+    return int(config.get("policy_angle_frequencies", ANGLE_FREQUENCIES))
+
+
 def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording: dict[str, Any] | None = None) -> Any:
     """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks
     (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass). `recording`, a
@@ -291,6 +304,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
                 model_config={
                     "value_offset": offset,
                     "value_scale": scale,
+                    "policy_angle_frequencies": policy_layout(cfg.pretrained),
                     "env_config": env_dict,
                     "algorithm": cfg.algo,
                 },

@@ -62,3 +62,20 @@ def test_pack_maps_connector_packs_every_module_batch():
     out = PackMaps()(batch={"default_policy": {Columns.OBS: batch[Columns.OBS]}}, rl_module=None, episodes=[])
     packed = out["default_policy"][Columns.OBS]["map"]
     assert packed.dtype == torch.int64 and torch.equal(unpack_maps(packed, (2, 64, 64)), maps)
+
+
+def test_the_policy_sees_plain_angles_and_old_checkpoints_keep_their_layout():
+    """Training sets `policy_angle_frequencies` (0: the policy is smooth in the angles, the critic is not); a
+    module built from a model_config without it has the layout of checkpoints written before it existed."""
+    from smorphi_rl.training.config import TrainConfig, algorithm_config
+    from smorphi_rl.training.module import ANGLE_FREQUENCIES, MAP_FEATURES, POLICY_ANGLE_FREQUENCIES
+
+    env = MorphologyEnv()
+    model_config = algorithm_config(TrainConfig()).rl_module_spec.model_config
+    assert model_config["policy_angle_frequencies"] == POLICY_ANGLE_FREQUENCIES == 0
+    new = MorphologyModule(observation_space=env.observation_space, action_space=env.action_space,
+                           model_config=model_config)  # fmt: skip
+    old, _ = _module_and_batch()
+    width = lambda net, k: net.mlp[0].in_features == MAP_FEATURES + 3 * (1 + 2 * k) + 2  # noqa: E731
+    assert width(new._pi, 0) and width(new._vf, ANGLE_FREQUENCIES)
+    assert width(old._pi, ANGLE_FREQUENCIES) and width(old._vf, ANGLE_FREQUENCIES)
