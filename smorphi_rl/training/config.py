@@ -260,7 +260,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
     config_cls = {"ppo": PPOConfig, "impala": IMPALAConfig, "appo": APPOConfig}[cfg.algo]
     env_dict = cfg.env.to_dict()
     training: dict[str, Any] = {
-        "lr": hp.lr,
+        "lr": hp.lr if hp.lr_final is None else [[0, hp.lr], [cfg.timesteps, hp.lr_final]],
         "gamma": hp.gamma,
         "entropy_coeff": hp.entropy_coeff,
         "vf_loss_coeff": hp.vf_loss_coeff,

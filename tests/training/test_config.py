@@ -139,3 +139,11 @@ def test_ppo_learner_ends_its_pipeline_with_two_lambda_gae_then_packed_maps():
     assert isinstance(pieces[-2], TwoLambdaGAE) and pieces[-2].value_lambda == 0.97
     assert isinstance(pieces[-1], PackMaps)
     assert sum(type(p).__name__.endswith("GeneralAdvantageEstimation") for p in pieces) == 0
+
+
+def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():
+    from smorphi_rl.training.config import algorithm_config
+
+    cfg = TrainConfig(timesteps=30_000, overrides={"lr": 2e-3, "lr_final": 1e-4})
+    assert algorithm_config(cfg).lr == [[0, 2e-3], [30_000, 1e-4]]
+    assert algorithm_config(TrainConfig(algo="impala")).lr == PRESETS["fast"]["impala"].lr  # constant: no lr_final
