@@ -146,7 +146,7 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
         if name in PPO_ONLY and algo != "ppo":
             raise TrainConfigError(f"hyperparameter '{name}' applies to ppo only, not {algo}")
-        integer = name in ("train_batch_size", "num_epochs", "minibatch_size")
+        integer = name in ("train_batch_size", "num_epochs", "minibatch_size", "policy_angle_frequencies")
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
         if not ok or (name in FRACTIONS and not 0 <= value <= 1):
             kind = (
@@ -228,13 +228,13 @@ def register_env() -> None:
     tune_register(TUNE_ENV_NAME, make_env)
 
 
-def policy_layout(pretrained: str | None) -> int:
-    """The angle frequencies the policy net sees: the module's default, or the pretrained checkpoint's (one
-    written before the policy dropped them keeps its layout, so it can still be fine-tuned)."""
-    from smorphi_rl.training.module import ANGLE_FREQUENCIES, POLICY_ANGLE_FREQUENCIES
+def policy_layout(pretrained: str | None, frequencies: int) -> int:
+    """The angle frequencies the policy net sees: the preset's, or the pretrained checkpoint's (a policy is
+    fine-tuned in the layout it was trained with; one written before the key existed had 8)."""
+    from smorphi_rl.training.module import ANGLE_FREQUENCIES
 
     if pretrained is None:
-        return POLICY_ANGLE_FREQUENCIES
+        return frequencies
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
 
     config = load_module(find_checkpoint(pretrained)).model_config or {}
@@ -304,7 +304,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
                 model_config={
                     "value_offset": offset,
                     "value_scale": scale,
-                    "policy_angle_frequencies": policy_layout(cfg.pretrained),
+                    "policy_angle_frequencies": policy_layout(cfg.pretrained, hp.policy_angle_frequencies),
                     "env_config": env_dict,
                     "algorithm": cfg.algo,
                 },

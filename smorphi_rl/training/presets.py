@@ -22,6 +22,8 @@ class Preset:
     lambda_: float = 0.95  # PPO only (IMPALA/APPO use v-trace)
     lr_final: float | None = None
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
+    policy_angle_frequencies: int = 8
+    """Fourier frequencies of the angles the policy net sees (the critic always sees 8; `training/module.py`)."""
     value_lambda: float | None = None
     """PPO only: GAE lambda of the critic's targets; None: `lambda_` (RLlib's one lambda)."""
     num_epochs: int = 1
@@ -67,6 +69,7 @@ PRESETS: dict[str, dict[str, Preset]] = {
         "ppo": Preset(
             lr=1e-3,
             lr_final=5e-5,
+            policy_angle_frequencies=0,  # a policy smooth in the angles: one flow to the best region (module.py)
             gamma=0.995,
             entropy_coeff=0.003,
             vf_loss_coeff=0.5,

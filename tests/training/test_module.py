@@ -65,14 +65,16 @@ def test_pack_maps_connector_packs_every_module_batch():
 
 
 def test_the_policy_sees_plain_angles_and_old_checkpoints_keep_their_layout():
-    """Training sets `policy_angle_frequencies` (0: the policy is smooth in the angles, the critic is not); a
-    module built from a model_config without it has the layout of checkpoints written before it existed."""
+    """The preset sets `policy_angle_frequencies` (PPO's fast: 0, the policy is smooth in the angles, the critic is
+    not); a module built from a model_config without it has the layout of checkpoints written before it existed."""
     from smorphi_rl.training.config import TrainConfig, algorithm_config
-    from smorphi_rl.training.module import ANGLE_FREQUENCIES, MAP_FEATURES, POLICY_ANGLE_FREQUENCIES
+    from smorphi_rl.training.module import ANGLE_FREQUENCIES, MAP_FEATURES
 
     env = MorphologyEnv()
     model_config = algorithm_config(TrainConfig()).rl_module_spec.model_config
-    assert model_config["policy_angle_frequencies"] == POLICY_ANGLE_FREQUENCIES == 0
+    assert model_config["policy_angle_frequencies"] == 0  # the fast PPO preset's
+    impala = algorithm_config(TrainConfig(algo="impala")).rl_module_spec.model_config
+    assert impala["policy_angle_frequencies"] == ANGLE_FREQUENCIES
     new = MorphologyModule(observation_space=env.observation_space, action_space=env.action_space,
                            model_config=model_config)  # fmt: skip
     old, _ = _module_and_batch()
