@@ -20,7 +20,8 @@ from smorphi_rl.cli.common import (
     seed_arg,
     weight_options,
 )
-from smorphi_rl.cli.fields import field_docs, option
+from smorphi_rl.cli.fields import option
+from smorphi_rl.config_fields import field_docs
 from smorphi_rl.maps import load_map
 
 
