@@ -50,9 +50,8 @@ def move_values(
         raise ValueError(f"value iteration needs a discount in (0, 1), got {gamma}")
     reward = r1.astype(np.float64)
     spread = max(float(reward.std()), 1e-9)
-    if (
-        mode == RewardMode.PEAK
-    ):  # the env's transform, with the whole lattice's figures rather than its 256-shape sample
+    if mode == RewardMode.PEAK:
+        # the env's transform, with the whole lattice's figures rather than its 256-shape sample
         reward = peak_reward(reward, float(np.quantile(reward, 0.9)), spread)
     elif mode != RewardMode.PAPER:  # level and improvement: the same policy (module docstring); scale irrelevant
         reward = (reward - reward.mean()) / spread

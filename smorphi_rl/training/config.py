@@ -16,6 +16,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
     ALGORITHMS,
+    ANGLE_FREQUENCIES,
     DEFAULT_TIMESTEPS,
     ENVS_PER_RUNNER,
     LAYOUT,
@@ -231,8 +232,6 @@ def register_env() -> None:
 def policy_layout(pretrained: str | None, frequencies: int) -> int:
     """The angle frequencies the policy net sees: the preset's, or the pretrained checkpoint's (a policy is
     fine-tuned in the layout it was trained with; one written before the key existed had 8)."""
-    from smorphi_rl.training.module import ANGLE_FREQUENCIES
-
     if pretrained is None:
         return frequencies
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module

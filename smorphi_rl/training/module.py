@@ -23,18 +23,18 @@ from ray.rllib.core.rl_module.apis import TARGET_NETWORK_ACTION_DIST_INPUTS, Tar
 from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
+from smorphi_rl.training.presets import ANGLE_FREQUENCIES
+
 HIDDEN = 128
 MAP_FEATURES = 64
-ANGLE_FREQUENCIES = 8
-"""The critic also sees each angle as sin and cos of k pi theta / 180 for k = 1..8: the R1 landscape is rugged at
-a few degrees, and these let the value net resolve it without first learning the features.
-
-What the policy net sees of the angles is a preset's choice (`policy_angle_frequencies`, in the module's
-model_config): the fast PPO preset gives it the plain angles only. With the critic's 8 frequencies a policy can
-draw a sink at every ripple of the landscape, and PPO's greedy roll-outs settled in whichever basin a start fell
-into (map-1, 150,000 steps: 5-13 of the 20 protocol starts within 1 % of the optimum); smooth in the angles it
-learns one flow towards the best region (README, Learning). IMPALA did worse without them and keeps them. A
-checkpoint whose model_config lacks the key was written with 8 (the layout before the key existed)."""
+# The angles (presets.ANGLE_FREQUENCIES): the critic also sees each angle as sin and cos of k pi theta / 180 for
+# k = 1..8, as the R1 landscape is rugged at a few degrees and the value net has to resolve it. What the policy
+# net sees is a preset's choice (`policy_angle_frequencies`, in the module's model_config): the fast PPO preset
+# gives it the plain angles only. With the critic's 8 frequencies a policy can draw a sink at every ripple of
+# the landscape, and PPO's greedy roll-outs settled in whichever basin a start fell into (map-1, 150,000 steps:
+# 5-13 of the 20 protocol starts within 1 % of the optimum); smooth in the angles it learns one flow towards the
+# best region (README, Learning). IMPALA did worse without them and keeps them. A checkpoint whose model_config
+# lacks the key was written with 8 (the layout before the key existed).
 MAP_LEVELS = 255.0
 """The env's map channels are uint8 fractions times 255."""
 MAP_KEY = "map"

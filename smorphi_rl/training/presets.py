@@ -8,6 +8,10 @@ ALGORITHMS = ("ppo", "impala", "appo")
 PPO_ONLY = ("lambda_", "value_lambda")
 """Hyperparameters only PPO uses (IMPALA and APPO use v-trace instead of GAE)."""
 
+ANGLE_FREQUENCIES = 8
+"""Fourier frequencies of the angles the critic sees, and the policy unless its preset says otherwise
+(`training/module.py` explains both)."""
+
 
 @dataclass(frozen=True)
 class Preset:
@@ -22,8 +26,8 @@ class Preset:
     lambda_: float = 0.95  # PPO only (IMPALA/APPO use v-trace)
     lr_final: float | None = None
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
-    policy_angle_frequencies: int = 8
-    """Fourier frequencies of the angles the policy net sees (the critic always sees 8; `training/module.py`)."""
+    policy_angle_frequencies: int = ANGLE_FREQUENCIES
+    """Fourier frequencies of the angles the policy net sees (the critic always sees ANGLE_FREQUENCIES)."""
     value_lambda: float | None = None
     """PPO only: GAE lambda of the critic's targets; None: `lambda_` (RLlib's one lambda)."""
     num_epochs: int = 1
