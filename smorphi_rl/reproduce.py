@@ -85,6 +85,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
     from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.score import Weights
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.nsga2 import run_nsga2
     from smorphi_rl.search.random import run_random
@@ -98,6 +99,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     b = BUDGETS[budget_name]
     root = prepare_run_dir(log_dir, name)
     defaults = EnvConfig()
+    weights = {m: defaults.weights_on(load_map(_map(m))) for m in b.train_maps}  # R1 on each map, as the env ranks
     t0 = time.monotonic()
     say = lambda text: print(text, file=out, flush=True)  # noqa: E731
 
@@ -118,7 +120,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
             run_exhaustive(_map(map_name), b.exhaustive_step),
         ):
             run_dir = prepare_run_dir(root, safe_name(f"{result.method}-{map_name}"))
-            save(result, run_dir, defaults.weights_on(load_map(_map(map_name))))
+            save(result, run_dir, weights[map_name])
             searches[(result.method, map_name)] = result
     say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
     pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
@@ -136,7 +138,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     sections = [
         f"# Reproduction of Kalimuthu et al. (2023), budget '{budget_name}'",
         "",
-        f"R1 = {defaults.w1:g} P_c - {defaults.w2:g} P_len (the env's defaults). Every figure below was measured "
+        f"{Weights(defaults.w1, defaults.w2).formula()} (the env's defaults). Every figure below was measured "
         f"in this run ({(time.monotonic() - t0) / 60:.0f} min on {len(b.algorithms) * len(b.train_maps)} training "
         "runs, the searches and the transfer job).",
     ]
@@ -145,10 +147,9 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         exact = searches[("exhaustive", map_name)]
         runs = [points_of_run(training[(a, map_name)], map_name) for a in b.algorithms]
         runs += [points_of_run(root / f"{m}-{map_name}", map_name) for m in ("nsga2", "random")]
-        weights = defaults.weights_on(load_map(_map(map_name)))
-        exact_score, scores = score_methods(exact, runs, weights)
+        exact_score, scores = score_methods(exact, runs, weights[map_name])
         cmp_dir = prepare_run_dir(root, safe_name(f"compare-{map_name}"))
-        files = write_report(exact_score, scores, map_name, weights, cmp_dir)
+        files = write_report(exact_score, scores, map_name, weights[map_name], cmp_dir)
         curves = {a.upper(): summary_curve(training[(a, map_name)]) for a in b.algorithms}
         sections += _map_section(map_name, training, b, exact_score, scores, files, curves, root)
         claims += _claims(map_name, b, scores, curves)
