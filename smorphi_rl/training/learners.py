@@ -15,8 +15,12 @@ learning. These learners standardise v-trace's `pg_advantages` (zero mean, unit 
 and leave the value targets alone. RLlib computes both inside `compute_loss_for_module` with no hook
 between them, so the loss is run with its module's `vtrace_torch` wrapped for the duration of the call.
 
-Every learner ends its connector pipeline with `PackMaps`, which hands the module the batch's maps as
-int64 words: RLlib's per-epoch shuffle then moves a quarter of the time's bytes-as-bytes work.
+Every learner ends its connector pipeline with `CompactMaps`, which hands the module the batch's maps as
+numbers in the module's table of distinct maps (or, when they are mostly distinct, as int64 words): RLlib's
+per-epoch shuffle and minibatch slicing then move 4 bytes a row instead of each row's map.
+
+Every learner also takes its optimiser step through `FusedStep`: the same clipping, nan handling and Adam
+update as RLlib's, each done in one pass over all of a net's tensors instead of one call per tensor.
 """
 
 from __future__ import annotations
@@ -61,44 +65,107 @@ def _loss_with_normalised_advantages(learner: Any, parent: Any, kwargs: dict[str
         module.vtrace_torch = original  # type: ignore[union-attr]
 
 
-class PackMaps(ConnectorV2):
-    """The learner pipeline's last piece: every module's map observations as int64 words (`pack_maps`).
+class CompactMaps(ConnectorV2):
+    """The learner pipeline's last piece: every module's map observations in index form (the module's
+    `index_maps`: each row's number in its table of distinct maps), else as int64 words (`pack_maps`).
 
-    RLlib shuffles the whole train batch row by row once an epoch; indexing 2,000 uint8 maps of 2 x 64 x 64
-    took 17 ms, the same rows as 1,024 int64 words each 4 ms (15 % of PPO's learner time before). The
-    module reads either layout."""
+    RLlib shuffles the whole train batch row by row once an epoch: 2,000 uint8 maps of 2 x 64 x 64 took
+    17 ms, as int64 words 4 ms, and as map numbers next to nothing; the module then runs its CNN once per
+    distinct map of a minibatch and gathers. The module reads every layout."""
 
-    def __call__(self, *, batch: dict[str, Any], **kwargs: Any) -> Any:
-        for column in batch.values():
+    def __call__(self, *, batch: dict[str, Any], rl_module: Any = None, **kwargs: Any) -> Any:
+        for module_id, column in batch.items():
             obs = column.get(Columns.OBS) if isinstance(column, dict) else None
-            if isinstance(obs, dict) and isinstance(obs.get(MAP_KEY), torch.Tensor):
-                obs[MAP_KEY] = pack_maps(obs[MAP_KEY])
+            if not (isinstance(obs, dict) and isinstance(obs.get(MAP_KEY), torch.Tensor)):
+                continue
+            module = rl_module[module_id] if rl_module is not None and module_id in rl_module else None
+            index_maps = getattr(module, "index_maps", None)
+            indexed = index_maps(obs[MAP_KEY]) if index_maps is not None else None
+            obs[MAP_KEY] = indexed if indexed is not None else pack_maps(obs[MAP_KEY])
         return batch
 
 
-def _end_with_pack_maps(learner: Any) -> None:
-    """Append `PackMaps` to a built learner's connector pipeline (after RLlib's own pieces)."""
+def clip_each_tensor(gradients_dict: dict[Any, torch.Tensor | None], *, grad_clip: float, grad_clip_by: str) -> None:
+    """RLlib's `clip_gradients` in one fused pass for `grad_clip_by="norm"` (each tensor whose L2 norm is over
+    `grad_clip` is scaled down to it; a nan norm leaves its tensor alone); other modes go to RLlib's."""
+    from ray.rllib.utils.torch_utils import clip_gradients
+
+    grads = [g for g in gradients_dict.values() if g is not None]
+    if grad_clip_by != "norm" or not grads:
+        clip_gradients(gradients_dict, grad_clip=grad_clip, grad_clip_by=grad_clip_by)  # type: ignore[arg-type]
+        return
+    norms = torch.stack(torch._foreach_norm(grads))
+    coefficients = torch.where(norms > grad_clip, grad_clip / norms, torch.ones_like(norms))
+    torch._foreach_mul_(grads, list(coefficients.unbind()))
+
+
+def all_finite(grads: list[torch.Tensor]) -> bool:
+    """Whether every entry of every tensor is finite (one reduction: a sum of squares is finite only then)."""
+    return bool(torch.isfinite(torch.stack(torch._foreach_norm(grads))).all())
+
+
+class FusedStep:
+    """A TorchLearner mixin: Adam with torch's multi-tensor (`foreach`) update, per-tensor clipping in one pass
+    (`clip_each_tensor`), and one finiteness check for all gradients before the step.
+
+    RLlib's TorchLearner clips, checks for nan and checks again tensor by tensor (about 70 small calls an
+    update for our two nets) and builds a single-tensor Adam on CPU; the arithmetic is the same. A step with
+    a non-finite gradient, a torch lr scheduler or a grad scaler goes through RLlib's own `apply_gradients`
+    (which zeroes nan gradients and warns)."""
+
+    def configure_optimizers_for_module(self, module_id: Any, config: Any = None) -> None:
+        params = self.get_parameters(self._module[module_id])  # type: ignore[attr-defined]
+        self.register_optimizer(  # type: ignore[attr-defined]
+            module_id=module_id, optimizer=torch.optim.Adam(params, foreach=True), params=params,
+            lr_or_lr_schedule=config.lr,
+        )  # fmt: skip
+
+    @staticmethod
+    def _get_clip_function() -> Callable[..., Any]:
+        return clip_each_tensor
+
+    @staticmethod
+    def _set_optimizer_lr(optimizer: torch.optim.Optimizer, lr: Any) -> None:
+        for group in optimizer.param_groups:  # a float: the foreach Adam on CPU takes no tensor rate
+            group["lr"] = float(lr)
+
+    def apply_gradients(self, gradients_dict: dict[Any, torch.Tensor]) -> None:
+        grads = [g for g in gradients_dict.values() if g is not None]
+        plain = self._lr_scheduler_classes is None and self._grad_scalers is None  # type: ignore[attr-defined]
+        if not (plain and grads and all_finite(grads)):
+            super().apply_gradients(gradients_dict)  # type: ignore[misc]
+            return
+        params = self._params  # type: ignore[attr-defined]
+        for pid, grad in gradients_dict.items():
+            params[pid].grad = grad
+        for module_id, names in self._module_optimizers.items():  # type: ignore[attr-defined]
+            for name in names:
+                self.get_optimizer(module_id, name).step()  # type: ignore[attr-defined]
+
+
+def _end_with_compact_maps(learner: Any) -> None:
+    """Append `CompactMaps` to a built learner's connector pipeline (after RLlib's own pieces)."""
     if learner._learner_connector is not None:
-        learner._learner_connector.append(PackMaps())
+        learner._learner_connector.append(CompactMaps())
 
 
-class NormalisedIMPALALearner(IMPALATorchLearner):
+class NormalisedIMPALALearner(FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """IMPALA with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
         super().build()
-        _end_with_pack_maps(self)
+        _end_with_compact_maps(self)
 
     def compute_loss_for_module(self, **kwargs: Any) -> Any:
         return _loss_with_normalised_advantages(self, IMPALATorchLearner, kwargs)
 
 
-class NormalisedAPPOLearner(APPOTorchLearner):
+class NormalisedAPPOLearner(FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """APPO with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
         super().build()
-        _end_with_pack_maps(self)
+        _end_with_compact_maps(self)
 
     def compute_loss_for_module(self, **kwargs: Any) -> Any:
         return _loss_with_normalised_advantages(self, APPOTorchLearner, kwargs)
@@ -140,7 +207,7 @@ class TwoLambdaGAE(GeneralAdvantageEstimation):
         return batch
 
 
-class TwoLambdaPPOLearner(PPOTorchLearner):
+class TwoLambdaPPOLearner(FusedStep, PPOTorchLearner):
     """PPO whose critic's targets use `learner_config_dict["value_lambda"]` (advantages keep `lambda_`)."""
 
     def build(self) -> None:
@@ -153,7 +220,7 @@ class TwoLambdaPPOLearner(PPOTorchLearner):
             self._learner_connector.append(
                 TwoLambdaGAE(gamma=self.config.gamma, lambda_=self.config.lambda_, value_lambda=value_lambda)  # type: ignore[attr-defined]
             )
-        _end_with_pack_maps(self)
+        _end_with_compact_maps(self)
 
 
 LEARNERS: dict[str, type] = {

@@ -5,8 +5,11 @@ episode return's, never swamps the policy gradient. The critic is `value_offset 
 (the random-shape return level and its spread), so the head's raw output stays near 0.
 
 The map is constant within an episode and a batch holds a handful of distinct maps, so the CNN runs
-once per distinct map in a batch and its features are gathered to the rows (`_MapEncoder`): the
-learner's cost no longer grows with a CNN pass per row.
+once per distinct map in a batch and its features are gathered to the rows: the learner's cost no
+longer grows with a CNN pass per row. In a learner the batch's maps arrive as numbers in a `MapTable`
+of the distinct maps seen (the learners' `CompactMaps`), so shuffling and slicing minibatches moves
+4 bytes a row instead of the map's 8 KB; an env runner's steps keep one map's features until
+the map or the weights change.
 """
 
 from __future__ import annotations
@@ -91,6 +94,57 @@ def _as_words(flat: torch.Tensor) -> torch.Tensor:
     return flat
 
 
+INDEX = torch.int32
+"""The dtype of a batch's map column in index form: (B,) numbers of the rows' maps in the module's MapTable."""
+
+
+class MapTable:
+    """Every distinct map a module's learner has seen, numbered in order: a run trains on a handful, so a batch's
+    map column can be each row's map number (`index_maps`). Shared by the policy, value and target nets of one
+    module (a deep copy, as for APPO's target net, shares it too). Append-only, so a batch queued for a learner
+    thread stays readable; past MAX_MAPS maps, batches keep their maps instead."""
+
+    MAX_MAPS = 1024
+
+    def __init__(self) -> None:
+        self._numbers: dict[bytes, int] = {}
+        self._maps: torch.Tensor | None = None
+
+    def numbers_of(self, maps: torch.Tensor) -> torch.Tensor | None:
+        """The numbers of distinct maps (k, C, S, S), adding the new ones; None when the table would overflow."""
+        keys = [m.numpy().tobytes() for m in maps]
+        new = [i for i, key in enumerate(keys) if key not in self._numbers]
+        if len(self._numbers) + len(new) > self.MAX_MAPS:
+            return None
+        if new:
+            added = maps[new].clone()
+            self._maps = added if self._maps is None else torch.cat([self._maps, added])  # before the numbers:
+            for i in new:  # a reader never meets a number without its map
+                self._numbers[keys[i]] = len(self._numbers)
+        return torch.tensor([self._numbers[key] for key in keys], dtype=INDEX)
+
+    def lookup(self, numbers: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(the distinct maps a map column in index form names, each row's position among them)."""
+        if self._maps is None:
+            raise RuntimeError("a batch names maps by number, but this module holds no map table")
+        distinct, rows = torch.unique(numbers.long(), return_inverse=True)
+        return self._maps[distinct], rows
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> MapTable:
+        return self
+
+
+def index_maps(maps: torch.Tensor, table: MapTable) -> torch.Tensor | None:
+    """A uint8 batch of maps (B, C, S, S) as each row's map number in `table`, or None when its maps are (nearly)
+    all distinct (`distinct_rows`) or too many for the table."""
+    groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
+    if groups is None:
+        return None
+    first, inverse = groups
+    numbers = table.numbers_of(maps[first])
+    return None if numbers is None else numbers[inverse]
+
+
 MIN_GROUPED_ROWS = 128
 """Below this many rows, grouping several maps costs more than running the CNN on every row."""
 PROBE_PIXELS = 256
@@ -129,6 +183,9 @@ class _Net(nn.Module):
         with torch.no_grad():
             flat = self.cnn(torch.zeros(1, channels, size, size)).shape[1]
         self.map_fc = nn.Sequential(nn.Linear(flat, MAP_FEATURES), nn.ReLU())
+        self._map_parameters = [*self.cnn.parameters(), *self.map_fc.parameters()]
+        self._kept: tuple[tuple[tuple[int, int], ...], torch.Tensor, torch.Tensor] | None = None
+        self.map_table = MapTable()
         n_angles = int(np.prod(obs_space["angles"].shape or (1,)))
         shape_inputs = n_angles * (1 + 2 * frequencies) + int(np.prod(obs_space["metrics"].shape or (1,)))
         self.register_buffer("_freqs", torch.arange(1, frequencies + 1, dtype=torch.float32) * torch.pi)
@@ -144,12 +201,28 @@ class _Net(nn.Module):
 
     def encode_maps(self, maps: torch.Tensor) -> torch.Tensor:
         """Map features for every row, computing the CNN once per distinct map of the batch."""
+        if maps.dtype == INDEX:
+            table, rows = self.map_table.lookup(maps)
+            return self._features(table)[rows]
         maps = unpack_maps(maps, self._map_shape)
         groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
         if groups is not None:
             first, inverse = groups
-            return self.map_fc(self.cnn(maps[first].float() / MAP_LEVELS))[inverse]
-        return self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
+            return self._features(maps[first])[inverse]
+        return self._features(maps)
+
+    def _features(self, maps: torch.Tensor) -> torch.Tensor:
+        """The CNN's features of a batch of maps; outside autograd, one map's features are kept until the map or
+        the weights change (an env runner steps the same map, with the same weights, for a whole iteration)."""
+        if torch.is_grad_enabled() or maps.shape[0] != 1:
+            return self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
+        version = tuple((id(p), p._version) for p in self._map_parameters)  # optimiser steps and loads bump it
+        kept = self._kept
+        if kept is not None and kept[0] == version and torch.equal(kept[1], maps):
+            return kept[2]
+        features = self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
+        self._kept = (version, maps.clone(), features)  # one assignment: safe beside a learner thread
+        return features
 
     def forward(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         map_features = self.encode_maps(obs[MAP_KEY])
@@ -182,8 +255,13 @@ class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):
         model_config: dict[str, Any] = dict(self.model_config or {})  # type: ignore[arg-type]
         self._pi = _Net(obs_space, sum(nvec), int(model_config.get("policy_angle_frequencies", ANGLE_FREQUENCIES)))
         self._vf = _Net(obs_space, 1)
+        self._vf.map_table = self._pi.map_table  # one table for both nets (and APPO's target net, a deep copy of _pi)
         self._value_offset = float(model_config.get("value_offset", 0.0))
         self._value_scale = float(model_config.get("value_scale", 1.0))
+
+    def index_maps(self, maps: torch.Tensor) -> torch.Tensor | None:
+        """A learner batch's maps as numbers in this module's MapTable (None: keep them as they are)."""
+        return index_maps(maps, self._pi.map_table)
 
     def _forward(self, batch: dict[str, Any], **kwargs: Any) -> dict[str, Any]:
         return {Columns.ACTION_DIST_INPUTS: self._pi(batch[Columns.OBS])}

@@ -125,10 +125,10 @@ def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread():
     assert abs(float(advantages.mean())) < 1e-6 and abs(float(advantages.std()) - 1) < 1e-5
 
 
-def test_ppo_learner_ends_its_pipeline_with_two_lambda_gae_then_packed_maps():
+def test_ppo_learner_ends_its_pipeline_with_two_lambda_gae_then_compact_maps():
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.config import algorithm_config
-    from smorphi_rl.training.learners import PackMaps, TwoLambdaGAE
+    from smorphi_rl.training.learners import CompactMaps, TwoLambdaGAE
 
     env = MorphologyEnv()
     spaces = {"__env__": (env.observation_space, env.action_space)}
@@ -137,7 +137,7 @@ def test_ppo_learner_ends_its_pipeline_with_two_lambda_gae_then_packed_maps():
     learner.build()
     pieces = learner._learner_connector.connectors
     assert isinstance(pieces[-2], TwoLambdaGAE) and pieces[-2].value_lambda == 0.97
-    assert isinstance(pieces[-1], PackMaps)
+    assert isinstance(pieces[-1], CompactMaps)
     assert sum(type(p).__name__.endswith("GeneralAdvantageEstimation") for p in pieces) == 0
 
 
