@@ -37,6 +37,8 @@ class MorphologyCallbacks(RLlibCallback):
     eval_final_steps: int = 0
     eval_starts: tuple[tuple[float, float, float], ...] = ()
     eval_optima: dict[str, Any] = {}  # noqa: RUF012 (set per run by with_evaluation)
+    _evaluation: Any = None
+    """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
         """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index)."""
@@ -94,23 +96,25 @@ class MorphologyCallbacks(RLlibCallback):
 
     def _evaluate(self, algorithm: Any) -> dict[str, Any]:
         """Greedy roll-outs of the learner's current policy from the fixed starts on every training map."""
-        import numpy as np
+        if self._evaluation is None:
+            import numpy as np
 
-        from smorphi_rl.env_config import EnvConfig
-        from smorphi_rl.protocol import Optimum
-        from smorphi_rl.training.policy import evaluate_policy
+            from smorphi_rl.env_config import EnvConfig
+            from smorphi_rl.protocol import Optimum
+            from smorphi_rl.training.policy import PolicyEvaluation
 
-        known = set(EnvConfig.__dataclass_fields__)
-        env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
-        starts = np.array(self.eval_starts, dtype=np.float64)
-        optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
+            known = set(EnvConfig.__dataclass_fields__)
+            env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
+            starts = np.array(self.eval_starts, dtype=np.float64)
+            optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
+            self._evaluation = PolicyEvaluation(env, starts, optima)
+        evaluation = self._evaluation
 
         def run(learner: Any) -> list[Any]:
-            return evaluate_policy(learner.module[DEFAULT_MODULE_ID], env, starts, optima)
+            return evaluation(learner.module[DEFAULT_MODULE_ID])
 
         (first, *_) = list(algorithm.learner_group.foreach_learner(run))  # the local learner, or the first remote
-        evaluations = first.get()
-        return evaluation_metrics(evaluations)
+        return evaluation_metrics(first.get())
 
 
 def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:

@@ -119,20 +119,41 @@ def evaluate_policy(
 ) -> list[MapEvaluation]:  # fmt: skip
     """The protocol on every map of `env_config`: greedy from each start, against that map's optimum
     (`optima` by map name). `wrap(env)`, if given, wraps each env (recording)."""
-    evaluations = []
-    for path in env_config.maps:
-        first = MorphologyEnv(replace(env_config, maps=(path,)).to_dict())
-        envs = [first] + [first.sibling() for _ in range(len(starts) - 1)]
-        wrapped = [wrap(e) for e in envs] if wrap is not None else envs
-        try:
-            outcomes = greedy_outcomes(module, wrapped, starts)
-        finally:
-            if wrap is not None:
-                for e in wrapped:
-                    e.close()
-        name = first.grid_map.name
-        evaluations.append(MapEvaluation(name, method, optima[name], tuple(outcomes)))
-    return evaluations
+    return PolicyEvaluation(env_config, starts, optima, method, wrap)(module)
+
+
+class PolicyEvaluation:
+    """The protocol's greedy roll-outs, run again and again (training evaluates every few iterations): each map's
+    envs are built once, so shapes scored by one evaluation are free for the next (the roll-outs of a settling
+    policy revisit them). `wrap(env)`, if given, wraps each env (recording) and closes it after each run."""
+
+    def __init__(
+        self, env_config: EnvConfig, starts: np.ndarray, optima: dict[str, Optimum], method: str = "policy",
+        wrap: Any = None,
+    ) -> None:  # fmt: skip
+        self.env_config, self.starts, self.optima, self.method, self.wrap = env_config, starts, optima, method, wrap
+        self._envs: dict[str, list[MorphologyEnv]] = {}
+
+    def _envs_on(self, path: str) -> list[MorphologyEnv]:
+        if path not in self._envs:
+            first = MorphologyEnv(replace(self.env_config, maps=(path,)).to_dict())
+            self._envs[path] = [first] + [first.sibling() for _ in range(len(self.starts) - 1)]
+        return self._envs[path]
+
+    def __call__(self, module: Any) -> list[MapEvaluation]:
+        evaluations = []
+        for path in self.env_config.maps:
+            envs = self._envs_on(path)
+            wrapped = [self.wrap(e) for e in envs] if self.wrap is not None else envs
+            try:
+                outcomes = greedy_outcomes(module, wrapped, self.starts)
+            finally:
+                if self.wrap is not None:
+                    for e in wrapped:
+                        e.close()
+            name = envs[0].grid_map.name
+            evaluations.append(MapEvaluation(name, self.method, self.optima[name], tuple(outcomes)))
+        return evaluations
 
 
 def rollout(module: Any, env: Any, seed: int) -> Rollout:

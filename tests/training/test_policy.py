@@ -32,3 +32,24 @@ def test_stopping_at_a_revisited_shape_changes_no_outcome():
     fast, full = greedy_outcomes(module, plain, starts), greedy_outcomes(module, wrapped, starts)
     assert fast == full
     assert sum(env.unwrapped._steps for env in plain) < sum(env.unwrapped._steps for env in wrapped)
+
+
+def test_a_reused_evaluation_gives_what_a_fresh_one_gives():
+    """Training evaluates with one PolicyEvaluation whose envs keep their scored shapes: same outcomes as new envs."""
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.protocol import Optimum
+    from smorphi_rl.training.policy import PolicyEvaluation, evaluate_policy
+
+    torch.manual_seed(5)
+    env = EnvConfig.from_dict({"max_steps": 40})
+    first = MorphologyEnv(env.to_dict())
+    module = MorphologyModule(observation_space=first.observation_space, action_space=first.action_space,
+                              model_config={})  # fmt: skip
+    optima = {first.grid_map.name: Optimum((0.0, 0.0, 0.0), 100.0, 100.0, 1)}
+    starts = eval_starts(6)
+    reused = PolicyEvaluation(env, starts, optima)
+    once = reused(module)
+    with torch.no_grad():
+        module._pi.head.bias.add_(torch.linspace(-1, 1, 9))  # another policy, as after an update
+    again, fresh = reused(module), evaluate_policy(module, env, starts, optima)
+    assert again == fresh and again != once
