@@ -10,7 +10,7 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala] [--rewards paper peak] [--seeds 0 1 2] [--timesteps 150000] [--no-ideal]
+        [--algos ppo impala] [--rewards paper peak] [--seeds 0 1 2] [--timesteps 200000] [--no-ideal]
         [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap

@@ -112,7 +112,7 @@ class MapTable:
 
     def numbers_of(self, maps: torch.Tensor) -> torch.Tensor | None:
         """The numbers of distinct maps (k, C, S, S), adding the new ones; None when the table would overflow."""
-        keys = [m.numpy().tobytes() for m in maps]
+        keys = [m.cpu().numpy().tobytes() for m in maps]
         new = [i for i, key in enumerate(keys) if key not in self._numbers]
         if len(self._numbers) + len(new) > self.MAX_MAPS:
             return None

@@ -7,7 +7,7 @@ import pytest
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig, TrainConfigError, default_run_name, value_normalisation
-from smorphi_rl.training.presets import ALGORITHMS, PRESETS
+from smorphi_rl.training.presets import ALGORITHMS, DEFAULT_TIMESTEPS, PRESETS
 
 
 def test_every_preset_covers_every_algorithm():
@@ -147,5 +147,5 @@ def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():
     cfg = TrainConfig(timesteps=30_000, overrides={"lr": 2e-3, "lr_final": 1e-4})
     assert algorithm_config(cfg).lr == [[0, 2e-3], [30_000, 1e-4]]
     impala = PRESETS["fast"]["impala"]
-    assert algorithm_config(TrainConfig(algo="impala")).lr == [[0, impala.lr], [150_000, impala.lr_final]]
+    assert algorithm_config(TrainConfig(algo="impala")).lr == [[0, impala.lr], [DEFAULT_TIMESTEPS, impala.lr_final]]
     assert algorithm_config(TrainConfig(algo="impala", preset="paper")).lr == 7e-4  # constant: no lr_final
