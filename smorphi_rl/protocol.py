@@ -34,6 +34,8 @@ EVAL_STARTS = 20
 """Seeded start shapes per map (the same for every policy and baseline)."""
 EVAL_SEED = 20_231_101
 """The starts' own seed: independent of every training seed."""
+SELECT_SEED = EVAL_SEED + 1
+"""Seeds the start shapes on which a run chooses its final policy: never the protocol's own starts."""
 SETTLE_WINDOW = 20
 """The settled shape is the one held most often over the last this many steps."""
 WITHIN = 0.01

@@ -60,7 +60,7 @@ def register(sub: Any) -> None:
 
 
 TRAIN_FIELDS = ("algo", "timesteps", "seed", "preset", "checkpoint_every", "pretrained", "num_env_runners",
-                "envs_per_runner", "eval_every", "eval_starts", "record_every")  # fmt: skip
+                "envs_per_runner", "eval_every", "eval_starts", "select_starts", "record_every")  # fmt: skip
 """TrainConfig fields `train` takes as options (the same names, dashed; num_env_runners is --env-runners)."""
 ENV_FIELDS = ("reward", "move_cost", "w1", "w2", "path_term", "planner", "start_xy")
 """EnvConfig fields `train` takes as options; not given, they keep the env's (or the pretrained run's) value."""
@@ -89,7 +89,7 @@ def _register_train(sub: Any) -> None:
     planner_option(tr, unset=True)
     option(tr, TrainConfig, "num_env_runners", "--env-runners", type=int, metavar="N",
            default_text="the preset's: 0 for PPO, 2 for IMPALA/APPO on the fast preset")  # fmt: skip
-    for name in ("envs_per_runner", "eval_every", "eval_starts"):
+    for name in ("envs_per_runner", "eval_every", "eval_starts", "select_starts"):
         option(tr, TrainConfig, name, metavar="N")
     record_option(tr)
     tr.set_defaults(func=cmd_train)

@@ -37,8 +37,14 @@ class MorphologyCallbacks(RLlibCallback):
     eval_final_steps: int = 0
     eval_starts: tuple[tuple[float, float, float], ...] = ()
     eval_optima: dict[str, Any] = {}  # noqa: RUF012 (set per run by with_evaluation)
+    select_starts: tuple[tuple[float, float, float], ...] = ()
+    """Other seeded starts on which the run chooses the policy it ends on (none: it ends on its last)."""
     _evaluation: Any = None
     """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first."""
+    _selection: Any = None
+    """The same on the selection starts."""
+    _kept: Any = None
+    """(selection score, env steps, module state) of the best policy evaluated so far."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
         """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index)."""
@@ -92,29 +98,63 @@ class MorphologyCallbacks(RLlibCallback):
         iteration = int(getattr(algorithm, "iteration", 0) or 0)
         last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
         if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):
-            result[EVAL_KEY] = self._evaluate(algorithm)
+            steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
+            policy_steps = self._select(algorithm, steps, bool(last)) if self.select_starts else steps
+            if self._evaluation is None:
+                self._evaluation = self._protocol(algorithm, self.eval_starts)
+            result[EVAL_KEY] = evaluation_metrics(_on_learner(algorithm, self._evaluation)) | {
+                "policy_env_steps": policy_steps}  # fmt: skip
 
-    def _evaluate(self, algorithm: Any) -> dict[str, Any]:
-        """Greedy roll-outs of the learner's current policy from the fixed starts on every training map."""
-        if self._evaluation is None:
-            import numpy as np
+    def _protocol(self, algorithm: Any, starts: Any) -> Any:
+        """The protocol's greedy roll-outs from `starts` on every training map (a PolicyEvaluation)."""
+        import numpy as np
 
-            from smorphi_rl.env_config import EnvConfig
-            from smorphi_rl.protocol import Optimum
-            from smorphi_rl.training.policy import PolicyEvaluation
+        from smorphi_rl.env_config import EnvConfig
+        from smorphi_rl.protocol import Optimum
+        from smorphi_rl.training.policy import PolicyEvaluation
 
-            known = set(EnvConfig.__dataclass_fields__)
-            env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
-            starts = np.array(self.eval_starts, dtype=np.float64)
-            optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
-            self._evaluation = PolicyEvaluation(env, starts, optima)
-        evaluation = self._evaluation
+        known = set(EnvConfig.__dataclass_fields__)
+        env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
+        optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
+        return PolicyEvaluation(env, np.array(starts, dtype=np.float64), optima)
 
-        def run(learner: Any) -> list[Any]:
-            return evaluation(learner.module[DEFAULT_MODULE_ID])
+    def _select(self, algorithm: Any, steps: int, last: bool) -> int:
+        """Score the learner's policy on the selection starts and keep it if it is the best so far (ties: the
+        later); at the run's last iteration, put the kept policy back if it beat the last one. The env steps
+        of the policy the learner now holds."""
+        if self._selection is None:
+            self._selection = self._protocol(algorithm, self.select_starts)
+        score = selection_score(_on_learner(algorithm, self._selection))
+        kept = self._kept
+        if kept is None or score >= kept[0]:
+            self._kept = (score, steps, _on_learner(algorithm, _module_state))
+            return steps
+        if not last:
+            return steps
+        from smorphi_rl.training.finetune import push_module_to_runners  # finetune imports this module
 
-        (first, *_) = list(algorithm.learner_group.foreach_learner(run))  # the local learner, or the first remote
-        return evaluation_metrics(first.get())
+        _on_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
+        push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
+        return int(kept[1])
+
+
+def _on_learner(algorithm: Any, call: Any) -> Any:
+    """`call(module)` on the learner's module (the local learner, or the first remote one)."""
+    (first, *_) = list(algorithm.learner_group.foreach_learner(lambda learner: call(learner.module[DEFAULT_MODULE_ID])))
+    return first.get()
+
+
+def _module_state(module: Any) -> dict[str, Any]:
+    """A copy of a module's weights, as `load_state_dict` takes them back."""
+    return {name: value.detach().clone() for name, value in module.state_dict().items()}
+
+
+def selection_score(evaluations: list[Any]) -> tuple[int, float]:
+    """How a policy ranks on the selection starts: starts within 1 % of the optimum, then the smaller median gap."""
+    import numpy as np
+
+    gaps = np.concatenate([e.gaps for e in evaluations])
+    return sum(e.within for e in evaluations), -float(np.median(gaps))
 
 
 def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
@@ -130,10 +170,12 @@ def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
 
 
 def with_evaluation(
-    base: type[MorphologyCallbacks], every: int, starts: Any, optima: dict[str, Any], final_steps: int = 0
-) -> type:
+    base: type[MorphologyCallbacks], every: int, starts: Any, optima: dict[str, Any], final_steps: int = 0,
+    selection: Any = (),
+) -> type:  # fmt: skip
     """`base` with the periodic evaluation switched on: `starts` (n x 3), each training map's Optimum, and the
-    env-step budget (the iteration that reaches it is evaluated too)."""
+    env-step budget (the iteration that reaches it is evaluated too); `selection` (m x 3), other starts on
+    which the run chooses the evaluated policy it ends on (empty: the last)."""
     from dataclasses import asdict
 
     class EvaluatingCallbacks(base):  # type: ignore[valid-type, misc]
@@ -141,5 +183,6 @@ def with_evaluation(
         eval_final_steps = final_steps
         eval_starts = tuple(tuple(float(t) for t in row) for row in starts)
         eval_optima = {name: asdict(o) for name, o in optima.items()}  # noqa: RUF012
+        select_starts = tuple(tuple(float(t) for t in row) for row in selection)
 
     return EvaluatingCallbacks

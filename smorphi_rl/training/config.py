@@ -73,6 +73,8 @@ class TrainConfig:
     """Evaluate the greedy policy from the protocol's fixed starts every this many iterations (0: never)."""
     eval_starts: int = EVAL_STARTS
     """Fixed seeded start shapes per training map in each evaluation."""
+    select_starts: int = EVAL_STARTS
+    """End on the run's best evaluated policy, chosen on this many other seeded starts per map (0: the last)."""
     record_every: int = DEFAULT_RECORD_EVERY
     """Record every Nth episode of each env to MCAP under the run's episodes/ folder; 0: no recording."""
 
@@ -94,6 +96,8 @@ class TrainConfig:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         if isinstance(self.eval_every, bool) or not isinstance(self.eval_every, int) or self.eval_every < 0:
             raise TrainConfigError(f"eval_every must be a non-negative integer (0: off), got {self.eval_every!r}")
+        if isinstance(self.select_starts, bool) or not isinstance(self.select_starts, int) or self.select_starts < 0:
+            raise TrainConfigError(f"select_starts must be a non-negative integer (0: off), got {self.select_starts!r}")
         if isinstance(self.record_every, bool) or not isinstance(self.record_every, int) or self.record_every < 0:
             raise TrainConfigError(f"record_every must be a non-negative integer (0: off), got {self.record_every!r}")
         check_overrides(self.algo, self.overrides)

@@ -21,7 +21,15 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
-from smorphi_rl.protocol import EVAL_KEY, NO_OPTIMUM, OPTIMUM_MAX_CELLS, Optimum, eval_starts, exact_optimum
+from smorphi_rl.protocol import (
+    EVAL_KEY,
+    NO_OPTIMUM,
+    OPTIMUM_MAX_CELLS,
+    SELECT_SEED,
+    Optimum,
+    eval_starts,
+    exact_optimum,
+)
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
@@ -281,7 +289,8 @@ def train(
         base = callbacks or MorphologyCallbacks
         if cfg.eval_every:
             starts = eval_starts(cfg.eval_starts, cfg.env.angle_step_deg)
-            callbacks = with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps)
+            selection = eval_starts(cfg.select_starts, cfg.env.angle_step_deg, SELECT_SEED) if cfg.select_starts else ()
+            callbacks = with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps, selection)
         quiet()
         with cluster.ray_session(address):
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
@@ -348,6 +357,10 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
     ev = s.evaluation
     if ev:
+        chosen = ev.get("policy_env_steps")
+        if isinstance(chosen, int | float) and chosen < s.env_steps:
+            lines.append(f"final policy: the one of {int(chosen):,} env steps, the best of the run's evaluations on "
+                         "other seeded starts (--select-starts)")  # fmt: skip
         lines.append(f"greedy policy from {ev.get('starts', '?')} fixed starts: settles within 1 % "
                      f"of the optimum from {100 * ev['share_within_1pct']:.0f} % of them; median gap "
                      f"{ev['median_gap']:.2f} R1, mean settled R1 {ev['settled_R1_mean']:.2f}")  # fmt: skip

@@ -35,7 +35,7 @@ def test_the_command_lines_defaults_are_the_configurations():
     train = parser.parse_args(["train"])
     defaults = TrainConfig()
     for name in ("algo", "timesteps", "seed", "preset", "checkpoint_every", "envs_per_runner", "eval_every",
-                 "eval_starts", "record_every"):  # fmt: skip
+                 "eval_starts", "select_starts", "record_every"):  # fmt: skip
         assert getattr(train, name) == getattr(defaults, name), name
     assert train.env_runners is None and train.reward is None  # applied downstream (the preset, the env)
     nsga2 = parser.parse_args(["search", "nsga2"])

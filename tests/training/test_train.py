@@ -126,6 +126,22 @@ def test_checkpoint_reloads_and_rolls_out_deterministically(ppo_run):
     assert first.best["R1"] >= first.settled.R1 - 1e-9 or first.best["R1"] >= max(env.score(t).R1 for t in first.thetas)
 
 
+def test_the_final_checkpoint_holds_the_policy_the_last_evaluation_reports(ppo_run):
+    """A run ends on its best evaluated policy, chosen on other seeded starts (--select-starts), which may be an
+    earlier one: the last evaluation names its env steps and the final checkpoint holds exactly that policy."""
+    from smorphi_rl.protocol import Optimum, eval_starts
+    from smorphi_rl.training.policy import env_config_of, evaluate_policy
+
+    run_dir, _ = ppo_run
+    last = last_result(run_dir)
+    reported = last["eval"]
+    assert 0 < reported["policy_env_steps"] <= last["num_env_steps_sampled_lifetime"]
+    module = load_module(find_checkpoint(run_dir))
+    unused = Optimum((0.0, 0.0, 0.0), math.inf, 100.0, 1)  # the settled shapes do not depend on it
+    (again,) = evaluate_policy(module, env_config_of(module, None), eval_starts(20), {"map-1": unused})
+    assert again.mean_R1 == pytest.approx(reported["settled_R1_mean"], abs=1e-9)
+
+
 def test_evaluate_policy_command(ppo_run, tmp_path):
     run_dir, _ = ppo_run
     proc = cli("evaluate-policy", "--checkpoint", str(run_dir), "--episodes", "2", "--json", cwd=tmp_path)

@@ -38,6 +38,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--envs-per-runner", "0"], 1, "envs_per_runner must be a positive integer, got 0"),
         (["--reward", "greedy"], 2, "invalid choice: 'greedy'"),
         (["--eval-starts", "0"], 1, "eval_starts must be a positive integer, got 0"),
+        (["--select-starts", "-1"], 1, "select_starts must be a non-negative integer (0: off), got -1"),
         (["--name", "../../etc"], 1, "is not a plain folder name"),
     ],
 )
