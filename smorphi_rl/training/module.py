@@ -117,7 +117,7 @@ class MapTable:
         if len(self._numbers) + len(new) > self.MAX_MAPS:
             return None
         if new:
-            added = maps[new].clone()
+            added = maps[new]  # indexing by a list copies
             self._maps = added if self._maps is None else torch.cat([self._maps, added])  # before the numbers:
             for i in new:  # a reader never meets a number without its map
                 self._numbers[keys[i]] = len(self._numbers)
@@ -165,7 +165,10 @@ def _probe(n: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
 class _Net(nn.Module):
     """Map (2 x S x S) -> CNN -> features; concatenated with angles and metrics -> MLP -> `out` values."""
 
-    def __init__(self, obs_space: gym.spaces.Dict, out: int, frequencies: int = ANGLE_FREQUENCIES) -> None:
+    def __init__(
+        self, obs_space: gym.spaces.Dict, out: int, frequencies: int = ANGLE_FREQUENCIES,
+        map_table: MapTable | None = None,
+    ) -> None:  # fmt: skip
         super().__init__()
         map_shape = obs_space["map"].shape
         if map_shape is None:  # pragma: no cover (the env always declares it)
@@ -185,7 +188,7 @@ class _Net(nn.Module):
         self.map_fc = nn.Sequential(nn.Linear(flat, MAP_FEATURES), nn.ReLU())
         self._map_parameters = [*self.cnn.parameters(), *self.map_fc.parameters()]
         self._kept: tuple[tuple[tuple[int, int], ...], torch.Tensor, torch.Tensor] | None = None
-        self.map_table = MapTable()
+        self.map_table = map_table if map_table is not None else MapTable()
         n_angles = int(np.prod(obs_space["angles"].shape or (1,)))
         shape_inputs = n_angles * (1 + 2 * frequencies) + int(np.prod(obs_space["metrics"].shape or (1,)))
         self.register_buffer("_freqs", torch.arange(1, frequencies + 1, dtype=torch.float32) * torch.pi)
@@ -253,9 +256,10 @@ class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):
         if not isinstance(obs_space, gym.spaces.Dict):
             raise TypeError(f"MorphologyModule needs the env's Dict observation space, got {obs_space}")
         model_config: dict[str, Any] = dict(self.model_config or {})  # type: ignore[arg-type]
-        self._pi = _Net(obs_space, sum(nvec), int(model_config.get("policy_angle_frequencies", ANGLE_FREQUENCIES)))
-        self._vf = _Net(obs_space, 1)
-        self._vf.map_table = self._pi.map_table  # one table for both nets (and APPO's target net, a deep copy of _pi)
+        table = MapTable()  # one for both nets (and APPO's target net, a deep copy of _pi)
+        frequencies = int(model_config.get("policy_angle_frequencies", ANGLE_FREQUENCIES))
+        self._pi = _Net(obs_space, sum(nvec), frequencies, table)
+        self._vf = _Net(obs_space, 1, map_table=table)
         self._value_offset = float(model_config.get("value_offset", 0.0))
         self._value_scale = float(model_config.get("value_scale", 1.0))
 
