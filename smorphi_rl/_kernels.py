@@ -370,71 +370,454 @@ def _walk(
 
 
 _ONE = np.uint64(1)
+_ALL = ~np.uint64(0)
 
 
 @njit(cache=True)
-def _dense(f: np.ndarray) -> np.ndarray:
-    """F as a contiguous boolean array: the batch kernels pass a strided uint8 view, and every loop over F
-    runs about 1.5 times faster on a dense copy."""
-    out = np.empty(f.shape, np.bool_)
-    for i in range(f.shape[0]):
-        for j in range(f.shape[1]):
-            out[i, j] = f[i, j] != 0
-    return out
+def _popcount(v: np.uint64) -> int:
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
 
 
 @njit(cache=True)
-def _blocked_bits(padded: np.ndarray, n_rows: int, n_cols: int) -> np.ndarray:
-    """Rows of `padded` as bit sets (bit x of row y set where the cell is not free), one spare word per row
-    so a shifted read of the next word never leaves the row."""
-    nw = (n_cols + 63) // 64 + 1
-    out = np.zeros((n_rows, nw), np.uint64)
-    cols = min(n_cols, padded.shape[1])
-    for y in range(n_rows):
+def _ctz(v: np.uint64) -> int:
+    """Index of the lowest set bit of v (v != 0)."""
+    return _popcount((v & (~v + _ONE)) - _ONE)
+
+
+@njit(cache=True)
+def _level(n: int) -> int:
+    """The largest k with 2**k <= n (n >= 1)."""
+    k = 0
+    while (2 << k) <= n:
+        k += 1
+    return k
+
+
+@njit(cache=True)
+def fit_bits(padded: np.ndarray, area: np.ndarray, h: int, wd: int) -> np.ndarray:
+    """What every fit plan on one map reuses, as rows of 64-cell words (docs/fbcpp-fit.md is unchanged by
+    it): level k < K holds the not-free cells of `padded` dilated by 2**k (bit x of row y set where a cell in
+    x .. x + 2**k - 1 is not free), so any run of F's cells in a row costs two shifted ORs; level K holds the
+    largest free area `area` (H*W). Levels reach the widest F the padding allows (half of it)."""
+    rows, cols = padded.shape
+    nw = (cols + 63) // 64 + 2 + ((cols - wd) >> 6)  # spare words: rows are read shifted by up to cols - wd
+    n_levels = _level(max(1, (cols - wd) // 2)) + 1
+    out = np.zeros((n_levels + 1, rows, nw), np.uint64)
+    for y in range(rows):
         for x in range(cols):
             if padded[y, x] != 0:
-                out[y, x >> 6] |= _ONE << np.uint64(x & 63)
+                out[0, y, x >> 6] |= _ONE << np.uint64(x & 63)
+    for k in range(1, n_levels):
+        out[k] = out[k - 1]
+        _or_rows(out[k], out[k - 1], 0, 1 << (k - 1), False, rows, (cols + 63) // 64)
+    for y in range(h):
+        for x in range(wd):
+            if area[y * wd + x]:
+                out[n_levels, y, x >> 6] |= _ONE << np.uint64(x & 63)
     return out
 
 
 @njit(cache=True)
-def _or_shifted(acc: np.ndarray, row: np.ndarray, j: int, nw: int, down: bool) -> None:
-    """acc |= `row` (a bit set over cells of one row) moved by j cells, over the first nw words: down, bit x
-    takes bit x + j (row must have a word past nw); up, bit x + j takes bit x."""
-    if j == 0:
-        for k in range(nw):
-            acc[k] |= row[k]
-    elif down:
-        right, left = np.uint64(j), np.uint64(64 - j)
-        for k in range(nw):
-            acc[k] |= (row[k] >> right) | (row[k + 1] << left)
-    else:
-        left, right = np.uint64(j), np.uint64(64 - j)
-        acc[0] |= row[0] << left
-        for k in range(1, nw):
-            acc[k] |= (row[k] << left) | (row[k - 1] >> right)
+def _f_runs(f: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """F's cells as runs along its rows: (row_start (l + 1), first column, length), runs of row i at
+    row_start[i] .. row_start[i + 1] - 1."""
+    l, w = f.shape
+    start = np.zeros(l + 1, np.int64)
+    j0 = np.empty(l * ((w + 1) // 2), np.int64)
+    length = np.empty(l * ((w + 1) // 2), np.int64)
+    n = 0
+    for i in range(l):
+        start[i] = n
+        j = 0
+        while j < w:
+            if f[i, j]:
+                e = j
+                while e < w and f[i, e]:
+                    e += 1
+                j0[n], length[n] = j, e - j
+                n += 1
+                j = e
+            else:
+                j += 1
+    start[l] = n
+    return start, j0[:n], length[:n]
 
 
 @njit(cache=True)
-def _safe_placements(padded: np.ndarray, h: int, wd: int, f: np.ndarray) -> np.ndarray:
-    """safe[y * wd + x]: F with its corner on cell (y, x) overlaps only free cells of the map. Word-parallel:
-    a row of placements is unsafe where some cell (i, j) of F meets a blocked cell, i.e. the OR over F's
-    cells of map row y + i shifted right by j, 64 placements per operation."""
-    l, w = f.shape
-    bits = _blocked_bits(padded, h + l, wd + w)
+def _or_rows(acc: np.ndarray, src: np.ndarray, dy: int, s: int, up: bool, n_rows: int, nw: int) -> None:
+    """acc[y] |= src[y + dy] moved by s cells, for y < n_rows, over the first nw words of acc: down, bit x
+    takes bit x + s (src rows must hold nw + s // 64 + 1 words); up, bit x + s takes bit x."""
+    q, b = s >> 6, s & 63
+    if up:
+        if q >= nw:
+            return
+        if b == 0:
+            for y in range(n_rows):
+                for k in range(q, nw):
+                    acc[y, k] |= src[y + dy, k - q]
+        else:
+            left, right = np.uint64(b), np.uint64(64 - b)
+            for y in range(n_rows):
+                acc[y, q] |= src[y + dy, 0] << left
+                for k in range(q + 1, nw):
+                    acc[y, k] |= (src[y + dy, k - q] << left) | (src[y + dy, k - q - 1] >> right)
+    elif b == 0:
+        for y in range(n_rows):
+            for k in range(nw):
+                acc[y, k] |= src[y + dy, k + q]
+    else:
+        right, left = np.uint64(b), np.uint64(64 - b)
+        for y in range(n_rows):
+            for k in range(nw):
+                acc[y, k] |= (src[y + dy, k + q] >> right) | (src[y + dy, k + q + 1] << left)
+
+
+@njit(cache=True)
+def _safe_bits(
+    bits: np.ndarray, h: int, wd: int, l: int, w: int, f_start: np.ndarray, f_j0: np.ndarray, f_len: np.ndarray
+) -> np.ndarray:
+    """Bit rows of the safe placements (F with its corner on cell (y, x) overlaps only free cells): a row of
+    placements is unsafe where some run of F's row i meets a not-free cell of map row y + i, 64 placements
+    per operation. Rows past h and bits past wd are clear; spare words let rows be shifted by up to
+    max(l, w) + 1 cells."""
     nw = (wd + 63) // 64
-    safe = np.zeros(h * wd, np.bool_)
-    acc = np.empty(nw, np.uint64)
+    safe = np.zeros((h + l + 1, nw + (max(l, w) + 1) // 64 + 2), np.uint64)
+    for i in range(l):  # safe holds the unsafe placements until the end
+        for r in range(f_start[i], f_start[i + 1]):
+            k = _level(f_len[r])
+            _or_rows(safe, bits[k], i, f_j0[r], False, h, nw)
+            if f_len[r] > (1 << k):
+                _or_rows(safe, bits[k], i, f_j0[r] + f_len[r] - (1 << k), False, h, nw)
+    tail = _ALL if wd & 63 == 0 else (_ONE << np.uint64(wd & 63)) - _ONE
     for y in range(h):
-        acc[:] = 0
-        for i in range(l):
-            row = bits[y + i]
-            for j in range(w):
-                if f[i, j]:
-                    _or_shifted(acc, row, j, nw, True)
-        for x in range(wd):
-            safe[y * wd + x] = (acc[x >> 6] >> np.uint64(x & 63)) & _ONE == 0
+        for k in range(nw):
+            safe[y, k] = ~safe[y, k]
+        safe[y, nw - 1] &= tail
     return safe
+
+
+@njit(cache=True)
+def _next_bit(row: np.ndarray, x: int, one: bool, limit: int) -> int:
+    """The first cell at or after x whose bit is set (one) or clear (not one), or `limit` if none before it."""
+    while x < limit:
+        k = x >> 6
+        v = row[k] if one else ~row[k]
+        v >>= np.uint64(x & 63)
+        if v != 0:
+            return min(x + _ctz(v), limit)
+        x = (k + 1) << 6
+    return limit
+
+
+@njit(cache=True)
+def _find(parent: np.ndarray, r: int) -> int:
+    while parent[r] != r:
+        parent[r] = parent[parent[r]]
+        r = parent[r]
+    return r
+
+
+@njit(cache=True)
+def _run_groups(safe: np.ndarray, h: int, wd: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """The safe placements as runs along rows, and each run's group under one-cell moves: (row_start (h + 1),
+    first column, end column (exclusive), label). Labels (0, 1, ...) follow the raster order of each group's
+    first placement, as `components` numbers them; two runs of adjacent rows join where their columns overlap."""
+    row_start = np.zeros(h + 1, np.int64)
+    cap = h * ((wd + 1) // 2)
+    x0s, x1s = np.empty(cap, np.int64), np.empty(cap, np.int64)
+    n = 0
+    for y in range(h):
+        row_start[y] = n
+        row = safe[y]
+        x = _next_bit(row, 0, True, wd)
+        while x < wd:
+            e = _next_bit(row, x, False, wd)
+            x0s[n], x1s[n] = x, e
+            n += 1
+            x = _next_bit(row, e, True, wd)
+    row_start[h] = n
+    parent = np.arange(n)
+    for y in range(1, h):
+        a, b = row_start[y - 1], row_start[y]
+        while a < row_start[y] and b < row_start[y + 1]:
+            if x0s[a] < x1s[b] and x0s[b] < x1s[a]:
+                ra, rb = _find(parent, a), _find(parent, b)
+                if ra < rb:
+                    parent[rb] = ra
+                elif rb < ra:
+                    parent[ra] = rb
+            if x1s[a] < x1s[b]:
+                a += 1
+            else:
+                b += 1
+    label = np.empty(n, np.int64)
+    n_labels = 0
+    for r in range(n):
+        root = _find(parent, r)
+        if root == r:
+            label[r] = n_labels
+            n_labels += 1
+        else:
+            label[r] = label[root]
+    return row_start, x0s[:n], x1s[:n], label, n_labels
+
+
+@njit(cache=True)
+def _bit(rows: np.ndarray, y: int, x: int) -> bool:
+    return (rows[y, x >> 6] >> np.uint64(x & 63)) & _ONE != 0
+
+
+@njit(cache=True)
+def _range_bits(row: np.ndarray, x0: int, x1: int, first: bool) -> int:
+    """Over cells x0 .. x1 - 1 of a bit row: how many bits are set, or (first) the first set one (-1: none)."""
+    total = 0
+    x = x0
+    while x < x1:
+        k = x >> 6
+        v = row[k] >> np.uint64(x & 63)
+        span = min(64 - (x & 63), x1 - x)
+        if span < 64:
+            v &= (_ONE << np.uint64(span)) - _ONE
+        if first:
+            if v != 0:
+                return x + _ctz(v)
+        else:
+            total += _popcount(v)
+        x += span
+    return -1 if first else total
+
+
+@njit(cache=True)
+def _start_row(safe: np.ndarray, bits: np.ndarray, y: int, fi: int, fj: int, nw: int, out: np.ndarray) -> None:
+    """Into out[0]: bit row y of the safe placements whose F's first cell (fi, fj) lies in the largest free
+    area."""
+    out[0, :nw] = 0
+    _or_rows(out, bits[bits.shape[0] - 1], y + fi, fj, False, 1, nw)
+    for k in range(nw):
+        out[0, k] &= safe[y, k]
+
+
+@njit(cache=True)
+def _run_at(row_start: np.ndarray, x0s: np.ndarray, x1s: np.ndarray, y: int, x: int) -> int:
+    """The run of row y that holds placement x (which must be safe)."""
+    r = row_start[y]
+    while x1s[r] <= x:
+        r += 1
+    return r
+
+
+@njit(cache=True)
+def _fit_candidates(
+    safe: np.ndarray, bits: np.ndarray, f: np.ndarray, h: int, wd: int, start_kind: int, sp: int, sq: int,
+    row_start: np.ndarray, x0s: np.ndarray, x1s: np.ndarray, label: np.ndarray, n_labels: int,
+) -> np.ndarray:  # fmt: skip
+    """Start placements to try (docs/fbcpp-fit.md section 3), as flat indices y * wd + x in raster order."""
+    l, w = f.shape
+    out = np.empty(l * w, np.int64)
+    n = 0
+    if start_kind == START_CELL:  # every safe placement whose stamp holds the start cell
+        for y in range(max(0, sp - l + 1), min(h, sp + 1)):
+            for x in range(max(0, sq - w + 1), min(wd, sq + 1)):
+                if f[sp - y, sq - x] and _bit(safe, y, x):
+                    out[n] = y * wd + x
+                    n += 1
+        return out[:n]
+    fi, fj = -1, -1  # F's first cell in raster order
+    for i in range(l):
+        for j in range(w):
+            if f[i, j] and fi < 0:
+                fi, fj = i, j
+    nw = (wd + 63) // 64
+    start_row = np.empty((1, nw), np.uint64)
+    row = start_row[0]
+    count = np.zeros(max(n_labels, 1), np.int64)
+    first = np.full(max(n_labels, 1), h * wd, np.int64)
+    for y in range(h):
+        if row_start[y] == row_start[y + 1]:
+            continue
+        _start_row(safe, bits, y, fi, fj, nw, start_row)
+        for r in range(row_start[y], row_start[y + 1]):
+            c = _range_bits(row, x0s[r], x1s[r], False)
+            if c > 0:
+                count[label[r]] += c
+                first[label[r]] = min(first[label[r]], y * wd + _range_bits(row, x0s[r], x1s[r], True))
+    best = -1
+    for g in range(n_labels):
+        if count[g] > 0 and (
+            best < 0 or count[g] > count[best] or (count[g] == count[best] and first[g] < first[best])
+        ):
+            best = g
+    if best < 0:
+        return out[:0]
+    taken = np.zeros(l * w, np.bool_)
+    y = first[best] // wd  # the group's first placement in A*: none before it can be a candidate
+    while y < h and n < l * w:  # every lattice class taken: no later placement can be a candidate
+        cy = (y % l) * w
+        _start_row(safe, bits, y, fi, fj, nw, start_row)
+        for r in range(row_start[y], row_start[y + 1]):
+            if label[r] != best:
+                continue
+            x = _range_bits(row, x0s[r], x1s[r], True)
+            while x >= 0:
+                if not taken[cy + x % w]:
+                    taken[cy + x % w] = True
+                    out[n] = y * wd + x
+                    n += 1
+                x = _range_bits(row, x + 1, x1s[r], True) if x + 1 < x1s[r] else -1
+        y += 1
+    return out[:n]
+
+
+@njit(cache=True)
+def _class_bounds(
+    candidates: np.ndarray, cand_label: np.ndarray, row_start: np.ndarray, x0s: np.ndarray, x1s: np.ndarray,
+    label: np.ndarray, n_labels: int, h: int, l: int, w: int, wd: int,
+) -> np.ndarray:  # fmt: skip
+    """For each candidate, the safe placements of its lattice class (row mod l, column mod w) in its group:
+    the most nodes its lattice can reach (a lattice move only passes safe placements, so it stays in the group).
+    Counted run by run, only for the candidates' groups."""
+    slot = np.full(max(n_labels, 1), -1, np.int64)  # group -> row of `count`
+    n_slots = 0
+    for c in range(candidates.shape[0]):
+        if slot[cand_label[c]] < 0:
+            slot[cand_label[c]] = n_slots
+            n_slots += 1
+    count = np.zeros((n_slots, l * w), np.int64)
+    for y in range(h):
+        cy = (y % l) * w
+        for r in range(row_start[y], row_start[y + 1]):
+            g = slot[label[r]]
+            if g < 0:
+                continue
+            length = x1s[r] - x0s[r]
+            base = length // w
+            if base > 0:
+                for cx in range(w):
+                    count[g, cy + cx] += base
+            cx = x0s[r] % w
+            for _ in range(length - base * w):
+                count[g, cy + cx] += 1
+                cx = cx + 1 if cx + 1 < w else 0
+    upper = np.empty(candidates.shape[0], np.int64)
+    for c in range(candidates.shape[0]):
+        p = candidates[c]
+        upper[c] = count[slot[cand_label[c]], (p // wd % l) * w + p % wd % w]
+    return upper
+
+
+@njit(cache=True)
+def _moves(safe: np.ndarray, h: int, wd: int, l: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """Bit rows of the placements a lattice move may leave from: east (every placement x .. x + w of the row
+    safe) and north (every placement y .. y + l of the column safe). West and south moves are those of the
+    neighbour they reach."""
+    nws = safe.shape[1]
+    east = np.zeros((h, nws), np.uint64)
+    north = np.zeros((h, nws), np.uint64)
+    run = np.empty(nws, np.uint64)
+    for y in range(h):
+        run[:] = safe[y]  # run: every placement x .. x + span - 1 safe
+        span = 1
+        while 2 * span <= w + 1:
+            _and_down(run, span)
+            span *= 2
+        east[y] = run
+        _and_down(east[y], w + 1 - span)  # every placement x .. x + w safe
+        for k in range(nws):
+            v = safe[y, k]
+            for i in range(1, l + 1):
+                v &= safe[y + i, k]
+            north[y, k] = v
+    return east, north
+
+
+@njit(cache=True)
+def _and_down(row: np.ndarray, s: int) -> None:
+    """row &= row moved down by s cells (bit x keeps its value only if bit x + s is set), in place."""
+    if s == 0:
+        return
+    q, b = s >> 6, s & 63
+    n = row.shape[0]
+    for k in range(n):
+        hi = row[k + q] if k + q < n else np.uint64(0)
+        lo = row[k + q + 1] if k + q + 1 < n else np.uint64(0)
+        row[k] &= hi if b == 0 else (hi >> np.uint64(b)) | (lo << np.uint64(64 - b))
+
+
+@njit(cache=True)
+def _reach(
+    east: np.ndarray, north: np.ndarray, oy: int, ox: int, l: int, w: int, nr: int, nc: int, start: int,
+    seen: np.ndarray, queue: np.ndarray,
+) -> int:  # fmt: skip
+    """How many nodes of the lattice through (oy, ox) breadth-first search reaches from node `start` (`seen`
+    and `queue`: buffers at least nr * nc long)."""
+    seen[: nr * nc] = False
+    seen[start] = True
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        t = queue[head]
+        head += 1
+        a = t // nc
+        b = t - a * nc
+        y, x = oy + a * l, ox + b * w
+        if b + 1 < nc and _bit(east, y, x) and not seen[t + 1]:
+            seen[t + 1] = True
+            queue[tail] = t + 1
+            tail += 1
+        if a + 1 < nr and _bit(north, y, x) and not seen[t + nc]:
+            seen[t + nc] = True
+            queue[tail] = t + nc
+            tail += 1
+        if b > 0 and _bit(east, y, x - w) and not seen[t - 1]:
+            seen[t - 1] = True
+            queue[tail] = t - 1
+            tail += 1
+        if a > 0 and _bit(north, y - l, x) and not seen[t - nc]:
+            seen[t - nc] = True
+            queue[tail] = t - nc
+            tail += 1
+    return tail
+
+
+@njit(cache=True)
+def _bound(
+    row_start: np.ndarray, x0s: np.ndarray, x1s: np.ndarray, label: np.ndarray, group: int, h: int, wd: int,
+    l: int, w: int, f_start: np.ndarray, f_j0: np.ndarray, f_len: np.ndarray,
+) -> int:  # fmt: skip
+    """Cells under F at some placement of `group` (all free: every placement of the group is safe), word-
+    parallel: the group's placement rows dilated by 2**k cells, ORed up by every run of F's row i into row
+    y + i (two shifted ORs a run)."""
+    nw = (wd + w + 63) // 64 + 1
+    n_levels = _level(w) + 1
+    dil = np.zeros((n_levels, h, nw), np.uint64)
+    for y in range(h):
+        for r in range(row_start[y], row_start[y + 1]):
+            if label[r] != group:
+                continue
+            x = x0s[r]
+            while x < x1s[r]:  # set bits x0 .. x1 - 1
+                span = min(64 - (x & 63), x1s[r] - x)
+                mask = _ALL if span == 64 else ((_ONE << np.uint64(span)) - _ONE)
+                dil[0, y, x >> 6] |= mask << np.uint64(x & 63)
+                x += span
+    for k in range(1, n_levels):
+        dil[k] = dil[k - 1]
+        _or_rows(dil[k], dil[k - 1], 0, 1 << (k - 1), True, h, nw)
+    under = np.zeros((h + l, nw), np.uint64)
+    for i in range(l):
+        for r in range(f_start[i], f_start[i + 1]):
+            k = _level(f_len[r])
+            _or_rows(under[i:], dil[k], 0, f_j0[r], True, h, nw)
+            if f_len[r] > (1 << k):
+                _or_rows(under[i:], dil[k], 0, f_j0[r] + f_len[r] - (1 << k), True, h, nw)
+    total = 0
+    for y in range(h):
+        for k in range(nw):
+            total += _popcount(under[y, k])
+    return total
 
 
 @njit(cache=True)
@@ -468,157 +851,10 @@ def components(safe: np.ndarray, h: int, wd: int) -> np.ndarray:
 
 
 @njit(cache=True)
-def _fit_candidates(
-    safe: np.ndarray, label: np.ndarray, area: np.ndarray, f: np.ndarray, h: int, wd: int, start_kind: int,
-    sp: int, sq: int,
-) -> np.ndarray:  # fmt: skip
-    """Start placements to try (docs/fbcpp-fit.md section 3), in raster order."""
-    l, w = f.shape
-    out = np.empty(h * wd, np.int64)
-    n = 0
-    if start_kind == START_CELL:  # every safe placement whose stamp holds the start cell
-        for p in range(h * wd):
-            y, x = p // wd, p % wd
-            i, j = sp - y, sq - x
-            if 0 <= i < l and 0 <= j < w and f[i, j] and safe[p]:
-                out[n] = p
-                n += 1
-        return out[:n]
-    fi, fj = -1, -1  # F's first cell in raster order
-    for i in range(l):
-        for j in range(w):
-            if f[i, j] and fi < 0:
-                fi, fj = i, j
-    n_labels = label.max() + 1
-    count = np.zeros(max(n_labels, 1), np.int64)
-    first = np.full(max(n_labels, 1), h * wd, np.int64)
-    for y in range(h):  # nested loops rather than p // wd and p % wd: divisions dominate a plan this small
-        for x in range(wd):
-            p = y * wd + x
-            if safe[p] and area[(y + fi) * wd + x + fj]:
-                count[label[p]] += 1
-                first[label[p]] = min(first[label[p]], p)
-    best = -1
-    for g in range(n_labels):
-        if count[g] > 0 and (
-            best < 0 or count[g] > count[best] or (count[g] == count[best] and first[g] < first[best])
-        ):
-            best = g
-    if best < 0:
-        return out[:0]
-    taken = np.zeros(l * w, np.bool_)
-    y = first[best] // wd  # the group's first placement in A*: none before it can be a candidate
-    while y < h and n < l * w:  # every lattice class taken: no later placement can be a candidate
-        cy = (y % l) * w
-        cx = 0
-        for x in range(wd):
-            p = y * wd + x
-            if label[p] == best and area[(y + fi) * wd + x + fj] and not taken[cy + cx]:
-                taken[cy + cx] = True
-                out[n] = p
-                n += 1
-            cx = cx + 1 if cx + 1 < w else 0
-        y += 1
-    return out[:n]
-
-
-@njit(cache=True)
-def _safe_runs(safe: np.ndarray, h: int, wd: int) -> tuple[np.ndarray, np.ndarray]:
-    """Prefix counts of safe placements along each row (h x wd+1) and each column (h+1 x wd), so that
-    "every placement of a straight move is safe" is one subtraction."""
-    rows = np.zeros((h, wd + 1), np.int32)
-    cols = np.zeros((h + 1, wd), np.int32)
-    for y in range(h):
-        for x in range(wd):
-            s = 1 if safe[y * wd + x] else 0
-            rows[y, x + 1] = rows[y, x] + s
-            cols[y + 1, x] = cols[y, x] + s
-    return rows, cols
-
-
-@njit(cache=True)
-def _fit_lattice(
-    safe: np.ndarray, rows: np.ndarray, cols: np.ndarray, h: int, wd: int, l: int, w: int, y0: int, x0: int,
-    edge_e: np.ndarray, edge_n: np.ndarray,
-) -> tuple[int, int, np.ndarray, np.ndarray, int]:  # fmt: skip
-    """The lattice through placement (y0, x0): (rows, columns, east edges, north edges, start node), the
-    edges written into the given buffers (at least H*W long; reused across candidates). Nodes are safe
-    placements; an edge joins neighbours when every placement along the move is safe (`_safe_runs`)."""
-    oy, ox = y0 % l, x0 % w
-    nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
-    n = nr * nc
-    edge_e[:n] = False
-    edge_n[:n] = False
-    for a in range(nr):
-        for b in range(nc):
-            y, x = oy + a * l, ox + b * w
-            if not safe[y * wd + x]:
-                continue
-            if b + 1 < nc:
-                edge_e[a * nc + b] = rows[y, x + w + 1] - rows[y, x] == w + 1
-            if a + 1 < nr:
-                edge_n[a * nc + b] = cols[y + l + 1, x] - cols[y, x] == l + 1
-    return nr, nc, edge_e, edge_n, ((y0 - oy) // l) * nc + (x0 - ox) // w
-
-
-@njit(cache=True)
-def _reach(
-    nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray, start: int, seen: np.ndarray, queue: np.ndarray
-) -> int:
-    """How many nodes breadth-first search reaches from `start` over joined edges (`seen` and `queue`:
-    buffers at least nr * nc long)."""
-    seen[: nr * nc] = False
-    seen[start] = True
-    queue[0] = start
-    head, tail = 0, 1
-    while head < tail:
-        t = queue[head]
-        head += 1
-        a = t // nc
-        b = t - a * nc
-        for k in range(4):
-            u = _joined(t, a, b, k, nr, nc, edge_e, edge_n)
-            if u >= 0 and not seen[u]:
-                seen[u] = True
-                queue[tail] = u
-                tail += 1
-    return tail
-
-
-@njit(cache=True)
-def _class_bounds(safe: np.ndarray, label: np.ndarray, candidates: np.ndarray, l: int, w: int, wd: int) -> np.ndarray:
-    """For each candidate, the safe placements of its lattice class (row mod l, column mod w) in its group:
-    the most nodes its lattice can reach (a lattice move only passes safe placements, so it stays in the group).
-    Counted only for the candidates' groups (one, from the default start), so memory stays at l * w a group."""
-    slot = np.full(label.max() + 1, -1, np.int64)  # group -> row of `count`
-    n_slots = 0
-    for c in range(candidates.shape[0]):
-        g = label[candidates[c]]
-        if slot[g] < 0:
-            slot[g] = n_slots
-            n_slots += 1
-    count = np.zeros((n_slots, l * w), np.int64)
-    h = safe.shape[0] // wd
-    for y in range(h):  # nested loops: no divisions (as in `_fit_candidates`)
-        cy = (y % l) * w
-        cx = 0
-        for x in range(wd):
-            p = y * wd + x
-            if safe[p] and slot[label[p]] >= 0:
-                count[slot[label[p]], cy + cx] += 1
-            cx = cx + 1 if cx + 1 < w else 0
-    upper = np.empty(candidates.shape[0], np.int64)
-    for c in range(candidates.shape[0]):
-        p = candidates[c]
-        upper[c] = count[slot[label[p]], (p // wd % l) * w + p % wd % w]
-    return upper
-
-
-@njit(cache=True)
 def plan_fit_into(
     padded: np.ndarray,
     prefix: np.ndarray,
-    area: np.ndarray,
+    bits: np.ndarray,
     f: np.ndarray,
     start_kind: int,
     sp: int,
@@ -628,81 +864,65 @@ def plan_fit_into(
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """The footprint-safe planner (docs/fbcpp-fit.md) for footprint f (l x w).
 
-    `padded` and `prefix` as for `plan_into`; `area` (H*W, uint8) marks the largest free area. Fills `covered` and up to
-    len(path) placements (row, column of F's corner) as `plan_into` does. Returns (status, covered free
-    cells, P_len, east/west moves, north/south moves, path length, coverable-bound cells, start row, start
-    column); a shape with no safe start covers nothing (start -1, -1)."""
+    `padded` and `prefix` as for `plan_into`; `bits` is the map's `fit_bits`. Fills `covered` and up to len(path)
+    placements (row, column of F's corner) as `plan_into` does. Returns (status, covered free cells, P_len,
+    east/west moves, north/south moves, path length, coverable-bound cells, start row, start column); a shape
+    with no safe start covers nothing (start -1, -1)."""
     h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
     l, w = f.shape
     if padded.shape[0] < h + 2 * l or padded.shape[1] < wd + 2 * w:
         return STATUS_PAD_TOO_SMALL, 0, 0, 0, 0, 0, 0, -1, -1
     if start_kind == START_TILE:
         return STATUS_TILE_START_FIT, 0, 0, 0, 0, 0, 0, -1, -1
-    f = _dense(f)
-    safe = _safe_placements(padded, h, wd, f)
-    rows, cols = _safe_runs(safe, h, wd)
-    label = components(safe, h, wd)
-    candidates = _fit_candidates(safe, label, area, f, h, wd, start_kind, sp, sq)
+    f_start, f_j0, f_len = _f_runs(f)
+    safe = _safe_bits(bits, h, wd, l, w, f_start, f_j0, f_len)
+    row_start, x0s, x1s, label, n_labels = _run_groups(safe, h, wd)
+    candidates = _fit_candidates(safe, bits, f, h, wd, start_kind, sp, sq, row_start, x0s, x1s, label, n_labels)
     if candidates.shape[0] == 0:
         return STATUS_OK, 0, 0, 0, 0, 0, 0, -1, -1
+    cand_label = np.empty(candidates.shape[0], np.int64)
+    for c in range(candidates.shape[0]):
+        y0, x0 = candidates[c] // wd, candidates[c] % wd
+        cand_label[c] = label[_run_at(row_start, x0s, x1s, y0, x0)]
+    east, north = _moves(safe, h, wd, l, w)
     # The lattice that reaches the most nodes, the earliest candidate of equal ones. A lattice reaches at most
     # the safe placements of its class in its candidate's group, so candidates are tried from the largest such
     # bound down, and the search stops once no bound left can match the best reach found.
-    upper = _class_bounds(safe, label, candidates, l, w, wd)
+    upper = _class_bounds(candidates, cand_label, row_start, x0s, x1s, label, n_labels, h, l, w, wd)
     best, best_reach = -1, -1
-    edge_e, edge_n = np.zeros(h * wd, np.bool_), np.zeros(h * wd, np.bool_)
-    seen, queue = np.zeros(h * wd, np.bool_), np.empty(h * wd, np.int32)
+    n_nodes = ((h + l - 1) // l) * ((wd + w - 1) // w)  # the most nodes a lattice has
+    seen, queue = np.zeros(n_nodes, np.bool_), np.empty(n_nodes, np.int64)
     for c in np.argsort(-upper, kind="mergesort"):
         if upper[c] < best_reach:
             break
         if upper[c] == best_reach and c > best:
             continue
         y0, x0 = candidates[c] // wd, candidates[c] % wd
-        nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0, edge_e, edge_n)
-        reach = _reach(nr, nc, edge_e, edge_n, s, seen, queue)
+        oy, ox = y0 % l, x0 % w
+        nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
+        reach = _reach(east, north, oy, ox, l, w, nr, nc, (y0 // l) * nc + x0 // w, seen, queue)
         if reach > best_reach or (reach == best_reach and c < best):
             best, best_reach = c, reach
     y0, x0 = candidates[best] // wd, candidates[best] % wd
     oy, ox = y0 % l, x0 % w
-    nr, nc, edge_e, edge_n, s = _fit_lattice(safe, rows, cols, h, wd, l, w, y0, x0, edge_e, edge_n)
-    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, s, oy, ox, path, covered, h, wd)
+    nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
+    edge_e, edge_n = np.zeros(nr * nc, np.bool_), np.zeros(nr * nc, np.bool_)
+    for a in range(nr):
+        for b in range(nc):
+            y, x = oy + a * l, ox + b * w
+            edge_e[a * nc + b] = b + 1 < nc and _bit(east, y, x)
+            edge_n[a * nc + b] = a + 1 < nr and _bit(north, y, x)
+    fd = np.empty((l, w), np.bool_)  # a dense copy: the batch kernels pass a strided view
+    for i in range(l):
+        for j in range(w):
+            fd[i, j] = f[i, j] != 0
+    start = (y0 // l) * nc + x0 // w
+    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, fd, nr, nc, edge_e, edge_n, start, oy, ox, path, covered, h, wd)
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
-    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, _bound(label, label[y0 * wd + x0], f, h, wd), y0, x0
-
-
-@njit(cache=True)
-def _popcount(v: np.uint64) -> int:
-    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
-    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
-    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
-    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
-
-
-@njit(cache=True)
-def _bound(label: np.ndarray, group: int, f: np.ndarray, h: int, wd: int) -> int:
-    """Cells under F at some placement of `group` (all free: every placement of the group is safe), word-
-    parallel: the OR over F's cells (i, j) of the group's placement rows shifted left by j into row y + i."""
-    l, w = f.shape
-    nw = (wd + 63) // 64 + 1  # a spare word: a shifted row never leaves the row (bits past wd stay clear)
-    placed = np.zeros((h, nw), np.uint64)
-    for y in range(h):
-        for x in range(wd):
-            if label[y * wd + x] == group:
-                placed[y, x >> 6] |= _ONE << np.uint64(x & 63)
-    under = np.zeros((h + l, nw), np.uint64)
-    for y in range(h):
-        row = placed[y]
-        for i in range(l):
-            out = under[y + i]
-            for j in range(w):
-                if f[i, j]:
-                    _or_shifted(out, row, j, nw, False)
-    total = 0
-    for y in range(h):
-        for k in range(nw):
-            total += _popcount(under[y, k])
-    return total
+    group = cand_label[best]
+    n_bound = _bound(row_start, x0s, x1s, label, group, h, wd, l, w, f_start, f_j0, f_len)
+    return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, n_bound, y0, x0
 
 
 @njit(cache=True)
@@ -710,7 +930,7 @@ def plan_any(
     planner: int,
     padded: np.ndarray,
     prefix: np.ndarray,
-    area: np.ndarray,
+    fit: np.ndarray,
     f: np.ndarray,
     start_kind: int,
     sp: int,
@@ -719,9 +939,10 @@ def plan_any(
     path: np.ndarray,
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage, as
-    it covers every reachable tile; its start placement is not reported: -1, -1)."""
+    it covers every reachable tile; its start placement is not reported: -1, -1). `fit` is the map's `fit_bits`
+    (empty for the paper planner)."""
     if planner == PLANNER_FIT:
-        return plan_fit_into(padded, prefix, area, f, start_kind, sp, sq, covered, path)
+        return plan_fit_into(padded, prefix, fit, f, start_kind, sp, sq, covered, path)
     status, n_cov, p_len, n_ew, n_ns, n_path = plan_into(padded, prefix, f, start_kind, sp, sq, covered, path)
     return status, n_cov, p_len, n_ew, n_ns, n_path, n_cov, -1, -1
 
@@ -738,7 +959,7 @@ def evaluate_batch(
     sq: int,
     side: int,
     planner: int,
-    area: np.ndarray,
+    fit: np.ndarray,
 ) -> np.ndarray:
     """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*)."""
     out = np.zeros((thetas.shape[0], N_COLS))
@@ -750,7 +971,7 @@ def evaluate_batch(
         out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
         out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
         if feasible and l > 0:
-            res = plan_any(planner, padded, prefix, area, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
+            res = plan_any(planner, padded, prefix, fit, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
             out[i, COL_STATUS] = res[0]
             out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
             out[i, COL_BOUND] = res[6]
@@ -782,7 +1003,7 @@ def plan_batch(
     sq: int,
     side: int,
     planner: int,
-    area: np.ndarray,
+    fit: np.ndarray,
 ) -> np.ndarray:
     """Plan every footprint (bits rows, shapes rows (l, w)); result rows with the plan columns."""
     out = np.zeros((bits.shape[0], N_COLS))
@@ -791,7 +1012,7 @@ def plan_batch(
     for i in range(bits.shape[0]):
         l, w = shapes[i, 0], shapes[i, 1]
         f = bits[i].reshape((side, side))[:l, :w]
-        res = plan_any(planner, padded, prefix, area, f, start_kind, sp, sq, no_covered, no_path)
+        res = plan_any(planner, padded, prefix, fit, f, start_kind, sp, sq, no_covered, no_path)
         out[i, COL_STATUS] = res[0]
         out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
         out[i, COL_BOUND] = res[6]

@@ -91,6 +91,8 @@ class PreparedMap:
     padded: np.ndarray = field(init=False, repr=False)
     area: np.ndarray = field(init=False, repr=False)
     """The largest 4-connected free area as a flat uint8 mask (fit planner; empty for paper)."""
+    fit_bits: np.ndarray = field(init=False, repr=False)
+    """What every fit plan on the map reuses (`_kernels.fit_bits`; empty for paper)."""
 
     def __post_init__(self) -> None:
         free = self.grid_map.cells == Cell.FREE
@@ -100,7 +102,14 @@ class PreparedMap:
         padded[: free.shape[0], : free.shape[1]] = ~free
         object.__setattr__(self, "free_prefix", prefix)
         object.__setattr__(self, "padded", padded)
-        object.__setattr__(self, "area", largest_free_area(free) if self.planner is Planner.FIT else _NO_AREA)
+        area, bits = _NO_AREA, _NO_BITS
+        if self.planner is Planner.FIT:
+            from smorphi_rl import _kernels as k
+
+            area = largest_free_area(free)
+            bits = k.fit_bits(padded, area, *free.shape)
+        object.__setattr__(self, "area", area)
+        object.__setattr__(self, "fit_bits", bits)
 
     @property
     def n_area(self) -> int:
@@ -134,6 +143,7 @@ class PreparedMap:
 
 
 _NO_AREA = np.zeros(0, dtype=np.uint8)
+_NO_BITS = np.zeros((0, 0, 0), dtype=np.uint64)
 
 
 def free_area_share(grid_map: Map, cell: tuple[int, int] | None = None) -> float:
@@ -275,7 +285,7 @@ def plan_coverage(
     while True:
         path = np.zeros((capacity, 2), dtype=np.int32)
         status, n_cov, p_len, n_ew, n_ns, n_path, n_bound, _, _ = k.plan_any(
-            prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.area, f, int(start.kind),
+            prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, f, int(start.kind),
             start.row, start.col, covered, path,
         )  # fmt: skip
         raise_for_status(status, start, (l, w), grid_map)

@@ -175,7 +175,7 @@ class Evaluator:
             self.misses += 1
             prepared = self.prepared
             status, *plan = k.plan_any(
-                self.planner.code, prepared.padded, prepared.free_prefix, prepared.area, self._buf[:l, :w],
+                self.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, self._buf[:l, :w],
                 int(self.start.kind), self.start.row, self.start.col, self._no_covered, self._no_path,
             )  # fmt: skip
             raise_for_status(status, self.start, (l, w), self.grid_map)
@@ -215,9 +215,9 @@ class Evaluator:
             self.start.row,
             self.start.col,
         )
-        code, area = self.planner.code, self.prepared.area
+        code, fit = self.planner.code, self.prepared.fit_bits
         if not self.use_cache:
-            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side, code, area)
+            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side, code, fit)
             self.misses += int(out[:, k.COL_FEASIBLE].sum())
             self._check_statuses(out)
             return self._to_batch(arr, out)
@@ -238,7 +238,7 @@ class Evaluator:
         if missing:
             rows = np.flatnonzero(feasible)[first[missing]]
             shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
-            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side, code, area)
+            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side, code, fit)
             fresh[:, [k.COL_L, k.COL_W]] = shapes
             self._check_statuses(fresh)
             plans[missing] = fresh[:, _PLAN_COLS]

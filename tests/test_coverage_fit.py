@@ -87,6 +87,30 @@ def test_kernel_matches_the_reference_on_random_maps():
     assert checked == 8 * 6 * 2
 
 
+@pytest.mark.slow
+def test_kernel_matches_the_reference_across_64_cell_words():
+    """The kernel works on rows of 64 cells: a map 220 cells wide (4 words) and footprints wider than a word
+    (85 and 90 cells at 8 mm), so shifts cross words; one plan moves, one fits nowhere."""
+    rng = np.random.default_rng(3)
+    cells = np.full((50, 220), Cell.FREE, np.uint8)
+    cells[0, :] = cells[-1, :] = cells[:, 0] = cells[:, -1] = Cell.OCCUPIED
+    for _ in range(3):
+        y, x = rng.integers(0, 50), rng.integers(0, 220)
+        cells[y : y + rng.integers(2, 9), x : x + rng.integers(2, 9)] = rng.choice([Cell.OCCUPIED, Cell.UNKNOWN])
+    grid_map = Map(cells, 0.008, name="wide")
+    moved = 0
+    for theta in ((0, 0, 0), (30, 120, 60)):
+        f = footprint_matrix(Morphology.of(theta), grid_map.resolution_m)
+        assert f.shape[1] > 64
+        ref = plan_fit_reference(cells.tolist(), f.tolist())
+        plan = Evaluator(grid_map, planner=Planner.FIT).plan(Morphology.of(theta))
+        assert [tuple(p) for p in plan.placements.tolist()] == ref.placements
+        assert plan.P_len == ref.p_len and plan.covered.sum() == ref.n_covered
+        assert round(plan.coverable_pct * grid_map.counts[Cell.FREE] / 100) == ref.n_bound
+        moved += ref.p_len > 0
+    assert moved == 1
+
+
 def _cells_under(f: np.ndarray, row: int, col: int, shape: tuple[int, int]) -> list[tuple[int, int]]:
     """Map cells under F placed with its corner at (row, col); cells outside the map come back as (-1, -1)."""
     out = []
