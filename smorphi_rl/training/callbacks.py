@@ -7,6 +7,7 @@ Runs inside the env runners (`on_episode_end`) and the trial process (`on_algori
 from __future__ import annotations
 
 import os
+from dataclasses import replace
 from typing import Any
 
 from ray.rllib.callbacks.callbacks import RLlibCallback
@@ -40,11 +41,10 @@ class MorphologyCallbacks(RLlibCallback):
     select_starts: tuple[tuple[float, float, float], ...] = ()
     """Other seeded starts on which the run chooses the policy it ends on (none: it ends on its last)."""
     _evaluation: Any = None
-    """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first."""
-    _selection: Any = None
-    """The same on the selection starts."""
+    """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first:
+    the protocol's starts, then the selection starts, rolled out together (one forward pass a step for both)."""
     _kept: Any = None
-    """(selection score, env steps, module state) of the best policy evaluated so far."""
+    """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
         """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index)."""
@@ -99,11 +99,16 @@ class MorphologyCallbacks(RLlibCallback):
         last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
         if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):
             steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
-            policy_steps = self._select(algorithm, steps, bool(last)) if self.select_starts else steps
             if self._evaluation is None:
-                self._evaluation = self._protocol(algorithm, self.eval_starts)
-            result[EVAL_KEY] = evaluation_metrics(_on_learner(algorithm, self._evaluation)) | {
-                "policy_env_steps": policy_steps}  # fmt: skip
+                self._evaluation = self._protocol(algorithm, self.eval_starts + self.select_starts)
+            both = _on_learner(algorithm, self._evaluation)
+            n = len(self.eval_starts)
+            protocol = [replace(e, outcomes=e.outcomes[:n]) for e in both]
+            policy_steps = steps
+            if self.select_starts:
+                selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
+                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, protocol)
+            result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
         """The protocol's greedy roll-outs from `starts` on every training map (a PolicyEvaluation)."""
@@ -118,24 +123,25 @@ class MorphologyCallbacks(RLlibCallback):
         optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
         return PolicyEvaluation(env, np.array(starts, dtype=np.float64), optima)
 
-    def _select(self, algorithm: Any, steps: int, last: bool) -> int:
-        """Score the learner's policy on the selection starts and keep it if it is the best so far (ties: the
-        later); at the run's last iteration, put the kept policy back if it beat the last one. The env steps
-        of the policy the learner now holds."""
-        if self._selection is None:
-            self._selection = self._protocol(algorithm, self.select_starts)
-        score = selection_score(_on_learner(algorithm, self._selection))
+    def _select(
+        self, algorithm: Any, steps: int, last: bool, selection: list[Any], protocol: list[Any]
+    ) -> tuple[list[Any], int]:
+        """Rank the learner's policy by its `selection` evaluation and keep it if it is the best so far (ties:
+        the later); at the run's last iteration, put the kept policy back if it beat the last one. The protocol
+        evaluation and env steps of the policy the learner now holds (greedy roll-outs are deterministic, so the
+        kept policy's evaluation stands for it)."""
+        score = selection_score(selection)
         kept = self._kept
         if kept is None or score >= kept[0]:
-            self._kept = (score, steps, _on_learner(algorithm, _module_state))
-            return steps
+            self._kept = (score, steps, _on_learner(algorithm, _module_state), protocol)
+            return protocol, steps
         if not last:
-            return steps
+            return protocol, steps
         from smorphi_rl.training.finetune import push_module_to_runners  # finetune imports this module
 
         _on_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
-        return int(kept[1])
+        return kept[3], int(kept[1])
 
 
 def _on_learner(algorithm: Any, call: Any) -> Any:

@@ -244,10 +244,13 @@ def policy_layout(pretrained: str | None, frequencies: int) -> int:
     return int(config.get("policy_angle_frequencies", ANGLE_FREQUENCIES))
 
 
-def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording: dict[str, Any] | None = None) -> Any:
+def algorithm_config(
+    cfg: TrainConfig, callbacks: type | None = None, recording: dict[str, Any] | None = None, lean: bool = True
+) -> Any:
     """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks
     (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass). `recording`, a
-    RecordingConfig dict, makes the env runners record episodes to MCAP."""
+    RecordingConfig dict, makes the env runners record episodes to MCAP. `lean`: the env runners use our
+    connector pipelines (`sampling.py`), which sample exactly what RLlib's default ones do, faster."""
     from ray.rllib.algorithms.appo import APPOConfig
     from ray.rllib.algorithms.impala import IMPALAConfig
     from ray.rllib.algorithms.ppo import PPOConfig
@@ -256,6 +259,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
     from smorphi_rl.training.callbacks import MorphologyCallbacks
     from smorphi_rl.training.learners import LEARNERS, VALUE_LAMBDA_KEY
     from smorphi_rl.training.module import MorphologyModule
+    from smorphi_rl.training.sampling import LEAN_SAMPLING
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
 
     hp = cfg.hyperparameters
@@ -298,6 +302,7 @@ def algorithm_config(cfg: TrainConfig, callbacks: type | None = None, recording:
             gym_env_vectorize_mode="vector_entry_point",  # our MorphologyVectorEnv (smorphi_rl/vector_env.py)
             num_cpus_per_env_runner=CPUS_PER_ENV_RUNNER,  # type: ignore[arg-type]  # RLlib takes fractions
             rollout_fragment_length=hp.rollout_fragment_length,
+            **(LEAN_SAMPLING if lean else {}),  # type: ignore[arg-type]  # RLlib types the connector callables loosely
         )
         .learners(num_learners=0, learner_class=LEARNERS[cfg.algo])  # see learners.py
         .training(**training)

@@ -51,14 +51,15 @@ def check_fits(module: Any, env: MorphologyEnv) -> None:
 
 
 def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np.ndarray:
-    """The most likely action of each hinge for every observation, in one forward pass (deterministic)."""
+    """The most likely action of each hinge for every observation, in one forward pass (deterministic): the
+    argmax of each hinge's logits, which is what the module's MultiCategorical gives `to_deterministic`."""
     from ray.rllib.core.columns import Columns
 
     batch = {Columns.OBS: {k: torch.from_numpy(np.stack([o[k] for o in observations])) for k in observations[0]}}
     with torch.no_grad():
-        out = module.forward_inference(batch)
-    dist = module.get_inference_action_dist_cls().from_logits(out[Columns.ACTION_DIST_INPUTS])
-    return dist.to_deterministic().sample().numpy()
+        logits = module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
+    sizes = [int(n) for n in module.action_space.nvec]
+    return torch.stack([part.argmax(dim=-1) for part in torch.split(logits, sizes, dim=-1)], dim=-1).numpy()
 
 
 def greedy_action(module: Any, obs: dict[str, np.ndarray]) -> np.ndarray:

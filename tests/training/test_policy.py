@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import gymnasium as gym
+import numpy as np
 import torch
 
 from smorphi_rl.env import MorphologyEnv
@@ -53,3 +54,22 @@ def test_a_reused_evaluation_gives_what_a_fresh_one_gives():
         module._pi.head.bias.add_(torch.linspace(-1, 1, 9))  # another policy, as after an update
     again, fresh = reused(module), evaluate_policy(module, env, starts, optima)
     assert again == fresh and again != once
+
+
+def test_greedy_actions_are_the_distributions_most_likely_ones():
+    from ray.rllib.core.columns import Columns
+
+    from smorphi_rl.training.policy import greedy_actions
+
+    torch.manual_seed(11)
+    env = MorphologyEnv({"max_steps": 10})
+    module = MorphologyModule(observation_space=env.observation_space, action_space=env.action_space,
+                              model_config={})  # fmt: skip
+    with torch.no_grad():
+        module._pi.head.weight.normal_()  # logits far from uniform, so every hinge's argmax differs somewhere
+    observations = [env.reset(seed=s)[0] for s in range(64)]
+    batch = {Columns.OBS: {k: torch.from_numpy(np.stack([o[k] for o in observations])) for k in observations[0]}}
+    logits = module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
+    want = module.get_inference_action_dist_cls().from_logits(logits).to_deterministic().sample().numpy()
+    got = greedy_actions(module, observations)
+    assert got.shape == (64, 3) and np.array_equal(got, want) and len(np.unique(got, axis=0)) > 1
