@@ -49,8 +49,10 @@ OLD_PPO = {"train_batch_size": 1000, "num_epochs": 8, "minibatch_size": 250}
 """The first layout and PPO preset, which `train` ran at about 174 env steps/s."""
 
 
-def env_step_rate(env: MorphologyEnv, steps: int = 20_000) -> float:
-    """The yardstick: the bare env stepping with random actions in this process."""
+def env_step_rate(env_config: dict[str, object], steps: int = 20_000) -> float:
+    """The yardstick: a new bare env (cold caches, so every measure does the same work) stepping with random
+    actions in this process."""
+    env = MorphologyEnv(env_config)
     rng = np.random.default_rng(1)
     actions = rng.integers(0, 3, size=(steps, 3))
     env.reset(seed=1)
@@ -119,8 +121,7 @@ def main() -> None:
     quiet()
 
     base = TrainConfig(record_every=0).with_env(maps=(str(Path(args.map).resolve()),))
-    env = MorphologyEnv(base.env.to_dict())
-    bare = env_step_rate(env)
+    bare = env_step_rate(base.env.to_dict())
     print(f"yardstick: the bare env steps {bare:,.0f} env steps/s with random actions in this process")
     ray_s = ray_overhead()
     print(f"Ray start-up and shutdown: {ray_s:.1f} s ({'under' if ray_s < TARGET_RAY_S else 'OVER'} the "
@@ -132,7 +133,7 @@ def main() -> None:
             cfg = replace(base, algo=algo, timesteps=args.timesteps, seed=args.seed, checkpoint_every=1000)
             sampling = sampling_rate(cfg)
             summary, mem = run_train(cfg, tmp, algo)
-            after = env_step_rate(env)  # the machine's speed drifts: the yardstick around each run, averaged
+            after = env_step_rate(base.env.to_dict())  # the machine's speed drifts: measure around each run
             yardstick = (bare + after) / 2
             bare = after
             rate = summary.env_steps / summary.wall_s  # type: ignore[attr-defined]
