@@ -21,6 +21,9 @@ per-epoch shuffle and minibatch slicing then move 4 bytes a row instead of each 
 
 Every learner also takes its optimiser step through `FusedStep`: the same clipping, nan handling and Adam
 update as RLlib's, each done in one pass over all of a net's tensors instead of one call per tensor.
+
+IMPALA's and APPO's learner threads are guarded (`GuardedLearnerThread`): an exception there fails the trial
+with its cause instead of freezing it.
 """
 
 from __future__ import annotations
@@ -149,7 +152,44 @@ def _end_with_compact_maps(learner: Any) -> None:
         learner._learner_connector.append(CompactMaps())
 
 
-class NormalisedIMPALALearner(FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
+class LearnerThreadError(RuntimeError):
+    """IMPALA's or APPO's learner thread failed; the trial fails with it instead of waiting forever."""
+
+
+class GuardedLearnerThread:
+    """IMPALA and APPO learn in a thread of their learner. In RLlib an exception there ends the thread silently,
+    and the trial then waits forever on the thread's queue (a frozen run). The guard catches it in the thread,
+    which goes on taking batches off its queue without learning from them, so nothing blocks, and raises it in
+    the trial's next `update`: the run fails, naming the cause."""
+
+    _thread_error: Exception | None = None
+
+    def build(self) -> None:
+        super().build()  # type: ignore[misc]  # a mixin of a Learner
+        thread = getattr(self, "_learner_thread", None)
+        if thread is not None and hasattr(thread, "_update_method"):  # set before any batch is queued
+            thread._update_method = self._guarded(thread._update_method)
+
+    def _guarded(self, update: Callable[..., Any]) -> Callable[..., Any]:
+        def guarded(**kwargs: Any) -> Any:
+            if self._thread_error is not None:
+                return None  # drain: the trial raises at its next update
+            try:
+                return update(**kwargs)
+            except Exception as exc:  # kept, and raised in the trial's thread
+                self._thread_error = exc
+                return None
+
+        return guarded
+
+    def update(self, *args: Any, **kwargs: Any) -> Any:
+        error = self._thread_error
+        if error is not None:
+            raise LearnerThreadError(f"the learner thread failed: {type(error).__name__}: {error}") from error
+        return super().update(*args, **kwargs)  # type: ignore[misc]  # a mixin of a Learner
+
+
+class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """IMPALA with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
@@ -160,7 +200,7 @@ class NormalisedIMPALALearner(FusedStep, IMPALATorchLearner):  # type: ignore[mi
         return _loss_with_normalised_advantages(self, IMPALATorchLearner, kwargs)
 
 
-class NormalisedAPPOLearner(FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
+class NormalisedAPPOLearner(GuardedLearnerThread, FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """APPO with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
