@@ -94,12 +94,10 @@ class TrainConfig:
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if isinstance(self.eval_every, bool) or not isinstance(self.eval_every, int) or self.eval_every < 0:
-            raise TrainConfigError(f"eval_every must be a non-negative integer (0: off), got {self.eval_every!r}")
-        if isinstance(self.select_starts, bool) or not isinstance(self.select_starts, int) or self.select_starts < 0:
-            raise TrainConfigError(f"select_starts must be a non-negative integer (0: off), got {self.select_starts!r}")
-        if isinstance(self.record_every, bool) or not isinstance(self.record_every, int) or self.record_every < 0:
-            raise TrainConfigError(f"record_every must be a non-negative integer (0: off), got {self.record_every!r}")
+        for name in ("eval_every", "select_starts", "record_every"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise TrainConfigError(f"{name} must be a non-negative integer (0: off), got {value!r}")
         check_overrides(self.algo, self.overrides)
         hp = self.hyperparameters
         if hp.minibatch_size is not None:

@@ -94,6 +94,11 @@ def _as_words(flat: torch.Tensor) -> torch.Tensor:
     return flat
 
 
+def _groups(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
+    """`distinct_rows` of a uint8 batch of more than one map; None for anything else."""
+    return distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
+
+
 INDEX = torch.int32
 """The dtype of a batch's map column in index form: (B,) numbers of the rows' maps in the module's MapTable."""
 
@@ -137,7 +142,7 @@ class MapTable:
 def index_maps(maps: torch.Tensor, table: MapTable) -> torch.Tensor | None:
     """A uint8 batch of maps (B, C, S, S) as each row's map number in `table`, or None when its maps are (nearly)
     all distinct (`distinct_rows`) or too many for the table."""
-    groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
+    groups = _groups(maps)
     if groups is None:
         return None
     first, inverse = groups
@@ -208,7 +213,7 @@ class _Net(nn.Module):
             table, rows = self.map_table.lookup(maps)
             return self._features(table)[rows]
         maps = unpack_maps(maps, self._map_shape)
-        groups = distinct_rows(maps) if maps.dtype == torch.uint8 and maps.shape[0] > 1 else None
+        groups = _groups(maps)
         if groups is not None:
             first, inverse = groups
             return self._features(maps[first])[inverse]

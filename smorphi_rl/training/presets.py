@@ -61,7 +61,7 @@ seeds 0-2); with the rate falling, 40, 40 and 25 % (gaps 1.30, 2.99, 2.96); with
 60 % (gaps 1.44, 0.60, 0.86). It keeps the angle frequencies in its policy (without them: 0 %)."""
 PRESETS: dict[str, dict[str, Preset]] = {
     "fast": {
-        # 2,000 steps an iteration, 4 epochs of 4 minibatches: about 0.5 s of learner time on 2 cores
+        # 2,000 steps an iteration, 4 epochs of 4 minibatches: about 0.25 s of learner time on 2 cores
         # (8 updates per 1,000 steps; the first preset's 32 cost 4x the learner time for no better curves).
         # GAE lambda 0.5: the advantage leans on the critic rather than on 20 steps of random future moves,
         # whose noise drowned the one step's effect (lambda 0.95: no start settled within 1 % in 150k steps).
@@ -110,7 +110,7 @@ PRESETS: dict[str, dict[str, Preset]] = {
     },
 }
 DEFAULT_TIMESTEPS = 200_000
-"""The main job's budget: about 75 s of training on 2 cores (2,700 env steps/s end to end). At 150,000 steps PPO
+"""The main job's budget: about 70 s of training on 2 cores (2,800-3,000 env steps/s end to end). At 150,000 steps PPO
 settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2 (seed 1 sent every
 start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three seeds."""
 ENVS_PER_RUNNER = 32
