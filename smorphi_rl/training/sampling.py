@@ -10,16 +10,26 @@ Our module is stateless, its actions MultiDiscrete and never normalised or clipp
   by env (actions, their log-probabilities, the distribution inputs).
 Both draw from the same generators in the same order as the default pieces, so a seeded run trains exactly as
 before (a test checks identical samples).
+
+`LeanEnvRunner` is RLlib's single-agent env runner with two per-step costs cut, both without changing what it
+records: it splits each step's batched observations and actions by env with a plain comprehension instead of
+RLlib's tree utilities (`split_by_env`), and it skips the per-env, per-step episode callbacks that no callback
+overrides. Together they were about a fifth of its sampling time.
 """
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 import torch
+from ray.rllib.callbacks.callbacks import RLlibCallback
 from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
+from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCategorical
+from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 from ray.rllib.utils.numpy import convert_to_numpy
 
 
@@ -56,15 +66,61 @@ class SampleActions(ConnectorV2):
         shared_data: dict[str, Any] | None = None, **kwargs: Any,
     ) -> Any:  # fmt: skip
         if Columns.ACTIONS not in batch:
-            module = rl_module
-            dist_cls = module.get_exploration_action_dist_cls() if explore else module.get_inference_action_dist_cls()
-            dist = dist_cls.from_logits(batch[Columns.ACTION_DIST_INPUTS])
-            if not explore:
-                dist = dist.to_deterministic()
-            batch[Columns.ACTIONS] = dist.sample()
-            if Columns.ACTION_LOGP not in batch:
-                batch[Columns.ACTION_LOGP] = dist.logp(batch[Columns.ACTIONS])
-        return convert_to_numpy(batch)  # as RLlib's TensorToNumpy: int64 becomes int32, float64 float32
+            sizes = _hinge_sizes(rl_module)
+            if explore and sizes is not None and Columns.ACTION_LOGP not in batch:
+                batch[Columns.ACTIONS], batch[Columns.ACTION_LOGP] = sample_hinges(
+                    batch[Columns.ACTION_DIST_INPUTS], sizes
+                )
+            else:
+                module = rl_module
+                dist_cls = (
+                    module.get_exploration_action_dist_cls() if explore else module.get_inference_action_dist_cls()
+                )
+                dist = dist_cls.from_logits(batch[Columns.ACTION_DIST_INPUTS])
+                if not explore:
+                    dist = dist.to_deterministic()
+                batch[Columns.ACTIONS] = dist.sample()
+                if Columns.ACTION_LOGP not in batch:
+                    batch[Columns.ACTION_LOGP] = dist.logp(batch[Columns.ACTIONS])
+        return to_numpy(batch)
+
+
+def _hinge_sizes(module: Any) -> list[int] | None:
+    """The categories of each hinge when `module` samples from RLlib's MultiCategorical (ours does), else None."""
+    space = getattr(module, "action_space", None)
+    dist_cls = module.get_exploration_action_dist_cls()
+    if not (isinstance(space, gym.spaces.MultiDiscrete) and isinstance(dist_cls, type)):
+        return None
+    return [int(n) for n in space.nvec] if issubclass(dist_cls, TorchMultiCategorical) else None
+
+
+def sample_hinges(logits: torch.Tensor, sizes: list[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """(actions, log-probabilities) drawn as RLlib's TorchMultiCategorical draws them from `logits`, op for op
+    and so draw for draw (each hinge a torch Categorical: logits normalised by their logsumexp, one multinomial
+    draw from their softmax, its log-probability gathered), without building a distribution object per hinge."""
+    normalised = [part - part.logsumexp(dim=-1, keepdim=True) for part in torch.split(logits, sizes, dim=-1)]
+    draws = [
+        torch.multinomial(torch.softmax(n, dim=-1).reshape(-1, n.shape[-1]), 1, True).T.reshape(n.shape[:-1])
+        for n in normalised
+    ]
+    logps = [n.gather(-1, d.long().unsqueeze(-1)).squeeze(-1) for n, d in zip(normalised, draws, strict=True)]
+    return torch.stack(draws, dim=-1), torch.sum(torch.stack(logps), dim=0)
+
+
+def to_numpy(batch: Any) -> Any:
+    """RLlib's `convert_to_numpy` (floats to float32, signed integers to int32) for a flat dict of tensors, without
+    its tree utilities; anything else goes to RLlib's."""
+    if type(batch) is not dict or not all(isinstance(v, torch.Tensor) and v.dim() > 0 for v in batch.values()):
+        return convert_to_numpy(batch)
+    out = {}
+    for key, value in batch.items():
+        array = value.detach().cpu().numpy()
+        if np.issubdtype(array.dtype, np.floating):
+            array = array.astype(np.float32)
+        elif np.issubdtype(array.dtype, np.signedinteger):
+            array = array.astype(np.int32)
+        out[key] = array
+    return out
 
 
 def env_to_module(env: Any = None, spaces: Any = None, device: Any = None) -> list[ConnectorV2]:
@@ -77,7 +133,54 @@ def module_to_env(env: Any = None, spaces: Any = None) -> list[ConnectorV2]:
     return [SampleActions()]
 
 
+def split_by_env(batched: Any) -> list[Any]:
+    """RLlib's `unbatch` for what our env and connectors hand the runner: a flat dict of arrays becomes one dict
+    per env (the same keys in the same order, each value the env's row, a view), an array its rows; anything
+    else goes through RLlib's own `unbatch`. Its tree utilities cost about 25 us per env and step here."""
+    if isinstance(batched, np.ndarray) and batched.ndim > 0:
+        return list(batched)
+    if type(batched) is dict and batched and all(isinstance(v, np.ndarray) and v.ndim > 0 for v in batched.values()):
+        keys, columns = list(batched), list(batched.values())
+        return [dict(zip(keys, row, strict=True)) for row in zip(*columns, strict=True)]
+    return _RLLIB_UNBATCH(batched)
+
+
+_RUNNER_MODULE = inspect.getmodule(SingleAgentEnvRunner)
+_RLLIB_UNBATCH = _RUNNER_MODULE.unbatch  # type: ignore[union-attr]
+
+
+class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's bases are untyped
+    """RLlib's SingleAgentEnvRunner, sampling the same episodes faster: its `unbatch` is `split_by_env` for the
+    duration of a `_sample` call, and per-env episode callbacks that no callback overrides are not made."""
+
+    def _sample(self, **kwargs: Any) -> Any:
+        _RUNNER_MODULE.unbatch = split_by_env  # type: ignore[union-attr]
+        try:
+            return super()._sample(**kwargs)
+        finally:
+            _RUNNER_MODULE.unbatch = _RLLIB_UNBATCH  # type: ignore[union-attr]
+
+    _step_callbacks: bool | None = None
+
+    def _make_on_episode_callback(self, which: str, idx: int, episodes: list[Any]) -> None:
+        if which == "on_episode_step":
+            if self._step_callbacks is None:
+                self._step_callbacks = self._overridden(which)
+            if not self._step_callbacks:
+                return
+        super()._make_on_episode_callback(which, idx, episodes)
+
+    def _overridden(self, which: str) -> bool:
+        """Whether a callback object overrides RLlib's no-op `which`, or a callback function is set for it."""
+        base = getattr(RLlibCallback, which)
+        objects = self._callbacks or []
+        return bool(getattr(self.config, f"callbacks_{which}", None)) or any(
+            getattr(type(c), which, base) is not base for c in objects
+        )
+
+
 LEAN_SAMPLING = {
+    "env_runner_cls": LeanEnvRunner,
     "env_to_module_connector": env_to_module,
     "add_default_connectors_to_env_to_module_pipeline": False,
     "module_to_env_connector": module_to_env,
