@@ -57,6 +57,9 @@ class MorphologyVectorEnv(VectorEnv):
         self.worker_index = worker_index
         self._seeded = False
         self._needs_reset = np.zeros(self.num_envs, dtype=bool)
+        self.info_lists = False
+        """True: `reset` and `step` return each sub-env's info dict in a list, instead of gymnasium's info columns
+        (for a wrapper that would turn the columns back into those dicts: `training/sampling.py`'s InfoLists)."""
 
     def set_worker_index(self, worker_index: int) -> None:
         """The env runner's index, known only after creation: RLlib's vector entry point hands the creator a
@@ -91,7 +94,7 @@ class MorphologyVectorEnv(VectorEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         results = [env.reset(seed=s, options=options) for env, s in zip(self.envs, self._seed_envs(seed), strict=True)]
         self._needs_reset[:] = False
-        return self._stack([r[0] for r in results]), self._info_columns([r[1] for r in results])
+        return self._stack([r[0] for r in results]), self._infos([r[1] for r in results])
 
     def step(
         self, actions: np.ndarray
@@ -110,7 +113,7 @@ class MorphologyVectorEnv(VectorEnv):
             observations.append(obs)
             infos.append(info)
         self._needs_reset = terminated | truncated
-        return self._stack(observations), rewards, terminated, truncated, self._info_columns(infos)
+        return self._stack(observations), rewards, terminated, truncated, self._infos(infos)
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in self.envs:
@@ -119,6 +122,9 @@ class MorphologyVectorEnv(VectorEnv):
     @staticmethod
     def _stack(observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
         return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+
+    def _infos(self, infos: list[dict[str, Any]]) -> Any:
+        return infos if self.info_lists else self._info_columns(infos)
 
     def _info_columns(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
         """gymnasium's vector info: one object array per key (every sub-env reports every key)."""

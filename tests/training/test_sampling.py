@@ -14,7 +14,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.callbacks import MorphologyCallbacks
 from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
 from smorphi_rl.training.result_keys import METRIC_PREFIX
-from smorphi_rl.training.sampling import LeanEnvRunner, SampleActions, StackObservations, split_by_env
+from smorphi_rl.training.sampling import InfoLists, LeanEnvRunner, SampleActions, StackObservations, split_by_env
 from smorphi_rl.training.topk import EPISODE_BEST_KEY
 
 
@@ -37,6 +37,7 @@ def _sampled(lean: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     runner = runner_cls(config=config)
     assert any(isinstance(c, StackObservations) for c in runner._env_to_module.connectors) == lean
     assert any(isinstance(c, SampleActions) for c in runner._module_to_env.connectors) == lean
+    assert isinstance(runner.env, InfoLists) == lean
     episodes = runner.sample(num_timesteps=400) + runner.sample(num_timesteps=100)  # a cut, then continuations
     metrics = runner.get_metrics()
     runner.stop()
