@@ -110,9 +110,10 @@ PRESETS: dict[str, dict[str, Preset]] = {
     },
 }
 DEFAULT_TIMESTEPS = 200_000
-"""The main job's budget: about 70 s of training on 2 cores (2,800-3,000 env steps/s end to end). At 150,000 steps PPO
-settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2 (seed 1 sent every
-start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three seeds."""
+"""The main job's budget: 40-70 s of training on 2 cores (2,800-5,100 env steps/s end to end, by machine). At
+150,000 steps PPO settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2
+(seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three
+seeds."""
 ENVS_PER_RUNNER = 32
 """Sub-envs each env runner steps together: one forward pass serves them all (16: 1,740 env steps/s end to end,
 32: 2,500/s, 64: no faster, on 2 cores; see the README's speed table)."""
