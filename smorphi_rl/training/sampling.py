@@ -1,5 +1,5 @@
-"""The env runners' connector pipelines, lean: what RLlib's default pieces compute for our env and module, in
-two steps instead of twelve.
+"""The env runner and its connector pipelines, lean: what RLlib's default runner and pieces compute for our env
+and module, with the connectors in two steps instead of twelve.
 
 RLlib's default env-to-module pipeline (observations from episodes, time rank, states, batching, tensors) and
 module-to-env pipeline (sample actions, numpy, unbatch, time rank, normalise and clip, listify) handle every
@@ -11,7 +11,7 @@ Our module is stateless, its actions MultiDiscrete and never normalised or clipp
 Both draw from the same generators in the same order as the default pieces, so a seeded run trains exactly as
 before (a test checks identical samples).
 
-`LeanEnvRunner` is RLlib's single-agent env runner with two per-step costs cut, both without changing what it
+`LeanEnvRunner` is RLlib's single-agent env runner with three per-step costs cut, none changing what it
 records: it splits each step's batched observations and actions by env with a plain comprehension instead of
 RLlib's tree utilities (`split_by_env`), it skips the per-env, per-step episode callbacks that no callback
 overrides, and it takes our vector env's info dicts without gymnasium's round trip through info columns
