@@ -156,11 +156,18 @@ _RLLIB_UNBATCH = _RUNNER_MODULE.unbatch  # type: ignore[union-attr]
 class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is generic
     """What RLlib wraps every vector env in (gymnasium's DictInfoToList: one info dict per sub-env), for our
     vector env: it hands over its sub-envs' info dicts as they are, the very dicts DictInfoToList would rebuild
-    from its info columns (same keys, order and values), without building the columns."""
+    from its info columns (same keys, order and values), without building the columns. The runner's own wrapper
+    becomes one (`install`): a second wrapper around the env would close it when the first is collected."""
 
-    def __init__(self, env: MorphologyVectorEnv) -> None:
-        super().__init__(env)
-        env.info_lists = True
+    @staticmethod
+    def install(wrapper: Any) -> bool:
+        """Switch RLlib's DictInfoToList around a MorphologyVectorEnv to this class; False if it wraps another."""
+        inner = getattr(wrapper, "env", None)
+        if type(wrapper) is not DictInfoToList or type(inner) is not MorphologyVectorEnv:
+            return False
+        inner.info_lists = True
+        wrapper.__class__ = InfoLists
+        return True
 
     def step(self, actions: Any) -> Any:
         return self.env.step(actions)
@@ -176,9 +183,7 @@ class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's base
 
     def make_env(self) -> None:
         super().make_env()
-        inner = getattr(self.env, "env", None)
-        if type(self.env) is DictInfoToList and type(inner) is MorphologyVectorEnv:
-            self.env = InfoLists(inner)
+        InfoLists.install(self.env)
 
     def _sample(self, **kwargs: Any) -> Any:
         _RUNNER_MODULE.unbatch = split_by_env  # type: ignore[union-attr]

@@ -4,6 +4,7 @@ included, and the same episode metrics."""
 
 from __future__ import annotations
 
+import gc
 from typing import Any
 
 import numpy as np
@@ -39,6 +40,8 @@ def _sampled(lean: bool) -> tuple[list[dict[str, Any]], dict[str, Any]]:
     assert any(isinstance(c, SampleActions) for c in runner._module_to_env.connectors) == lean
     assert isinstance(runner.env, InfoLists) == lean
     episodes = runner.sample(num_timesteps=400) + runner.sample(num_timesteps=100)  # a cut, then continuations
+    gc.collect()
+    assert not runner.env.unwrapped.closed  # closed by the runner's stop only (recordings finish there)
     metrics = runner.get_metrics()
     runner.stop()
     return [_episode(e) for e in episodes], metrics
