@@ -31,6 +31,11 @@ NUM_ENVS_KEY = "num_envs"
 """What RLlib adds to env_config when it asks the creator for a vector env."""
 
 
+def stack_observations(observations: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+    """Per-env observation dicts as one dict of batched arrays (what a vector env returns and a module reads)."""
+    return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+
+
 def sub_env_generator(run_seed: int, worker_index: int, env_index: int, generation: int = 0) -> np.random.Generator:
     """The independent random stream of one sub-env of one env runner of one run; `generation` counts the
     restores of a resumed run, so a resumed run draws fresh shapes instead of replaying its first ones."""
@@ -94,7 +99,7 @@ class MorphologyVectorEnv(VectorEnv):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         results = [env.reset(seed=s, options=options) for env, s in zip(self.envs, self._seed_envs(seed), strict=True)]
         self._needs_reset[:] = False
-        return self._stack([r[0] for r in results]), self._infos([r[1] for r in results])
+        return stack_observations([r[0] for r in results]), self._infos([r[1] for r in results])
 
     def step(
         self, actions: np.ndarray
@@ -113,15 +118,11 @@ class MorphologyVectorEnv(VectorEnv):
             observations.append(obs)
             infos.append(info)
         self._needs_reset = terminated | truncated
-        return self._stack(observations), rewards, terminated, truncated, self._infos(infos)
+        return stack_observations(observations), rewards, terminated, truncated, self._infos(infos)
 
     def close_extras(self, **kwargs: Any) -> None:
         for env in self.envs:
             env.close()
-
-    @staticmethod
-    def _stack(observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-        return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
 
     def _infos(self, infos: list[dict[str, Any]]) -> Any:
         return infos if self.info_lists else self._info_columns(infos)

@@ -14,6 +14,7 @@ from smorphi_rl.env_config import EnvConfig, RewardMode
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome, settled_theta
 from smorphi_rl.score import Scored
 from smorphi_rl.training.checkpoints import CheckpointError
+from smorphi_rl.vector_env import stack_observations
 
 
 @dataclass(frozen=True)
@@ -55,7 +56,7 @@ def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np
     argmax of each hinge's logits, which is what the module's MultiCategorical gives `to_deterministic`."""
     from ray.rllib.core.columns import Columns
 
-    batch = {Columns.OBS: {k: torch.from_numpy(np.stack([o[k] for o in observations])) for k in observations[0]}}
+    batch = {Columns.OBS: {k: torch.from_numpy(v) for k, v in stack_observations(observations).items()}}
     with torch.no_grad():
         logits = module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
     sizes = [int(n) for n in module.action_space.nvec]

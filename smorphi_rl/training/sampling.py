@@ -34,7 +34,7 @@ from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCateg
 from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 from ray.rllib.utils.numpy import convert_to_numpy
 
-from smorphi_rl.vector_env import MorphologyVectorEnv
+from smorphi_rl.vector_env import MorphologyVectorEnv, stack_observations
 
 
 class StackObservations(ConnectorV2):
@@ -53,7 +53,7 @@ class StackObservations(ConnectorV2):
         observations = kwargs.get(Columns.OBS)
         if observations is None:  # the runner passes them; read them off the episodes otherwise
             observations = [episode.get_observations(-1) for episode in episodes]
-        stacked = {key: torch.from_numpy(np.stack([o[key] for o in observations])) for key in observations[0]}
+        stacked = {key: torch.from_numpy(value) for key, value in stack_observations(observations).items()}
         if self.device is not None:
             stacked = {key: value.to(self.device) for key, value in stacked.items()}
         batch[Columns.OBS] = stacked
@@ -65,12 +65,17 @@ class SampleActions(ConnectorV2):
     their log-probabilities and every module output, as numpy arrays of one row per env (the runner indexes
     them by env)."""
 
+    _sizes: tuple[int, list[int] | None] | None = None
+    """(id of the module last seen, its hinges' category counts or None): `_hinge_sizes`, kept between steps."""
+
     def __call__(
         self, *, rl_module: Any, batch: dict[str, Any], episodes: list[Any], explore: bool | None = None,
         shared_data: dict[str, Any] | None = None, **kwargs: Any,
     ) -> Any:  # fmt: skip
         if Columns.ACTIONS not in batch:
-            sizes = _hinge_sizes(rl_module)
+            if self._sizes is None or self._sizes[0] != id(rl_module):
+                self._sizes = (id(rl_module), _hinge_sizes(rl_module))  # once per module, not once a step
+            sizes = self._sizes[1]
             if explore and sizes is not None and Columns.ACTION_LOGP not in batch:
                 batch[Columns.ACTIONS], batch[Columns.ACTION_LOGP] = sample_hinges(
                     batch[Columns.ACTION_DIST_INPUTS], sizes
@@ -160,14 +165,12 @@ class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is
     becomes one (`install`): a second wrapper around the env would close it when the first is collected."""
 
     @staticmethod
-    def install(wrapper: Any) -> bool:
-        """Switch RLlib's DictInfoToList around a MorphologyVectorEnv to this class; False if it wraps another."""
+    def install(wrapper: Any) -> None:
+        """Switch RLlib's DictInfoToList around a MorphologyVectorEnv to this class (any other env: left as it is)."""
         inner = getattr(wrapper, "env", None)
-        if type(wrapper) is not DictInfoToList or type(inner) is not MorphologyVectorEnv:
-            return False
-        inner.info_lists = True
-        wrapper.__class__ = InfoLists
-        return True
+        if type(wrapper) is DictInfoToList and type(inner) is MorphologyVectorEnv:
+            inner.info_lists = True
+            wrapper.__class__ = InfoLists
 
     def step(self, actions: Any) -> Any:
         return self.env.step(actions)
