@@ -15,6 +15,7 @@ from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 
@@ -52,14 +53,15 @@ class MorphologyCallbacks(RLlibCallback):
             env.set_worker_index(int(getattr(env_context, "worker_index", 0) or 0))
 
     def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
-        """Torch threads of the trial's learner. PPO samples, then learns: its learner has the machine to itself
-        and takes two threads. IMPALA and APPO learn while their env runners sample, so a second thread only
-        contends with them; on 2 cores IMPALA trained 5,208 -> 6,644 env steps/s and APPO 5,008 -> 6,187 with one
-        (README, Training throughput)."""
+        """Torch threads of the trial's learner, and its garbage collector settled (`heap`). PPO samples, then
+        learns: its learner has the machine to itself and takes two threads. IMPALA and APPO learn while their
+        env runners sample, so a second thread only contends with them; on 2 cores IMPALA trained 5,208 ->
+        6,644 env steps/s and APPO 5,008 -> 6,187 with one (README, Training throughput)."""
         import torch
         from ray.rllib.algorithms.impala import IMPALA  # APPO is an IMPALA
 
         torch.set_num_threads(1 if isinstance(algorithm, IMPALA) else max(1, min(2, os.cpu_count() or 1)))
+        settle_heap()  # the built algorithm's objects live as long as the trial: out of the collector's way
 
     def on_episode_end(
         self,

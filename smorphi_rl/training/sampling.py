@@ -34,6 +34,7 @@ from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCateg
 from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 from ray.rllib.utils.numpy import convert_to_numpy
 
+from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.vector_env import MorphologyVectorEnv, stack_observations
 
 
@@ -183,6 +184,11 @@ class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's base
     """RLlib's SingleAgentEnvRunner, sampling the same episodes faster: its `unbatch` is `split_by_env` for the
     duration of a `_sample` call, per-env episode callbacks that no callback overrides are not made, and our
     vector env's infos reach it without a round trip through columns (`InfoLists`)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        if (self.worker_index or 0) > 0:  # a remote runner, alone in its process: its objects live as long (`heap`)
+            settle_heap()
 
     def make_env(self) -> None:
         super().make_env()
