@@ -6,8 +6,7 @@ every one of them in each full pass, about 0.25 s each. Freezing what is alive a
 of the collector's reach (`gc.freeze`); a full pass then walks only what training made since, and with the
 third threshold at 50 instead of 10 there are fewer of them. Measured in the trial process of `train` on
 map-1 (PPO, 100 iterations): 1.98 s of collection in all (7 full passes, 1.70 s), settled 0.87 s (5 full
-passes, 0.58 s). The objects frozen were alive; whatever dies later is freed as before.
-Cycles made after the freeze are collected as before.
+passes, 0.58 s). Cycles made after the freeze are collected as before.
 """
 
 from __future__ import annotations
