@@ -7,15 +7,17 @@ kind of module and space, item by item through tree utilities: about 30 % of an 
 Our module is stateless, its actions MultiDiscrete and never normalised or clipped, so:
 - `StackObservations` stacks the runner's latest observations into one batch of tensors;
 - `SampleActions` samples from the module's action distribution and hands the runner numpy arrays it indexes
-  by env (actions, their log-probabilities, the distribution inputs).
+  by env (actions, their log-probabilities, the distribution inputs); hinges of equal size in one draw.
 Both draw from the same generators in the same order as the default pieces, so a seeded run trains exactly as
 before (a test checks identical samples).
 
-`LeanEnvRunner` is RLlib's single-agent env runner with three per-step costs cut, none changing what it
-records: it splits each step's batched observations and actions by env with a plain comprehension instead of
-RLlib's tree utilities (`split_by_env`), it skips the per-env, per-step episode callbacks that no callback
-overrides, and it takes our vector env's info dicts without gymnasium's round trip through info columns
-(`InfoLists`).
+`LeanEnvRunner` is RLlib's single-agent env runner with these costs cut, none changing what it records:
+- it splits each step's batched observations and actions by env with a plain comprehension instead of RLlib's
+  tree utilities (`split_by_env`), and `StackObservations` takes the env's batch those rows came from rather
+  than stacking them again;
+- it skips the per-env, per-step episode callbacks that no callback overrides;
+- it takes our vector env's info dicts without gymnasium's round trip through info columns (`InfoLists`);
+- episodes stack their steps in one numpy call per column (`stack_items`) instead of RLlib's item-by-item copy.
 """
 
 from __future__ import annotations
@@ -32,6 +34,7 @@ from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
 from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCategorical
 from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
+from ray.rllib.env.utils.infinite_lookback_buffer import InfiniteLookbackBuffer
 from ray.rllib.utils.numpy import convert_to_numpy
 
 from smorphi_rl.training.heap import settle_heap
@@ -54,7 +57,9 @@ class StackObservations(ConnectorV2):
         observations = kwargs.get(Columns.OBS)
         if observations is None:  # the runner passes them; read them off the episodes otherwise
             observations = [episode.get_observations(-1) for episode in episodes]
-        stacked = {key: torch.from_numpy(value) for key, value in stack_observations(observations).items()}
+        # Rows: the env's batch that the rows were split from, the very arrays a stack would rebuild
+        arrays = observations.batched if isinstance(observations, Rows) else stack_observations(observations)
+        stacked = {key: torch.from_numpy(value) for key, value in arrays.items()}
         if self.device is not None:
             stacked = {key: value.to(self.device) for key, value in stacked.items()}
         batch[Columns.OBS] = stacked
@@ -108,6 +113,8 @@ def sample_hinges(logits: torch.Tensor, sizes: list[int]) -> tuple[torch.Tensor,
     """(actions, log-probabilities) drawn as RLlib's TorchMultiCategorical draws them from `logits`, op for op
     and so draw for draw (each hinge a torch Categorical: logits normalised by their logsumexp, one multinomial
     draw from their softmax, its log-probability gathered), without building a distribution object per hinge."""
+    if len(set(sizes)) == 1 and logits.dim() == 2:
+        return _sample_equal_hinges(logits, len(sizes), sizes[0])
     normalised = [part - part.logsumexp(dim=-1, keepdim=True) for part in torch.split(logits, sizes, dim=-1)]
     draws = [
         torch.multinomial(torch.softmax(n, dim=-1).reshape(-1, n.shape[-1]), 1, True).T.reshape(n.shape[:-1])
@@ -115,6 +122,17 @@ def sample_hinges(logits: torch.Tensor, sizes: list[int]) -> tuple[torch.Tensor,
     ]
     logps = [n.gather(-1, d.long().unsqueeze(-1)).squeeze(-1) for n, d in zip(normalised, draws, strict=True)]
     return torch.stack(draws, dim=-1), torch.sum(torch.stack(logps), dim=0)
+
+
+def _sample_equal_hinges(logits: torch.Tensor, hinges: int, size: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """`sample_hinges` when every hinge has `size` categories, in a third of the torch calls: the hinges' rows in
+    hinge-major order (B, H S) -> (H B, S), so one multinomial call draws them in the order of H calls, hinge by
+    hinge (one draw per row: torch's exponential race over its rows, in order)."""
+    normalised = logits.reshape(logits.shape[0], hinges, size).transpose(0, 1)
+    normalised = normalised - normalised.logsumexp(dim=-1, keepdim=True)
+    draws = torch.multinomial(torch.softmax(normalised, dim=-1).reshape(-1, size), 1, True).reshape(hinges, -1)
+    logps = normalised.gather(-1, draws.unsqueeze(-1)).squeeze(-1)
+    return draws.T, torch.sum(logps, dim=0)
 
 
 def to_numpy(batch: Any) -> Any:
@@ -143,6 +161,13 @@ def module_to_env(env: Any = None, spaces: Any = None) -> list[ConnectorV2]:
     return [SampleActions()]
 
 
+class Rows(list):  # type: ignore[type-arg]
+    """`split_by_env`'s rows of a flat dict of arrays, which keep that dict (`batched`): the runner hands these
+    rows, the env's latest observations, to `StackObservations`, which need not stack them again."""
+
+    batched: dict[str, np.ndarray]
+
+
 def split_by_env(batched: Any) -> list[Any]:
     """RLlib's `unbatch` for what our env and connectors hand the runner: a flat dict of arrays becomes one dict
     per env (the same keys in the same order, each value the env's row, a view), an array its rows; anything
@@ -151,12 +176,44 @@ def split_by_env(batched: Any) -> list[Any]:
         return list(batched)
     if type(batched) is dict and batched and all(isinstance(v, np.ndarray) and v.ndim > 0 for v in batched.values()):
         keys, columns = list(batched), list(batched.values())
-        return [dict(zip(keys, row, strict=True)) for row in zip(*columns, strict=True)]
+        rows = Rows(dict(zip(keys, row, strict=True)) for row in zip(*columns, strict=True))
+        rows.batched = batched
+        return rows
     return _RLLIB_UNBATCH(batched)
+
+
+def stack_items(items: list[Any], **kwargs: Any) -> Any:
+    """RLlib's `batch` (what an episode's `to_numpy` stacks its lists of steps with) for lists of same-shape arrays
+    or of flat dicts of them, in one numpy call per column instead of a Python assignment per item and tree
+    utilities; anything else, or a stack whose dtype is not the first item's, goes through RLlib's own `batch`.
+    A numpy stack that keeps the first item's dtype holds what RLlib's (which casts into that dtype) holds."""
+    first = items[0] if items and not kwargs else None
+    if type(first) is np.ndarray:
+        stacked = _stack(items, first)
+        if stacked is not None:
+            return stacked
+    elif type(first) is dict and first and all(type(v) is np.ndarray for v in first.values()):
+        keys = first.keys()
+        if all(type(item) is dict and item.keys() == keys for item in items):
+            columns = {key: _stack([item[key] for item in items], first[key]) for key in keys}
+            if all(column is not None for column in columns.values()):
+                return columns
+    return _RLLIB_BATCH(items, **kwargs)
+
+
+def _stack(column: list[Any], first: np.ndarray) -> np.ndarray | None:
+    """`np.stack(column)` if it has the first item's dtype and shape per row; None otherwise."""
+    try:
+        stacked = np.stack(column)
+    except ValueError:
+        return None
+    return stacked if stacked.dtype == first.dtype and stacked.shape[1:] == first.shape else None
 
 
 _RUNNER_MODULE = inspect.getmodule(SingleAgentEnvRunner)
 _RLLIB_UNBATCH = _RUNNER_MODULE.unbatch  # type: ignore[union-attr]
+_BUFFER_MODULE = inspect.getmodule(InfiniteLookbackBuffer)
+_RLLIB_BATCH = _BUFFER_MODULE.batch  # type: ignore[union-attr]
 
 
 class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is generic
@@ -196,10 +253,12 @@ class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's base
 
     def _sample(self, **kwargs: Any) -> Any:
         _RUNNER_MODULE.unbatch = split_by_env  # type: ignore[union-attr]
+        _BUFFER_MODULE.batch = stack_items  # type: ignore[union-attr]
         try:
             return super()._sample(**kwargs)
         finally:
             _RUNNER_MODULE.unbatch = _RLLIB_UNBATCH  # type: ignore[union-attr]
+            _BUFFER_MODULE.batch = _RLLIB_BATCH  # type: ignore[union-attr]
 
     _step_callbacks: bool | None = None
 
