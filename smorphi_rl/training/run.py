@@ -244,6 +244,8 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
     """The Tune run itself (a local Ray or a cluster is already up): results, the progress kept, wall time."""
     from ray import tune
 
+    from smorphi_rl.training.tensorboard import TensorBoardLogger
+
     progress = _Progress(cfg, out, label)
     trainable = tune.with_resources(
         tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir), resources(cfg)
@@ -254,7 +256,7 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
         run_config=tune.RunConfig(
             name=name,
             storage_path=str(run_dir.parent),
-            callbacks=[_tune_callback(progress)],
+            callbacks=[_tune_callback(progress), TensorBoardLogger()],
             verbose=0,
         ),
     )

@@ -157,6 +157,8 @@ def run_sweep(
     with cluster.ray_session(address):
         from ray import tune
 
+        from smorphi_rl.training.tensorboard import TensorBoardLogger
+
         def trial_resources(config: dict[str, Any]) -> Any:
             return resources(sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}))
 
@@ -166,7 +168,7 @@ def run_sweep(
             storage_path=str(exp.parent),
             stop=sweep.stop or None,
             checkpoint_config=tune.CheckpointConfig(num_to_keep=sweep.checkpoint_keep or None),
-            callbacks=[_tune_callback(progress)],
+            callbacks=[_tune_callback(progress), TensorBoardLogger()],
             verbose=0,
         )
         t0 = time.monotonic()
