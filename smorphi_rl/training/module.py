@@ -20,12 +20,12 @@ import gymnasium as gym
 import numpy as np
 import torch
 from ray.rllib.core.columns import Columns
-from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCategorical
 from ray.rllib.core.learner.utils import make_target_network
 from ray.rllib.core.rl_module.apis import TARGET_NETWORK_ACTION_DIST_INPUTS, TargetNetworkAPI, ValueFunctionAPI
 from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
+from smorphi_rl.training.distribution import HingeCategorical
 from smorphi_rl.training.presets import ANGLE_FREQUENCIES
 
 HIDDEN = 128
@@ -236,8 +236,11 @@ class _Net(nn.Module):
         map_features = self.encode_maps(obs[MAP_KEY])
         angles = obs["angles"]
         freqs: torch.Tensor = self._freqs  # type: ignore[assignment]  # a registered buffer
-        phases = (angles.unsqueeze(-1) * freqs).flatten(-2)  # angles are theta / 180, so k pi theta / 180
-        features = [map_features, angles, torch.sin(phases), torch.cos(phases), obs["metrics"]]
+        if freqs.numel():
+            phases = (angles.unsqueeze(-1) * freqs).flatten(-2)  # angles are theta / 180, so k pi theta / 180
+            features = [map_features, angles, torch.sin(phases), torch.cos(phases), obs["metrics"]]
+        else:  # no frequencies: their empty columns would add nothing
+            features = [map_features, angles, obs["metrics"]]
         return self.head(self.mlp(torch.cat(features, dim=-1)))
 
 
@@ -254,7 +257,7 @@ class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):
         if not isinstance(space, gym.spaces.MultiDiscrete):
             raise TypeError(f"MorphologyModule needs a MultiDiscrete action space, got {space}")
         nvec = [int(n) for n in space.nvec]
-        self.action_dist_cls = TorchMultiCategorical.get_partial_dist_cls(  # type: ignore[misc]  # RLlib's typing
+        self.action_dist_cls = HingeCategorical.get_partial_dist_cls(  # type: ignore[misc]  # RLlib's typing
             space=space, input_lens=nvec
         )
         obs_space = self.observation_space
