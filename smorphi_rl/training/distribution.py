@@ -24,6 +24,7 @@ class HingeCategorical(TorchMultiCategorical):  # type: ignore[misc]  # RLlib's 
         self._raw, self._lens = logits, input_lens
         self._normalised: torch.Tensor | None = None
         self._probs: torch.Tensor | None = None
+        self._categoricals: list[TorchCategorical] = []
         if logits is not None and input_lens is not None:
             size = input_lens[0]
             hinges = logits.reshape(*logits.shape[:-1], len(input_lens), size)
@@ -42,15 +43,13 @@ class HingeCategorical(TorchMultiCategorical):  # type: ignore[misc]  # RLlib's 
     @property  # type: ignore[override]
     def _cats(self) -> list[TorchCategorical]:
         """RLlib's per-hinge categoricals (for sampling and anything not done at once), built when first asked."""
-        if not self.__dict__.get("_categoricals") and self._raw is not None and self._lens is not None:
-            self.__dict__["_categoricals"] = [
-                TorchCategorical(logits=part) for part in torch.split(self._raw, self._lens, dim=-1)
-            ]
-        return self.__dict__.get("_categoricals", [])  # type: ignore[no-any-return]
+        if not self._categoricals and self._raw is not None and self._lens is not None:
+            self._categoricals = [TorchCategorical(logits=part) for part in torch.split(self._raw, self._lens, dim=-1)]
+        return self._categoricals
 
     @_cats.setter
-    def _cats(self, categoricals: list[TorchCategorical]) -> None:
-        self.__dict__["_categoricals"] = categoricals
+    def _cats(self, categoricals: list[TorchCategorical]) -> None:  # RLlib's __init__ sets them
+        self._categoricals = categoricals
 
     def _hinge_probs(self) -> torch.Tensor:
         """Each hinge's probabilities (torch's Categorical: the softmax of its normalised logits), kept."""
