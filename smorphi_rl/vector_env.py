@@ -32,8 +32,17 @@ NUM_ENVS_KEY = "num_envs"
 
 
 def stack_observations(observations: Sequence[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
-    """Per-env observation dicts as one dict of batched arrays (what a vector env returns and a module reads)."""
-    return {key: np.stack([o[key] for o in observations]) for key in observations[0]}
+    """Per-env observation dicts as one dict of batched arrays (what a vector env returns and a module reads). An
+    entry that every env shares as one read-only array (the map, while all play one map) becomes a read-only
+    broadcast of it (batch stride 0), not a copy per env."""
+    return {key: _stack_column([o[key] for o in observations]) for key in observations[0]}
+
+
+def _stack_column(column: list[np.ndarray]) -> np.ndarray:
+    first = column[0]
+    if len(column) > 1 and not first.flags.writeable and all(item is first for item in column):
+        return np.broadcast_to(first, (len(column), *first.shape))
+    return np.stack(column)
 
 
 def sub_env_generator(run_seed: int, worker_index: int, env_index: int, generation: int = 0) -> np.random.Generator:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from smorphi_rl.vector_env import MorphologyVectorEnv, make_env, sub_env_generator
+from smorphi_rl.vector_env import MorphologyVectorEnv, make_env, stack_observations, sub_env_generator
 
 
 class _Ctx(dict):
@@ -72,3 +72,35 @@ def test_a_resumed_run_draws_fresh_streams():
     again.step(np.ones((2, 3), dtype=np.int64))
     _, _, _, _, replay = again.step(np.ones((2, 3), dtype=np.int64))
     assert list(after["theta"]) != list(replay["theta"])
+
+
+def test_one_shared_map_is_broadcast_and_anything_else_stacked():
+    """The map all sub-envs share comes as one read-only array seen num_envs times (batch stride 0), equal to the
+    stack it replaces; per-env entries, and maps of different maps, are stacked copies."""
+    venv = make_env({"num_envs": 4, "run_seed": 0})
+    obs, _ = venv.reset()
+    maps = obs["map"]
+    assert maps.strides[0] == 0 and not maps.flags.writeable
+    assert np.array_equal(maps, np.stack([e.unwrapped._observe()["map"] for e in venv.envs]))
+    assert obs["angles"].strides[0] != 0 and obs["angles"].flags.writeable
+    obs, *_ = venv.step(np.ones((4, 3), dtype=np.int64))
+    assert obs["map"].strides[0] == 0
+    shared = np.zeros(3, dtype=np.uint8)
+    shared.setflags(write=False)
+    other = shared.copy()
+    other.setflags(write=False)
+    writable = np.zeros(3, dtype=np.uint8)
+    assert stack_observations([{"m": shared}, {"m": shared}])["m"].strides[0] == 0
+    for rows in ([shared, other], [writable, writable], [shared]):  # equal but distinct, writable, alone
+        stacked = stack_observations([{"m": r} for r in rows])["m"]
+        assert stacked.strides[0] != 0 and stacked.flags.writeable and stacked.shape == (len(rows), 3)
+
+
+def test_sub_envs_on_different_maps_get_their_own_map_rows():
+    venv = make_env({"num_envs": 8, "run_seed": 0, "maps": ["maps/map-1.yaml", "maps/map-2.yaml"]})
+    obs, _ = venv.reset()
+    on_map = [e.unwrapped.grid_map.name for e in venv.envs]
+    assert len(set(on_map)) == 2  # seed 0 puts the 8 sub-envs on both maps
+    assert obs["map"].strides[0] != 0
+    for row, env in zip(obs["map"], venv.envs, strict=True):
+        assert np.array_equal(row, env.unwrapped._observe()["map"])

@@ -14,6 +14,7 @@ the map or the weights change.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import gymnasium as gym
@@ -61,15 +62,29 @@ def unpack_maps(maps: torch.Tensor, shape: tuple[int, ...]) -> torch.Tensor:
     return maps
 
 
+def observation_tensors(arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor]:
+    """A batch of observation arrays as tensors on the same memory. The env's shared map comes as a read-only
+    broadcast (`vector_env.stack_observations`); the nets never write to their inputs, so torch's warning about
+    non-writable arrays is not raised for it."""
+    if all(value.flags.writeable for value in arrays.values()):
+        return {key: torch.from_numpy(value) for key, value in arrays.items()}
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", "The given NumPy array is not writable", UserWarning)
+        return {key: torch.from_numpy(value) for key, value in arrays.items()}
+
+
 def distinct_rows(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | None:
     """(index of one row per distinct map, each row's distinct-map number) of a uint8 batch (B, ...), or
-    None when the batch's maps are (nearly) all distinct.
+    None when the batch's maps are (nearly) all distinct. A broadcast of one map (batch stride 0) is one map.
 
     Rows are grouped by a few sampled pixels, then every row is checked equal to its group's first
     row, so the grouping is exact: a batch where the sample misleads is simply not deduplicated."""
-    flat = maps.reshape(maps.shape[0], -1)
+    n = maps.shape[0]
+    if n > 1 and maps.stride(0) == 0:
+        zeros = torch.zeros(n, dtype=torch.long, device=maps.device)
+        return zeros[:1], zeros
+    flat = maps.reshape(n, -1)
     words = _as_words(flat)
-    n = flat.shape[0]
     if bool((words == words[0]).all()):  # one map: the common case, one cheap check
         zeros = torch.zeros(n, dtype=torch.long, device=flat.device)
         return zeros[:1], zeros

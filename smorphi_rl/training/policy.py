@@ -56,7 +56,9 @@ def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np
     argmax of each hinge's logits, which is what the module's MultiCategorical gives `to_deterministic`."""
     from ray.rllib.core.columns import Columns
 
-    batch = {Columns.OBS: {k: torch.from_numpy(v) for k, v in stack_observations(observations).items()}}
+    from smorphi_rl.training.module import observation_tensors
+
+    batch = {Columns.OBS: observation_tensors(stack_observations(observations))}
     with torch.no_grad():
         logits = module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
     sizes = [int(n) for n in module.action_space.nvec]

@@ -38,6 +38,7 @@ from ray.rllib.env.utils.infinite_lookback_buffer import InfiniteLookbackBuffer
 from ray.rllib.utils.numpy import convert_to_numpy
 
 from smorphi_rl.training.heap import settle_heap
+from smorphi_rl.training.module import observation_tensors
 from smorphi_rl.vector_env import MorphologyVectorEnv, stack_observations
 
 
@@ -59,7 +60,7 @@ class StackObservations(ConnectorV2):
             observations = [episode.get_observations(-1) for episode in episodes]
         # Rows: the env's batch that the rows were split from, the very arrays a stack would rebuild
         arrays = observations.batched if isinstance(observations, Rows) else stack_observations(observations)
-        stacked = {key: torch.from_numpy(value) for key, value in arrays.items()}
+        stacked = observation_tensors(arrays)
         if self.device is not None:
             stacked = {key: value.to(self.device) for key, value in stacked.items()}
         batch[Columns.OBS] = stacked

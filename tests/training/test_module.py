@@ -147,3 +147,28 @@ def test_the_policy_sees_plain_angles_and_old_checkpoints_keep_their_layout():
     width = lambda net, k: net.mlp[0].in_features == MAP_FEATURES + 3 * (1 + 2 * k) + 2  # noqa: E731
     assert width(new._pi, 0) and width(new._vf, ANGLE_FREQUENCIES)
     assert width(old._pi, ANGLE_FREQUENCIES) and width(old._vf, ANGLE_FREQUENCIES)
+
+
+def test_a_broadcast_map_reads_as_its_stacked_copies():
+    """The vector env hands one shared map as a read-only broadcast (stride 0): the module reads it as the same map
+    in every row, without a warning or a copy of the batch, and gives the outputs of the stacked copies."""
+    import warnings
+
+    from smorphi_rl.training.module import distinct_rows, observation_tensors
+    from smorphi_rl.vector_env import make_env
+
+    venv = make_env({"num_envs": 6, "run_seed": 0})
+    arrays, _ = venv.reset()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        obs = observation_tensors(arrays)
+    assert obs["map"].stride(0) == 0 and obs["map"].data_ptr() == arrays["map"].ctypes.data
+    first, rows = distinct_rows(obs["map"])  # type: ignore[misc]
+    assert first.tolist() == [0] and rows.tolist() == [0] * 6
+    copies = dict(obs, map=obs["map"].clone())
+    assert copies["map"].stride(0) != 0
+    module, _ = _module_and_batch()
+    with torch.no_grad():
+        assert torch.equal(module._forward({Columns.OBS: obs})[Columns.ACTION_DIST_INPUTS],
+                           module._forward({Columns.OBS: copies})[Columns.ACTION_DIST_INPUTS])  # fmt: skip
+        assert torch.equal(module.compute_values({Columns.OBS: obs}), module.compute_values({Columns.OBS: copies}))
