@@ -39,6 +39,7 @@ from ray.rllib.utils.numpy import convert_to_numpy
 
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.module import observation_tensors
+from smorphi_rl.training.threads import one_torch_thread
 from smorphi_rl.vector_env import MorphologyVectorEnv, stack_observations
 
 
@@ -240,8 +241,9 @@ class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is
 
 class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's bases are untyped
     """RLlib's SingleAgentEnvRunner, sampling the same episodes faster: its `unbatch` is `split_by_env` for the
-    duration of a `_sample` call, per-env episode callbacks that no callback overrides are not made, and our
-    vector env's infos reach it without a round trip through columns (`InfoLists`)."""
+    duration of a `_sample` call, and torch runs on one thread for it (`threads`); per-env episode callbacks that
+    no callback overrides are not made, and our vector env's infos reach it without a round trip through columns
+    (`InfoLists`)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -256,7 +258,8 @@ class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's base
         _RUNNER_MODULE.unbatch = split_by_env  # type: ignore[union-attr]
         _BUFFER_MODULE.batch = stack_items  # type: ignore[union-attr]
         try:
-            return super()._sample(**kwargs)
+            with one_torch_thread():
+                return super()._sample(**kwargs)
         finally:
             _RUNNER_MODULE.unbatch = _RLLIB_UNBATCH  # type: ignore[union-attr]
             _BUFFER_MODULE.batch = _RLLIB_BATCH  # type: ignore[union-attr]
