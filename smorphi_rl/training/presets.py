@@ -110,7 +110,7 @@ PRESETS: dict[str, dict[str, Preset]] = {
     },
 }
 DEFAULT_TIMESTEPS = 200_000
-"""The main job's budget: 40-70 s of training on 2 cores (2,800-5,100 env steps/s end to end, by machine). At
+"""The main job's budget: 30-70 s of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At
 150,000 steps PPO settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2
 (seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three
 seeds."""
