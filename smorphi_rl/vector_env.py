@@ -39,6 +39,7 @@ def stack_observations(observations: Sequence[dict[str, np.ndarray]]) -> dict[st
 
 
 def _stack_column(column: list[np.ndarray]) -> np.ndarray:
+    """One entry of every env's observation, batched: a broadcast when all are the same read-only array."""
     first = column[0]
     if len(column) > 1 and not first.flags.writeable and all(item is first for item in column):
         return np.broadcast_to(first, (len(column), *first.shape))
