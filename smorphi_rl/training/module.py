@@ -66,9 +66,7 @@ def observation_tensors(arrays: dict[str, np.ndarray]) -> dict[str, torch.Tensor
     """A batch of observation arrays as tensors on the same memory. The env's shared map comes as a read-only
     broadcast (`vector_env.stack_observations`); the nets never write to their inputs, so torch's warning about
     non-writable arrays is not raised for it."""
-    if all(value.flags.writeable for value in arrays.values()):
-        return {key: torch.from_numpy(value) for key, value in arrays.items()}
-    with warnings.catch_warnings():
+    with warnings.catch_warnings():  # under a microsecond
         warnings.filterwarnings("ignore", "The given NumPy array is not writable", UserWarning)
         return {key: torch.from_numpy(value) for key, value in arrays.items()}
 
@@ -80,14 +78,12 @@ def distinct_rows(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | Non
     Rows are grouped by a few sampled pixels, then every row is checked equal to its group's first
     row, so the grouping is exact: a batch where the sample misleads is simply not deduplicated."""
     n = maps.shape[0]
-    if n > 1 and maps.stride(0) == 0:
-        zeros = torch.zeros(n, dtype=torch.long, device=maps.device)
-        return zeros[:1], zeros
+    if n > 1 and maps.stride(0) == 0:  # one map seen n times: nothing to compare
+        return _one_map(n, maps.device)
     flat = maps.reshape(n, -1)
     words = _as_words(flat)
     if bool((words == words[0]).all()):  # one map: the common case, one cheap check
-        zeros = torch.zeros(n, dtype=torch.long, device=flat.device)
-        return zeros[:1], zeros
+        return _one_map(n, flat.device)
     if n < MIN_GROUPED_ROWS:
         return None
     probe = _probe(flat.shape[1], flat.device)
@@ -100,6 +96,12 @@ def distinct_rows(maps: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor] | Non
     if not bool((words[first][inverse] == words).all()):
         return None
     return first, inverse
+
+
+def _one_map(n: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor]:
+    """`distinct_rows` of a batch of n rows that all hold one map: row 0, and map 0 for every row."""
+    zeros = torch.zeros(n, dtype=torch.long, device=device)
+    return zeros[:1], zeros
 
 
 def _as_words(flat: torch.Tensor) -> torch.Tensor:
