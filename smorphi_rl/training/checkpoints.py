@@ -1,16 +1,37 @@
-"""The one place that knows where RLlib puts things in a checkpoint, and how to load our module back."""
+"""The one place that knows where RLlib puts things in a checkpoint, and how to load our module back
+without running anything a checkpoint file says.
+
+RLlib's checkpoints are pickles, and a pickle can name any callable to run while it loads. So nothing
+here calls `pickle.load` or RLlib's own loaders: the module's two files are read by `SafeUnpickler`,
+which admits an exact list of (module, name) pairs (numpy arrays and dtypes, gymnasium's spaces, numpy's
+random generator state, an ordered dict) and refuses every other global, persistent id and extension
+code; our module's class is read as a marker, never called. The module is then built by our own code
+from the checked spaces and configuration, and the weights are checked against its parameters, name by
+name and shape by shape, before they are set.
+"""
 
 from __future__ import annotations
 
+import io
+import json
+import pickle
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
 """Where a (new API stack) Algorithm checkpoint keeps the RLModule's state."""
-MODULE_COMPONENT = "learner_group/learner/rl_module/default_policy"
-"""The same path as an RLlib component name (for `Algorithm.restore_from_path`)."""
+CTOR_FILE = "class_and_ctor_args.pkl"
+STATE_FILE = "module_state.pkl"
+METADATA_FILE = "metadata.json"
+ROOT_METADATA_FILE = "rllib_checkpoint.json"
+TARGET_PREFIX = "_target_pi."
+"""APPO's target policy network (`MorphologyModule.make_target_networks`)."""
+MAX_PICKLE_BYTES = 64 << 20
+"""A module's files are a few hundred KB; anything larger is not one of ours (and is not read)."""
 
 
 class CheckpointError(SmorphiError):
@@ -36,85 +57,187 @@ def find_checkpoint(path: str | Path) -> Path:
         raise CheckpointError(f"checkpoint not found: {root}")
     if not root.is_dir():
         raise CheckpointError(f"{root}: not a directory (give a checkpoint, trial or run directory)")
-    found = checkpoints_under(root)
+    try:
+        found = checkpoints_under(root)
+    except (OSError, RuntimeError) as exc:  # a symlink loop, an unreadable folder
+        raise CheckpointError(f"{root}: cannot be searched for checkpoints ({exc})") from None
     if not found:
         raise CheckpointError(f"{root}: holds no RLlib checkpoint of ours (no {MODULE_SUBDIR.as_posix()} below it)")
     return found[-1]
 
 
-SAFE_MODULES = ("smorphi_rl.", "numpy", "collections", "gymnasium.spaces", "torch", "builtins", "copyreg", "_codecs")
-"""What the pickles of one of our module checkpoints may import (module-name prefixes); anything else is refused."""
-OUR_CLASS = ("smorphi_rl.training.module", "MorphologyModule")
-_STRING_OPS = {"SHORT_BINUNICODE", "BINUNICODE", "UNICODE", "BINUNICODE8", "SHORT_BINSTRING", "BINSTRING", "STRING"}
-_GET_OPS = {"GET", "BINGET", "LONG_BINGET"}
-_PUT_OPS = {"PUT", "BINPUT", "LONG_BINPUT"}
+class _ModuleClass:
+    """What the checkpoint's reference to our module class reads as: a marker, not the class (so nothing in the
+    file can construct a module with arguments of its own)."""
 
 
-def pickle_globals(path: Path) -> set[tuple[str, str]]:
-    """Every (module, name) a pickle would import, read from its opcodes without running it."""
-    import pickletools
-
-    found: set[tuple[str, str]] = set()
-    memo: dict[int, Any] = {}
-    pushed: list[Any] = []  # the last values pushed (strings, or None for anything else)
-    with open(path, "rb") as fh:
-        for op, arg, _ in pickletools.genops(fh):
-            name = op.name
-            if name in _STRING_OPS:
-                pushed.append(arg)
-            elif name in _GET_OPS:
-                pushed.append(memo.get(int(arg)))  # type: ignore[arg-type]
-            elif name == "MEMOIZE":
-                memo[len(memo)] = pushed[-1] if pushed else None
-            elif name in _PUT_OPS:
-                memo[int(arg)] = pushed[-1] if pushed else None  # type: ignore[arg-type]
-            elif name == "STACK_GLOBAL":
-                module, attr = (pushed[-2], pushed[-1]) if len(pushed) >= 2 else (None, None)
-                found.add((str(module), str(attr)))
-                pushed.append(None)
-            elif name in ("GLOBAL", "INST"):
-                module, _, attr = str(arg).partition(" ")
-                found.add((module, attr))
-                pushed.append(None)
-            elif op.stack_after:
-                pushed.append(None)
-    return found
+MODULE_CLASS = _ModuleClass()
+SAFE_GLOBALS: dict[tuple[str, str], Any] = {}
+"""Every (module, name) a checkpoint's pickles may name, and what it reads as; filled by `_safe_globals`."""
 
 
-def check_ours(checkpoint: Path) -> None:
-    """Refuse, before anything is unpickled, a checkpoint that is not one of our policies or whose pickles
-    would import anything beyond numpy, torch, gymnasium spaces and our own module (checkpoints are pickles:
-    a crafted one runs code when loaded)."""
+def _safe_globals() -> dict[tuple[str, str], Any]:
+    """The exact pairs RLlib 2.60 writes for our module (numpy 1.x and 2.x spell the array helpers differently)."""
+    if SAFE_GLOBALS:
+        return SAFE_GLOBALS
+    import collections
+
+    import gymnasium.spaces as spaces
+    from numpy.random import PCG64, SeedSequence, bit_generator
+    from numpy.random import _pickle as random_pickle  # numpy's own unpickling helpers for a Generator
+
+    core = getattr(np, "_core", None) or np.core
+    allowed: dict[tuple[str, str], Any] = {
+        ("collections", "OrderedDict"): collections.OrderedDict,
+        ("numpy", "dtype"): np.dtype,
+        ("numpy", "ndarray"): np.ndarray,
+        ("gymnasium.spaces.box", "Box"): spaces.Box,
+        ("gymnasium.spaces.dict", "Dict"): spaces.Dict,
+        ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): spaces.MultiDiscrete,
+        ("numpy.random._pcg64", "PCG64"): PCG64,
+        ("numpy.random.bit_generator", "SeedSequence"): SeedSequence,
+        ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"): getattr(
+            bit_generator, "__pyx_unpickle_SeedSequence"
+        ),
+        ("numpy.random._pickle", "__generator_ctor"): random_pickle.__generator_ctor,
+        ("numpy.random._pickle", "__bit_generator_ctor"): random_pickle.__bit_generator_ctor,
+        ("smorphi_rl.training.module", "MorphologyModule"): MODULE_CLASS,
+    }
+    for prefix in ("numpy._core", "numpy.core"):
+        allowed[(f"{prefix}.multiarray", "_reconstruct")] = core.multiarray._reconstruct
+        allowed[(f"{prefix}.numeric", "_frombuffer")] = core.numeric._frombuffer
+    SAFE_GLOBALS.update(allowed)
+    return SAFE_GLOBALS
+
+
+class Refused(pickle.UnpicklingError):
+    """A pickle that names something a smorphi-rl checkpoint never holds."""
+
+
+class SafeUnpickler(pickle.Unpickler):
+    """An unpickler that resolves only the exact pairs of `SAFE_GLOBALS` and nothing else."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        found = _safe_globals().get((module, name))
+        if found is None:
+            raise Refused(f"it names {module}.{name}, which a smorphi-rl checkpoint never does")
+        return found
+
+    def persistent_load(self, pid: Any) -> Any:
+        raise Refused("it holds a persistent reference, which a smorphi-rl checkpoint never does")
+
+
+def safe_unpickle(path: Path) -> Any:
+    """The object a checkpoint pickle holds, read by `SafeUnpickler`; refused in one line otherwise."""
+    try:
+        if path.is_symlink() or not path.is_file():
+            raise CheckpointError(f"{path}: missing or not a plain file (a checkpoint's files are never links)")
+        if path.stat().st_size > MAX_PICKLE_BYTES:
+            raise CheckpointError(f"{path}: {path.stat().st_size:,} bytes, larger than any smorphi-rl policy "
+                                  f"({MAX_PICKLE_BYTES:,} at most)")  # fmt: skip
+        data = path.read_bytes()
+    except OSError as exc:
+        raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    try:
+        return SafeUnpickler(io.BytesIO(data)).load()
+    except Refused as exc:
+        raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
+    except Exception as exc:
+        raise CheckpointError(f"{path}: not a readable checkpoint file ({type(exc).__name__})") from None
+
+
+def check_metadata(meta: Path, state_file: str) -> None:
+    """RLlib's metadata files name the files to read: refuse one that points anywhere but the usual two (our
+    loader reads only those; a file that says otherwise was not written by RLlib for us)."""
+    if not meta.exists():
+        return
+    try:
+        doc = json.loads(meta.read_text()) if meta.stat().st_size < 1 << 16 else None
+    except (OSError, ValueError, UnicodeDecodeError):
+        doc = None
+    want = {"class_and_ctor_args_file": CTOR_FILE, "state_file": state_file}
+    if not isinstance(doc, dict) or any(doc.get(k, v) != v for k, v in want.items()):
+        raise CheckpointError(f"{meta}: refused, it names files other than RLlib's {CTOR_FILE} and {state_file}")
+
+
+def read_module_files(checkpoint: Path) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """(the module's constructor keywords, its weights as float arrays by parameter name), read safely and
+    checked for the types our module writes."""
     folder = checkpoint / MODULE_SUBDIR
-    pickles = sorted(folder.glob("*.pkl"))
-    if not pickles:
-        raise CheckpointError(f"{checkpoint}: holds no module state of ours")
-    for pkl in pickles:
-        try:
-            names = pickle_globals(pkl)
-        except Exception as exc:  # not a pickle at all
-            raise CheckpointError(f"{pkl}: not a readable checkpoint file ({type(exc).__name__})") from None
-        foreign = sorted(f"{m}.{n}" for m, n in names if not m.startswith(SAFE_MODULES))
-        if foreign:
-            raise CheckpointError(f"{pkl}: refused, it would import {', '.join(foreign[:3])} (not a smorphi-rl "
-                                  "checkpoint; load only checkpoints you trust)")  # fmt: skip
-        if pkl.name == "class_and_ctor_args.pkl" and OUR_CLASS not in names:
-            raise CheckpointError(f"{checkpoint}: not a smorphi-rl policy (its module class is not MorphologyModule)")
+    check_metadata(checkpoint / ROOT_METADATA_FILE, "algorithm_state")
+    check_metadata(folder / METADATA_FILE, STATE_FILE.removesuffix(".pkl"))
+    ctor = safe_unpickle(folder / CTOR_FILE)
+    if not (isinstance(ctor, dict) and ctor.get("class") is MODULE_CLASS):
+        raise CheckpointError(f"{checkpoint}: not a smorphi-rl policy (its module class is not MorphologyModule)")
+    args = ctor.get("ctor_args_and_kwargs")
+    if not (isinstance(args, tuple) and len(args) == 2 and args[0] == () and isinstance(args[1], dict)):
+        raise CheckpointError(f"{folder / CTOR_FILE}: not the constructor record RLlib writes")
+    state = safe_unpickle(folder / STATE_FILE)
+    if not isinstance(state, dict) or not all(
+        isinstance(k, str) and isinstance(v, np.ndarray) and v.dtype.kind == "f" for k, v in state.items()
+    ):
+        raise CheckpointError(f"{folder / STATE_FILE}: not a table of float weights by parameter name")
+    return args[1], state
+
+
+def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict[str, Any]]:
+    """(observation space, action space, model_config) of the constructor keywords, each of the kind ours is."""
+    import gymnasium as gym
+
+    obs, act, model = kwargs.get("observation_space"), kwargs.get("action_space"), kwargs.get("model_config")
+    if not (isinstance(obs, gym.spaces.Dict) and all(isinstance(s, gym.spaces.Box) for s in obs.spaces.values())):
+        raise CheckpointError(f"{where}: its observation space is not the env's (a Dict of Boxes)")
+    if not isinstance(act, gym.spaces.MultiDiscrete):
+        raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
+    if not isinstance(model, dict) or not all(isinstance(k, str) for k in model):
+        raise CheckpointError(f"{where}: its model configuration is not a table")
+    return obs, act, model
+
+
+def build_module(observation_space: Any, action_space: Any, model_config: dict[str, Any]) -> Any:
+    """A fresh MorphologyModule (CPU, untrained) for these spaces and configuration."""
+    from smorphi_rl.training.module import MorphologyModule
+
+    return MorphologyModule(observation_space=observation_space, action_space=action_space,
+                            inference_only=False, learner_only=False, model_config=model_config)  # fmt: skip
+
+
+def set_weights(module: Any, state: dict[str, np.ndarray], where: Path | str) -> None:
+    """Set `state` into `module` after checking it holds exactly the module's parameters and shapes (RLlib's
+    own `set_state` ignores missing and extra names)."""
+    import torch
+
+    own = module.state_dict()
+    if set(own) != set(state):
+        missing, extra = sorted(set(own) - set(state)), sorted(set(state) - set(own))
+        raise CheckpointError(f"{where}: its weights are of another layout (missing {missing[:2]}, extra "
+                              f"{extra[:2]}); it was written by another version of smorphi-rl")  # fmt: skip
+    for name, value in own.items():
+        if tuple(value.shape) != tuple(state[name].shape):
+            raise CheckpointError(f"{where}: weight {name} has shape {tuple(state[name].shape)}, the policy's is "
+                                  f"{tuple(value.shape)} (another observation layout)")  # fmt: skip
+    module.load_state_dict({k: torch.from_numpy(np.array(v, dtype=np.float32)) for k, v in state.items()})
 
 
 def load_module(checkpoint: Path) -> Any:
-    """The trained MorphologyModule of a checkpoint, on the CPU, ready for `forward_inference`."""
-    from ray.rllib.core.rl_module.rl_module import RLModule
-
-    from smorphi_rl.training.module import MorphologyModule
+    """The trained MorphologyModule of a checkpoint, on the CPU, ready for `forward_inference`; nothing the files
+    say is run (module docstring)."""
     from smorphi_rl.training.quiet import quiet
 
     quiet()
-    check_ours(checkpoint)
+    kwargs, state = read_module_files(checkpoint)
+    obs, act, model = _checked_spaces(kwargs, checkpoint)
     try:
-        module = RLModule.from_checkpoint(str((checkpoint / MODULE_SUBDIR).resolve()))
-    except Exception as exc:  # a damaged or foreign checkpoint: say which, in one line
-        raise CheckpointError(f"{checkpoint}: cannot load the policy ({type(exc).__name__}: {exc})") from None
-    if not isinstance(module, MorphologyModule):
-        raise CheckpointError(f"{checkpoint}: holds a {type(module).__name__}, not a smorphi-rl policy")
+        module = build_module(obs, act, model)
+    except (TypeError, ValueError, KeyError) as exc:
+        raise CheckpointError(f"{checkpoint}: its configuration builds no policy ({exc})") from None
+    if any(k.startswith(TARGET_PREFIX) for k in state):  # APPO keeps a target copy of the policy net
+        module.make_target_networks()
+    set_weights(module, state, checkpoint)
     return module
+
+
+def load_module_state(checkpoint: Path) -> dict[str, np.ndarray]:
+    """The module weights of a checkpoint (read safely and checked by `load_module`), for fine-tuning."""
+    module = load_module(checkpoint)
+    return {k: v.detach().numpy().copy() for k, v in module.state_dict().items()}

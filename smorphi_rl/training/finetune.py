@@ -17,11 +17,11 @@ import numpy as np
 
 from smorphi_rl.training.callbacks import MorphologyCallbacks
 from smorphi_rl.training.checkpoints import (
-    MODULE_COMPONENT,
-    MODULE_SUBDIR,
+    TARGET_PREFIX,
     CheckpointError,
     find_checkpoint,
     load_module,
+    load_module_state,
 )
 
 PRETRAINED_KEY = "smorphi_pretrained_in_runners"
@@ -51,6 +51,18 @@ def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
             f"the env gives {tuple(have)} (obs_size must match)"
         )
     return policy_digest(module.get_state())
+
+
+def set_learner_weights(algorithm: Any, state: dict[str, Any]) -> None:
+    """Start the learner's module from `state` (weights read safely by `checkpoints.load_module_state`); a state
+    without a target network starts APPO's target as a copy of the policy, as APPO builds it."""
+    from ray.rllib.core import COMPONENT_LEARNER, COMPONENT_RL_MODULE, DEFAULT_MODULE_ID
+
+    if not any(k.startswith(TARGET_PREFIX) for k in state):
+        state = state | {
+            TARGET_PREFIX + k[len(POLICY_PREFIX) :]: v for k, v in state.items() if k.startswith(POLICY_PREFIX)
+        }
+    algorithm.learner_group.set_state({COMPONENT_LEARNER: {COMPONENT_RL_MODULE: {DEFAULT_MODULE_ID: state}}})
 
 
 def push_module_to_runners(algorithm: Any) -> list[str]:
@@ -94,7 +106,7 @@ def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbac
 
         def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
             super().on_algorithm_init(algorithm=algorithm, **kwargs)
-            algorithm.restore_from_path(str(Path(self.pretrained) / MODULE_SUBDIR), component=MODULE_COMPONENT)
+            set_learner_weights(algorithm, load_module_state(Path(self.pretrained)))
             digests = push_module_to_runners(algorithm)
             self.in_runners = float(bool(digests) and all(d == self.expected for d in digests))
 

@@ -1,0 +1,176 @@
+"""Loading a checkpoint never runs code: every classic pickle payload, planted into a real RLlib checkpoint of our
+module, is refused in one line by every loader, and its payload never runs."""
+
+from __future__ import annotations
+
+import json
+import os
+import pickle
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from smorphi_rl.cli import main
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfig
+from smorphi_rl.training.checkpoints import (
+    MODULE_SUBDIR,
+    CheckpointError,
+    build_module,
+    load_module,
+    safe_unpickle,
+)
+
+STATE = "module_state.pkl"
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+def write_checkpoint(path: Path) -> Path:
+    """A checkpoint directory holding a real (untrained) MorphologyModule, written by RLlib's own save_to_path."""
+    env_config = EnvConfig().to_dict()
+    env = MorphologyEnv(env_config)
+    model_config = {"value_offset": 0.0, "value_scale": 1.0, "policy_angle_frequencies": 0,
+                    "env_config": env_config, "algorithm": "ppo"}  # fmt: skip
+    module = build_module(env.observation_space, env.action_space, model_config)
+    module.save_to_path(str(path / MODULE_SUBDIR))
+    (path / "rllib_checkpoint.json").write_text(json.dumps(
+        {"class_and_ctor_args_file": "class_and_ctor_args.pkl", "state_file": "algorithm_state",
+         "ray_version": "2.60.0", "checkpoint_version": "2.1"}))  # fmt: skip
+    return path
+
+
+@pytest.fixture(scope="module")
+def genuine(tmp_path_factory) -> Path:
+    return write_checkpoint(tmp_path_factory.mktemp("genuine") / "checkpoint_000000")
+
+
+class Reduce:
+    """An object that pickles as `func(*args)`: the classic payload."""
+
+    def __init__(self, func, *args) -> None:
+        self.func, self.args = func, args
+
+    def __reduce__(self):
+        return self.func, self.args
+
+
+def payloads(marker: Path) -> dict[str, tuple[str, bytes]]:
+    """name -> (file to replace, the crafted bytes), each of which would create `marker` if it ran."""
+    import builtins
+    import subprocess
+
+    code = f"open({str(marker)!r}, 'w').close()"
+    state = {"_pi.head.bias": np.zeros(9, dtype=np.float32)}
+    return {
+        "exec": ("module_state.pkl", pickle.dumps(Reduce(builtins.exec, code))),
+        "eval": ("module_state.pkl", pickle.dumps(Reduce(builtins.eval, code))),
+        "os.system": ("module_state.pkl", pickle.dumps(Reduce(os.system, f"touch {marker}"))),
+        "subprocess.Popen": ("module_state.pkl", pickle.dumps(Reduce(subprocess.Popen, ["touch", str(marker)]))),
+        "torch.hub.load": ("module_state.pkl", pickle.dumps(Reduce(torch.hub.load, str(marker), "model"))),
+        "nested __reduce__": ("module_state.pkl", pickle.dumps(state | {"x": [Reduce(os.system, f"touch {marker}")]})),
+        "in class_and_ctor_args.pkl": (
+            "class_and_ctor_args.pkl",
+            pickle.dumps({"class": Reduce(builtins.exec, code), "ctor_args_and_kwargs": ((), {})}),
+        ),
+    }
+
+
+def plant(genuine: Path, where: Path, file: str, data: bytes) -> Path:
+    checkpoint = where / "checkpoint_000000"
+    shutil.copytree(genuine, checkpoint)
+    (checkpoint / MODULE_SUBDIR / file).write_bytes(data)
+    return checkpoint
+
+
+def spy_on_hub(monkeypatch) -> None:
+    """torch.hub.load creates the marker if it is ever called (so the test needs no network to see it run)."""
+    monkeypatch.setattr(torch.hub, "load", lambda repo, *a, **k: Path(repo).write_text("ran"))
+
+
+def run(capsys, *argv: str) -> tuple[int, str]:
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+LOADERS = {
+    "evaluate-policy": lambda ck, tmp: ["evaluate-policy", "--checkpoint", str(ck), "--episodes", "1"],
+    "train --pretrained": lambda ck, tmp: ["train", "--pretrained", str(ck), "--log-dir", str(tmp / "logs")],
+    "transfer": lambda ck, tmp: ["transfer", "--pretrained", str(ck), "--maps", MAP_1, "--log-dir", str(tmp / "logs")],
+    "sweep with pretrained": lambda ck, tmp: ["sweep", str(sweep_file(tmp, ck)), "--log-dir", str(tmp / "logs")],
+}
+
+
+def sweep_file(tmp: Path, checkpoint: Path) -> Path:
+    path = tmp / "sweep.yaml"
+    path.write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\npretrained: {checkpoint}\n")
+    return path
+
+
+def test_the_genuine_checkpoint_loads_with_its_weights(genuine):
+    module = load_module(genuine)
+    state = safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl")
+    assert set(state) == set(module.state_dict())
+    for name, value in module.state_dict().items():
+        assert np.array_equal(value.numpy(), state[name]), name
+
+
+@pytest.mark.parametrize("loader", list(LOADERS))
+@pytest.mark.parametrize("payload", list(payloads(Path("m"))))
+def test_every_loader_refuses_every_payload_and_nothing_runs(genuine, tmp_path, capsys, monkeypatch, loader, payload):
+    marker = tmp_path / "ran"
+    file, data = payloads(marker)[payload]
+    spy_on_hub(monkeypatch)
+    checkpoint = plant(genuine, tmp_path, file, data)
+    code, err = run(capsys, *LOADERS[loader](checkpoint, tmp_path))
+    lines = err.strip().splitlines()
+    assert code == 1 and len(lines) == 1 and "Traceback" not in err, err
+    assert "refused" in lines[0] or "not a smorphi-rl policy" in lines[0], lines[0]
+    assert not marker.exists()
+    assert not (tmp_path / "logs").exists() or not [p for p in (tmp_path / "logs").rglob("*") if p.is_file()]
+
+
+@pytest.mark.parametrize("metadata", ["rllib_checkpoint.json", f"{MODULE_SUBDIR.as_posix()}/metadata.json"])
+def test_metadata_pointing_at_another_file_is_refused(genuine, tmp_path, capsys, metadata):
+    marker = tmp_path / "ran"
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", (genuine / MODULE_SUBDIR / STATE).read_bytes())
+    (tmp_path / "evil.pkl").write_bytes(payloads(marker)["exec"][1])
+    doc = json.loads((checkpoint / metadata).read_text())
+    (checkpoint / metadata).write_text(json.dumps(doc | {"state_file": "../../../../../../evil"}))
+    for loader in LOADERS.values():
+        code, err = run(capsys, *loader(checkpoint, tmp_path))
+        assert code == 1 and "names files other than RLlib's" in err and err.count("\n") == 1, err
+    assert not marker.exists()
+
+
+def test_a_linked_state_file_is_refused(genuine, tmp_path):
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", b"")
+    (checkpoint / MODULE_SUBDIR / "module_state.pkl").unlink()
+    (checkpoint / MODULE_SUBDIR / "module_state.pkl").symlink_to(genuine / MODULE_SUBDIR / "module_state.pkl")
+    with pytest.raises(CheckpointError, match="not a plain file"):
+        load_module(checkpoint)
+
+
+def test_weights_of_another_layout_are_refused(genuine, tmp_path):
+    state = dict(safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl"))
+    state["_pi.mlp.0.weight"] = np.zeros((128, 70), dtype=np.float32)
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", pickle.dumps(state))
+    with pytest.raises(CheckpointError, match=r"has shape \(128, 70\).*another observation layout"):
+        load_module(checkpoint)
+    del state["_pi.mlp.0.weight"]
+    (checkpoint / MODULE_SUBDIR / "module_state.pkl").write_bytes(pickle.dumps(state))
+    with pytest.raises(CheckpointError, match="another layout"):
+        load_module(checkpoint)
+
+
+@pytest.mark.parametrize("data", [b"", b"not a pickle", pickle.dumps([1, 2, 3])[:-3], pickle.dumps("a string")])
+def test_damaged_state_files_say_so_in_one_line(genuine, tmp_path, data):
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", data)
+    with pytest.raises(CheckpointError, match=r"not a readable checkpoint file|not a table of float weights"):
+        load_module(checkpoint)
