@@ -43,7 +43,9 @@ def run_trial(cfg: TrainConfig, callbacks: type | None = None, recording_dir: Pa
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
     run_dir = recording_dir or trial_dir
-    algo = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, run_dir.name)).build_algo()
+    config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, run_dir.name))
+    # The trial's own storage: an Algorithm built without one makes itself a folder under ~/ray_results
+    algo = config.algo_class(config=config, storage=tune.get_context().get_storage())
     try:
         resume = tune.get_checkpoint()
         if resume is not None:

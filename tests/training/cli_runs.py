@@ -15,9 +15,19 @@ def ray_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
 
 
-def cli(*argv: str, cwd: Path, timeout: float = 400) -> subprocess.CompletedProcess[str]:
+def cli(*argv: str, cwd: Path, timeout: float = 400, home: Path | None = None) -> subprocess.CompletedProcess[str]:
+    """`smorphi-rl ARGV` in `cwd`; `home`: the HOME it runs with (default the test's own)."""
+    env = ray_env() | ({"HOME": str(home)} if home is not None else {})
     return subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd,
-                          env=ray_env(), timeout=timeout)  # fmt: skip
+                          env=env, timeout=timeout)  # fmt: skip
+
+
+def fresh_home(home: Path) -> list[Path]:
+    """Make `home` a user's home where the libraries' own caches already exist (matplotlib writes its font cache
+    there by design on first import); returns what it holds, for a test to compare with after a run."""
+    env = ray_env() | {"HOME": str(home)}
+    subprocess.run([sys.executable, "-c", "import matplotlib.pyplot"], env=env, check=True, timeout=120)
+    return sorted(home.rglob("*"))
 
 
 def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, pattern: str) -> tuple[int, str, str]:

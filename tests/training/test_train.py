@@ -17,7 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
-from cli_runs import cli, ctrl_c_after_checkpoint
+from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.env import MorphologyEnv
@@ -55,13 +55,26 @@ def tensorboard_tags(run_dir: Path) -> set[str]:
 
 
 @pytest.fixture(scope="module")
-def ppo_run(tmp_path_factory) -> tuple[Path, subprocess.CompletedProcess[str]]:
+def home(tmp_path_factory) -> tuple[Path, list[Path]]:
+    """The HOME the PPO run below runs with, and what it held before the run."""
+    path = tmp_path_factory.mktemp("home")
+    return path, fresh_home(path)
+
+
+@pytest.fixture(scope="module")
+def ppo_run(tmp_path_factory, home) -> tuple[Path, subprocess.CompletedProcess[str]]:
     """`smorphi-rl train` for 2 iterations of 2,000 steps on 4 envs (5 episodes each), checkpointing each."""
     work = tmp_path_factory.mktemp("ppo")
     proc = cli("train", "--map", MAP_1, "--timesteps", "4000", "--envs-per-runner", "4", "--name", "smoke",
-               "--checkpoint-every", "1", "--record-every", "25", cwd=work)  # fmt: skip
+               "--checkpoint-every", "1", "--record-every", "25", cwd=work, home=home[0])  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     return work / "logs" / "smoke", proc
+
+
+def test_train_writes_nothing_in_the_home_folder(ppo_run, home):
+    """RLlib's Algorithm makes itself a folder under ~/ray_results unless it is given the trial's storage."""
+    path, before = home
+    assert sorted(path.rglob("*")) == before
 
 
 def test_train_prints_where_everything_is(ppo_run):
