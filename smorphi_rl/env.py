@@ -56,7 +56,8 @@ action; truncated after `max_steps`.
 from __future__ import annotations
 
 import copy
-from dataclasses import replace
+from collections import OrderedDict
+from dataclasses import dataclass, field, replace
 from functools import lru_cache
 from typing import Any, NamedTuple
 
@@ -65,10 +66,12 @@ import numpy as np
 from gymnasium import spaces
 
 from smorphi_rl.coverage import CoverageResult
-from smorphi_rl.env_config import EnvConfig, EnvConfigError, RewardMode
+from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout, RewardMode
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.evaluate import Evaluator, Planning
+from smorphi_rl.floorplans import generate_floor
 from smorphi_rl.geometry import Morphology, check_block_side
+from smorphi_rl.map_sources import generators
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.score import Scored, Weights
 
@@ -129,13 +132,87 @@ class R1Stats(NamedTuple):
 
 @lru_cache(maxsize=64)
 def r1_stats(map_path: str, weights: Weights, planning: Planning) -> R1Stats:
+    """`map_r1_stats` of a map file (computed once per map and weights in each process)."""
+    return map_r1_stats(load_map(map_path), weights, planning)
+
+
+def map_r1_stats(grid_map: Map, weights: Weights, planning: Planning) -> R1Stats:
     """Mean, standard deviation and 90th percentile of R1 over SIGMA_SAMPLES seeded random integer shapes on
-    the map (computed once per map and weights in each process; sigma at least 1e-6 so a flat map scales)."""
+    the map (sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
     thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
-    batch = planning.evaluator(load_map(map_path)).evaluate_many(thetas)
+    batch = planning.evaluator(grid_map).evaluate_many(thetas)
     values = weights.r1(batch.P_c, batch.P_len)
     return R1Stats(float(np.mean(values)), max(float(np.std(values)), 1e-6), float(np.quantile(values, 0.9)))
+
+
+SCALE_KEY = "scale"
+"""The `floor` layout's entry for the floor's scale and clearance against the block."""
+CLEARANCE_BLOCKS = (0.5, 1.0, 2.0, 4.0)
+"""`scale`: the shares of free cells at least this many block sides from anything not free."""
+FLOOR_CACHE_SIZE = 256
+"""Generated floors an env process keeps built (map, planner, scores); shared by sibling sub-envs."""
+
+
+@dataclass
+class Floor:
+    """One map as the env plays it: the map, its weights, reward scales and observation entries, and the scores
+    of the shapes visited on it (an env's floors are built once and shared by its sibling sub-envs)."""
+
+    grid_map: Map
+    weights: Weights
+    stats: R1Stats
+    picture: np.ndarray
+    scale: np.ndarray
+    evaluator: Evaluator | None = None
+    scores: dict[tuple[int, int, int], Scored] = field(default_factory=dict)
+    plans: dict[tuple[bool, tuple[int, ...], bytes], CoverageResult] = field(default_factory=dict)
+    free_m2: float = 1.0
+    o_tile_m2: float = 0.0
+    """The O-shape's tile (2 x 2 blocks): P_len times it over the free area is about 1 for a full O-shape path."""
+
+
+def map_picture(grid_map: Map, size: int, square: bool) -> np.ndarray:
+    """Occupied and unknown fractions over the known cells' bounding box (a recorded map is mostly unknown space
+    around the floor: the policy sees the floor, not the frame), resampled to size x size, times 255 (uint8).
+    `square`: the box is first padded with unknown cells to a square, so the picture keeps the floor's aspect."""
+    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    cells = grid_map.cells[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+    if square:
+        side = max(cells.shape)
+        canvas = np.full((side, side), Cell.UNKNOWN, dtype=np.uint8)
+        r0, c0 = (side - cells.shape[0]) // 2, (side - cells.shape[1]) // 2
+        canvas[r0 : r0 + cells.shape[0], c0 : c0 + cells.shape[1]] = cells
+        cells = canvas
+    fractions = np.stack([resample(cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
+    channels = np.rint(fractions * MAP_LEVELS).astype(np.uint8)
+    channels.setflags(write=False)  # shared by every observation of this map
+    return channels
+
+
+def floor_scale(grid_map: Map, block_side_m: float) -> np.ndarray:
+    """The `floor` layout's `scale` entry, each in [0, 1]: a block's side in cells / 4, the known box's width and
+    height in metres / 20, the free area in m^2 / 200, the free share of the known cells, and the shares of free
+    cells at least 0.5, 1, 2 and 4 block sides from anything not free (how cluttered the floor is for this robot)."""
+    from scipy import ndimage
+
+    r = grid_map.resolution_m
+    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    height_m, width_m = (rows.max() - rows.min() + 1) * r, (cols.max() - cols.min() + 1) * r
+    free = grid_map.cells == Cell.FREE
+    n_free = max(int(free.sum()), 1)
+    clearance_m = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1] * r
+    shares = [float((clearance_m[free] >= k * block_side_m).sum()) / n_free for k in CLEARANCE_BLOCKS]
+    known = max(int((grid_map.cells != Cell.UNKNOWN).sum()), 1)
+    values = [block_side_m / r / 4, width_m / 20, height_m / 20, n_free * r * r / 200, n_free / known, *shares]
+    scale = np.clip(np.asarray(values, dtype=np.float32), 0.0, 1.0)
+    scale.setflags(write=False)
+    return scale
+
+
+def squash(x: float) -> float:
+    """x / (1 + x) for x >= 0: a count or ratio of any size into [0, 1)."""
+    return x / (1.0 + x)
 
 
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
@@ -145,41 +222,55 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def __init__(self, env_config: dict[str, Any] | None = None, **kwargs: Any) -> None:
         self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
-        self._maps: list[Map] = [load_map(p) for p in self.config.maps]
-        for grid_map in self._maps:  # a footprint under one cell, or absurdly many, fails here and names the map
-            try:
-                check_block_side(self.config.block_side_m, grid_map.resolution_m)
-            except SmorphiError as exc:
-                raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
-            try:
-                self.config.planning.start_on(grid_map)
-            except SmorphiError as exc:
-                raise EnvConfigError(f"env_config 'start_xy': {exc}") from None
-        self._evaluators: dict[int, Evaluator] = {}
-        self._plans: dict[tuple[int, bool, tuple[int, ...], bytes], CoverageResult] = {}
-        self._scores: dict[tuple[int, int, int, int], Scored] = {}
-        self._map_obs = [self._map_channels(m) for m in self._maps]
-        self._mode = RewardMode(self.config.reward)
-        self._weights = [self.config.weights_on(m) for m in self._maps]
         cfg = self.config
-        self._stats = [
-            r1_stats(p, w, cfg.planning) if self._mode is not RewardMode.PAPER else R1Stats(0.0, 1.0, 0.0)
-            for p, w in zip(cfg.maps, self._weights, strict=True)
-        ]  # fmt: skip
-        self._lattice_max = round(180 / self.config.angle_step_deg)
-        size = self.config.obs_size
-        self.action_space = spaces.MultiDiscrete([3, 3, 3])
-        self.observation_space = spaces.Dict(
-            {
-                "map": spaces.Box(0, MAP_LEVELS, (2, size, size), np.uint8),
-                "angles": spaces.Box(0.0, 1.0, (3,), np.float32),
-                "metrics": spaces.Box(0.0, 1.0, (2,), np.float32),
-            }
-        )
-        self._map_index = 0
+        self._mode = RewardMode(cfg.reward)
+        self._layout = ObservationLayout(cfg.observation)
+        self._files: list[Floor] = [self._build(load_map(p), p) for p in cfg.map_files]
+        self._sources = generators(cfg.maps)
+        self._generated: OrderedDict[tuple[int, int], Floor] = OrderedDict()
+        self._floor: Floor | None = None
+        self._lattice_max = round(180 / cfg.angle_step_deg)
+        k = len(cfg.moves)
+        self._offsets = np.array([-m for m in reversed(cfg.moves)] + [0] + list(cfg.moves), dtype=np.int64)
+        self._stay = k
+        """The action index that leaves a hinge where it is."""
+        size = cfg.obs_size
+        self.action_space = spaces.MultiDiscrete([2 * k + 1] * 3)
+        entries: dict[str, spaces.Space[Any]] = {
+            "map": spaces.Box(0, MAP_LEVELS, (2, size, size), np.uint8),
+            "angles": spaces.Box(0.0, 1.0, (3,), np.float32),
+            "metrics": spaces.Box(0.0, 1.0, (4 if self._layout is ObservationLayout.FLOOR else 2,), np.float32),
+        }
+        if self._layout is ObservationLayout.FLOOR:
+            entries[SCALE_KEY] = spaces.Box(0.0, 1.0, (5 + len(CLEARANCE_BLOCKS),), np.float32)
+        self.observation_space = spaces.Dict(entries)
         self._idx: tuple[int, int, int] = (0, 0, 0)  # theta = idx * angle_step_deg
         self._steps = 0
         self._last = self._best = UNSCORED  # until the first reset
+
+    def _build(self, grid_map: Map, path: str | None) -> Floor:
+        """A map's Floor; a block under one cell or a start off the floor fails here and names the map."""
+        cfg = self.config
+        try:
+            check_block_side(cfg.block_side_m, grid_map.resolution_m)
+        except SmorphiError as exc:
+            raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
+        try:
+            cfg.planning.start_on(grid_map)
+        except SmorphiError as exc:
+            raise EnvConfigError(f"env_config 'start_xy': {exc}") from None
+        weights = cfg.weights_on(grid_map)
+        if self._mode is RewardMode.PAPER:
+            stats = R1Stats(0.0, 1.0, 0.0)
+        elif path is not None:
+            stats = r1_stats(path, weights, cfg.planning)
+        else:
+            stats = map_r1_stats(grid_map, weights, cfg.planning)
+        floor = self._layout is ObservationLayout.FLOOR
+        scale = floor_scale(grid_map, cfg.block_side_m) if floor else np.zeros(0, dtype=np.float32)
+        free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2
+        picture = map_picture(grid_map, cfg.obs_size, floor)
+        return Floor(grid_map, weights, stats, picture, scale, free_m2=free_m2, o_tile_m2=4 * cfg.block_side_m**2)
 
     def sibling(self) -> MorphologyEnv:
         """A fresh env of the same configuration that shares this one's maps, observations and caches
@@ -190,21 +281,36 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return twin
 
     # -- helpers ---------------------------------------------------------------------------
-    def _map_channels(self, grid_map: Map) -> np.ndarray:
-        """The observation's map: occupied and unknown fractions over the known cells' bounding box (a
-        recorded map is mostly unknown space around the floor; the policy sees the floor, not the frame)."""
-        size = self.config.obs_size
-        rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
-        cells = grid_map.cells[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
-        fractions = np.stack([resample(cells == c, size) for c in (Cell.OCCUPIED, Cell.UNKNOWN)])
-        channels = np.rint(fractions * MAP_LEVELS).astype(np.uint8)
-        channels.setflags(write=False)  # shared by every observation of this map
-        return channels
+    def _draw_floor(self) -> Floor:
+        """The next episode's floor: one of the map files or a generated floor, drawn with the env's generator."""
+        n_files, n_sources = len(self._files), len(self._sources)
+        pick = int(self.np_random.integers(n_files + n_sources))
+        if pick < n_files:
+            return self._files[pick]
+        source = self._sources[pick - n_files]
+        seed = int(self.np_random.integers(source.lo, source.hi))
+        key = (pick - n_files, seed)
+        floor = self._generated.get(key)
+        if floor is None:
+            if len(self._generated) >= FLOOR_CACHE_SIZE:
+                self._generated.popitem(last=False)
+            floor = self._generated[key] = self._build(generate_floor(source.kind, seed), None)
+        else:
+            self._generated.move_to_end(key)
+        return floor
+
+    @property
+    def floor(self) -> Floor:
+        """The current episode's floor (the first map before the first reset)."""
+        if self._floor is None:
+            self._floor = self._files[0] if self._files else self._draw_floor()
+        return self._floor
 
     def _evaluator(self) -> Evaluator:
-        if self._map_index not in self._evaluators:
-            self._evaluators[self._map_index] = self.config.planning.evaluator(self._maps[self._map_index])
-        return self._evaluators[self._map_index]
+        floor = self.floor
+        if floor.evaluator is None:
+            floor.evaluator = self.config.planning.evaluator(floor.grid_map)
+        return floor.evaluator
 
     @property
     def theta(self) -> tuple[float, float, float]:
@@ -215,7 +321,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     @property
     def grid_map(self) -> Map:
         """The current episode's map."""
-        return self._maps[self._map_index]
+        return self.floor.grid_map
 
     def plan(self, theta: tuple[float, float, float]) -> CoverageResult:
         """The full FBCPP plan (path and covered cells) of `theta` on the current map, for figures and
@@ -223,18 +329,20 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         evaluator = self._evaluator()
         morphology = Morphology.of(theta)
         f = evaluator.footprint(morphology)
-        key = (self._map_index, f.feasible, f.matrix.shape, f.matrix.tobytes())
-        plan = self._plans.get(key)
+        plans = self.floor.plans
+        key = (f.feasible, f.matrix.shape, f.matrix.tobytes())
+        plan = plans.get(key)
         if plan is None:
-            if len(self._plans) >= PLAN_CACHE_SIZE:
-                self._plans.clear()
-            plan = self._plans[key] = evaluator.plan(morphology)
+            if len(plans) >= PLAN_CACHE_SIZE:
+                plans.clear()
+            plan = plans[key] = evaluator.plan(morphology)
         return replace(plan, theta=morphology.angles, footprint_m=(f.width_m, f.length_m))
 
     def score(self, theta: tuple[float, float, float]) -> Scored:
         """FBCPP metrics and R1 of `theta` on the current episode's map (the fields `info` reports)."""
         result = self._evaluator().evaluate(Morphology.of(theta))
         t1, t2, t3 = (float(t) for t in theta)
+        floor = self.floor
         return Scored(
             theta=(t1, t2, t3),
             P_c=result.P_c,
@@ -242,32 +350,45 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             P_len=result.P_len,
             path_length_m=result.path_length_m,
             feasible=result.feasible,
-            R1=self._weights[self._map_index].r1(result.P_c, result.P_len),
-            map=self._maps[self._map_index].name,
+            R1=floor.weights.r1(result.P_c, result.P_len),
+            map=floor.grid_map.name,
         )
 
     def _score_current(self) -> Scored:
-        """`score` of the current lattice point, memoised by (map, lattice index): the env's hot path."""
-        key = (self._map_index, *self._idx)
-        scored = self._scores.get(key)
+        """`score` of the current lattice point, memoised by lattice index on the floor: the env's hot path."""
+        scores = self.floor.scores
+        scored = scores.get(self._idx)
         if scored is None:
-            if len(self._scores) >= SCORE_CACHE_SIZE:
-                self._scores.clear()
-            scored = self._scores[key] = self.score(self.theta)
+            if len(scores) >= SCORE_CACHE_SIZE:
+                scores.clear()
+            scored = scores[self._idx] = self.score(self.theta)
         return scored
+
+    @property
+    def current(self) -> Scored:
+        """The current shape's score (after a reset or a step)."""
+        return self._last
+
+    @property
+    def planner_calls(self) -> int:
+        """Footprints this env has planned on the current floor (its cache of plans answers the rest)."""
+        return self._evaluator().misses
 
     @property
     def sigma_map(self) -> float:
         """The R1 spread that scales the design rewards on the current map (1 in `paper` mode)."""
-        return self._stats[self._map_index].sigma
+        return self.floor.stats.sigma
 
     def _observe(self) -> dict[str, np.ndarray]:
-        p_c, p_len = self._last.P_c, self._last.P_len
-        return {
-            "map": self._map_obs[self._map_index],
-            "angles": np.asarray(self.theta, dtype=np.float32) / np.float32(180.0),
-            "metrics": np.array([p_c / 100.0, p_len / (p_len + 100.0)], dtype=np.float32),
-        }
+        last, floor = self._last, self.floor
+        angles = np.asarray(self.theta, dtype=np.float32) / np.float32(180.0)
+        if self._layout is ObservationLayout.PICTURE:
+            metrics = np.array([last.P_c / 100.0, last.P_len / (last.P_len + 100.0)], dtype=np.float32)
+            return {"map": floor.picture, "angles": angles, "metrics": metrics}
+        path = squash(last.P_len * floor.o_tile_m2 / floor.free_m2)
+        r1 = min(max(last.R1 / 100.0, 0.0), 1.0)
+        metrics = np.array([last.P_c / 100.0, last.coverage_free_pct / 100.0, path, r1], dtype=np.float32)
+        return {"map": floor.picture, "angles": angles, "metrics": metrics, SCALE_KEY: floor.scale}
 
     def _info(self) -> dict[str, Any]:
         return self._last.info | self._best.best_info
@@ -282,7 +403,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
-        self._map_index = int(self.np_random.integers(len(self._maps)))
+        self._floor = self._draw_floor()
         start = (options or {}).get("theta", self.config.start_theta)
         if start is not None:  # options={"theta": ...}: the evaluation protocol's fixed starts
             try:
@@ -299,31 +420,32 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
-        if len(moves) != 3 or any(m not in (0, 1, 2) for m in moves):
-            raise SmorphiError(f"action must be three values in {{0, 1, 2}}, got {action!r}")
+        top_index = 2 * self._stay
+        if len(moves) != 3 or any(not isinstance(m, int | np.integer) or not 0 <= m <= top_index for m in moves):
+            raise SmorphiError(f"action must be three values in 0..{top_index}, got {action!r}")
         self._steps += 1
         before = self._last
         truncated = self._steps >= self.config.max_steps
-        if self._mode is RewardMode.COMMIT and moves == [1, 1, 1]:
+        if self._mode is RewardMode.COMMIT and all(m == self._stay for m in moves):
             # committing keeps the shape and ends the episode, paid the value of that one design
             return self._observe(), float(before.R1 / self.sigma_map), True, False, self._info()
-        top = self._lattice_max
-        i, j, k = (min(max(v + m - 1, 0), top) for v, m in zip(self._idx, moves, strict=True))
+        top, offsets = self._lattice_max, self._offsets
+        i, j, k = (min(max(v + int(offsets[m]), 0), top) for v, m in zip(self._idx, moves, strict=True))
         unchanged = (i, j, k) == self._idx
         self._idx = (i, j, k)
         scored = self._score_current()
         self._record(scored)
+        stats = self.floor.stats
         if self._mode is RewardMode.PAPER:
             reward = scored.R1 - (self.config.beta if unchanged else 0.0)
         elif self._mode is RewardMode.LEVEL:
-            stats = self._stats[self._map_index]
             reward = (scored.R1 - stats.mu) / stats.sigma - (0.0 if unchanged else self.config.move_cost)
         elif self._mode is RewardMode.PEAK:
-            reward = self._stats[self._map_index].peak(scored.R1) - (0.0 if unchanged else self.config.move_cost)
+            reward = stats.peak(scored.R1) - (0.0 if unchanged else self.config.move_cost)
         elif self._mode is RewardMode.IMPROVEMENT:
-            reward = (scored.R1 - before.R1) / self.sigma_map
+            reward = (scored.R1 - before.R1) / stats.sigma
         else:
-            reward = -self.config.step_cost + (scored.R1 / self.sigma_map if truncated else 0.0)
+            reward = -self.config.step_cost + (scored.R1 / stats.sigma if truncated else 0.0)
         threshold = self.config.coverage_threshold
         terminated = threshold is not None and scored.P_c >= threshold
         return self._observe(), float(reward), bool(terminated), bool(truncated), self._info()

@@ -37,6 +37,21 @@ DEFAULT_MOVE_COST = 0.0
 1 % but map-2 from 40 to 32 % with twice the median gap, and IMPALA's gaps grew on both (README, Learning)."""
 
 
+class ObservationLayout(str, Enum):
+    """What the observation holds (docs/spec/env.md, "Observation")."""
+
+    PICTURE = "picture"
+    """The map as a picture of the known cells, the angles, P_c and P_len: the paper's, for one map or a few."""
+    FLOOR = "floor"
+    """The picture at its true aspect, the floor's scale against the block, its clearance at the block's scale,
+    and metrics that mean the same on any floor size: for a policy that designs for floors it has not seen."""
+
+
+LAYOUTS = tuple(m.value for m in ObservationLayout)
+MAX_MOVE_SIZES = 4
+"""At most this many step sizes per hinge (an action picks one of 2 K + 1 moves per hinge)."""
+
+
 class EnvConfigError(SmorphiError):
     """An `env_config` key that is unknown or has a bad value."""
 
@@ -46,7 +61,8 @@ class EnvConfig:
     """Everything the env takes, validated once; the only place its defaults live."""
 
     maps: tuple[str, ...] = DEFAULT_MAPS
-    """map_server YAML paths; one is drawn per episode."""
+    """Map files, folders, globs or `generate:KIND[:LO-HI]` floor generators (`map_sources.py`); one map is drawn
+    per episode."""
     angle_step_deg: float = 1.0
     """Hinge step per action (the paper's 1-degree design space); must divide 180."""
     w1: float = 1.0
@@ -82,6 +98,12 @@ class EnvConfig:
     start_xy: tuple[float, float] | None = None
     """Where every coverage plan starts: a free point (x, y) in metres, map frame; None: the planner's default
     (paper: the first traversable tile; fit: in the largest free area)."""
+    observation: str = ObservationLayout.PICTURE.value
+    """Observation layout: picture (the map's picture, angles, P_c and P_len) or floor (adds the floor's scale and
+    clearance against the block, for a policy that designs for unseen floors)."""
+    moves: tuple[int, ...] = (1,)
+    """Step sizes of a hinge move, in lattice steps: (1,) is the paper's -1/0/+1; (1, 4, 16) lets a policy cross
+    the angle range in a few steps and still refine by one."""
 
     def __post_init__(self) -> None:
         if self.reward not in REWARD_MODES:
@@ -101,6 +123,17 @@ class EnvConfig:
                 raise EnvConfigError(f"env_config '{name}' must be >= 0, got {getattr(self, name)}")
         if not self.maps:
             raise EnvConfigError("env_config 'maps': give at least one map")
+        if self.observation not in LAYOUTS:
+            raise EnvConfigError(f"env_config 'observation': unknown layout '{self.observation}' (choose from "
+                                 f"{', '.join(LAYOUTS)})")  # fmt: skip
+        lattice = round(180 / self.angle_step_deg) if self.angle_step_deg > 0 else 0
+        if not (
+            1 <= len(self.moves) <= MAX_MOVE_SIZES
+            and all(1 <= m <= max(lattice, 1) for m in self.moves)
+            and list(self.moves) == sorted(set(self.moves))
+        ):
+            raise EnvConfigError(f"env_config 'moves' must be 1 to {MAX_MOVE_SIZES} increasing step sizes in "
+                                 f"[1, {lattice}] lattice steps, got {list(self.moves)}")  # fmt: skip
         step = self.angle_step_deg
         if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
             raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
@@ -134,6 +167,13 @@ class EnvConfig:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @property
+    def map_files(self) -> tuple[str, ...]:
+        """The maps that are files (not floor generators)."""
+        from smorphi_rl.map_sources import map_files
+
+        return map_files(self.maps)
+
     def weights_on(self, grid_map: Map) -> Weights:
         """R1's weights in effect on `grid_map` (w2 after `path_term`)."""
         free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2
@@ -151,8 +191,22 @@ def _coerce(name: str, value: Any) -> Any:
     """Check one env_config value's type; lists become tuples, numbers floats or ints."""
     try:
         if name == "maps":
+            from smorphi_rl.map_sources import MapSourceError, resolve
+
             items = [value] if isinstance(value, str | Path) else list(value)
-            return tuple(str(Path(v).resolve()) for v in items)
+            try:
+                return resolve([str(v) for v in items])
+            except MapSourceError as exc:
+                raise EnvConfigError(f"env_config 'maps': {exc}") from None
+        if name == "moves":
+            sizes: list[Any] = [value] if isinstance(value, int) else list(value)
+            if any(isinstance(v, bool) or not isinstance(v, int | float) or int(v) != v for v in sizes):
+                raise TypeError
+            return tuple(int(v) for v in sizes)
+        if name == "observation":
+            if not isinstance(value, str | ObservationLayout):
+                raise TypeError
+            return ObservationLayout(value).value if value in LAYOUTS else str(value)
         if name == "start_theta":
             return None if value is None else tuple(float(v) for v in value)
         if name == "start_xy":

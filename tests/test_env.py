@@ -266,7 +266,7 @@ def test_sibling_shares_tables_but_not_state():
     twin = env.sibling()
     env.reset(seed=1)
     twin.reset(seed=2)
-    assert twin._scores is env._scores and twin._evaluators is env._evaluators
+    assert twin._files is env._files and twin._generated is env._generated  # floors, their planners and scores
     assert twin.np_random is not env.np_random and twin.theta != env.theta
 
 
@@ -302,3 +302,54 @@ def test_the_map_view_covers_the_known_cells_not_the_frame(tmp_path):
     ]
     views = [MorphologyEnv({"maps": [str(p)], "obs_size": 12}).reset(seed=0)[0]["map"] for p in paths]
     assert np.array_equal(views[0], views[1]) and views[1][1].max() == 0  # no unknown left in view
+
+
+FLOOR_CONFIG = {"maps": ["generate:mixed"], "observation": "floor", "moves": [1, 4, 16], "path_term": "per_area",
+                "max_steps": 8}  # fmt: skip
+
+
+def test_generated_floors_are_drawn_per_episode_and_repeat_with_the_seed():
+    a, b = MorphologyEnv(FLOOR_CONFIG), MorphologyEnv(FLOOR_CONFIG)
+    names = [a.reset(seed=s)[1]["map"] for s in range(6)]
+    assert names == [b.reset(seed=s)[1]["map"] for s in range(6)] and len(set(names)) == 6
+    assert all(int(n.split("-")[1]) < 900_000 for n in names)  # training seeds only
+
+
+def test_the_floor_layout_passes_the_checker_and_carries_the_scale():
+    from gymnasium.utils.env_checker import check_env
+
+    env = MorphologyEnv(FLOOR_CONFIG)
+    check_env(env, skip_render_check=True)
+    obs, info = env.reset(seed=0)
+    assert set(obs) == {"map", "angles", "metrics", "scale"} and obs["scale"].shape == (9,)
+    assert env.observation_space.contains(obs)
+    grid_map = env.grid_map
+    assert obs["scale"][0] == pytest.approx(0.17 / grid_map.resolution_m / 4, rel=1e-6)
+    assert obs["metrics"][3] == pytest.approx(min(max(info["R1"] / 100, 0), 1), abs=1e-6)
+
+
+def test_the_floor_picture_keeps_the_floors_aspect(tmp_path):
+    from smorphi_rl.env import map_picture
+    from smorphi_rl.maps import Map
+
+    wide = Map(np.zeros((10, 40), dtype=np.uint8), 0.1)
+    picture = map_picture(wide, 8, square=True)
+    assert picture[1, :2].min() == 255 and picture[1, 3:5].max() == 0  # unknown above and below the floor
+    assert map_picture(wide, 8, square=False)[1].max() == 0  # the picture layout stretches it
+
+
+def test_move_sizes_give_seven_moves_per_hinge():
+    env = MorphologyEnv({"moves": [1, 4, 16], "reward": "paper"})
+    assert list(env.action_space.nvec) == [7, 7, 7]
+    env.reset(seed=0, options={"theta": (90.0, 90.0, 90.0)})
+    _, _, _, _, info = env.step(np.array([0, 3, 6]))  # -16, stay, +16
+    assert info["theta"] == (74.0, 90.0, 106.0)
+    _, _, _, _, info = env.step(np.array([2, 4, 5]))  # -1, +1, +4
+    assert info["theta"] == (73.0, 91.0, 110.0)
+    with pytest.raises(EnvConfigError, match="increasing step sizes"):
+        MorphologyEnv({"moves": [4, 1]})
+
+
+def test_the_default_layout_is_the_papers():
+    env = MorphologyEnv()
+    assert set(env.observation_space.spaces) == {"map", "angles", "metrics"} and list(env.action_space.nvec) == [3] * 3

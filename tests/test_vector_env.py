@@ -45,7 +45,7 @@ def test_vector_env_api_and_next_step_autoreset():
 def test_sub_envs_share_one_set_of_tables():
     venv = make_env({"num_envs": 3})
     first, second = (e.unwrapped for e in venv.envs[:2])
-    assert first._scores is second._scores and first._map_obs is second._map_obs
+    assert first._files is second._files and first.floor is second.floor
 
 
 def test_seeds_and_runners_draw_independent_streams():

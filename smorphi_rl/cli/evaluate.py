@@ -19,6 +19,7 @@ from smorphi_rl.cli.fields import option, param_default
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.geometry import Morphology, angles_text, check_block_side
 from smorphi_rl.maps import Cell, Map, generate_map, load_map
 
@@ -42,8 +43,13 @@ def register(sub: Any) -> None:
 
     maps = sub.add_parser("maps", help="generate or inspect maps")
     maps_sub = maps.add_subparsers(dest="maps_command", required=True, parser_class=Parser)
-    gen = maps_sub.add_parser("generate", help="write a map of rectangular obstacles")
-    gen.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
+    gen = maps_sub.add_parser("generate", help="write a map of rectangular obstacles, or a set of floor plans")
+    gen.add_argument("--out", required=True, help="YAML path to write (image written beside it); with --kind, the "
+                     "folder the set goes to")  # fmt: skip
+    gen.add_argument("--kind", choices=[k.value for k in FloorKind], help="write a set of seeded indoor floor plans "
+                     "of this kind (smorphi_rl/floorplans.py): rooms, corridor, hall, furniture or mixed")  # fmt: skip
+    gen.add_argument("--count", type=int, default=1, metavar="N", help="with --kind: floors to write, seeds S, "
+                     "S+1, ... (default 1)")  # fmt: skip
     for flag, param, text in (("--width-m", "width_m", "metres"), ("--height-m", "height_m", "metres"),
                               ("--resolution", "resolution_m", "metres per cell"),
                               ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
@@ -280,8 +286,11 @@ def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: 
 
 
 def cmd_maps_generate(args: argparse.Namespace) -> int:
-    """Write an indoor-like map of rectangular obstacles."""
+    """Write an indoor-like map of rectangular obstacles, or with --kind a set of floor plans."""
     from smorphi_rl.maps import save_map
+
+    if args.kind is not None:
+        return _generate_floors(args)
 
     out = Path(args.out)
     if out.suffix != ".yaml":
@@ -302,6 +311,38 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    return 0
+
+
+MAX_FLOORS = 10_000
+"""`maps generate --kind` writes at most this many floors at once."""
+
+
+def _generate_floors(args: argparse.Namespace) -> int:
+    """`maps generate --kind K --count N --seed S --out DIR`: floors K-S .. K-(S+N-1), each a YAML and its image."""
+    from smorphi_rl.floorplans import floor_name, generate_floor
+    from smorphi_rl.maps import save_map
+
+    if not 1 <= args.count <= MAX_FLOORS:
+        raise SmorphiError(f"--count must be in 1..{MAX_FLOORS:,}, got {args.count}")
+    if args.seed + args.count > 2**63:
+        raise SmorphiError(f"--seed {args.seed} + --count {args.count} passes 2^63, the largest floor seed")
+    out = Path(args.out)
+    if out.suffix in (".yaml", ".yml") or (out.exists() and not out.is_dir()):
+        raise SmorphiError(f"--out {out}: with --kind, give the folder the floors go to")
+    names = [floor_name(args.kind, args.seed + i) for i in range(args.count)]
+    if not args.force:
+        taken = [n for n in names if (out / f"{n}.yaml").exists() or (out / f"{n}.{args.format}").exists()]
+        if taken:
+            raise SmorphiError(f"{out / taken[0]}.yaml exists ({len(taken)} of the {len(names)} floors do); pass "
+                               "--force to overwrite them")  # fmt: skip
+    cells = 0
+    for i, name in enumerate(names):
+        grid_map = generate_floor(args.kind, args.seed + i)
+        save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
+        cells += grid_map.cells.size
+    print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
+          f"{cells / len(names):,.0f} cells on average)")  # fmt: skip
     return 0
 
 

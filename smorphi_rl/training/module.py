@@ -43,6 +43,8 @@ MAP_LEVELS = 255.0
 """The env's map channels are uint8 fractions times 255."""
 MAP_KEY = "map"
 """The observation's map entry."""
+EXTRA_KEYS = ("metrics", "scale")
+"""The observation's entries the MLP reads as they are, in this order (`scale`: the env's floor layout only)."""
 WORD = torch.int64
 
 
@@ -212,7 +214,10 @@ class _Net(nn.Module):
         self._kept: tuple[tuple[tuple[int, int], ...], torch.Tensor, torch.Tensor] | None = None
         self.map_table = map_table if map_table is not None else MapTable()
         n_angles = int(np.prod(obs_space["angles"].shape or (1,)))
-        shape_inputs = n_angles * (1 + 2 * frequencies) + int(np.prod(obs_space["metrics"].shape or (1,)))
+        self._extras = tuple(k for k in EXTRA_KEYS if k in obs_space.spaces)
+        """The observation's entries fed to the MLP as they are (the metrics; the floor layout's scale)."""
+        shape_inputs = n_angles * (1 + 2 * frequencies) + sum(int(np.prod(obs_space[k].shape or (1,)))
+                                                              for k in self._extras)  # fmt: skip
         self.register_buffer("_freqs", torch.arange(1, frequencies + 1, dtype=torch.float32) * torch.pi)
         self.mlp = nn.Sequential(
             nn.Linear(MAP_FEATURES + shape_inputs, HIDDEN),
@@ -253,11 +258,12 @@ class _Net(nn.Module):
         map_features = self.encode_maps(obs[MAP_KEY])
         angles = obs["angles"]
         freqs: torch.Tensor = self._freqs  # type: ignore[assignment]  # a registered buffer
+        extras = [obs[k] for k in self._extras]
         if freqs.numel():
             phases = (angles.unsqueeze(-1) * freqs).flatten(-2)  # angles are theta / 180, so k pi theta / 180
-            features = [map_features, angles, torch.sin(phases), torch.cos(phases), obs["metrics"]]
+            features = [map_features, angles, torch.sin(phases), torch.cos(phases), *extras]
         else:  # no frequencies: their empty columns would add nothing
-            features = [map_features, angles, obs["metrics"]]
+            features = [map_features, angles, *extras]
         return self.head(self.mlp(torch.cat(features, dim=-1)))
 
 
