@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import hashlib
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -33,7 +34,7 @@ def test_every_kind_is_a_connected_floor_within_the_range(kind):
         assert m.cells[0].tolist() == [Cell.UNKNOWN] * m.width  # the margin outside the outer wall
         rows, cols = np.nonzero(m.cells != Cell.UNKNOWN)
         sides = ((np.ptp(rows) + 1) * m.resolution_m, (np.ptp(cols) + 1) * m.resolution_m)
-        assert 2.9 <= min(sides) and max(sides) <= 15.1, sides
+        assert min(sides) >= 2.9 and max(sides) <= 15.1, sides
         assert m.name == floor_name(kind, seed)
 
 
@@ -57,7 +58,7 @@ def test_the_shipped_held_out_floors_are_regenerated_bit_for_bit():
 
 def test_training_validation_and_held_out_seeds_never_meet():
     ranges = [TRAINING_SEEDS, VALIDATION_SEEDS, HELD_OUT_SEEDS]
-    for (lo_a, hi_a), (lo_b, _) in zip(ranges, ranges[1:], strict=False):
+    for (lo_a, hi_a), (lo_b, _) in itertools.pairwise(ranges):
         assert hi_a <= lo_b and lo_a < hi_a
     assert parse_generator("generate:mixed").split() == "training"
     for path in (ROOT / "maps" / "designer" / "validation").glob("*.yaml"):
