@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 
 from smorphi_rl import interrupts
-from smorphi_rl.cli import evaluate, policy, search, train
+from smorphi_rl.cli import design, evaluate, policy, search, train
 from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map
 from smorphi_rl.errors import SmorphiError
 
@@ -21,6 +21,7 @@ GROUPS = {
     train: ("train", "transfer", "sweep", "reproduce"),
     policy: ("replay", "evaluate-policy"),
     search: ("search", "compare"),
+    design: ("design",),
 }
 """Each command-group module and the commands it registers."""
 

@@ -11,7 +11,11 @@ evaluations (distinct shapes scored), so every method is compared at equal cost:
   spent; at most 20 proposed moves per evaluation), ending on the best;
 - `random_walk`: uniformly random moves from the start, ending on the shape the protocol says it
   settled on (as a policy's roll-out would);
-- `random_search`: uniformly random shapes, ending on the best.
+- `random_search`: uniformly random shapes, ending on the best;
+- `pattern`: compass search with shrinking steps: from the start, each hinge tries +-32 lattice steps, then
+  +-16, ... down to +-1, taking every move that improves R1; when no step of any size improves, it restarts
+  from a uniformly random shape (seeded), ending on the best. Unlike the one-step moves, it jumps the plateaus
+  and ripples of the R1 landscape at a few degrees.
 """
 
 from __future__ import annotations
@@ -31,7 +35,9 @@ from smorphi_rl.search.results import SearchResult
 Theta = tuple[float, float, float]
 MOVES = [m for m in itertools.product((-1, 0, 1), repeat=3) if any(m)]
 """The 26 non-zero moves of one step per hinge."""
-METHODS = ("hillclimb", "anneal", "random_walk", "random_search")
+METHODS = ("hillclimb", "anneal", "random_walk", "random_search", "pattern")
+PATTERN_STEPS = (32, 16, 8, 4, 2, 1)
+"""Compass search's step sizes, in lattice steps, largest first."""
 ANNEAL_MOVES_PER_EVALUATION = 20
 """Annealing stops after this many proposed moves per budgeted evaluation even if some budget is left."""
 
@@ -131,8 +137,32 @@ def random_search(space: _Budgeted, start: Theta, rng: np.random.Generator) -> T
     return space.best()
 
 
+def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    current: Theta = start
+    while True:
+        value = space.r1(current)
+        if value is None:
+            break
+        for size in PATTERN_STEPS:
+            improved = True
+            while improved:
+                improved = False
+                for hinge, sign in itertools.product(range(3), (-1, 1)):
+                    moved = list(current)
+                    moved[hinge] = min(max(moved[hinge] + sign * size * space.step, 0.0), space.top)
+                    candidate: Theta = (moved[0], moved[1], moved[2])
+                    v = space.r1(candidate)
+                    if v is None:
+                        return space.best()
+                    if v > value:
+                        current, value, improved = candidate, v, True
+        current = space.random_theta(rng)  # no step of any size improves: restart
+    return space.best()
+
+
 SEARCHERS: dict[str, Callable[[_Budgeted, Theta, np.random.Generator], Theta]] = {
     "hillclimb": hill_climb, "anneal": anneal, "random_walk": random_walk, "random_search": random_search,
+    "pattern": pattern,
 }  # fmt: skip
 
 

@@ -41,6 +41,11 @@ class MorphologyCallbacks(RLlibCallback):
     eval_optima: dict[str, Any] = {}  # noqa: RUF012 (set per run by with_evaluation)
     select_starts: tuple[tuple[float, float, float], ...] = ()
     """Other seeded starts on which the run chooses the policy it ends on (none: it ends on its last)."""
+    eval_maps: tuple[str, ...] = ()
+    """The maps evaluated on (none: the training maps)."""
+    design_budget: int = 0
+    """Planner evaluations of the designer's figures at each evaluation (`policy.DesignEvaluation`; 0: none)."""
+    _design: Any = None
     _evaluation: Any = None
     """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first:
     the protocol's starts, then the selection starts, rolled out together (one forward pass a step for both)."""
@@ -116,6 +121,10 @@ class MorphologyCallbacks(RLlibCallback):
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
                 protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, protocol)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
+            if self.design_budget:
+                if self._design is None:
+                    self._design = self._design_evaluation(algorithm)
+                result[EVAL_KEY] |= _on_learner(algorithm, self._design)
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
         """The protocol's greedy roll-outs from `starts` on every training map (a PolicyEvaluation)."""
@@ -126,9 +135,18 @@ class MorphologyCallbacks(RLlibCallback):
         from smorphi_rl.training.policy import PolicyEvaluation
 
         known = set(EnvConfig.__dataclass_fields__)
-        env = EnvConfig.from_dict({k: v for k, v in dict(algorithm.config.env_config).items() if k in known})
+        raw = {k: v for k, v in dict(algorithm.config.env_config).items() if k in known}
+        env = EnvConfig.from_dict(raw | ({"maps": list(self.eval_maps)} if self.eval_maps else {}))
         optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
         return PolicyEvaluation(env, np.array(starts, dtype=np.float64), optima)
+
+    def _design_evaluation(self, algorithm: Any) -> Any:
+        """The designer's figures on the evaluated maps (a DesignEvaluation)."""
+        from smorphi_rl.protocol import Optimum
+        from smorphi_rl.training.policy import DesignEvaluation
+
+        env = self._protocol(algorithm, ()).env_config
+        return DesignEvaluation(env, {name: Optimum(**o) for name, o in self.eval_optima.items()}, self.design_budget)
 
     def _select(
         self, algorithm: Any, steps: int, last: bool, selection: list[Any], protocol: list[Any]
@@ -184,12 +202,15 @@ def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
 
 def with_evaluation(
     base: type[MorphologyCallbacks], every: int, starts: Any, optima: dict[str, Any], final_steps: int = 0,
-    selection: Any = (),
+    selection: Any = (), maps: tuple[str, ...] = (), design_budget: int = 0,
 ) -> type:  # fmt: skip
-    """`base` with the periodic evaluation switched on: `starts` (n x 3), each training map's Optimum, and the
+    """`base` with the periodic evaluation switched on: `starts` (n x 3), each evaluated map's Optimum, and the
     env-step budget (the iteration that reaches it is evaluated too); `selection` (m x 3), other starts on
-    which the run chooses the evaluated policy it ends on (empty: the last)."""
+    which the run chooses the evaluated policy it ends on (empty: the last); `maps`, the maps evaluated on
+    (empty: the training maps); `design_budget`, the designer's figures at that many planner evaluations (0: off)."""
     from dataclasses import asdict
+
+    evaluations = design_budget
 
     class EvaluatingCallbacks(base):  # type: ignore[valid-type, misc]
         eval_every = every
@@ -197,5 +218,7 @@ def with_evaluation(
         eval_starts = tuple(tuple(float(t) for t in row) for row in starts)
         eval_optima = {name: asdict(o) for name, o in optima.items()}  # noqa: RUF012
         select_starts = tuple(tuple(float(t) for t in row) for row in selection)
+        eval_maps = tuple(maps)
+        design_budget = evaluations
 
     return EvaluatingCallbacks

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.policy_file import PolicyFile, PolicyFileError, is_policy_dir, read_policy
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
 """Where a (new API stack) Algorithm checkpoint keeps the RLModule's state."""
@@ -51,12 +52,15 @@ def checkpoints_under(path: Path) -> list[Path]:
 
 
 def find_checkpoint(path: str | Path) -> Path:
-    """A checkpoint directory itself, or the newest one under a trial or run directory."""
+    """A checkpoint directory itself, or the newest one under a trial or run directory, or an exported policy's
+    folder (`policy_file.py`: the shipped designer is one)."""
     root = Path(path)
     if not root.exists():
         raise CheckpointError(f"checkpoint not found: {root}")
     if not root.is_dir():
         raise CheckpointError(f"{root}: not a directory (give a checkpoint, trial or run directory)")
+    if is_policy_dir(root):
+        return root
     try:
         found = checkpoints_under(root)
     except (OSError, RuntimeError) as exc:  # a symlink loop, an unreadable folder
@@ -219,12 +223,32 @@ def set_weights(module: Any, state: dict[str, np.ndarray], where: Path | str) ->
     module.load_state_dict({k: torch.from_numpy(np.array(v, dtype=np.float32)) for k, v in state.items()})
 
 
+def policy_spaces(policy: PolicyFile) -> tuple[Any, Any]:
+    """The observation and action spaces an exported policy was trained on (the env's, from their shapes)."""
+    import gymnasium as gym
+
+    entries: dict[str, gym.Space[Any]] = {
+        k: gym.spaces.Box(0, 255, shape, np.uint8) if k == "map" else gym.spaces.Box(0.0, 1.0, shape, np.float32)
+        for k, shape in policy.observation_shapes.items()
+    }
+    return gym.spaces.Dict(entries), gym.spaces.MultiDiscrete(list(policy.action_nvec))
+
+
 def load_module(checkpoint: Path) -> Any:
-    """The trained MorphologyModule of a checkpoint, on the CPU, ready for `forward_inference`; nothing the files
-    say is run (module docstring)."""
+    """The trained MorphologyModule of a checkpoint (or of an exported policy's folder), on the CPU, ready for
+    `forward_inference`; nothing the files say is run (module docstring)."""
     from smorphi_rl.training.quiet import quiet
 
     quiet()
+    if is_policy_dir(checkpoint):
+        try:
+            policy = read_policy(checkpoint)
+        except PolicyFileError as exc:
+            raise CheckpointError(str(exc)) from None
+        obs, act = policy_spaces(policy)
+        module = build_module(obs, act, policy.model_config)
+        set_weights(module, {k: v for k, v in policy.weights.items()}, checkpoint)
+        return module
     kwargs, state = read_module_files(checkpoint)
     obs, act, model = _checked_spaces(kwargs, checkpoint)
     try:

@@ -77,8 +77,23 @@ class TrainConfig:
     """End on the run's best evaluated policy, chosen on this many other seeded starts per map (0: the last)."""
     record_every: int = DEFAULT_RECORD_EVERY
     """Record every Nth episode of each env to MCAP under the run's episodes/ folder; 0: no recording."""
+    design_budget: int = 0
+    """Each evaluation also runs the designer (`design.py`) on the evaluated maps with this many planner
+    evaluations and reports its gap to each optimum (eval/design_...); 0: off."""
+    eval_maps: tuple[str, ...] = ()
+    """Maps the evaluation protocol runs on (files, folders or globs; their exact optima are computed first);
+    empty: the training maps that are files. A generalist policy is evaluated on held-out floors this way."""
 
     def __post_init__(self) -> None:
+        if self.eval_maps:
+            from smorphi_rl.map_sources import MapSourceError, is_generator, resolve
+
+            if any(is_generator(str(m)) for m in self.eval_maps):
+                raise TrainConfigError("eval_maps must be map files, folders or globs (an optimum needs a fixed map)")
+            try:
+                object.__setattr__(self, "eval_maps", resolve([str(m) for m in self.eval_maps]))
+            except MapSourceError as exc:
+                raise TrainConfigError(f"eval_maps: {exc}") from None
         if self.algo not in ALGORITHMS:
             raise TrainConfigError(f"unknown algorithm '{self.algo}' (choose from {', '.join(ALGORITHMS)})")
         if self.preset not in PRESETS:
@@ -94,7 +109,7 @@ class TrainConfig:
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
-        for name in ("eval_every", "select_starts", "record_every"):
+        for name in ("eval_every", "select_starts", "record_every", "design_budget"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise TrainConfigError(f"{name} must be a non-negative integer (0: off), got {value!r}")
@@ -111,6 +126,11 @@ class TrainConfig:
                     f"{self.algo}: minibatch_size ({hp.minibatch_size}) must be a multiple of the rollout fragment "
                     f"length ({fragment})"
                 )
+
+    @property
+    def evaluation_maps(self) -> tuple[str, ...]:
+        """The maps the protocol evaluates on: `eval_maps`, else the training maps that are files."""
+        return self.eval_maps or self.env.map_files
 
     @property
     def env_runners(self) -> int:
@@ -172,23 +192,21 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
     in sigma_map units."""
     import numpy as np
 
-    from smorphi_rl.env import peak_reward, r1_stats
+    from smorphi_rl.env import map_r1_stats, peak_reward
     from smorphi_rl.env_config import RewardMode
-    from smorphi_rl.maps import load_map
 
     rng = np.random.default_rng(0)
     thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
     per_map = []
-    for path in env.maps:
-        grid_map = load_map(path)
+    for grid_map in sample_maps(env):
         batch = env.planning.evaluator(grid_map).evaluate_many(thetas)
         weights = env.weights_on(grid_map)
         values = weights.r1(batch.P_c, batch.P_len)
         if env.reward == RewardMode.PEAK.value:
-            stats = r1_stats(path, weights, env.planning)
+            stats = map_r1_stats(grid_map, weights, env.planning)
             values = peak_reward(values, stats.q90, stats.sigma)
         elif env.reward != RewardMode.PAPER.value:
-            stats = r1_stats(path, weights, env.planning)
+            stats = map_r1_stats(grid_map, weights, env.planning)
             values = (values - (stats.mu if env.reward == RewardMode.LEVEL.value else 0.0)) / stats.sigma
         per_map.append(values)
     values = np.concatenate(per_map)
@@ -197,8 +215,24 @@ def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tup
         return 0.0, spread
     if env.reward == RewardMode.COMMIT.value:
         return float(values.mean()), spread
-    horizon = 1.0 / (1.0 - gamma) if gamma < 1 else float(env.max_steps)
+    horizon = min(1.0 / (1.0 - gamma), float(env.max_steps)) if gamma < 1 else float(env.max_steps)
     return float(values.mean()) * horizon, spread * horizon
+
+
+GENERATED_SAMPLE = 8
+"""Floors of each generator that stand for it where figures over the maps are needed (the critic's scale)."""
+
+
+def sample_maps(env: EnvConfig) -> list[Any]:
+    """The env's map files, and the first GENERATED_SAMPLE floors of each of its generators."""
+    from smorphi_rl.floorplans import generate_floor
+    from smorphi_rl.map_sources import generators
+    from smorphi_rl.maps import load_map
+
+    maps = [load_map(p) for p in env.map_files]
+    for source in generators(env.maps):
+        maps += [generate_floor(source.kind, seed) for seed in range(source.lo, min(source.hi, source.lo + 8))]
+    return maps
 
 
 EPISODES_DIR = "episodes"
@@ -219,7 +253,9 @@ def default_run_name(cfg: TrainConfig, stamp: str) -> str:
     """`<algo>-<first map>-<stamp>`, safe as a directory name."""
     from smorphi_rl.rundir import safe_name
 
-    return safe_name(f"{cfg.algo}-{Path(cfg.env.maps[0]).name.removesuffix('.yaml')}-{stamp}")
+    first = cfg.env.maps[0]
+    label = first.split(":")[1] if first.startswith("generate:") else Path(first).name.removesuffix(".yaml")
+    return safe_name(f"{cfg.algo}-{label}-{stamp}")
 
 
 def register_env() -> None:

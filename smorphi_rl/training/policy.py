@@ -51,16 +51,21 @@ def check_fits(module: Any, env: MorphologyEnv) -> None:
         )
 
 
-def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np.ndarray:
-    """The most likely action of each hinge for every observation, in one forward pass (deterministic): the
-    argmax of each hinge's logits, which is what the module's MultiCategorical gives `to_deterministic`."""
+def action_logits(module: Any, observations: list[dict[str, np.ndarray]]) -> torch.Tensor:
+    """The policy's action logits for every observation, in one forward pass."""
     from ray.rllib.core.columns import Columns
 
     from smorphi_rl.training.module import observation_tensors
 
     batch = {Columns.OBS: observation_tensors(stack_observations(observations))}
     with torch.no_grad():
-        logits = module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
+        return module.forward_inference(batch)[Columns.ACTION_DIST_INPUTS]
+
+
+def greedy_actions(module: Any, observations: list[dict[str, np.ndarray]]) -> np.ndarray:
+    """The most likely action of each hinge for every observation, in one forward pass (deterministic): the
+    argmax of each hinge's logits, which is what the module's MultiCategorical gives `to_deterministic`."""
+    logits = action_logits(module, observations)
     sizes = [int(n) for n in module.action_space.nvec]
     return torch.stack([part.argmax(dim=-1) for part in torch.split(logits, sizes, dim=-1)], dim=-1).numpy()
 
@@ -174,3 +179,36 @@ def rollout(module: Any, env: Any, seed: int) -> Rollout:
     settled = env.unwrapped.score(thetas[-1] if committed else settled_theta(thetas))  # the protocol's rule
     best = {k.removeprefix("best_"): v for k, v in info.items() if k.startswith("best_")}
     return Rollout(start, settled, best, info, len(thetas) - 1, total, thetas)
+
+
+class DesignEvaluation:
+    """The designer's figures on each evaluated map: `design.run_design` with the greedy policy and `budget`
+    planner evaluations, its best shape's gap to the map's exact optimum in per cent of the optimum's R1. Each
+    map's env is built once, so later evaluations reuse its plans."""
+
+    def __init__(self, env_config: EnvConfig, optima: dict[str, Optimum], budget: int) -> None:
+        self.env_config, self.optima, self.budget = env_config, optima, budget
+        self._envs: dict[str, MorphologyEnv] = {}
+
+    def gaps_pct(self, module: Any) -> dict[str, float]:
+        """Every map's design gap (per cent of R1*), by map name."""
+        from smorphi_rl.design import run_design
+
+        def logits(observations: Any) -> np.ndarray:
+            return action_logits(module, list(observations)).numpy()
+
+        out = {}
+        for path in self.env_config.maps:
+            if path not in self._envs:
+                self._envs[path] = MorphologyEnv(replace(self.env_config, maps=(path,), reward="paper").to_dict())
+            env = self._envs[path]
+            design = run_design(env, logits, self.budget)
+            optimum = self.optima[env.grid_map.name]
+            out[env.grid_map.name] = 100 * (optimum.R1 - design.best.R1) / abs(optimum.R1)
+        return out
+
+    def __call__(self, module: Any) -> dict[str, float]:
+        """The design figures logged each evaluation (TensorBoard eval/design_...)."""
+        gaps = np.array(list(self.gaps_pct(module).values()))
+        return {"design_median_gap_pct": float(np.median(gaps)), "design_p90_gap_pct": float(np.percentile(gaps, 90)),
+                "design_share_within_1pct": float(np.mean(gaps <= 1.0)), "design_budget": self.budget}  # fmt: skip

@@ -187,7 +187,7 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
         write_tables(rows, files["top_csv"], files["top_md"])
         files["found_csv"] = run_dir / FOUND_CSV  # every distinct morphology found, for `compare`
         write_csv(progress.top.top(len(progress.top)), files["found_csv"])
-    for path in cfg.env.maps:
+    for path in cfg.env.map_files:
         grid_map = load_map(path)
         evaluator = cfg.env.planning.evaluator(grid_map)
         top = progress.top.top(TOP_PLOT, grid_map.name)
@@ -196,7 +196,7 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
             for rank, f in enumerate(top, 1):
                 morphology = Morphology.of(f.theta)
                 items.append((f"#{rank}", evaluator.plan(morphology), morphology))
-            single = len(cfg.env.maps) == 1
+            single = len(cfg.env.map_files) == 1
             key = "top_png" if single else f"top_png_{grid_map.name}"
             png = run_dir / ("top_morphologies.png" if single else f"top_morphologies_{grid_map.name}.png")
             files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, png)
@@ -215,11 +215,12 @@ CACHE_ENV = "SMORPHI_RL_CACHE_DIR"
 
 
 def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
-    """The exact 1-degree optimum of every training map (about 10 s each the first time, then cached); not
-    computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far longer."""
+    """The exact 1-degree optimum of every map the protocol evaluates on (about 10 s each the first time, then
+    cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
+    longer."""
     cache = Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
     optima: dict[str, Optimum] = {}
-    for path in cfg.env.maps:
+    for path in cfg.evaluation_maps:
         grid_map = load_map(path)
         if not cfg.env.planning.is_paper_default:
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
@@ -233,6 +234,20 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
         out.flush()
         optima[grid_map.name] = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
     return optima
+
+
+def trial_callbacks(cfg: TrainConfig, optima: dict[str, Optimum], base: type | None = None) -> type:
+    """The RLlib callbacks of one trial of `train`, `sweep` or `transfer`: `base` (ours, or fine-tuning's) with the
+    evaluation protocol on `cfg`'s evaluated maps, the final-policy selection and the designer's figures, as
+    `cfg` asks; the one way every job builds its trials."""
+    base = base or MorphologyCallbacks
+    if not cfg.eval_every:
+        return base
+    step = cfg.env.angle_step_deg
+    starts = eval_starts(cfg.eval_starts, step)
+    selection = eval_starts(cfg.select_starts, step, SELECT_SEED) if cfg.select_starts else ()
+    return with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps, selection, cfg.evaluation_maps,
+                           cfg.design_budget)  # fmt: skip
 
 
 def _train_trainable(config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path) -> None:
@@ -288,11 +303,7 @@ def train(
     run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
     try:
         optima = training_optima(cfg, log_dir, out)
-        base = callbacks or MorphologyCallbacks
-        if cfg.eval_every:
-            starts = eval_starts(cfg.eval_starts, cfg.env.angle_step_deg)
-            selection = eval_starts(cfg.select_starts, cfg.env.angle_step_deg, SELECT_SEED) if cfg.select_starts else ()
-            callbacks = with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps, selection)
+        callbacks = trial_callbacks(cfg, optima, callbacks)
         quiet()
         with cluster.ray_session(address):
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)

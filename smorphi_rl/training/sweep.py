@@ -16,12 +16,13 @@ from typing import Any
 
 import yaml
 
+from smorphi_rl.protocol import Optimum
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.finetune import fine_tune_from
 from smorphi_rl.training.quiet import quiet
-from smorphi_rl.training.run import TrainingError, fmt_duration
+from smorphi_rl.training.run import TrainingError, fmt_duration, training_optima, trial_callbacks
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
     TrialRow,
@@ -50,11 +51,12 @@ class SweepSummary:
     files: dict[str, Path]
 
 
-def sweep_trainable(config: dict[str, Any], sweep: SweepConfig) -> None:
-    """One trial of the sweep: its grid point's TrainConfig, run by the project's one trainable."""
+def sweep_trainable(config: dict[str, Any], sweep: SweepConfig, optima: dict[str, Optimum]) -> None:
+    """One trial of the sweep: its grid point's TrainConfig, run by the project's one trainable with the callbacks
+    `train` builds (the evaluation protocol against `optima`, fine-tuning from the sweep's checkpoint)."""
     cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
-    callbacks = None if cfg.pretrained is None else fine_tune_from(cfg.pretrained, cfg.env.to_dict())[1]
-    run_trial(cfg, callbacks)
+    base = None if cfg.pretrained is None else fine_tune_from(cfg.pretrained, cfg.env.to_dict())[1]
+    run_trial(cfg, trial_callbacks(cfg, optima, base))
 
 
 class _SweepProgress:
@@ -151,6 +153,9 @@ def run_sweep(
         fine_tune_from(sweep.pretrained, sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0],
                                                           {}).env.to_dict())  # fmt: skip
     cluster.check_reachable(address)
+    optima: dict[str, Optimum] = {}
+    for maps in sweep.map_sets:  # every evaluated map's exact optimum, before Ray starts (cached after the first)
+        optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     exp = prepare_experiment(sweep, log_dir, resume)
     quiet()
     progress = _SweepProgress(sweep, sweep.num_grid_trials, out)
@@ -162,7 +167,8 @@ def run_sweep(
         def trial_resources(config: dict[str, Any]) -> Any:
             return resources(sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}))
 
-        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep), trial_resources)
+        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep, optima=optima),
+                                        trial_resources)  # fmt: skip
         run_config = tune.RunConfig(
             name=sweep.name,
             storage_path=str(exp.parent),

@@ -36,6 +36,25 @@ class _Checkpoint(BaseModel):
     keep: int = Field(0, ge=0, description="how many to keep (0: all)")
 
 
+class _Evaluation(BaseModel):
+    """The sweep file's `evaluation` mapping: the protocol every trial runs, as `train` runs it."""
+
+    model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
+    every: int = Field(TrainConfig.eval_every, ge=0, description=_DOCS["eval_every"])
+    starts: int = Field(TrainConfig.eval_starts, ge=1, description=_DOCS["eval_starts"])
+    select_starts: int = Field(TrainConfig.select_starts, ge=0, description=_DOCS["select_starts"])
+    maps: list[str] = Field(default_factory=list, description=_DOCS["eval_maps"])
+    design_budget: int = Field(TrainConfig.design_budget, ge=0, description=_DOCS["design_budget"])
+
+
+DEFAULT_EVALUATION = _Evaluation(
+    every=TrainConfig.eval_every,
+    starts=TrainConfig.eval_starts,
+    select_starts=TrainConfig.select_starts,
+    design_budget=TrainConfig.design_budget,
+)
+
+
 class SweepFile(BaseModel):
     """The sweep file's keys, types and ranges (unknown keys refused). The checks that need more than a type (map
     files, stop metrics, env values, search spaces against the algorithms) follow in `load_sweep`."""
@@ -65,6 +84,10 @@ class SweepFile(BaseModel):
     pretrained: str | None = Field(None, description="a checkpoint every trial fine-tunes from")
     max_iterations: int | None = Field(TrainConfig.max_iterations, ge=1, description=_DOCS["max_iterations"])
     record_every: int = Field(TrainConfig.record_every, ge=0, description=_DOCS["record_every"])
+    evaluation: _Evaluation = Field(DEFAULT_EVALUATION, description="{every, starts, select_starts, maps, "
+                                    "design_budget}: every trial's evaluation protocol, as train runs it")  # fmt: skip
+    env_runners: int | None = Field(None, ge=0, description=_DOCS["num_env_runners"])
+    envs_per_runner: int = Field(TrainConfig.envs_per_runner, ge=1, description=_DOCS["envs_per_runner"])
 
 
 KEYS = {name: field.description or "" for name, field in SweepFile.model_fields.items()}
@@ -119,6 +142,9 @@ class SweepConfig:
     pretrained: str | None
     max_iterations: int | None
     record_every: int
+    evaluation: _Evaluation = DEFAULT_EVALUATION
+    env_runners: int | None = None
+    envs_per_runner: int = TrainConfig.envs_per_runner
 
     @property
     def num_grid_trials(self) -> int:
@@ -129,10 +155,13 @@ class SweepConfig:
     def base_config(self, algo: str, maps: tuple[str, ...], seed: int, overrides: dict[str, Any]) -> TrainConfig:
         """The TrainConfig of one trial."""
         env = EnvConfig.from_dict({**self.env, "maps": list(maps)})
+        ev = self.evaluation
         return TrainConfig(algo=algo, env=env, timesteps=self.timesteps, seed=seed, preset=self.preset,
                            checkpoint_every=self.checkpoint_every, pretrained=self.pretrained,
-                           max_iterations=self.max_iterations, overrides=overrides,
-                           record_every=self.record_every)  # fmt: skip
+                           max_iterations=self.max_iterations, overrides=overrides, record_every=self.record_every,
+                           eval_every=ev.every, eval_starts=ev.starts, select_starts=ev.select_starts,
+                           eval_maps=tuple(ev.maps), design_budget=ev.design_budget,
+                           num_env_runners=self.env_runners, envs_per_runner=self.envs_per_runner)  # fmt: skip
 
 
 STOP_METRICS = (keys.TIME_TOTAL, keys.ITERATION, keys.STEPS, keys.TIMESTEPS_TOTAL)
@@ -180,7 +209,13 @@ def load_sweep(path: str | Path) -> SweepConfig:
     def fail(key: str, message: str) -> SweepConfigError:
         return SweepConfigError(f"{where}: key '{key}': {message}")
 
-    empty = ("stop", "checkpoint", "env", "search")  # `key:` with nothing after it: the default, as before
+    empty = (
+        "stop",
+        "checkpoint",
+        "env",
+        "search",
+        "evaluation",
+    )  # `key:` with nothing after it: the default, as before
     try:
         doc = SweepFile.model_validate({k: v for k, v in raw.items() if v is not None or k not in empty})
     except ValidationError as exc:
@@ -218,6 +253,11 @@ def load_sweep(path: str | Path) -> SweepConfig:
         pretrained=doc.pretrained,
         max_iterations=doc.max_iterations,
         record_every=doc.record_every,
+        evaluation=doc.evaluation.model_copy(
+            update={"maps": [_resolve(m, file, "evaluation.maps", fail) for m in doc.evaluation.maps]}
+        ),
+        env_runners=doc.env_runners,
+        envs_per_runner=doc.envs_per_runner,
     )
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
@@ -246,7 +286,8 @@ def _first_problem(exc: ValidationError, fail: Any) -> SweepConfigError:
 
 
 def _map_set(item: Any, key: str, file: Path, fail: Any) -> tuple[str, ...]:
-    """One trial's maps: a path or a list of paths, resolved against the working directory, then the file's."""
+    """One trial's maps: a map entry or a list of them (`map_sources.py`: files, folders and globs resolved
+    against the working directory, then the file's; floor generators as they are)."""
     items = item if isinstance(item, list) else [item]
     if not items:
         raise fail(key, "expected a map path or a non-empty list of them")
@@ -254,12 +295,25 @@ def _map_set(item: Any, key: str, file: Path, fail: Any) -> tuple[str, ...]:
     for p in items:
         if not isinstance(p, str):
             raise fail(key, f"expected a map path, got {p!r}")
-        candidates = [Path(p), file.parent / p]
-        found = next((c for c in candidates if c.is_file()), None)
-        if found is None:
-            raise fail(key, f"map file '{p}' not found (looked in the working directory and next to the sweep file)")
-        out.append(str(found.resolve()))
+        out.append(_resolve(p, file, key, fail))
     return tuple(out)
+
+
+def _resolve(entry: str, file: Path, key: str, fail: Any) -> str:
+    """A map entry as the env takes it: a generator spec, or a file, folder or glob found in the working
+    directory or next to the sweep file (made absolute)."""
+    from smorphi_rl.map_sources import MapSourceError, is_generator, parse_generator
+
+    if is_generator(entry):
+        try:
+            return parse_generator(entry).spec
+        except MapSourceError as exc:
+            raise fail(key, str(exc)) from None
+    for base in (Path(entry), file.parent / entry):
+        if base.is_file() or base.is_dir() or (any(ch in entry for ch in "*?[") and base.parent.is_dir()):
+            return str(base.resolve()) if not any(ch in entry for ch in "*?[") else str(base.parent.resolve() /
+                                                                                        base.name)  # fmt: skip
+    raise fail(key, f"map file '{entry}' not found (looked in the working directory and next to the sweep file)")
 
 
 def _space(value: Any, key: str, fail: Any) -> Space:

@@ -64,9 +64,12 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
         per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 32 envs
         assert rows[-1]["num_env_steps_sampled_lifetime"] == ITERATIONS * per_iteration >= 10_000  # restored
         load_module(find_checkpoint(trial))
+        evaluated = [r for r in rows if r.get("eval")]  # every trial runs train's evaluation protocol
+        assert evaluated and {r["smorphi_iteration"] for r in evaluated} >= {1, 5, 10}
+        assert 0 <= evaluated[-1]["eval"]["share_within_1pct"] <= 1 and evaluated[-1]["eval"]["starts"] == 20
         acc = EventAccumulator(str(trial))
         acc.Reload()
-        assert "ray/tune/env_runners/smorphi/R1_final" in acc.Tags()["scalars"]
+        assert {"ray/tune/env_runners/smorphi/R1_final", "ray/tune/eval/median_gap"} <= set(acc.Tags()["scalars"])
     table = list(csv.DictReader((exp / "sweep.csv").open()))
     assert sorted(r["lr"] for r in table) == ["0.001", "0.003"]
     assert all(int(r["env_steps"]) >= 10_000 and r["iterations"] == str(ITERATIONS) and float(r["best_R1"]) > 80

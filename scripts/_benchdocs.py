@@ -1,0 +1,51 @@
+"""Each benchmark script writes its own section of docs/benchmarks.md (`--write-docs`): figures are never typed
+by hand. A section lies between `<!-- BEGIN name -->` and `<!-- END name -->`; rewriting one leaves the rest
+of the file as it was."""
+
+from __future__ import annotations
+
+import os
+import platform
+import shlex
+import sys
+from datetime import datetime, timezone
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
+HEADER = """# Benchmarks
+
+Each section below is written by the benchmark script it names (`--write-docs`), with the machine, the
+date and the exact command; rerun the command to refresh it. Nothing here is typed by hand.
+"""
+
+
+def machine() -> str:
+    """The CPU model and core count (Linux /proc/cpuinfo), and the Python version."""
+    model = platform.processor() or "unknown CPU"
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}"
+
+
+def write_section(name: str, body: str) -> Path:
+    """Replace (or append) the section `name` of docs/benchmarks.md with `body`, stamped with the command that
+    produced it, the machine and the date; written through a temporary file and a rename."""
+    begin, end = f"<!-- BEGIN {name} -->", f"<!-- END {name} -->"
+    command = " ".join(shlex.quote(a) for a in [".venv/bin/python", *sys.argv])
+    stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
+    section = f"{begin}\n{body.rstrip()}\n\n_Written by `{command}` on {stamp}, {machine()}._\n{end}"
+    text = DOCS.read_text() if DOCS.exists() else HEADER
+    if begin in text and end in text:
+        head, rest = text.split(begin, 1)
+        text = head + section + rest.split(end, 1)[1]
+    else:
+        text = text.rstrip() + "\n\n" + section + "\n"
+    tmp = DOCS.with_name(f".{DOCS.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, DOCS)
+    return DOCS

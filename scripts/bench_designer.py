@@ -1,0 +1,294 @@
+"""Benchmark the generalist designer against search at equal budgets, on floors it never saw.
+
+On the held-out floors (`maps/designer/held-out`, seeds 1,000,000 and up, which training never draws) and the
+shipped `val-*` maps, each at its exact 1-degree optimum: the designer's gap (per cent of the optimum's R1)
+with B planner evaluations, against random search, hill climbing, simulated annealing, compass (pattern)
+search and NSGA-II given the same B (5 seeds each, the median per floor), at several budgets. Per-map PPO
+trained from scratch and fine-tuned from the designer, at equal env steps, on a few floors; the real maps of
+`../shared/realmaps` (cropped and resampled as a user would) reported apart. Intervals: 95 % bootstrap
+across floors; the designer against each method by the median of the per-floor differences.
+
+Targets (issue 31): median gap <= 1 %, 90th percentile <= 3 %, at most 200 evaluations, and a lower median
+gap than random search, hill climbing and NSGA-II with the difference's interval excluding 0.
+
+    .venv/bin/python scripts/bench_designer.py [--policy DIR ...] [--budgets 25 50 100 200 400]
+        [--seeds 5] [--ppo-maps 4] [--ppo-steps 20000] [--out logs/bench-designer] [--write-docs]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import sys
+import tempfile
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+from _benchdocs import write_section
+
+from smorphi_rl.design import run_design
+from smorphi_rl.designer import designer_env, load_designer
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.maps import load_map, save_map
+from smorphi_rl.policy_file import SHIPPED_DESIGNER
+from smorphi_rl.protocol import eval_starts, exact_optimum
+from smorphi_rl.search.local import run_local
+
+ROOT = Path(__file__).resolve().parent.parent
+HELD_OUT = ROOT / "maps" / "designer" / "held-out"
+SHIPPED_VAL = sorted((ROOT / "maps").glob("val-*.yaml"))
+REALMAPS = ROOT.parent / "shared" / "realmaps"
+LOCAL = ("random_search", "hillclimb", "anneal", "pattern")
+LABELS = {"random_search": "random search", "hillclimb": "hill climbing", "anneal": "annealing",
+          "pattern": "compass search", "nsga2": "NSGA-II"}  # fmt: skip
+NSGA_POP = 20
+
+
+def gap_pct(optimum: float, value: float) -> float:
+    return 100.0 * (optimum - value) / abs(optimum)
+
+
+def baseline_gaps(method: str, path: str, env_config: dict, budget: int, seeds: int, optimum: float) -> float:
+    """The method's median gap over `seeds` independent runs of `budget` evaluations on one floor."""
+    if method == "nsga2":
+        from smorphi_rl.search.nsga2 import run_nsga2
+
+        cfg = MorphologyEnv({**env_config, "maps": [path]}).config
+        weights = cfg.weights_on(load_map(path))
+        values = []
+        for s in range(seeds):
+            result = run_nsga2(path, NSGA_POP, max(1, budget // NSGA_POP), s, cfg.planning)
+            values.append(float(np.max(weights.r1(result.P_c, result.P_len))))
+        return float(np.median([gap_pct(optimum, v) for v in values]))
+    env = MorphologyEnv({**env_config, "maps": [path]})
+    outcomes = run_local(method, env, eval_starts(seeds, env.config.angle_step_deg), budget, seed=11)
+    return float(np.median([gap_pct(optimum, o.R1) for o in outcomes]))
+
+
+def median_interval(values: np.ndarray, seed: int = 0) -> tuple[float, float, float]:
+    """Median of per-floor values and its 95 % percentile bootstrap interval."""
+    from scipy.stats import bootstrap
+
+    values = np.asarray(values, dtype=float)
+    if values.size < 2 or np.all(values == values[0]):
+        m = float(np.median(values))
+        return m, m, m
+    res = bootstrap((values,), np.median, confidence_level=0.95, n_resamples=5000, method="percentile",
+                    random_state=np.random.default_rng(seed))  # fmt: skip
+    return float(np.median(values)), float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def summarise(gaps: np.ndarray) -> dict[str, float]:
+    med, lo, hi = median_interval(gaps)
+    return {"median": med, "lo": lo, "hi": hi, "p90": float(np.percentile(gaps, 90)),
+            "within": float(np.mean(gaps <= 1.0))}  # fmt: skip
+
+
+def realmap_floors(work: Path) -> list[str]:
+    """`tb3_world` cropped to its arena at its native 0.05 m, and a 15 m x 15 m part of `depot` resampled to
+    0.1 m (the whole depot is larger than a designer takes), as `maps crop` and `maps resample` make them."""
+    from smorphi_rl.maptools import crop_to_known, crop_to_rect, drop_islands, resample
+
+    out = []
+    if (REALMAPS / "tb3_world.yaml").is_file():
+        tb3, _ = drop_islands(crop_to_known(load_map(REALMAPS / "tb3_world.yaml"), 0.2), 0.05)
+        out.append(str(save_map(replace(tb3, name="tb3_world-arena"), work / "tb3_world-arena.yaml")))
+    if (REALMAPS / "depot.yaml").is_file():
+        depot = load_map(REALMAPS / "depot.yaml")
+        x0, y0 = depot.origin[0], depot.origin[1]
+        part = crop_to_rect(depot, x0 + 2.0, y0 + 0.5, x0 + 17.0, y0 + 15.0)
+        part, _ = drop_islands(resample(part, 0.1), 0.5)
+        out.append(str(save_map(replace(part, name="depot-part"), work / "depot-part.yaml")))
+    return out
+
+
+def per_map_ppo(designer_dir: Path, maps: list[str], steps: int, log_dir: Path, optima: dict) -> list[dict]:
+    """Per-map PPO from scratch and fine-tuned from the designer, `steps` env steps each, on `maps`: the best
+    shape each found and where its greedy policy settles (the protocol), against the floor's optimum."""
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.run import train
+
+    designer = load_designer(designer_dir)
+    rows = []
+    with open(os.devnull, "w") as quiet:
+        for path in maps:
+            env = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [path]}).maps)
+            name = Path(path).stem
+            for mode in ("scratch", "fine-tune"):
+                pretrained = str(designer_dir) if mode == "fine-tune" else None
+                cfg = TrainConfig(env=env, timesteps=steps, eval_every=5, eval_starts=20, select_starts=0,
+                                  record_every=0, pretrained=pretrained)  # fmt: skip
+                summary = train(cfg, name=f"{name}-{mode}", log_dir=log_dir, out=quiet)
+                ev = summary.evaluation
+                best = summary.best.R1 if summary.best else math.nan
+                opt = optima[name]
+                rows.append({"map": name, "mode": mode, "env_steps": summary.env_steps,
+                             "best_gap_pct": gap_pct(opt, best),
+                             "settled_gap_pct": 100 * ev.get("median_gap", math.nan) / abs(opt),
+                             "within": ev.get("share_within_1pct", math.nan)})  # fmt: skip
+                r = rows[-1]
+                print(f"  ppo {mode:<9} {name:<16} {summary.env_steps:,} steps: best found {r['best_gap_pct']:.2f} % "
+                      f"below R1*, greedy settles {r['settled_gap_pct']:.2f} % below ({100 * r['within']:.0f} % of "
+                      "starts within 1 %)", flush=True)  # fmt: skip
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--policy", nargs="+", default=[str(SHIPPED_DESIGNER)], help="designer policy folders")
+    parser.add_argument("--budgets", nargs="+", type=int, default=[25, 50, 100, 200, 400])
+    parser.add_argument("--budget", type=int, default=200, help="the budget of the table and the targets")
+    parser.add_argument("--seeds", type=int, default=5, help="independent runs of each search per floor")
+    parser.add_argument("--floors", type=int, default=0, help="use only the first N held-out floors (0: all)")
+    parser.add_argument("--ppo-maps", type=int, default=4, help="floors for per-map PPO (0: skip it)")
+    parser.add_argument("--ppo-steps", type=int, default=20_000)
+    parser.add_argument("--no-nsga2", action="store_true")
+    parser.add_argument("--out", default=str(ROOT / "logs" / "bench-designer"), help="results.json and the PNG")
+    parser.add_argument("--log-dir", default=str(ROOT / "logs"), help="where exact optima are cached")
+    parser.add_argument("--write-docs", action="store_true", help="rewrite the Designer section of docs/benchmarks.md")
+    args = parser.parse_args()
+    t_start = time.perf_counter()
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    budgets = sorted(set(args.budgets) | {args.budget})
+    designers = [load_designer(Path(p)) for p in args.policy]
+    env_config = designers[0].env_config
+    floors = sorted(str(p) for p in HELD_OUT.glob("*.yaml"))
+    floors = floors[: args.floors] if args.floors else floors
+    floors += [str(p) for p in SHIPPED_VAL]
+    work = Path(tempfile.mkdtemp(prefix="bench-designer-"))
+    real = realmap_floors(work)
+    if not real:
+        print(f"real maps: {REALMAPS} not found, skipped")
+    cache = Path(args.log_dir) / ".cache"
+    optima: dict[str, float] = {}
+    t0 = time.perf_counter()
+    for i, path in enumerate(floors + real):
+        grid_map = load_map(path)
+        cfg = replace(env_config, maps=(str(Path(path).resolve()),))
+        optima[grid_map.name] = exact_optimum(path, cfg.weights_on(grid_map), cfg.planning, cache).R1
+        sys.stderr.write(f"\rexact optima {i + 1}/{len(floors) + len(real)} ({time.perf_counter() - t0:.0f} s)")
+    sys.stderr.write("\n")
+    methods = [f"designer {i + 1}" for i in range(len(designers))] + list(LOCAL) + ([] if args.no_nsga2 else ["nsga2"])
+    raw = env_config.to_dict() | {"maps": None}
+    gaps: dict[str, dict[int, dict[str, float]]] = {m: {b: {} for b in budgets} for m in methods}
+    timing: dict[str, float] = {m: 0.0 for m in methods}
+    for j, path in enumerate(floors + real):
+        name = load_map(path).name
+        for i, d in enumerate(designers):
+            env = designer_env(d, path)
+            for b in budgets:
+                t = time.perf_counter()
+                gaps[f"designer {i + 1}"][b][name] = gap_pct(optima[name], run_design(env, d.logits, b).best.R1)
+                timing[f"designer {i + 1}"] += time.perf_counter() - t
+        for m in methods[len(designers) :]:
+            for b in budgets:
+                t = time.perf_counter()
+                gaps[m][b][name] = baseline_gaps(m, path, {k: v for k, v in raw.items() if k != "maps"}, b, args.seeds,
+                                                 optima[name])  # fmt: skip
+                timing[m] += time.perf_counter() - t
+        sys.stderr.write(f"\rfloors {j + 1}/{len(floors) + len(real)} ({time.perf_counter() - t0:.0f} s)")
+    sys.stderr.write("\n")
+    held = [load_map(p).name for p in floors]
+    real_names = [load_map(p).name for p in real]
+    report = {"budget": args.budget, "budgets": budgets, "floors": len(held), "seeds": args.seeds,
+              "policies": [str(d.path) for d in designers], "methods": {}, "real": {}}  # fmt: skip
+    lines = [f"Held-out floors: {len(held)} ({len(held) - len(SHIPPED_VAL)} generated with seeds that training never "
+             f"draws, and the {len(SHIPPED_VAL)} shipped val-* maps); each search's gap is its median over "
+             f"{args.seeds} seeded runs on a floor; [95 % bootstrap interval] across floors.", "",
+             f"| method ({args.budget} planner evaluations) | median gap | 90th percentile | within 1 % | "
+             "designer 1 better by (median of per-floor differences) |", "|---|---:|---:|---:|---:|"]  # fmt: skip
+    ref = np.array([gaps["designer 1"][args.budget][n] for n in held])
+    for m in methods:
+        g = np.array([gaps[m][args.budget][n] for n in held])
+        s = summarise(g)
+        diff = median_interval(g - ref) if m != "designer 1" else (math.nan, math.nan, math.nan)
+        report["methods"][m] = {"at_budget": s, "difference_vs_designer_1": diff,
+                                "curve": {b: summarise(np.array([gaps[m][b][n] for n in held])) for b in budgets},
+                                "per_floor": gaps[m][args.budget], "seconds": timing[m]}  # fmt: skip
+        dtext = "-" if m == "designer 1" else f"{diff[0]:+.3f} [{diff[1]:+.3f}, {diff[2]:+.3f}] %"
+        lines.append(f"| {LABELS.get(m, m)} | {s['median']:.3f} [{s['lo']:.3f}, {s['hi']:.3f}] % | {s['p90']:.2f} % | "
+                     f"{100 * s['within']:.0f} % | {dtext} |")  # fmt: skip
+    lines += ["", "Median gap (per cent of R1*) by budget:", "",
+              "| method | " + " | ".join(str(b) for b in budgets) + " |", "|---|" + "---:|" * len(budgets)]  # fmt: skip
+    for m in methods:
+        cells = [f"{report['methods'][m]['curve'][b]['median']:.3f}" for b in budgets]
+        lines.append(f"| {LABELS.get(m, m)} | " + " | ".join(cells) + " |")
+    if real_names:
+        lines += ["", f"Real maps (../shared/realmaps, cropped and resampled as `maps crop` / `maps resample` do), "
+                  f"gap at {args.budget} evaluations:", "", "| map | " + " | ".join(LABELS.get(m, m) for m in methods)
+                  + " |", "|---|" + "---:|" * len(methods)]  # fmt: skip
+        for n in real_names:
+            lines.append(f"| {n} | " + " | ".join(f"{gaps[m][args.budget][n]:.2f} %" for m in methods) + " |")
+            report["real"][n] = {m: gaps[m][args.budget][n] for m in methods}
+    if args.ppo_maps:
+        print("per-map PPO, scratch and fine-tuned from designer 1:")
+        rows = per_map_ppo(designers[0].path, floors[: args.ppo_maps], args.ppo_steps, work / "ppo",
+                           {k: v for k, v in optima.items()})  # fmt: skip
+        report["per_map_ppo"] = rows
+        lines += ["", f"Per-map PPO at {args.ppo_steps:,} env steps on {args.ppo_maps} held-out floors (designer 1 "
+                  f"needs no training there: {args.budget} planner evaluations):", "",
+                  "| floor | designer 1 | PPO from scratch: best found / greedy settles | fine-tuned from the "
+                  "designer: best found / greedy settles |", "|---|---:|---:|---:|"]  # fmt: skip
+        for path in floors[: args.ppo_maps]:
+            n = load_map(path).name
+            by = {r["mode"]: r for r in rows if r["map"] == n}
+            lines.append(f"| {n} | {gaps['designer 1'][args.budget][n]:.2f} % | {by['scratch']['best_gap_pct']:.2f} / "
+                         f"{by['scratch']['settled_gap_pct']:.2f} % | {by['fine-tune']['best_gap_pct']:.2f} / "
+                         f"{by['fine-tune']['settled_gap_pct']:.2f} % |")  # fmt: skip
+    png = plot_curves(report, methods, out / "gap_vs_evaluations.png")
+    lines += ["", f"![gap against evaluations](../{png.relative_to(ROOT)})" if png.is_relative_to(ROOT) else ""]
+    d1 = report["methods"]["designer 1"]["at_budget"]
+    targets = [
+        f"median {d1['median']:.3f} % (target <= 1 %): {'met' if d1['median'] <= 1 else 'NOT met'}",
+        f"90th percentile {d1['p90']:.2f} % (target <= 3 %): {'met' if d1['p90'] <= 3 else 'NOT met'}",
+    ]
+    for m in ("random_search", "hillclimb", "nsga2"):
+        if m in report["methods"]:
+            lo = report["methods"][m]["difference_vs_designer_1"][1]
+            targets.append(f"lower than {LABELS[m]} with the interval excluding 0: {'met' if lo > 0 else 'NOT met'}")
+    lines += ["", "Targets: " + "; ".join(targets) + ".",
+              f"Wall time {time.perf_counter() - t_start:.0f} s; designer 1 took "
+              f"{timing['designer 1'] / max(1, len(held + real_names) * len(budgets)) * 1000:.0f} ms a design on "
+              "average (NumPy policy, planner included)."]  # fmt: skip
+    text = "\n".join(lines)
+    print(text)
+    (out / "results.json").write_text(json.dumps(report, indent=2, default=float))
+    print(f"results: {out / 'results.json'}\nplot:    {png}")
+    if args.write_docs:
+        print(f"docs:    {write_section('designer', '## Designer (`scripts/bench_designer.py`)' + chr(10) * 2 + text)}")
+
+
+def plot_curves(report: dict, methods: list[str], png: Path) -> Path:
+    """Median gap against planner evaluations for every method, with its 95 % interval across floors."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4.5))
+    for m in methods:
+        curve = report["methods"][m]["curve"]
+        b = sorted(curve)
+        med = [curve[x]["median"] for x in b]
+        ax.plot(b, med, marker="o", label=LABELS.get(m, m), lw=2.5 if m.startswith("designer") else 1.2)
+        ax.fill_between(b, [curve[x]["lo"] for x in b], [curve[x]["hi"] for x in b], alpha=0.15)
+    ax.set_xscale("log")
+    ax.set_xlabel("planner evaluations (distinct shapes scored)")
+    ax.set_ylabel("median gap to the exact optimum (% of R1*)")
+    ax.set_title(f"held-out floors ({report['floors']}): designer vs search at equal budgets")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(png, dpi=110)
+    plt.close(fig)
+    return png
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,103 @@
+"""`design`: a shape for a floor from a trained designer policy, within a budget of planner evaluations.
+
+Reads the policy with NumPy alone (`policy_file.py`, `numpy_policy.py`): no torch and no Ray start, so an
+answer comes in about a second.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, rel
+from smorphi_rl.design import DEFAULT_BUDGET
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import angles_text
+from smorphi_rl.policy_file import SHIPPED_DESIGNER
+
+
+def register(sub: Any) -> None:
+    """Add `design` to the command line."""
+    ds = sub.add_parser("design", help="propose a shape for a floor with the trained designer policy (no Ray)")
+    ds.add_argument("--map", default=None, help="map_server YAML of the floor (default: maps/map-1.yaml)")
+    ds.add_argument("--policy", default=None, help=f"an exported policy folder (default: the shipped designer, "
+                    f"{rel(SHIPPED_DESIGNER)})")  # fmt: skip
+    ds.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="N",
+                    help=f"planner evaluations (distinct shapes) at most (default: {DEFAULT_BUDGET})")  # fmt: skip
+    ds.add_argument("--exact", action="store_true", help="also find the exact 1-degree optimum (every shape, about "
+                    "10-60 s the first time, cached under LOG_DIR/.cache) and report the gap")  # fmt: skip
+    ds.add_argument("--json", action="store_true", help="print one JSON object")
+    ds.add_argument("--plot", help="write a PNG of the proposed shape's coverage on the floor")
+    ds.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help=f"where --exact caches optima (default: "
+                    f"{DEFAULT_LOG_DIR})")  # fmt: skip
+    ds.set_defaults(func=cmd_design)
+
+
+def cmd_design(args: argparse.Namespace) -> int:
+    from smorphi_rl.design import check_budget, run_design
+    from smorphi_rl.designer import designer_env, load_designer
+
+    t0 = time.perf_counter()
+    check_budget(args.budget)
+    plot = _check_plot(args.plot)
+    designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
+    env = designer_env(designer, str(args.map))
+    result = run_design(env, designer.logits, args.budget)
+    best = result.best
+    record: dict[str, Any] = {
+        "map": env.grid_map.name, "policy": str(designer.path), "theta": list(best.theta), "P_c": best.P_c,
+        "coverage_free_pct": best.coverage_free_pct, "P_len": best.P_len, "R1": best.R1,
+        "weights": env.floor.weights.formula(), "evaluations": result.evaluations,
+        "planner_calls": result.planner_calls, "rollouts": result.rollouts, "budget": args.budget,
+    }  # fmt: skip
+    if args.exact:
+        from smorphi_rl.protocol import exact_optimum
+
+        cache = Path(args.log_dir).resolve() / ".cache"
+        opt = exact_optimum(str(Path(args.map).resolve()), env.floor.weights, env.config.planning, cache)
+        gap = opt.R1 - best.R1
+        record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,
+                           "gap_pct": 100 * gap / abs(opt.R1) if opt.R1 else float("nan")}  # fmt: skip
+    if plot is not None:
+        from smorphi_rl.geometry import Morphology
+        from smorphi_rl.plots import plot_coverage
+
+        record["plot"] = str(plot_coverage(env.plan(best.theta), env.grid_map, Morphology.of(best.theta),
+                                           env.config.block_side_m, plot))  # fmt: skip
+    record["wall_s"] = round(time.perf_counter() - t0, 3)
+    if args.json:
+        print(json.dumps(record))
+        return 0
+    grid_map = env.grid_map
+    lines = [
+        ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
+        ("policy", f"{rel(designer.path)} ({designer.summary})"),
+        ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
+                   f"({record['weights']})"),
+        ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "
+                 f"planned), {result.rollouts} roll-outs"),
+    ]  # fmt: skip
+    if "exact" in record:
+        ex = record["exact"]
+        lines.append(("exact", f"{angles_text(ex['theta'])}  R1 {ex['R1']:.2f}: the design is {ex['gap']:.2f} R1 "
+                               f"({ex['gap_pct']:.2f} %) below the 1-degree optimum"))  # fmt: skip
+    if "plot" in record:
+        lines.append(("plot", rel(Path(record["plot"]))))
+    lines.append(("time", f"{record['wall_s']:.2f} s"))
+    print("\n".join(f"{k:<7} {v}" for k, v in lines))
+    return 0
+
+
+def _check_plot(value: str | None) -> Path | None:
+    """--plot must name a .png file in a folder that exists (checked before any work)."""
+    if value is None:
+        return None
+    path = Path(value)
+    if path.suffix.lower() != ".png" or path.is_dir():
+        raise SmorphiError(f"--plot {value!r}: give a file name ending in .png")
+    if not path.parent.resolve().is_dir():
+        raise SmorphiError(f"--plot {value}: folder {path.parent} does not exist")
+    return path

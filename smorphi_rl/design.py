@@ -1,0 +1,123 @@
+"""A trained policy as a designer: roll-outs on one floor within a budget of planner evaluations.
+
+The policy walks from a fixed, seeded list of start shapes, one roll-out after another; every new shape it
+reaches is scored by FBCPP, and the answer is the best shape scored. The first `greedy` roll-outs take the
+most likely move of each hinge: such a roll-out is deterministic and its observation depends on the floor and
+the shape alone, so it stops at its first revisit (from there it would repeat a walk already scored) or at
+the env's `max_steps`. The rest of the budget goes to roll-outs that sample each move from the policy's own
+distribution (seeded), which explore around the regions the greedy walks lead to. The design stops when
+`budget` distinct shapes have been scored. The same procedure runs with the torch module (training's
+evaluation, the benchmarks) and with the NumPy copy of its policy net (`smorphi-rl design`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.score import Scored
+
+DESIGN_STARTS = 64
+"""Start shapes of the design's roll-outs (used in turn, again from the first when they run out)."""
+DESIGN_SEED = 7
+"""Seeds the designer's starts and its sampled moves: another stream than the protocol's starts."""
+DEFAULT_BUDGET = 200
+"""Planner evaluations (distinct shapes) a design may use by default."""
+GREEDY_ROLLOUTS = 8
+"""Greedy roll-outs before the sampled ones."""
+MAX_STEPS_PER_EVALUATION = 50
+"""A design stops after this many env steps per budgeted evaluation even if budget is left (a policy that only
+revisits shapes it has scored)."""
+
+Logits = Callable[[Sequence[dict[str, np.ndarray]]], np.ndarray]
+"""The policy's action logits (n, sum of the action sizes) for a batch of observations."""
+
+
+@dataclass(frozen=True)
+class Design:
+    """What a design run found and what it cost."""
+
+    best: Scored
+    evaluations: int
+    """Distinct shapes scored (the budget counts these)."""
+    planner_calls: int
+    """Distinct footprints planned: shapes with the same rasterised footprint share one plan."""
+    rollouts: int
+    wall_s: float
+    walks: list[list[tuple[float, float, float]]] = field(default_factory=list)
+    """Every roll-out's shapes, in order (for plots)."""
+
+
+def design_starts(n: int = DESIGN_STARTS, step_deg: float = 1.0) -> np.ndarray:
+    """The designer's fixed start shapes (n x 3), seeded, on the `step_deg` lattice."""
+    from smorphi_rl.protocol import eval_starts
+
+    return eval_starts(n, step_deg, DESIGN_SEED)
+
+
+def check_budget(budget: Any) -> int:
+    """A budget is a whole number of planner evaluations, at least 1."""
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
+        raise SmorphiError(f"--budget must be a whole number of planner evaluations >= 1, got {budget!r}")
+    return int(budget)
+
+
+def moves(logits: np.ndarray, nvec: Sequence[int], rng: np.random.Generator | None) -> np.ndarray:
+    """One move per hinge from a row of logits: the most likely (rng None) or one drawn from the softmax."""
+    out = np.empty(len(nvec), dtype=np.int64)
+    lo = 0
+    for h, n in enumerate(nvec):
+        part = logits[lo : lo + n].astype(np.float64)
+        lo += n
+        if rng is None:
+            out[h] = int(np.argmax(part))
+        else:
+            p = np.exp(part - part.max())
+            out[h] = int(rng.choice(n, p=p / p.sum()))
+    return out
+
+
+def run_design(
+    env: Any, logits: Logits, budget: int = DEFAULT_BUDGET, greedy: int = GREEDY_ROLLOUTS,
+    starts: np.ndarray | None = None, seed: int = DESIGN_SEED,
+) -> Design:  # fmt: skip
+    """Roll-outs of the policy on `env` (a MorphologyEnv of one map) until `budget` distinct shapes are scored
+    (module docstring); the best shape scored is the design."""
+    budget = check_budget(budget)
+    starts = design_starts(step_deg=env.config.angle_step_deg) if starts is None else starts
+    nvec = [int(n) for n in env.action_space.nvec]
+    rng = np.random.default_rng(seed)
+    t0 = time.perf_counter()
+    calls0 = env.planner_calls
+    scored: dict[tuple[float, float, float], Scored] = {}
+    walks: list[list[tuple[float, float, float]]] = []
+    steps, max_steps = 0, MAX_STEPS_PER_EVALUATION * budget
+    while len(scored) < budget and steps < max_steps:
+        sampled = len(walks) >= greedy
+        start = starts[len(walks) % len(starts)]
+        obs, info = env.reset(seed=0, options={"theta": tuple(float(t) for t in start)})
+        theta = tuple(info["theta"])
+        walk = [theta]
+        walks.append(walk)
+        if theta in scored and not sampled:  # a start an earlier walk passed through: its greedy walk is known
+            continue
+        scored.setdefault(theta, env.current)
+        for _ in range(env.config.max_steps):
+            if len(scored) >= budget:
+                break
+            obs, _, terminated, truncated, info = env.step(moves(logits([obs])[0], nvec, rng if sampled else None))
+            steps += 1
+            theta = tuple(info["theta"])
+            walk.append(theta)
+            if theta in scored and not sampled:  # a greedy revisit: from here the walk repeats one already scored
+                break
+            scored.setdefault(theta, env.current)
+            if terminated or truncated:
+                break
+    best = max(scored.values(), key=lambda s: s.R1)
+    return Design(best, len(scored), env.planner_calls - calls0, len(walks), time.perf_counter() - t0, walks)

@@ -1,0 +1,106 @@
+"""The generalist designer as a user runs it: an exported policy, the floors it accepts, and its env on a map.
+
+A designer was trained on a distribution of floors (`floorplans.py`) with the `floor` observation; it
+accepts a floor whose scale features it can represent (the `accepts` limits in its policy.json: the known
+area's sides, the resolution against the block) and refuses others in one line.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.env_config import EnvConfig, ObservationLayout
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.numpy_policy import NumpyPolicy
+from smorphi_rl.policy_file import PolicyFile, read_policy
+
+ACCEPTS = {"max_side_m": 20.0, "min_cells_per_block": 1.0, "max_cells_per_block": 4.0, "max_free_m2": 200.0}
+"""What the `floor` observation's scale features represent without saturating (`env.floor_scale`): a known area
+up to 20 m a side and 200 m^2 free, a block of 1 to 4 cells."""
+
+
+@dataclass(frozen=True)
+class Designer:
+    """A policy read for designing: its files, its NumPy net and the env configuration it was trained for."""
+
+    policy: PolicyFile
+    net: NumpyPolicy
+    env_config: EnvConfig
+
+    @property
+    def path(self) -> Path:
+        return self.policy.path
+
+    @property
+    def summary(self) -> str:
+        """One line for reports: the algorithm and what it was trained on."""
+        model = self.policy.model_config
+        trained = self.policy.meta.get("trained", {})
+        steps = trained.get("env_steps")
+        text = f"{str(model.get('algorithm', 'policy')).upper()}"
+        if isinstance(steps, int):
+            text += f", {steps:,} env steps"
+        maps = self.env_config.maps
+        return text + f" on {', '.join(maps[:2])}{' ...' if len(maps) > 2 else ''}"
+
+    def logits(self, observations: Any) -> np.ndarray:
+        """The policy's action logits for a batch of observations (what `design.run_design` takes)."""
+        return np.stack([self.net.logits(o) for o in observations])
+
+
+def load_designer(path: Path) -> Designer:
+    """The policy in `path` (an exported folder) ready to design; refused in one line if it is not one."""
+    policy = read_policy(path)
+    raw = policy.env_config
+    if not raw:
+        raise SmorphiError(f"{path}: the policy carries no env configuration")
+    env_config = EnvConfig.from_dict(raw)
+    frequencies = int(policy.model_config.get("policy_angle_frequencies", 8))
+    net = NumpyPolicy(policy.weights, policy.action_nvec, frequencies, policy.observation_shapes)
+    return Designer(policy, net, env_config)
+
+
+def accepts(designer: Designer, grid_map: Map) -> None:
+    """Refuse, naming the limit, a floor the designer's observation cannot represent."""
+    limits = {**ACCEPTS, **dict(designer.policy.meta.get("accepts") or {})}
+    r = grid_map.resolution_m
+    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    sides = ((rows.max() - rows.min() + 1) * r, (cols.max() - cols.min() + 1) * r)
+    cells_per_block = designer.env_config.block_side_m / r
+    free_m2 = grid_map.counts[Cell.FREE] * r * r
+    name = grid_map.name
+    if max(sides) > limits["max_side_m"]:
+        raise SmorphiError(f"{name}: its known area is {max(sides):.1f} m across; this designer takes floors up to "
+                           f"{limits['max_side_m']:g} m (crop it with `maps crop`)")  # fmt: skip
+    if not limits["min_cells_per_block"] <= cells_per_block <= limits["max_cells_per_block"]:
+        lo = designer.env_config.block_side_m / limits["max_cells_per_block"]
+        hi = designer.env_config.block_side_m / limits["min_cells_per_block"]
+        raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell "
+                           "(`maps resample` coarsens a finer map)")  # fmt: skip
+    if free_m2 > limits["max_free_m2"]:
+        raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
+                           f"{limits['max_free_m2']:g} m^2")  # fmt: skip
+
+
+def designer_env(designer: Designer, map_path: str) -> Any:
+    """The designer's env on one map (its planner, weights, moves and episode length), checked to fit it."""
+    from smorphi_rl.env import MorphologyEnv
+
+    if designer.env_config.observation != ObservationLayout.FLOOR.value:
+        raise SmorphiError(f"{designer.path}: a designer sees the 'floor' observation; this policy was trained on "
+                           f"'{designer.env_config.observation}' (evaluate it with evaluate-policy)")  # fmt: skip
+    grid_map = load_map(map_path)
+    accepts(designer, grid_map)
+    config = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [map_path]}).maps, reward="paper")
+    env = MorphologyEnv(config.to_dict())  # `paper`: no reward scales to compute, so no planner calls for them
+    want = designer.policy.observation_shapes
+    have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}  # type: ignore[attr-defined]
+    if want != have:
+        raise SmorphiError(f"{designer.path}: the policy's observation {want} is not the env's {have} (another "
+                           "observation layout)")  # fmt: skip
+    return env

@@ -1,0 +1,137 @@
+"""A trained policy as two plain files that cannot run code when read: `policy.json` and `weights.npz`.
+
+`weights.npz` holds the module's parameters as float32 arrays by name (read with `allow_pickle=False`, so a
+crafted file can hold numbers only); `policy.json` holds what is needed to use them: the observation's
+shapes, the action sizes, the module's configuration (with the env configuration it was trained for), and
+where it came from (the command that trained it, its held-out figures). No Ray and no torch here: the
+`design` command reads a policy with NumPy alone.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.errors import SmorphiError
+
+POLICY_JSON = "policy.json"
+WEIGHTS_NPZ = "weights.npz"
+FORMAT = "smorphi-rl policy"
+VERSION = 1
+MAX_JSON_BYTES = 1 << 20
+MAX_WEIGHTS_BYTES = 64 << 20
+SHIPPED_DESIGNER = Path(__file__).resolve().parent / "policies" / "designer"
+"""The generalist designer shipped with the package (`smorphi-rl design` uses it by default)."""
+
+
+class PolicyFileError(SmorphiError):
+    """A folder that holds no readable smorphi-rl policy."""
+
+
+@dataclass(frozen=True)
+class PolicyFile:
+    """A policy read from disk: its description and its weights."""
+
+    path: Path
+    meta: dict[str, Any]
+    weights: dict[str, np.ndarray]
+
+    @property
+    def observation_shapes(self) -> dict[str, tuple[int, ...]]:
+        return {k: tuple(v) for k, v in self.meta["observation"].items()}
+
+    @property
+    def action_nvec(self) -> tuple[int, ...]:
+        return tuple(self.meta["action_nvec"])
+
+    @property
+    def model_config(self) -> dict[str, Any]:
+        return dict(self.meta["model_config"])
+
+    @property
+    def env_config(self) -> dict[str, Any]:
+        return dict(self.model_config.get("env_config") or {})
+
+
+def is_policy_dir(path: Path) -> bool:
+    return (path / POLICY_JSON).is_file() and (path / WEIGHTS_NPZ).is_file()
+
+
+def write_policy(
+    out_dir: Path, weights: dict[str, np.ndarray], observation: dict[str, tuple[int, ...]], action_nvec: list[int],
+    model_config: dict[str, Any], about: dict[str, Any],
+) -> Path:  # fmt: skip
+    """Write `out_dir/weights.npz` and `out_dir/policy.json` (each to a temporary name, then renamed)."""
+    import io
+
+    from smorphi_rl.rundir import write_atomic
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    buffer = io.BytesIO()
+    arrays: dict[str, Any] = {k: np.asarray(v, dtype=np.float32) for k, v in weights.items()}
+    np.savez_compressed(buffer, **arrays)  # float arrays: nothing is pickled
+    write_atomic(out_dir / WEIGHTS_NPZ, buffer.getvalue())
+    meta = {"format": FORMAT, "version": VERSION, "observation": {k: list(v) for k, v in observation.items()},
+            "action_nvec": [int(n) for n in action_nvec], "model_config": model_config, **about}  # fmt: skip
+    write_atomic(out_dir / POLICY_JSON, (json.dumps(meta, indent=2, default=_plain) + "\n").encode())
+    return out_dir
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, tuple):
+        return list(value)
+    if isinstance(value, np.generic):
+        return value.item()
+    raise TypeError(f"not JSON: {type(value).__name__}")
+
+
+def read_policy(path: str | Path) -> PolicyFile:
+    """The policy in folder `path`, checked: its description names our format and version, its weights are
+    finite float arrays (nothing in either file can run code)."""
+    folder = Path(path)
+    if not is_policy_dir(folder):
+        raise PolicyFileError(f"{folder}: holds no smorphi-rl policy ({POLICY_JSON} and {WEIGHTS_NPZ})")
+    meta_file, weights_file = folder / POLICY_JSON, folder / WEIGHTS_NPZ
+    for file, limit in ((meta_file, MAX_JSON_BYTES), (weights_file, MAX_WEIGHTS_BYTES)):
+        if file.stat().st_size > limit:
+            raise PolicyFileError(f"{file}: {file.stat().st_size:,} bytes, more than a policy holds ({limit:,})")
+    try:
+        meta = json.loads(meta_file.read_text())
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise PolicyFileError(f"{meta_file}: not readable JSON ({exc})") from None
+    _check_meta(meta, meta_file)
+    try:
+        with np.load(weights_file, allow_pickle=False) as npz:
+            weights = {name: npz[name] for name in npz.files}
+    except Exception as exc:  # a damaged or foreign archive, or one that holds objects
+        raise PolicyFileError(f"{weights_file}: not readable weights ({type(exc).__name__}: {exc})") from None
+    for name, value in weights.items():
+        if value.dtype != np.float32 or not np.isfinite(value).all():
+            raise PolicyFileError(f"{weights_file}: weight {name} is not finite float32")
+    return PolicyFile(folder, meta, weights)
+
+
+def _check_meta(meta: Any, where: Path) -> None:
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        raise PolicyFileError(f"{where}: not a {FORMAT} description")
+    if meta.get("version") != VERSION:
+        raise PolicyFileError(f"{where}: version {meta.get('version')!r}; this smorphi-rl reads version {VERSION}")
+    obs, nvec, model = meta.get("observation"), meta.get("action_nvec"), meta.get("model_config")
+    shapes_ok = isinstance(obs, dict) and all(
+        isinstance(s, list) and all(isinstance(d, int) and 0 < d < 4096 for d in s) for s in obs.values()
+    )
+    if not shapes_ok or not isinstance(obs, dict) or "map" not in obs or "angles" not in obs:
+        raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")
+    if not (isinstance(nvec, list) and len(nvec) == 3 and all(isinstance(n, int) and n % 2 == 1 for n in nvec)):
+        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd move counts")
+    if not isinstance(model, dict) or not isinstance(model.get("env_config", {}), dict):
+        raise PolicyFileError(f"{where}: 'model_config' must be a table holding 'env_config'")
+    for key in ("value_offset", "value_scale"):
+        value = model.get(key, 0.0)
+        if not isinstance(value, int | float) or not math.isfinite(value):
+            raise PolicyFileError(f"{where}: model_config '{key}' must be a finite number")

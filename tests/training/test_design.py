@@ -1,0 +1,116 @@
+"""The designer: roll-outs within a budget of planner evaluations, and `smorphi-rl design`, which runs without
+torch or Ray (an exported policy read by NumPy)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from smorphi_rl.cli import main
+from smorphi_rl.design import run_design
+from smorphi_rl.designer import designer_env, load_designer
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.training.checkpoints import MODULE_SUBDIR, build_module
+from smorphi_rl.training.export import export_policy
+
+ROOT = Path(__file__).resolve().parents[2]
+FLOOR = ROOT / "maps" / "designer" / "validation" / "mixed-0900002.yaml"
+CONFIG = {"maps": ["generate:mixed"], "observation": "floor", "moves": [1, 4, 16], "path_term": "per_area",
+          "max_steps": 16}  # fmt: skip
+
+
+def export(tmp: Path, config: dict) -> Path:
+    env = MorphologyEnv(config)
+    torch.manual_seed(0)
+    model = {"policy_angle_frequencies": 0, "env_config": env.config.to_dict(), "algorithm": "ppo"}
+    module = build_module(env.observation_space, env.action_space, model)
+    with torch.no_grad():
+        module._pi.head.weight.mul_(100.0)  # an untrained but decided policy
+    module.save_to_path(str(tmp / "ck" / MODULE_SUBDIR))
+    return export_policy(tmp / "ck", tmp / "policy", {"trained": {"env_steps": 0}})
+
+
+@pytest.fixture(scope="module")
+def policy(tmp_path_factory) -> Path:
+    return export(tmp_path_factory.mktemp("designer"), CONFIG)
+
+
+def run(capsys, *argv: str) -> tuple[int, str, str]:
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+@pytest.mark.parametrize("budget", [1, 7, 60])
+def test_a_design_spends_at_most_its_budget_and_answers_the_best_it_scored(policy, budget):
+    designer = load_designer(policy)
+    env = designer_env(designer, str(FLOOR))
+    design = run_design(env, designer.logits, budget)
+    assert design.evaluations == budget  # this floor has far more shapes than any of these budgets
+    visited = {t for walk in design.walks for t in walk}
+    assert len(visited) == budget and design.best.theta in visited
+    assert design.best.R1 == max(env.score(t).R1 for t in visited)
+    again = run_design(designer_env(designer, str(FLOOR)), designer.logits, budget)
+    assert again.best.theta == design.best.theta and again.walks == design.walks  # seeded: repeatable
+
+
+def test_design_prints_the_shape_its_cost_and_the_gap(policy, capsys, tmp_path):
+    code, out, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), "--budget", "50",
+                         "--exact", "--log-dir", str(tmp_path), "--plot", str(tmp_path / "d.png"))  # fmt: skip
+    assert code == 0, err
+    keys = [line.split()[0] for line in out.splitlines()]
+    assert keys == ["map", "policy", "design", "cost", "exact", "plot", "time"]
+    assert "50 planner evaluations of 50" in out and (tmp_path / "d.png").stat().st_size > 0
+    code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), "--budget", "50", "--json",
+                       "--exact", "--log-dir", str(tmp_path))  # fmt: skip
+    record = json.loads(out)
+    assert record["evaluations"] == 50 and record["exact"]["gap"] >= 0 and record["exact"]["R1"] >= record["R1"]
+
+
+def test_design_loads_without_torch_or_ray(policy):
+    code = (f"import sys; from smorphi_rl.cli import main; main(['design', '--map', {str(FLOOR)!r}, '--policy', "
+            f"{str(policy)!r}, '--budget', '20']); print('torch' in sys.modules, 'ray' in sys.modules)")  # fmt: skip
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[-1] == "False False"
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--budget", "0"], "--budget must be a whole number of planner evaluations >= 1, got 0"),
+    (["--budget", "-5"], "got -5"),
+    (["--plot", "x.txt"], "give a file name ending in .png"),
+    (["--plot", "/no/such/dir/x.png"], "does not exist"),
+    (["--map", "/no/map.yaml"], "map file not found"),
+])  # fmt: skip
+def test_bad_design_input_is_one_line(policy, capsys, tmp_path, argv, message):
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), *argv)
+    assert code == 1 and err.count("\n") == 1 and message in err and "Traceback" not in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_path):
+    from smorphi_rl.maps import Map, save_map
+
+    big = save_map(Map(np.zeros((260, 260), dtype=np.uint8), 0.1, name="big"), tmp_path / "big.yaml")
+    code, _, err = run(capsys, "design", "--map", str(big), "--policy", str(policy))
+    assert code == 1 and "takes floors up to 20 m" in err
+    fine = save_map(Map(np.zeros((100, 100), dtype=np.uint8), 0.02, name="fine"), tmp_path / "fine.yaml")
+    code, _, err = run(capsys, "design", "--map", str(fine), "--policy", str(policy))
+    assert code == 1 and "resolution 0.02 m" in err and "maps resample" in err
+
+
+def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
+    picture = export(tmp_path, {"max_steps": 16})
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(picture))
+    assert code == 1 and "trained on 'picture'" in err
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(tmp_path))
+    assert code == 1 and "holds no smorphi-rl policy" in err

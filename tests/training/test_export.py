@@ -1,0 +1,114 @@
+"""An exported policy: plain files that hold numbers only, read back by torch and by NumPy to the same actions."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from ray.rllib.core.columns import Columns
+
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.numpy_policy import NumpyPolicy
+from smorphi_rl.policy_file import PolicyFileError, read_policy
+from smorphi_rl.training.checkpoints import MODULE_SUBDIR, build_module, find_checkpoint, load_module
+from smorphi_rl.training.export import export_policy
+from smorphi_rl.training.module import observation_tensors
+from smorphi_rl.vector_env import stack_observations
+
+FLOOR = {"maps": ["generate:mixed"], "observation": "floor", "moves": [1, 4, 16], "path_term": "per_area",
+         "max_steps": 12}  # fmt: skip
+
+
+def module_for(env: MorphologyEnv, frequencies: int = 0):
+    torch.manual_seed(3)
+    model = {"value_offset": 1.0, "value_scale": 2.0, "policy_angle_frequencies": frequencies,
+             "env_config": env.config.to_dict(), "algorithm": "ppo"}  # fmt: skip
+    module = build_module(env.observation_space, env.action_space, model)
+    with torch.no_grad():  # the head starts near zero (gain 0.01): make its logits tell actions apart
+        module._pi.head.weight.mul_(100.0)
+    return module
+
+
+@pytest.fixture(scope="module")
+def exported(tmp_path_factory):
+    env = MorphologyEnv(FLOOR)
+    module = module_for(env)
+    ckpt = tmp_path_factory.mktemp("ck") / "checkpoint_000000"
+    module.save_to_path(str(ckpt / MODULE_SUBDIR))
+    out = export_policy(ckpt, tmp_path_factory.mktemp("policy") / "designer", {"trained": {"env_steps": 0}})
+    return env, module, out
+
+
+def observations(env: MorphologyEnv, n: int = 24) -> list[dict[str, np.ndarray]]:
+    rng = np.random.default_rng(0)
+    out = []
+    for i in range(n):
+        obs, _ = env.reset(seed=i)
+        for _ in range(int(rng.integers(0, 4))):
+            obs = env.step(rng.integers(0, 7, size=3))[0]
+        out.append(obs)
+    return out
+
+
+def test_numpy_logits_are_torch_logits(exported):
+    env, module, out = exported
+    policy = read_policy(out)
+    net = NumpyPolicy(policy.weights, policy.action_nvec, 0, policy.observation_shapes)
+    obs = observations(env)
+    with torch.no_grad():
+        want = module.forward_inference({Columns.OBS: observation_tensors(stack_observations(obs))})
+    want = want[Columns.ACTION_DIST_INPUTS].numpy()
+    got = np.stack([net.logits(o) for o in obs])
+    assert np.allclose(got, want, atol=1e-5), np.abs(got - want).max()
+    greedy = np.stack([want[:, 7 * h : 7 * h + 7].argmax(axis=1) for h in range(3)], axis=1)
+    assert np.array_equal(net.act(obs), greedy)
+
+
+def test_numpy_policy_with_angle_frequencies_matches_too(tmp_path):
+    env = MorphologyEnv(FLOOR)
+    module = module_for(env, frequencies=8)
+    weights = {k: v.detach().numpy() for k, v in module.state_dict().items()}
+    shapes = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}
+    net = NumpyPolicy(weights, [7, 7, 7], 8, shapes)
+    obs = observations(env, 6)
+    with torch.no_grad():
+        want = module.forward_inference({Columns.OBS: observation_tensors(stack_observations(obs))})
+    assert np.allclose(np.stack([net.logits(o) for o in obs]), want[Columns.ACTION_DIST_INPUTS].numpy(), atol=1e-5)
+
+
+def test_the_exported_folder_loads_as_a_torch_module_with_every_weight(exported):
+    _, module, out = exported
+    assert find_checkpoint(out) == out
+    loaded = load_module(out)
+    for name, value in module.state_dict().items():
+        assert torch.equal(loaded.state_dict()[name], value), name
+    meta = json.loads((out / "policy.json").read_text())
+    assert meta["action_nvec"] == [7, 7, 7] and meta["observation"]["scale"] == [9]
+
+
+def test_weights_that_hold_objects_are_refused(exported, tmp_path):
+    _, _, out = exported
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "policy.json").write_text((out / "policy.json").read_text())
+    np.savez(bad / "weights.npz", x=np.array([object()], dtype=object))
+    with pytest.raises(PolicyFileError, match="not readable weights"):
+        read_policy(bad)
+
+
+@pytest.mark.parametrize(("edit", "message"), [
+    (lambda m: m | {"format": "other"}, "not a smorphi-rl policy description"),
+    (lambda m: m | {"version": 2}, "this smorphi-rl reads version 1"),
+    (lambda m: m | {"action_nvec": [7, 7]}, "three odd move counts"),
+    (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
+])  # fmt: skip
+def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
+    _, _, out = exported
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "weights.npz").write_bytes((out / "weights.npz").read_bytes())
+    (bad / "policy.json").write_text(json.dumps(edit(json.loads((out / "policy.json").read_text()))))
+    with pytest.raises(PolicyFileError, match=message):
+        read_policy(bad)
