@@ -84,6 +84,8 @@ SIGMA_SAMPLES = 256
 """Random shapes whose R1 spread scales the design rewards (seeded, so every process agrees)."""
 MAP_LEVELS = 255
 """The map channels are fractions times this, rounded to uint8."""
+GENERATED_SIGMA_SAMPLES = 128
+"""Random shapes that scale the rewards on a generated floor (its build is most of an episode's cost)."""
 SCORE_CACHE_SIZE = 1 << 17
 """Scored lattice points kept per env (a few hundred bytes each) before the memo starts again."""
 PLAN_CACHE_SIZE = 4096
@@ -136,11 +138,11 @@ def r1_stats(map_path: str, weights: Weights, planning: Planning) -> R1Stats:
     return map_r1_stats(load_map(map_path), weights, planning)
 
 
-def map_r1_stats(grid_map: Map, weights: Weights, planning: Planning) -> R1Stats:
-    """Mean, standard deviation and 90th percentile of R1 over SIGMA_SAMPLES seeded random integer shapes on
-    the map (sigma at least 1e-6 so a flat map scales)."""
+def map_r1_stats(grid_map: Map, weights: Weights, planning: Planning, samples: int = SIGMA_SAMPLES) -> R1Stats:
+    """Mean, standard deviation and 90th percentile of R1 over `samples` seeded random integer shapes on the map
+    (sigma at least 1e-6 so a flat map scales)."""
     rng = np.random.default_rng(20231)
-    thetas = rng.integers(0, 181, size=(SIGMA_SAMPLES, 3)).astype(np.float64)
+    thetas = rng.integers(0, 181, size=(samples, 3)).astype(np.float64)
     batch = planning.evaluator(grid_map).evaluate_many(thetas)
     values = weights.r1(batch.P_c, batch.P_len)
     return R1Stats(float(np.mean(values)), max(float(np.std(values)), 1e-6), float(np.quantile(values, 0.9)))
@@ -264,8 +266,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             stats = R1Stats(0.0, 1.0, 0.0)
         elif path is not None:
             stats = r1_stats(path, weights, cfg.planning)
-        else:
-            stats = map_r1_stats(grid_map, weights, cfg.planning)
+        else:  # a generated floor, seen for an episode or a few: half the sample, half the cost of its build
+            stats = map_r1_stats(grid_map, weights, cfg.planning, GENERATED_SIGMA_SAMPLES)
         floor = self._layout is ObservationLayout.FLOOR
         scale = floor_scale(grid_map, cfg.block_side_m) if floor else np.zeros(0, dtype=np.float32)
         free_m2 = grid_map.counts[Cell.FREE] * grid_map.resolution_m**2

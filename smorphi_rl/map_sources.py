@@ -100,6 +100,11 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
     return tuple(out)
 
 
+def map_label(entry: str) -> str:
+    """A short name of a map entry for folder names and tables: a file's stem, a generator's kind."""
+    return parse_generator(entry).kind.value if is_generator(entry) else Path(entry).stem
+
+
 def map_files(entries: tuple[str, ...]) -> tuple[str, ...]:
     """The entries that are map files (not generators)."""
     return tuple(e for e in entries if not is_generator(e))

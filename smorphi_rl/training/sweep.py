@@ -16,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
@@ -81,7 +82,7 @@ class _SweepProgress:
             if self.best[0] < b.R1:
                 self.best = (b.R1, f"{b.angles} on {b.map}")
         steps = int(result.get(keys.STEPS) or 0)
-        maps = "+".join(Path(m).stem for m in config.get("maps", []))
+        maps = "+".join(map_label(m) for m in config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
                    f"{steps:,}/{self.sweep.timesteps:,} steps")  # fmt: skip
 
@@ -208,7 +209,7 @@ def run_sweep(
 
 
 def _trial_dirname(trial: Any) -> str:
-    maps = "+".join(Path(m).stem for m in trial.config["maps"])
+    maps = "+".join(map_label(m) for m in trial.config["maps"])
     return f"{trial.config['algo']}-{maps}-seed{trial.config['seed']}-{trial.trial_id}"
 
 

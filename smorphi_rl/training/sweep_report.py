@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.stats import band, mean_interval
 from smorphi_rl.training import result_keys as keys
@@ -103,7 +104,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
     return TrialRow(
         trial=trial_dir.name,
         algo=spec["algo"],
-        maps="+".join(Path(m).stem for m in spec["maps"]),
+        maps="+".join(map_label(m) for m in spec["maps"]),
         seed=int(spec["seed"]),
         hyperparameters=dict(spec.get("hp") or {}),
         env_steps=int(curve["env_steps"][-1]),
