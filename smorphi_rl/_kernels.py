@@ -213,7 +213,7 @@ def plan_into(
         start = sa * nc + sb
     if start < 0 or not trav[start]:
         return STATUS_START_BLOCKED, 0, 0, 0, 0, 0
-    edge_e = np.zeros(n, np.bool_)  # tiles are joined where both are traversable (FBCPP.md section 5)
+    edge_e = np.zeros(n, np.bool_)  # tiles are joined where both are traversable (docs/spec/fbcpp.md section 5)
     edge_n = np.zeros(n, np.bool_)
     for t in range(n):
         if trav[t]:
@@ -252,7 +252,7 @@ def _walk(
     h: int,
     wd: int,
 ) -> tuple[int, int, int, int, int]:
-    """FBCPP.md sections 5-6 on an nr x nc lattice of nodes whose node (a, b) puts F's corner at cell
+    """docs/spec/fbcpp.md sections 5-6 on an nr x nc lattice of nodes whose node (a, b) puts F's corner at cell
     (oy + a l, ox + b w), joined where `edge_e` (to b + 1) and `edge_n` (to a + 1) say: distance transform,
     greedy walk with breadth-first escapes from dead ends, and the footprint swept along every move.
     Returns (covered free cells, P_len, east/west moves, north/south moves, path nodes)."""

@@ -1,4 +1,4 @@
-"""FBCPP (FBCPP.md sections 4-7, and the footprint-safe planner of docs/fbcpp-fit.md) on the compiled
+"""FBCPP (docs/spec/fbcpp.md sections 4-7, and the footprint-safe planner of docs/fbcpp-fit.md) on the compiled
 fast path: value types and one full plan.
 
 `plan_coverage` returns the path and covered mask for plots and replays; `evaluate.Evaluator`
@@ -22,7 +22,7 @@ class Planner(enum.Enum):
     """Which coverage planner scores a shape."""
 
     PAPER = "paper"
-    """FBCPP.md: tiles from the map's corner, traversable when any cell is free (the robot may stand over
+    """docs/spec/fbcpp.md: tiles from the map's corner, traversable when any cell is free (the robot may stand over
     obstacles and unknown space, as in the paper)."""
     FIT = "fit"
     """docs/fbcpp-fit.md: F only ever over free cells, moves collision-free, a start in the largest free area."""
@@ -125,7 +125,7 @@ class PreparedMap:
         return self.grid_map.counts[Cell.OCCUPIED]
 
     def coverage_pct(self, n_covered: np.ndarray | float) -> tuple[np.ndarray | float, np.ndarray | float]:
-        """(P_c, coverage_free_pct) from counts of covered free cells (FBCPP.md section 6; the fit planner
+        """(P_c, coverage_free_pct) from counts of covered free cells (docs/spec/fbcpp.md section 6; the fit planner
         never covers an obstacle, so its P_c is the share of free cells covered, docs/fbcpp-fit.md)."""
         cov_free = 100.0 * n_covered / self.n_free
         if self.planner is Planner.FIT:
@@ -134,7 +134,7 @@ class PreparedMap:
         return 100.0 * (n_covered + self.n_occupied) / known, cov_free
 
     def metrics(self, n_covered: Any, p_len: Any, n_ew: Any, n_ns: Any, l: Any, w: Any, n_bound: Any) -> Metrics:
-        """The planner kernel's counts as FBCPP.md section 7's metrics: the one place they become results.
+        """The planner kernel's counts as docs/spec/fbcpp.md section 7's metrics: the one place they become results.
         Works on scalars (one plan) and on arrays (a batch) alike."""
         p_c, cov_free = self.coverage_pct(n_covered)
         path_cells = n_ew * w + n_ns * l
@@ -202,7 +202,7 @@ class Footprint:
 
 @dataclass(frozen=True, eq=False)
 class CoverageResult:
-    """What an evaluation returns (FBCPP.md section 7); path and covered mask only on request."""
+    """What an evaluation returns (docs/spec/fbcpp.md section 7); path and covered mask only on request."""
 
     theta: tuple[float, float, float]
     feasible: bool

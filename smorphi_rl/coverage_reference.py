@@ -1,4 +1,4 @@
-"""FBCPP sections 4-6 in plain Python, literally as FBCPP.md words them.
+"""FBCPP sections 4-6 in plain Python, literally as docs/spec/fbcpp.md words them.
 
 The oracle the compiled planner is tested against, and the yardstick `scripts/bench_fbcpp.py`
 measures it by. It stamps F at every one-cell step and checks targets when they are dequeued,
@@ -38,7 +38,7 @@ class ReferencePlan:
 
 
 def wavefront(start: Tile, neighbours: Callable[[Tile], list[Tile]]) -> list[Tile]:
-    """FBCPP.md section 5, steps 2-3, on any 4-connected graph given by `neighbours` (in neighbour order)."""
+    """docs/spec/fbcpp.md section 5, steps 2-3, on any 4-connected graph given by `neighbours` (in neighbour order)."""
     dist = {start: 0}
     queue = deque([start])
     while queue:
@@ -128,7 +128,7 @@ def evaluate_reference(
     start: Tile | None = None,
     planner: str = "paper",
 ) -> dict[str, object]:
-    """Geometry plus plan, all in plain Python: the metrics FBCPP.md section 7 names (`planner` "fit":
+    """Geometry plus plan, all in plain Python: the metrics docs/spec/fbcpp.md section 7 names (`planner` "fit":
     docs/fbcpp-fit.md's, with `start` a start cell instead of a tile)."""
     m = Morphology.of(theta)
     w_m, l_m = footprint_size(m, block_side_m)

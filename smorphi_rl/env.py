@@ -1,4 +1,4 @@
-"""The morphology MDP (ENV.md) as a gymnasium environment, registered as `smorphi_rl/Morphology-v0`.
+"""The morphology MDP (docs/spec/env.md) as a gymnasium environment, registered as `smorphi_rl/Morphology-v0`.
 
 ## Description
 The agent reshapes a Smorphi robot one hinge step at a time; every new shape is scored by

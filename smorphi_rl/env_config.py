@@ -22,7 +22,7 @@ DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
 
 
 class RewardMode(str, Enum):
-    """What an episode pays (ENV.md, "Reward modes")."""
+    """What an episode pays (docs/spec/env.md, "Reward modes")."""
 
     PAPER = "paper"
     LEVEL = "level"
@@ -94,7 +94,7 @@ class EnvConfig:
     """`level` and `peak` modes: what a step that changes the shape costs (in reward units). With nothing to
     gain, standing still then pays more than drifting over a plateau, so the policy settles (0: off)."""
     planner: str = Planner.PAPER.value
-    """Coverage planner: paper (FBCPP.md; the robot may stand over obstacles) or fit (docs/fbcpp-fit.md)."""
+    """Coverage planner: paper (docs/spec/fbcpp.md; the robot may stand over obstacles) or fit (docs/fbcpp-fit.md)."""
     start_xy: tuple[float, float] | None = None
     """Where every coverage plan starts: a free point (x, y) in metres, map frame; None: the planner's default
     (paper: the first traversable tile; fit: in the largest free area)."""

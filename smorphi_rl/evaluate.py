@@ -1,7 +1,7 @@
 """Cached, batched FBCPP evaluation: the entry point of the env, the searches and the CLI.
 
 The result of a morphology depends on its hinge angles only through the footprint matrix F
-(FBCPP.md section 7), so results are cached exactly under F's bits. Batches are rasterised
+(docs/spec/fbcpp.md section 7), so results are cached exactly under F's bits. Batches are rasterised
 in one compiled call, deduplicated by F, and only unseen footprints are planned.
 """
 
@@ -302,7 +302,7 @@ class Planning:
     def describe(self, grid_map: Map) -> str:
         """One line for reports: the planner, where plans start and what share of the free space that
         start's area holds (the most any plan from there can cover)."""
-        spec = "docs/fbcpp-fit.md" if self.planner is Planner.FIT else "FBCPP.md"
+        spec = "docs/fbcpp-fit.md" if self.planner is Planner.FIT else "docs/spec/fbcpp.md"
         start = self.start_on(grid_map)
         if self.start_xy is not None:
             x, y = self.start_xy
@@ -323,7 +323,7 @@ class Planning:
 
 
 PAPER_PLANNING = Planning()
-"""The paper's planning: FBCPP.md with its default start and the commercial block."""
+"""The paper's planning: docs/spec/fbcpp.md with its default start and the commercial block."""
 
 
 def lattice_thetas(step_deg: float) -> np.ndarray:

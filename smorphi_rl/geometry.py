@@ -1,4 +1,4 @@
-"""Smorphi geometry (FBCPP.md sections 1-2): hinge angles -> block poses -> footprint matrix F.
+"""Smorphi geometry (docs/spec/fbcpp.md sections 1-2): hinge angles -> block poses -> footprint matrix F.
 
 This is the readable, spec-literal implementation in plain Python. The compiled fast path
 (`smorphi_rl._kernels`) does the same arithmetic in the same order and is tested against it.
@@ -15,14 +15,14 @@ import numpy as np
 from smorphi_rl.errors import MorphologyError
 
 DEFAULT_BLOCK_SIDE_M = 0.17
-"""Side of one Smorphi block, the commercial module (FBCPP.md section 1)."""
+"""Side of one Smorphi block, the commercial module (docs/spec/fbcpp.md section 1)."""
 
 ANGLE_MIN_DEG = 0.0
 ANGLE_MAX_DEG = 180.0
 POINT_TOLERANCE_M = 1e-9
-"""Closed-square tolerance when rasterising F (FBCPP.md section 2)."""
+"""Closed-square tolerance when rasterising F (docs/spec/fbcpp.md section 2)."""
 OVERLAP_TOLERANCE = 1e-9
-"""Blocks overlap when their intersection area exceeds this many s^2 (FBCPP.md section 1)."""
+"""Blocks overlap when their intersection area exceeds this many s^2 (docs/spec/fbcpp.md section 1)."""
 
 # Hinge i sits at this corner of block i, in units of s, and folds by this sign times t_i.
 HINGE_CORNERS = ((1.0, 0.0), (1.0, 1.0), (1.0, 0.0))
@@ -195,7 +195,7 @@ def trim(grid: np.ndarray) -> np.ndarray:
 
 
 def format_footprint(f: np.ndarray) -> str:
-    """F as text, top row (highest y) first, '#' for in F: the notation of FBCPP.md section 8."""
+    """F as text, top row (highest y) first, '#' for in F: the notation of docs/spec/fbcpp.md section 8."""
     return "\n".join("".join("#" if v else "." for v in row) for row in f[::-1])
 
 

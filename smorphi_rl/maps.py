@@ -1,6 +1,6 @@
 """Floor maps: the Map value, ROS map_server / nav2 YAML + PGM/PNG loading and saving, a generator.
 
-Cells are free, occupied or unknown (FBCPP.md section 3); row 0 is the lowest y, as nav2
+Cells are free, occupied or unknown (docs/spec/fbcpp.md section 3); row 0 is the lowest y, as nav2
 stores it after flipping the image.
 """
 
@@ -95,7 +95,7 @@ class Map:
 
     @classmethod
     def from_text(cls, text: str, resolution_m: float, name: str = "map") -> Map:
-        """A map drawn top row first: '.' free, '#' occupied, '?' unknown (as in FBCPP.md)."""
+        """A map drawn top row first: '.' free, '#' occupied, '?' unknown (as in docs/spec/fbcpp.md)."""
         symbols = {".": Cell.FREE, "#": Cell.OCCUPIED, "?": Cell.UNKNOWN}
         lines = [ln.strip() for ln in text.strip().splitlines() if ln.strip()]
         if len({len(ln) for ln in lines}) != 1:

@@ -1,4 +1,4 @@
-"""Shared fixtures: the golden maps of FBCPP.md section 8 and hypothesis settings."""
+"""Shared fixtures: the golden maps of docs/spec/fbcpp.md section 8 and hypothesis settings."""
 
 from __future__ import annotations
 

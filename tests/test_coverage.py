@@ -1,4 +1,4 @@
-"""FBCPP planner (FBCPP.md sections 4-8): golden cases, invariants, fast path == plain reference."""
+"""FBCPP planner (docs/spec/fbcpp.md sections 4-8): golden cases, invariants, fast path == plain reference."""
 
 from __future__ import annotations
 

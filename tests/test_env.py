@@ -1,4 +1,4 @@
-"""The morphology MDP (ENV.md): gymnasium contract, determinism, rewards, episode end, config."""
+"""The morphology MDP (docs/spec/env.md): gymnasium contract, determinism, rewards, episode end, config."""
 
 from __future__ import annotations
 

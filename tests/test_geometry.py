@@ -1,4 +1,4 @@
-"""Geometry (FBCPP.md sections 1-2): poses, footprint sizes, F, feasibility."""
+"""Geometry (docs/spec/fbcpp.md sections 1-2): poses, footprint sizes, F, feasibility."""
 
 from __future__ import annotations
 

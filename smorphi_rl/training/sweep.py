@@ -147,17 +147,18 @@ def run_sweep(
     log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     resume: bool = False,
-    out: Any = sys.stderr,
+    out: Any = None,
 ) -> SweepSummary:
     """Run (or resume) the sweep as one Tune experiment under `log_dir/<name>/`; write the table and curves."""
     if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         fine_tune_from(sweep.pretrained, sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0],
                                                           {}).env.to_dict())  # fmt: skip
     cluster.check_reachable(address)
+    exp = prepare_experiment(sweep, log_dir, resume)
+    out = out or sys.stderr
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum, before Ray starts (cached after the first)
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
-    exp = prepare_experiment(sweep, log_dir, resume)
     quiet()
     progress = _SweepProgress(sweep, sweep.num_grid_trials, out)
     with cluster.ray_session(address):
