@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 
-.PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer clean
+.PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer bench-designer clean
 
 # torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 $(BIN)/.installed: pyproject.toml
@@ -49,6 +49,9 @@ bench-exhaustive: setup
 
 bench-transfer: setup
 	$(BIN)/python scripts/bench_transfer.py
+
+bench-designer: setup
+	$(BIN)/python scripts/bench_designer.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

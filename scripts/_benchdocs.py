@@ -49,3 +49,34 @@ def write_section(name: str, body: str) -> Path:
     tmp.write_text(text)
     os.replace(tmp, DOCS)
     return DOCS
+
+
+class _Tee:
+    """Writes to the real stdout and keeps a copy."""
+
+    def __init__(self, stream: object) -> None:
+        self.stream, self.parts = stream, []  # type: ignore[var-annotated]
+
+    def write(self, text: str) -> int:
+        self.parts.append(text)
+        return self.stream.write(text)  # type: ignore[attr-defined,no-any-return]
+
+    def flush(self) -> None:
+        self.stream.flush()  # type: ignore[attr-defined]
+
+
+def run_documented(name: str, title: str, main: object) -> None:
+    """Run a benchmark's `main()`; with `--write-docs` on the command line, its printed report becomes the
+    section `name` of docs/benchmarks.md (the flag is taken off before the script parses its own)."""
+    write = "--write-docs" in sys.argv
+    if write:
+        sys.argv.remove("--write-docs")
+    tee = _Tee(sys.stdout)
+    sys.stdout = tee  # type: ignore[assignment]
+    try:
+        main()  # type: ignore[operator]
+    finally:
+        sys.stdout = tee.stream  # type: ignore[assignment]
+    if write:
+        report = "".join(tee.parts).rstrip()
+        print(f"docs: {write_section(name, f'## {title}' + chr(10) * 2 + '```' + chr(10) + report + chr(10) + '```')}")

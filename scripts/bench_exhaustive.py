@@ -20,6 +20,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from _benchdocs import run_documented
 from _memory import PeakMemory
 
 from smorphi_rl.coverage import Planner
@@ -88,4 +89,4 @@ def run(map_path: str, step: float, yard_step: float, planning: Planning) -> Non
 
 
 if __name__ == "__main__":
-    main()
+    run_documented("exhaustive", "Exhaustive search (`scripts/bench_exhaustive.py`)", main)

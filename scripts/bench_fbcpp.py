@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _benchdocs import run_documented
 
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.coverage_reference import evaluate_reference
@@ -103,4 +104,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_documented("fbcpp", "The planner (`scripts/bench_fbcpp.py`)", main)

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+from _benchdocs import run_documented
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import EnvConfig
@@ -198,4 +199,4 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
 
 
 if __name__ == "__main__":
-    main()
+    run_documented("learning", "Learning against the exact optimum (`scripts/bench_learning.py`)", main)

@@ -34,6 +34,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+from _benchdocs import run_documented
 from _memory import PeakMemory
 
 from smorphi_rl.env import MorphologyEnv
@@ -222,4 +223,4 @@ def recording_cost(cfg: TrainConfig, steps: int = 20_000, rounds: int = 2) -> No
 
 
 if __name__ == "__main__":
-    main()
+    run_documented("training", "Training throughput (`scripts/bench_training.py`)", main)

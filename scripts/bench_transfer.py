@@ -17,6 +17,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from _benchdocs import run_documented
+
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.run import train
@@ -66,4 +68,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_documented("transfer", "Transfer (`scripts/bench_transfer.py`)", main)

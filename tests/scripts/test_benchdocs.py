@@ -1,0 +1,42 @@
+"""Benchmarks write their own section of docs/benchmarks.md and leave every other section as it was."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "scripts"))
+import _benchdocs  # noqa: E402
+
+
+@pytest.fixture
+def docs(tmp_path, monkeypatch):
+    path = tmp_path / "benchmarks.md"
+    monkeypatch.setattr(_benchdocs, "DOCS", path)
+    return path
+
+
+def test_a_section_is_rewritten_in_place_and_the_others_kept(docs):
+    _benchdocs.write_section("a", "## A\n\nfirst")
+    _benchdocs.write_section("b", "## B\n\nsecond")
+    before_b = docs.read_text().split("<!-- BEGIN b -->")[1]
+    _benchdocs.write_section("a", "## A\n\nagain")
+    text = docs.read_text()
+    assert text.startswith("# Benchmarks") and "again" in text and "first" not in text
+    assert text.split("<!-- BEGIN b -->")[1] == before_b
+    assert text.count("<!-- BEGIN a -->") == 1 and "_Written by `" in text and "cores" in text
+
+
+def test_run_documented_writes_what_the_benchmark_printed(docs, monkeypatch, capsys):
+    monkeypatch.setattr(sys, "argv", ["bench_x.py", "--write-docs", "--n", "3"])
+    seen = []
+
+    def main() -> None:
+        seen.append(list(sys.argv))
+        print("figure 42")
+
+    _benchdocs.run_documented("x", "X", main)
+    assert seen == [["bench_x.py", "--n", "3"]]  # the flag is taken off before the script parses its own
+    assert "figure 42" in docs.read_text() and "figure 42" in capsys.readouterr().out
