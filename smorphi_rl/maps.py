@@ -188,16 +188,21 @@ def load_map(yaml_path: str | Path) -> Map:
         beside = path.with_suffix(".yaml")
         hint = f" (is {beside} its YAML?)" if beside.is_file() else ""
         raise MapError(f"{path} is an image: give the map_server YAML that names it{hint}")
+    from smorphi_rl.inputs import MAX_YAML_BYTES, check_image_size, strict_yaml
+
     try:
+        if path.stat().st_size > MAX_YAML_BYTES:
+            raise MapError(f"{path}: {path.stat().st_size:,} bytes; a map YAML is at most {MAX_YAML_BYTES:,}")
         text = path.read_text()
     except FileNotFoundError:
         raise MapError(f"map file not found: {path}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MapError(f"{path}: cannot read map YAML ({exc})") from None
     try:
-        meta = yaml.safe_load(text)
+        meta = strict_yaml(text)
     except yaml.YAMLError as exc:
-        raise MapError(f"{path}: malformed YAML ({str(exc).splitlines()[0]})") from None
+        problem = str(getattr(exc, "problem", "") or "").strip() or str(exc).splitlines()[0]
+        raise MapError(f"{path}: malformed YAML ({problem})") from None
     if not isinstance(meta, dict):
         raise MapError(f"{path}: not a map_server YAML (expected a mapping with 'image' and 'resolution')")
     image = _require(meta, "image", path)
@@ -213,6 +218,8 @@ def load_map(yaml_path: str | Path) -> Map:
         or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in origin)
     ):
         raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
+    if not all(math.isfinite(v) for v in origin):
+        raise MapError(f"{path}: 'origin' must be three finite numbers, got {origin!r}")
     mode_name = meta.get("mode", MapMode.TRINARY.value)
     try:
         mode = MapMode(mode_name)
@@ -225,10 +232,24 @@ def load_map(yaml_path: str | Path) -> Map:
     free_thresh = _number(meta, "free_thresh", path, 0.25)
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
         raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
+    check_image_size(path.parent / image)  # a declared size too large for memory fails before decoding
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
     return Map(cells, resolution, origin_t, name=path.stem)
+
+
+def map_inputs(yaml_path: str | Path) -> tuple[Path, ...]:
+    """The files a map is read from: its YAML and (when the YAML names one) its image; what no output may replace."""
+    from smorphi_rl.inputs import strict_yaml
+
+    path = Path(yaml_path)
+    try:
+        meta = strict_yaml(path.read_text())
+        image = meta.get("image") if isinstance(meta, dict) else None
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        image = None
+    return (path, path.parent / image) if isinstance(image, str) and image else (path,)
 
 
 def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") -> Path:

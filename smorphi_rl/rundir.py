@@ -46,7 +46,10 @@ def safe_name(text: str) -> str:
 
 def check_run_dir(log_dir: str | Path, name: str) -> Path:
     """Where the run would go, checked without creating anything (a valid name, not taken)."""
-    run_dir = Path(log_dir).resolve() / check_run_name(name)
+    try:
+        run_dir = Path(log_dir).resolve() / check_run_name(name)
+    except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder
+        raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
     if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
         raise RunDirError(f"run directory {run_dir} already exists: choose another --name")
     return run_dir

@@ -42,11 +42,12 @@ def test_angles_file_names_the_file_and_line(tmp_path, capsys):
 
 
 @pytest.mark.parametrize(
-    ("block", "message"), [("0.01", "smaller than one cell"), ("inf", "finite number"), ("1000", "at most 400")]
+    ("block", "status", "message"),
+    [("0.01", 1, "smaller than one cell"), ("inf", 2, "finite number"), ("1000", 1, "at most 400")],
 )
-def test_block_sizes_the_map_cannot_hold(capsys, block, message):
+def test_block_sizes_the_map_cannot_hold(capsys, block, status, message):
     code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles", "10", "20", "30", "--block-side", block)
-    assert code == 1 and message in one_line(err)
+    assert code == status and message in one_line(err)
 
 
 def test_a_resolution_yaml_reads_as_text_is_still_a_number(tmp_path, capsys):
@@ -81,3 +82,107 @@ def test_compare_on_a_cut_short_result_says_so(tmp_path, capsys):
     result.write_bytes(result.read_bytes()[:100])
     code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(result.parent), "--log-dir", str(log))
     assert code == 1 and "holds no readable search results" in one_line(err)
+
+
+BOMB = "a: &a [x, x, x, x, x, x, x, x, x]\nb: &b [*a, *a, *a, *a, *a, *a, *a, *a, *a]\nc: [*b, *b, *b, *b, *b]\n"
+
+
+def test_yaml_aliases_are_refused_in_a_map_and_a_sweep_file(tmp_path, capsys):
+    (tmp_path / "m.yaml").write_text(Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
+                                     + BOMB)  # fmt: skip
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "aliases (*name) are not allowed" in one_line(err)
+    (tmp_path / "s.yaml").write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\nenv: {{x: *q}}\n" + BOMB)
+    code, _, err = run(capsys, "sweep", str(tmp_path / "s.yaml"), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "not valid YAML" in one_line(err) and not (tmp_path / "logs").exists()
+
+
+def test_a_duplicate_key_in_a_map_yaml_is_refused(tmp_path, capsys):
+    text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
+    (tmp_path / "m.yaml").write_text(text + "resolution: 0.2\n")
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "duplicate key 'resolution'" in one_line(err)
+
+
+def test_an_image_too_large_is_refused_before_it_is_decoded(tmp_path, capsys):
+    from PIL import Image
+
+    Image.new("L", (6000, 6000), 254).save(tmp_path / "big.png")
+    (tmp_path / "big.yaml").write_text("image: big.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+                                       "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    for argv in (["evaluate", "--map", str(tmp_path / "big.yaml"), "--angles", "1", "2", "3"],
+                 ["maps", "show", str(tmp_path / "big.yaml"), "--png", str(tmp_path / "x.png")]):  # fmt: skip
+        code, _, err = run(capsys, *argv)
+        assert code == 1 and "at most 25,000,000 pixels" in one_line(err)
+
+
+@pytest.mark.parametrize("origin", ["[.nan, 0, 0]", "[.inf, 0, 0]"])
+def test_a_map_origin_must_be_finite(tmp_path, capsys, origin):
+    text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
+    text = "\n".join(line for line in text.splitlines() if not line.startswith("origin"))
+    (tmp_path / "m.yaml").write_text(text + f"\norigin: {origin}\n")
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "three finite numbers" in one_line(err)
+
+
+@pytest.mark.parametrize("argv", [
+    ["search", "random", "--start-xy", "nan", "0"],
+    ["compare", "--start-xy", "inf", "1"],
+    ["maps", "crop", MAP_1, "--out", "x.yaml", "--margin", "inf"],
+    ["maps", "resample", MAP_1, "--out", "x.yaml", "--resolution", "nan"],
+    ["evaluate", "--angles", "1", "2", "3", "--block-side", "nan"],
+])  # fmt: skip
+def test_nan_and_infinity_are_usage_errors(capsys, argv):
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "expected a finite number" in one_line(err)
+
+
+@pytest.mark.parametrize("argv", [["train", "--seed", "4294967296"], ["search", "random", "--seed", str(2**64)]])
+def test_seeds_beyond_2_32_are_refused(capsys, tmp_path, argv):
+    code, _, err = run(capsys, *argv, "--log-dir", str(tmp_path))
+    assert code == 2 and "at most 2^32-1" in one_line(err) and not list(tmp_path.iterdir())
+
+
+def test_a_sweep_seed_beyond_2_32_is_refused(tmp_path, capsys):
+    (tmp_path / "s.yaml").write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [4294967296]\n")
+    code, _, err = run(capsys, "sweep", str(tmp_path / "s.yaml"), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "seeds[0]" in one_line(err)
+
+
+@pytest.mark.parametrize(("flag", "value", "message"), [
+    ("--plot", "x.txt", "ending in .png"), ("--plot", "", "ending in .png"), ("--plot", ".", "ending in .png"),
+    ("--plot", "{tmp}/a-file/x.png", "is not a folder this process can write into"),
+])  # fmt: skip
+def test_plot_paths_are_checked_before_any_work(capsys, tmp_path, flag, value, message):
+    (tmp_path / "a-file").write_text("")
+    code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles", "1", "2", "3", flag, value.format(tmp=tmp_path))
+    assert code == 1 and message in one_line(err)
+
+
+def test_a_plot_never_replaces_the_map_it_draws(tmp_path, capsys):
+    import shutil
+
+    shutil.copy(MAP_1, tmp_path / "m.yaml")
+    shutil.copy(MAP_1[:-5] + ".pgm", tmp_path / "map-1.pgm")
+    before = (tmp_path / "map-1.pgm").read_bytes()
+    for argv in (["evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3", "--plot"],
+                 ["maps", "show", str(tmp_path / "m.yaml"), "--png"]):  # fmt: skip
+        target = tmp_path / "map-1.png"
+        (tmp_path / "m.yaml").write_text((tmp_path / "m.yaml").read_text().replace("map-1.pgm", "map-1.png"))
+        shutil.copy(tmp_path / "map-1.pgm", target)
+        code, _, err = run(capsys, *argv, str(target))
+        assert code == 1 and "is one of this command's inputs" in one_line(err)
+    assert (tmp_path / "map-1.pgm").read_bytes() == before
+
+
+def test_replay_gif_under_a_file_is_refused(tmp_path, capsys):
+    (tmp_path / "x.mcap").write_text("not mcap")
+    code, _, err = run(capsys, "replay", str(tmp_path / "x.mcap"), "--gif", str(tmp_path / "x.mcap" / "y.gif"))
+    assert code == 1 and "is not a folder this process can write into" in one_line(err)
+
+
+def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    code, _, err = run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(loop / "x"))
+    assert code == 1 and "cannot be used" in one_line(err)

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, NoReturn
 from smorphi_rl.cli.fields import option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
+from smorphi_rl.inputs import MAX_SEED, finite
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
@@ -42,13 +43,15 @@ def default_map() -> Path:
 
 
 def seed_arg(text: str) -> int:
-    """argparse type of every --seed: a non-negative integer (numpy's generators take no negative seed)."""
+    """argparse type of every --seed: a whole number in [0, 2^32-1], what numpy, torch, RLlib and Tune all take."""
     try:
         value = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
     if value < 0:
         raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
+    if value > MAX_SEED:
+        raise argparse.ArgumentTypeError(f"expected a seed of at most 2^32-1 = {MAX_SEED}, got {value}")
     return value
 
 
@@ -97,7 +100,7 @@ def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset
 
     option(parser, EnvConfig, "planner", unset=unset, choices=PLANNERS)
     if start:
-        option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=float, metavar=("X", "Y"),
+        option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=finite, metavar=("X", "Y"),
                default_text="the planner's")  # fmt: skip
 
 

@@ -14,8 +14,9 @@ from typing import Any
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, rel
 from smorphi_rl.design import DEFAULT_BUDGET
-from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
+from smorphi_rl.inputs import output_file
+from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
 
 
@@ -42,7 +43,7 @@ def cmd_design(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     check_budget(args.budget)
-    plot = _check_plot(args.plot)
+    plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(str(args.map)))
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
     result = run_design(env, designer.logits, args.budget)
@@ -89,15 +90,3 @@ def cmd_design(args: argparse.Namespace) -> int:
     lines.append(("time", f"{record['wall_s']:.2f} s"))
     print("\n".join(f"{k:<7} {v}" for k, v in lines))
     return 0
-
-
-def _check_plot(value: str | None) -> Path | None:
-    """--plot must name a .png file in a folder that exists (checked before any work)."""
-    if value is None:
-        return None
-    path = Path(value)
-    if path.suffix.lower() != ".png" or path.is_dir():
-        raise SmorphiError(f"--plot {value!r}: give a file name ending in .png")
-    if not path.parent.resolve().is_dir():
-        raise SmorphiError(f"--plot {value}: folder {path.parent} does not exist")
-    return path

@@ -21,7 +21,8 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.geometry import Morphology, angles_text, check_block_side
-from smorphi_rl.maps import Cell, Map, generate_map, load_map
+from smorphi_rl.inputs import finite, output_file
+from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
 
 
 def register(sub: Any) -> None:
@@ -54,7 +55,7 @@ def register(sub: Any) -> None:
                               ("--resolution", "resolution_m", "metres per cell"),
                               ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
         default = param_default(generate_map, param)
-        gen.add_argument(flag, type=float, default=default, help=f"{text} (default: {default:g})")
+        gen.add_argument(flag, type=finite, default=default, help=f"{text} (default: {default:g})")
     gen.add_argument("--seed", type=seed_arg, default=0)
     gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
     gen.add_argument("--force", action="store_true", help="overwrite an existing map")
@@ -67,21 +68,21 @@ def register(sub: Any) -> None:
     crop.add_argument(
         "--rect",
         nargs=4,
-        type=float,
+        type=finite,
         metavar=("X0", "Y0", "X1", "Y1"),
         help="keep this rectangle, metres in the map frame (default: the known cells and a margin)",
     )
-    crop.add_argument("--margin", type=float, default=0.2, metavar="M",
+    crop.add_argument("--margin", type=finite, default=0.2, metavar="M",
                       help="metres kept around the known cells (default 0.2)")  # fmt: skip
     resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
-    resample.add_argument("--resolution", type=float, required=True, metavar="R",
+    resample.add_argument("--resolution", type=finite, required=True, metavar="R",
                           help="metres a cell; a coarse cell is free only if every cell under it is")  # fmt: skip
     for tool, run in ((crop, cmd_maps_crop), (resample, cmd_maps_resample)):
         tool.add_argument("map", help="map_server YAML to read (left as it is)")
         tool.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
         tool.add_argument(
             "--min-island",
-            type=float,
+            type=finite,
             default=0.0,
             metavar="M2",
             help="also drop free areas smaller than this many square metres (default 0: keep all)",
@@ -178,6 +179,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise SmorphiError("--path adds the plan to --json output of one morphology: use it with --angles and --json")
     if not args.block_side > 0:
         raise SmorphiError(f"--block-side must be > 0 m, got {args.block_side}")
+    if args.plot is not None:
+        inputs = map_inputs(args.map) + ((Path(args.angles_file),) if args.angles_file else ())
+        args.plot = str(output_file(args.plot, "--plot", (".png",), inputs))
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
@@ -395,6 +399,8 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
     """Print a map's size and cell fractions, and draw it."""
     from smorphi_rl.plots import plot_map
 
+    if args.png is not None:
+        output_file(args.png, "--png", (".png",), map_inputs(args.map))
     grid_map = load_map(args.map)
     png = Path(args.png) if args.png else Path(DEFAULT_LOG_DIR) / "maps" / f"{grid_map.name}.png"
     r = grid_map.resolution_m

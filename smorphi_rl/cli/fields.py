@@ -10,6 +10,7 @@ from collections.abc import Callable
 from typing import Any
 
 from smorphi_rl.config_fields import field_default, field_docs
+from smorphi_rl.inputs import finite
 
 UNSET: Any = None
 """What an option holds when the user did not give it and the field's default is applied later (by the
@@ -43,6 +44,8 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
     default = field_default(cls, name)
     if kwargs.get("type") is None and "action" not in kwargs:
         kwargs["type"] = type(default) if isinstance(default, int | float | str) else None
+    if kwargs.get("type") is float:  # no NaN or infinity reaches a configuration
+        kwargs["type"] = finite
     doc = field_docs(cls).get(name, "").replace("%", "%%")  # argparse formats help with %
     said = default_text if default_text is not None else shown(default)
     kwargs["help"] = f"{doc} (default: {said})".strip() if doc else f"default: {said}"

@@ -10,7 +10,8 @@ from typing import Any
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.maps import load_map
+from smorphi_rl.inputs import output_file
+from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 
 GIF_MAX_FRAMES = 120
@@ -76,6 +77,9 @@ def cmd_replay(args: argparse.Namespace) -> int:
         if args.steps or args.gif or args.png:
             raise SmorphiError("--steps, --gif and --png take one recording, not a directory")
         return _replay_listing(target)
+    for value, flag, suffix in ((args.png, "--png", ".png"), (args.gif, "--gif", ".gif")):
+        if value is not None:
+            output_file(value, flag, (suffix,), (target,))
     ep = read_episode(target)
     meta, steps, best = ep.metadata, ep.steps, ep.best
     assert best is not None
@@ -139,6 +143,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     maps = map_paths(args.map) if args.map is not None else None
     for path in maps or []:
         load_map(path)
+    if args.plot is not None:
+        inputs = tuple(p for m in maps or [] for p in map_inputs(m))
+        output_file(args.plot, "--plot", (".png",), inputs)
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
     from smorphi_rl.training.policy import check_fits, env_config_of

@@ -13,6 +13,7 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import MAX_SEED
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
     ALGORITHMS,
@@ -109,6 +110,8 @@ class TrainConfig:
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if self.seed > MAX_SEED:
+            raise TrainConfigError(f"seed must be at most 2^32-1 = {MAX_SEED}, got {self.seed}")
         for name in ("eval_every", "select_starts", "record_every", "design_budget"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:

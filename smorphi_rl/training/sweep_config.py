@@ -18,6 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -65,7 +66,8 @@ class SweepFile(BaseModel):
     algorithms: list[str] = Field(min_length=1, description=f"list of {', '.join(ALGORITHMS)}")
     maps: list[Any] = Field(min_length=1, description="list; each item a map file, or a list of map files that "
                                                       "one policy trains on together")  # fmt: skip
-    seeds: list[Annotated[int, Field(ge=0)]] = Field(min_length=1, description="list of non-negative integers")
+    seeds: list[Annotated[int, Field(ge=0, le=MAX_SEED)]] = Field(min_length=1, description="list of whole numbers "
+                                                                  "in [0, 2^32-1]")  # fmt: skip
     timesteps: int = Field(TrainConfig.timesteps, ge=1, description=_DOCS["timesteps"])
     preset: str = Field(TrainConfig.preset, description=f"{_DOCS['preset']} The search space starts from it.")
     stop: dict[str, Annotated[float, Field(allow_inf_nan=False)]] = Field(
@@ -170,29 +172,15 @@ MAX_TRIALS = 10_000
 """More trials than any machine or cluster of ours runs; a larger grid is a typo (it would create the folders)."""
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """YAML's safe loader, refusing a key given twice in one mapping (the second would silently win)."""
-
-
-def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
-    seen: set[Any] = set()
-    for key_node, _ in node.value:
-        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
-        if key in seen:
-            raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
-        seen.add(key)
-    return loader.construct_mapping(node, deep=deep)
-
-
-_UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
-
-
 def load_sweep(path: str | Path) -> SweepConfig:
     """Read and validate a sweep file; SweepConfigError names the file and the key."""
     file = Path(path)
     where = str(path)
     try:
-        raw = yaml.load(file.read_text(), Loader=_UniqueKeyLoader)
+        size = file.stat().st_size
+        if size > MAX_YAML_BYTES:
+            raise SweepConfigError(f"{where}: {size:,} bytes; a sweep file is at most {MAX_YAML_BYTES:,}")
+        raw = strict_yaml(file.read_text())
     except FileNotFoundError:
         raise SweepConfigError(f"{where}: no such sweep file") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -201,7 +189,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", "") or ""
-        detail = f" ({problem})" if problem.startswith("duplicate key") else ""
+        detail = f" ({problem})" if problem.startswith(("duplicate key", "aliases")) else ""
         raise SweepConfigError(f"{where}: not valid YAML{at}{detail}") from None
     if not isinstance(raw, dict):
         raise SweepConfigError(f"{where}: expected a mapping of keys ({', '.join(KEYS)})")

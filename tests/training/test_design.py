@@ -88,7 +88,7 @@ def test_design_loads_without_torch_or_ray(policy):
     (["--budget", "0"], "--budget must be a whole number of planner evaluations >= 1, got 0"),
     (["--budget", "-5"], "got -5"),
     (["--plot", "x.txt"], "give a file name ending in .png"),
-    (["--plot", "/no/such/dir/x.png"], "does not exist"),
+    (["--plot", str(FLOOR / "x.png")], "is not a folder this process can write into"),
     (["--map", "/no/map.yaml"], "map file not found"),
 ])  # fmt: skip
 def test_bad_design_input_is_one_line(policy, capsys, tmp_path, argv, message):

@@ -1,0 +1,112 @@
+"""Inputs checked at the edge, one place per kind: YAML documents, images, numbers and seeds, output files.
+
+Every check raises a SmorphiError naming the input and the problem, before any work starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from smorphi_rl.errors import MapError, SmorphiError
+
+MAX_YAML_BYTES = 1 << 20
+"""A map YAML or a sweep file is a few hundred bytes; anything over 1 MiB is not one."""
+MAX_IMAGE_PIXELS = 25_000_000
+"""Map images larger than this (5,000 x 5,000) are refused before they are decoded."""
+MAX_SEED = 2**32 - 1
+"""The largest seed every consumer takes (numpy, torch, RLlib and Tune's trial seeds)."""
+
+
+class InputError(SmorphiError):
+    """An input that cannot be used."""
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """YAML's safe loader that refuses aliases (a few lines of them expand to billions of nodes) and a key given
+    twice in one mapping (the second would silently win)."""
+
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        if self.check_event(yaml.events.AliasEvent):
+            event = self.peek_event()
+            raise yaml.composer.ComposerError(None, None, "aliases (*name) are not allowed", event.start_mark)
+        return super().compose_node(parent, index)  # type: ignore[no-untyped-call]
+
+
+def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
+    seen: set[Any] = set()
+    for key_node, _ in node.value:
+        key = loader.construct_object(key_node, deep=deep)  # type: ignore[no-untyped-call]
+        if key in seen:
+            raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
+        seen.add(key)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
+
+
+def strict_yaml(text: str) -> Any:
+    """A YAML document read strictly (no aliases, no duplicate keys); yaml.YAMLError otherwise."""
+    return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
+
+
+def check_image_size(path: Path) -> None:
+    """Refuse, before decoding, an image whose declared size exceeds MAX_IMAGE_PIXELS."""
+    from PIL import Image
+
+    try:
+        with Image.open(path) as img:
+            width, height = img.size
+    except Exception:  # a missing or unreadable image: the decoder says so, with the file's name
+        return
+    if width * height > MAX_IMAGE_PIXELS:
+        raise MapError(f"{path}: a {width:,} x {height:,} image; at most {MAX_IMAGE_PIXELS:,} pixels are read "
+                         "(crop the map first)")  # fmt: skip
+
+
+def finite(text: str) -> float:
+    """argparse type of every real-valued option: a finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
+
+
+def check_seed(seed: Any, what: str = "seed") -> int:
+    """A seed is a whole number in [0, MAX_SEED]."""
+    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
+        raise InputError(f"{what} must be a whole number in [0, 2^32-1], got {seed!r}")
+    return seed
+
+
+def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[Path | str, ...] = ()) -> Path:
+    """An output path used exactly as given: it ends in one of `suffixes`, is not a folder, its folder exists or
+    can be made (the nearest existing one is a writable folder; nothing is created here), and it is none of the
+    command's inputs (a plot never replaces the map it draws)."""
+    if not value:
+        raise InputError(f"{flag}: give a file name ending in {' or '.join(suffixes)}")
+    path = Path(value)
+    if path.suffix.lower() not in suffixes:
+        raise InputError(f"{flag} {value!r}: give a file name ending in {' or '.join(suffixes)}")
+    if path.is_dir():
+        raise InputError(f"{flag} {value}: is a folder; give a file name ending in {' or '.join(suffixes)}")
+    import os
+
+    target = path.resolve()
+    folder = target.parent
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise InputError(f"{flag} {value}: {folder} is not a folder this process can write into")
+    for item in inputs:
+        if Path(item).resolve() == target:
+            raise InputError(f"{flag} {value} is one of this command's inputs: write it somewhere else")
+    return path
