@@ -253,7 +253,8 @@ def map_inputs(yaml_path: str | Path) -> tuple[Path, ...]:
 
 
 def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") -> Path:
-    """Write `NAME.yaml` and `NAME.pgm|png` as map_saver does (trinary: 254/0/205)."""
+    """Write `NAME.yaml` and `NAME.pgm|png` as map_saver does (trinary: 254/0/205), each through a temporary file
+    and a rename."""
     from PIL import Image
 
     path = Path(yaml_path)
@@ -262,9 +263,14 @@ def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") ->
     pixels = np.zeros(grid_map.cells.shape, dtype=np.uint8)
     for cell, value in SAVED_PIXEL.items():
         pixels[grid_map.cells == cell] = value
+    import io
+
+    from smorphi_rl.rundir import write_atomic
+
     image_path = path.with_suffix(f".{image_format}")
     path.parent.mkdir(parents=True, exist_ok=True)
-    Image.fromarray(np.flipud(pixels), mode="L").save(image_path)
+    buffer = io.BytesIO()
+    Image.fromarray(np.flipud(pixels), mode="L").save(buffer, format={"pgm": "PPM", "png": "PNG"}[image_format])
     meta = {
         "image": image_path.name,
         "mode": MapMode.TRINARY.value,
@@ -274,7 +280,8 @@ def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") ->
         "occupied_thresh": SAVED_OCCUPIED_THRESH,
         "free_thresh": SAVED_FREE_THRESH,
     }
-    path.write_text(yaml.safe_dump(meta, sort_keys=False, default_flow_style=None))
+    write_atomic(image_path, buffer.getvalue())  # each file whole or not at all: a full disk leaves the old one
+    write_atomic(path, yaml.safe_dump(meta, sort_keys=False, default_flow_style=None).encode())
     return path
 
 

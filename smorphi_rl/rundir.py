@@ -93,3 +93,25 @@ def write_atomic(path: Path, data: bytes) -> None:
         os.replace(tmp, path)
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def claim_files(paths: list[Path], force: bool = False) -> None:
+    """Claim new output files by creating each with O_EXCL (of two racing writers exactly one wins; the other is
+    refused before it writes anything); `force`: overwrite whatever is there instead. The claimed files are
+    empty until written (atomically) over."""
+    if force:
+        return
+    made: list[Path] = []
+    try:
+        for path in paths:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            os.close(os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+            made.append(path)
+    except FileExistsError:
+        for path in made:
+            path.unlink(missing_ok=True)
+        raise RunDirError(f"{path} exists; pass --force to overwrite it") from None
+    except OSError as exc:
+        for path in made:
+            path.unlink(missing_ok=True)
+        raise RunDirError(f"cannot write {path} ({exc.strerror or exc})") from None

@@ -153,3 +153,20 @@ def test_map_rejects_bad_resolution_and_values():
         Map(np.zeros((2, 2), np.uint8), 0.0)
     with pytest.raises(MapError, match="cell values"):
         Map(np.full((2, 2), 7, np.uint8), 0.1)
+
+
+def test_two_generates_into_one_folder_at_once_write_it_once(tmp_path):
+    """Of two `maps generate --kind` racing for the same floors, exactly one writes them; the other says so."""
+    import subprocess
+    import sys
+
+    for round_ in range(3):
+        out = tmp_path / f"r{round_}"
+        argv = [sys.executable, "-m", "smorphi_rl.cli", "maps", "generate", "--kind", "rooms", "--count", "4",
+                "--seed", "5", "--out", str(out)]  # fmt: skip
+        procs = [subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True) for _ in range(2)]
+        results = [(p.wait(timeout=120), p.stderr.read()) for p in procs]  # type: ignore[union-attr]
+        assert sorted(code for code, _ in results) == [0, 1], results
+        loser = next(err for code, err in results if code == 1)
+        assert "exists; pass --force" in loser and loser.count("\n") == 1
+        assert len(list(out.glob("*.yaml"))) == 4 and all(p.stat().st_size > 0 for p in out.iterdir())

@@ -10,6 +10,7 @@ import hashlib
 import math
 import multiprocessing as mp
 import os
+import sys
 import time
 from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor
@@ -43,8 +44,21 @@ WORKER_CACHE_FOOTPRINTS = 100_000
 footprints a large map has; a chunk's repeats are still planned once (`evaluate_many` groups them)."""
 
 
-def _init(map_path: str, planning: Planning) -> None:
+def die_with_parent(parent: int) -> None:
+    """Have the kernel kill this worker when its parent dies, whatever signal ended it (Linux's
+    PR_SET_PDEATHSIG; a SIGKILLed driver otherwise leaves its pool workers blocked forever)."""
+    if sys.platform.startswith("linux"):
+        import ctypes
+        import signal
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1: PR_SET_PDEATHSIG
+    if os.getppid() != parent:  # the parent died before the request took effect
+        os._exit(1)
+
+
+def _init(map_path: str, planning: Planning, parent: int) -> None:
     global _worker
+    die_with_parent(parent)
     _worker = planning.evaluator(load_map(map_path), cache_limit=WORKER_CACHE_FOOTPRINTS)
 
 
@@ -82,7 +96,7 @@ def run_exhaustive(
     t0 = time.perf_counter()
     context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     with ProcessPoolExecutor(n_workers, mp_context=context, initializer=_init,
-                             initargs=(str(map_path), planning)) as pool:  # fmt: skip
+                             initargs=(str(map_path), planning, os.getpid())) as pool:  # fmt: skip
         offsets = np.cumsum([0] + [len(c) for c in chunks])
         done = 0
         for i, (c_pc, c_len, c_ok, c_digests) in enumerate(pool.map(_chunk, chunks)):

@@ -60,6 +60,12 @@ class TransferJob:
     """Envs each env runner steps as one vector env."""
 
     def __post_init__(self) -> None:
+        if not self.seeds:
+            raise TrainConfigError("give at least one seed (--seeds)")
+        for name, items in (("seeds", self.seeds), ("maps", tuple(str(Path(m).resolve()) for m in self.maps))):
+            repeated = sorted({str(v) for v in items if items.count(v) > 1})
+            if repeated:
+                raise TrainConfigError(f"--{name} names {repeated[0]} twice: each run would be trained twice")
         for seed in self.seeds:
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
                 raise TrainConfigError(f"seeds must be non-negative integers, got {seed!r}")

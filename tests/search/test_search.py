@@ -111,3 +111,40 @@ def test_reward_weights_rank_the_best_shape(tmp_path, capsys):
     light, heavy = (json.loads((tmp_path / f"w{w2}" / "summary.json").read_text()) for w2 in ("0.1", "0.5"))
     assert light["weights"]["w2"] == 0.1 and heavy["weights"]["w2"] == 0.5
     assert heavy["best"]["P_len"] <= light["best"]["P_len"]  # a heavier path weight never favours a longer path
+
+
+def test_pool_workers_die_with_a_killed_search(tmp_path):
+    """SIGKILL of `search exhaustive` (no chance to clean up) leaves none of its pool workers behind."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    argv = [sys.executable, "-m", "smorphi_rl.cli", "search", "exhaustive", "--map", MAP_1, "--log-dir", str(tmp_path)]
+    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def children() -> list[int]:
+        out = subprocess.run(["ps", "-o", "pid=", "--ppid", str(proc.pid)], capture_output=True, text=True).stdout
+        return [int(p) for p in out.split()]
+
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and len(children()) < 2:
+        time.sleep(0.2)
+    workers = children()
+    assert workers, "the search started no pool workers within 60 s"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait(timeout=10)
+    deadline = time.monotonic() + 10
+    alive = workers
+    while time.monotonic() < deadline and alive:
+        alive = [w for w in alive if _running(w)]
+        time.sleep(0.2)
+    assert not alive, f"pool workers {alive} outlived their killed parent"
+
+
+def _running(pid: int) -> bool:
+    """A process that exists and is not a zombie."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
+    except OSError:
+        return False
