@@ -97,6 +97,9 @@ def _register_train(sub: Any) -> None:
 
 def cmd_train(args: argparse.Namespace) -> int:
     """Train PPO, IMPALA or APPO through Ray Tune; print a progress line, then where everything is."""
+    from smorphi_rl.training.versions import warn_once
+
+    warn_once()
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
@@ -116,6 +119,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 def cmd_transfer(args: argparse.Namespace) -> int:
     """Fine-tune a pretrained policy and train from scratch on each held-out map; the paper's Table 5."""
+    from smorphi_rl.training.versions import warn_once
+
+    warn_once()
     from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
 
     # the options and maps are checked before anything runs
@@ -136,6 +142,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
 def cmd_sweep(args: argparse.Namespace) -> int:
     """Run or resume a sweep file as one Ray Tune experiment; print the best trials and where the files are."""
+    from smorphi_rl.training.versions import warn_once
+
+    warn_once()
     from smorphi_rl.training.sweep_config import load_sweep
 
     sweep = load_sweep(args.config)  # every problem named before Ray starts
@@ -152,6 +161,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
 
 def cmd_reproduce(args: argparse.Namespace) -> int:
     """The paper's experiments end to end; report.md with Tables 2-6 and Figures 5-7 analogues and the claims."""
+    from smorphi_rl.training.versions import warn_once
+
+    warn_once()
     from smorphi_rl.reproduce import reproduce
 
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
