@@ -194,12 +194,17 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
     steps, one line per algorithm and hyperparameters: the mean over seeds, shaded over its 95 % bootstrap band."""
     cols = max(1, len(groups))
     crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
-    fig, axes = plt.subplots(2, cols, figsize=(6 * cols + (5 if crowded else 0), 8), squeeze=False)
+    panels = [("episode_return_mean", "mean episode return"), ("eval_R1", "greedy settled R1 (fixed starts)")]
+    if any("design_gap_mean" in c for lines in groups.values() for c in lines.values()):
+        panels.append(("design_gap", "designer's median gap on held-out floors (% of R1*)"))
+    fig, axes = plt.subplots(len(panels), cols, figsize=(6 * cols + (5 if crowded else 0), 4 * len(panels)),
+                             squeeze=False)  # fmt: skip
     for col, (maps, lines) in enumerate(groups.items()):
-        for row, (key, title) in enumerate((("episode_return_mean", "mean episode return"),
-                                            ("eval_R1", "greedy settled R1 (fixed starts)"))):  # fmt: skip
+        for row, (key, title) in enumerate(panels):
             ax = axes[row][col]
             for label, c in lines.items():
+                if f"{key}_mean" not in c:
+                    continue
                 (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, label=label)
                 ax.fill_between(c["env_steps"], c[f"{key}_lo"], c[f"{key}_hi"], color=drawn.get_color(), alpha=0.15)
             ax.set_title(f"{maps}: {title}", fontsize=10)

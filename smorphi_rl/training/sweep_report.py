@@ -56,7 +56,8 @@ def result_rows(result_json: Path) -> list[dict[str, Any]]:
     return [by_iter[i] for i in sorted(by_iter)]
 
 
-CURVE_NAMES = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within")
+CURVE_NAMES = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within",
+               "design_gap")  # fmt: skip
 """The learning curves every report draws (`train`, `transfer`, `sweep`), one point per result row."""
 
 
@@ -74,6 +75,7 @@ def curve_point(row: dict[str, Any]) -> dict[str, float]:
         "eval_R1": _num(ev.get("settled_R1_mean")),
         "eval_gap": _num(ev.get("median_gap")),
         "eval_within": _num(ev.get("share_within_1pct")),
+        "design_gap": _num(ev.get("design_median_gap_pct")),
     }
 
 
@@ -186,7 +188,10 @@ def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarr
             end = min(max(t.curve["env_steps"]) for t in trials)
             grid = np.linspace(0, end, CURVE_POINTS)
             line: dict[str, np.ndarray] = {"env_steps": grid}
-            for key in ("episode_return_mean", CURVE_KEY):
+            keys = ["episode_return_mean", CURVE_KEY]
+            if any(np.isfinite(t.curve.get("design_gap", [math.nan])).any() for t in trials):
+                keys.append("design_gap")  # the designer's gap on held-out floors, where the sweep measured it
+            for key in keys:
                 ys = np.array([_interp(grid, t.curve["env_steps"], t.curve[key]) for t in trials])
                 line[f"{key}_mean"], line[f"{key}_lo"], line[f"{key}_hi"] = band(ys)
             out.setdefault(maps, {})[f"{label} ({len(trials)} seed{'s' if len(trials) > 1 else ''})"] = line

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import sys
 from importlib import metadata
+from typing import Any
 
 TESTED = {"ray": "2.60.0", "torch": "2.13.0"}
 """Exact versions the suite passes with (the pins of pyproject.toml and the Makefile)."""
@@ -35,7 +36,7 @@ def version_warning() -> str | None:
     )
 
 
-def warn_once(out: object = None) -> None:
+def warn_once(out: Any = None) -> None:
     """Print the version warning (if any) once per process, on stderr."""
     if _warned:
         return
