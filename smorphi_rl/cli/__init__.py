@@ -19,7 +19,7 @@ __all__ = ["build_parser", "main"]
 GROUPS = {
     evaluate: ("evaluate", "maps"),
     train: ("train", "transfer", "sweep", "reproduce"),
-    policy: ("replay", "evaluate-policy"),
+    policy: ("replay", "evaluate-policy", "export-policy"),
     search: ("search", "compare"),
     design: ("design",),
 }

@@ -40,6 +40,28 @@ def register(sub: Any) -> None:
     ep.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help="where the exact optima are cached (LOG_DIR/.cache)")
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
+    ex = sub.add_parser("export-policy", help="write a trained policy as plain files (policy.json, weights.npz)")
+    ex.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
+    ex.add_argument("--out", required=True, help="the folder to write (new, or empty)")
+    ex.add_argument("--command", default="", help="the command that trained it, kept in policy.json")
+    ex.set_defaults(func=cmd_export_policy)
+
+
+def cmd_export_policy(args: argparse.Namespace) -> int:
+    """Export a checkpoint's policy and value nets to a folder `design`, `evaluate-policy` and `--pretrained` read."""
+    from smorphi_rl.training.checkpoints import find_checkpoint
+    from smorphi_rl.training.export import export_policy
+
+    out = Path(args.out)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SmorphiError(f"--out {out} exists and is not an empty folder: choose another")
+    checkpoint = find_checkpoint(args.checkpoint)
+    about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
+    written = export_policy(checkpoint, out, about)
+    size = sum(p.stat().st_size for p in written.iterdir())
+    print(f"policy   {rel(checkpoint)}\nwrote    {rel(written)} (policy.json, weights.npz: {size / 1024:.0f} KiB)")
+    return 0
+
 
 def _replay_listing(directory: Path) -> int:
     """`replay DIR`: every recording under DIR with its best step, one line each."""

@@ -112,3 +112,19 @@ def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
     (bad / "policy.json").write_text(json.dumps(edit(json.loads((out / "policy.json").read_text()))))
     with pytest.raises(PolicyFileError, match=message):
         read_policy(bad)
+
+
+def test_export_policy_writes_a_folder_once(exported, tmp_path, capsys):
+    from smorphi_rl.cli import main
+
+    _, _, out = exported
+    checkpoint = json.loads((out / "policy.json").read_text())
+    assert "model_config" in checkpoint
+    ck = tmp_path / "ck"
+    env = MorphologyEnv(FLOOR)
+    module_for(env).save_to_path(str(ck / MODULE_SUBDIR))
+    assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "p"), "--command", "a b"]) == 0
+    assert json.loads((tmp_path / "p" / "policy.json").read_text())["command"] == "a b"
+    capsys.readouterr()
+    assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "p")]) == 1
+    assert "is not an empty folder" in capsys.readouterr().err

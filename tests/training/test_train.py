@@ -215,9 +215,13 @@ def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_pat
 
 
 def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
+    """From an exported policy (as the shipped designer is): the weights it holds are the ones every runner gets."""
+    from smorphi_rl.training.export import export_policy
+
     run_dir, _ = ppo_run
+    exported = export_policy(find_checkpoint(run_dir), tmp_path / "exported", {})
     val = str(ROOT / "maps" / "val-1.yaml")
-    proc = cli("transfer", "--pretrained", str(run_dir), "--maps", val, "--timesteps", "2000", "--name", "job",
+    proc = cli("transfer", "--pretrained", str(exported), "--maps", val, "--timesteps", "2000", "--name", "job",
                cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = list(csv.DictReader((tmp_path / "logs" / "job" / "transfer.csv").open()))
