@@ -166,6 +166,19 @@ def _optimum_in_process(key: str, map_path: str, weights: Weights, planning: Pla
     return Optimum.of(result.thetas, result.P_c, result.P_len, weights)
 
 
+OPTIMUM_CACHE = ".cache"
+"""Folder under --log-dir holding each map's exact optimum (a small JSON per map and weights)."""
+CACHE_ENV = "SMORPHI_RL_CACHE_DIR"
+"""If set, the exact optima are cached there instead (the test suite shares one cache this way)."""
+
+
+def optimum_cache(log_dir: str | Path) -> Path:
+    """Where every command caches exact optima: $SMORPHI_RL_CACHE_DIR, else LOG_DIR/.cache."""
+    import os
+
+    return Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+
+
 def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and

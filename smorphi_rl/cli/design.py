@@ -55,9 +55,9 @@ def cmd_design(args: argparse.Namespace) -> int:
         "planner_calls": result.planner_calls, "rollouts": result.rollouts, "budget": args.budget,
     }  # fmt: skip
     if args.exact:
-        from smorphi_rl.protocol import exact_optimum
+        from smorphi_rl.protocol import exact_optimum, optimum_cache
 
-        cache = Path(args.log_dir).resolve() / ".cache"
+        cache = optimum_cache(args.log_dir)
         opt = exact_optimum(str(Path(args.map).resolve()), env.floor.weights, env.config.planning, cache)
         gap = opt.R1 - best.R1
         record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,
@@ -75,7 +75,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     grid_map = env.grid_map
     lines = [
         ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
-        ("policy", f"{rel(designer.path)} ({designer.summary})"),
+        ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({designer.summary})"),
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']})"),
         ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "

@@ -225,10 +225,10 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
 
 def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -> int:
     """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
-    from smorphi_rl.protocol import eval_starts, exact_optimum
+    from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache
     from smorphi_rl.training.policy import evaluate_policy
 
-    cache = Path(args.log_dir).resolve() / ".cache"
+    cache = optimum_cache(args.log_dir)
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache)
               for p in env_config.maps}  # fmt: skip
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):

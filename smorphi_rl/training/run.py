@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import sys
 import time
 from dataclasses import asdict, dataclass, field
@@ -29,6 +28,7 @@ from smorphi_rl.protocol import (
     Optimum,
     eval_starts,
     exact_optimum,
+    optimum_cache,
 )
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
 from smorphi_rl.training import cluster
@@ -208,17 +208,11 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
     return files
 
 
-OPTIMUM_CACHE = ".cache"
-"""Folder under --log-dir holding each map's exact optimum (a small JSON per map and weights)."""
-CACHE_ENV = "SMORPHI_RL_CACHE_DIR"
-"""If set, the exact optima are cached there instead (the test suite shares one cache this way)."""
-
-
 def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
     """The exact 1-degree optimum of every map the protocol evaluates on (about 10 s each the first time, then
     cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
     longer."""
-    cache = Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+    cache = optimum_cache(log_dir)
     optima: dict[str, Optimum] = {}
     for path in cfg.evaluation_maps:
         grid_map = load_map(path)
