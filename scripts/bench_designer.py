@@ -100,7 +100,7 @@ def realmap_floors(work: Path) -> list[str]:
     if (REALMAPS / "depot.yaml").is_file():
         depot = load_map(REALMAPS / "depot.yaml")
         x0, y0 = depot.origin[0], depot.origin[1]
-        part = crop_to_rect(depot, x0 + 2.0, y0 + 0.5, x0 + 17.0, y0 + 15.0)
+        part = crop_to_rect(depot, x0 + 2.0, y0 + 1.5, x0 + 14.0, y0 + 13.5)
         part, _ = drop_islands(resample(part, 0.1), 0.5)
         out.append(str(save_map(replace(part, name="depot-part"), work / "depot-part.yaml")))
     return out

@@ -1,0 +1,72 @@
+"""The README's quick console examples run as written and print what the README shows (figures masked).
+
+Each ```console block is a list of `$ smorphi-rl ...` commands, each followed by its output; a `...` line
+stands for any lines. The commands that answer in seconds are run in a fresh folder where `maps/` is the
+project's, and every line is compared with its numbers masked (so a faster machine or a retrained designer
+still matches, but a renamed field, a lost line or an error does not).
+"""
+
+from __future__ import annotations
+
+import re
+import shlex
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+QUICK = ("smorphi-rl evaluate ", "smorphi-rl maps generate ", "smorphi-rl maps show ", "smorphi-rl design ")
+"""Commands that answer in seconds (the rest train, search the lattice or read runs the suite does not keep)."""
+NUMBER = re.compile(r"\d[\d,]*(\.\d+)?")
+
+
+def examples() -> list[tuple[str, list[str]]]:
+    """(command, the output lines the README shows) of every quick example, in README order."""
+    text = (ROOT / "README.md").read_text()
+    found = []
+    for block in re.findall(r"```console\n(.*?)```", text, flags=re.S):
+        current: tuple[str, list[str]] | None = None
+        for line in block.splitlines():
+            if line.startswith("$ "):
+                current = (line[2:].strip(), [])
+                found.append(current)
+            elif current is not None:
+                current[1].append(line)
+    return [(cmd, out) for cmd, out in found if cmd.startswith(QUICK)]
+
+
+def masked(line: str) -> str:
+    return NUMBER.sub("#", line.rstrip())
+
+
+def matches(expected: list[str], actual: list[str]) -> bool:
+    """Line for line with numbers masked; a `...` line in `expected` matches any lines."""
+    if not expected:
+        return not actual
+    if expected[0].strip() == "...":
+        return any(matches(expected[1:], actual[i:]) for i in range(len(actual) + 1))
+    return bool(actual) and masked(expected[0]) == masked(actual[0]) and matches(expected[1:], actual[1:])
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory) -> Path:
+    work = tmp_path_factory.mktemp("readme")
+    (work / "maps").symlink_to(ROOT / "maps")
+    return work
+
+
+def test_the_readme_shows_quick_examples():
+    commands = [cmd.split()[1] for cmd, _ in examples()]
+    assert {"evaluate", "maps", "design"} <= set(commands)
+
+
+@pytest.mark.parametrize(("command", "expected"), examples(), ids=[c for c, _ in examples()])
+def test_a_readme_example_prints_what_the_readme_shows(workdir, command, expected):
+    argv = shlex.split(command)[1:]
+    proc = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], cwd=workdir, capture_output=True,
+                          text=True, timeout=300)  # fmt: skip
+    assert proc.returncode == 0, proc.stderr
+    actual = proc.stdout.splitlines()
+    assert matches(expected, actual), "\n".join(["README:", *expected, "printed:", *actual])
