@@ -28,7 +28,7 @@ DESIGN_SEED = 7
 """Seeds the designer's starts and its sampled moves: another stream than the protocol's starts."""
 DEFAULT_BUDGET = 200
 """Planner evaluations (distinct shapes) a design may use by default."""
-GREEDY_ROLLOUTS = 8
+GREEDY_ROLLOUTS = 16
 """Greedy roll-outs before the sampled ones."""
 MAX_STEPS_PER_EVALUATION = 50
 """A design stops after this many env steps per budgeted evaluation even if budget is left (a policy that only

@@ -114,3 +114,15 @@ def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
     assert code == 1 and "trained on 'picture'" in err
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(tmp_path))
     assert code == 1 and "holds no smorphi-rl policy" in err
+
+
+def test_the_shipped_designer_is_small_plain_and_designs(capsys):
+    from smorphi_rl.policy_file import SHIPPED_DESIGNER, read_policy
+
+    policy = read_policy(SHIPPED_DESIGNER)
+    assert sum(p.stat().st_size for p in SHIPPED_DESIGNER.iterdir()) < 5 * 2**20
+    assert policy.meta["command"].startswith("smorphi-rl sweep tune_configs/designer.yaml")
+    assert policy.meta["trained"]["env_steps"] >= 1_000_000 and policy.env_config["observation"] == "floor"
+    code, out, err = run(capsys, "design", "--map", str(FLOOR), "--json")
+    record = json.loads(out)
+    assert code == 0 and record["evaluations"] == 200 and record["policy"].endswith("policies/designer")
