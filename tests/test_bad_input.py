@@ -186,3 +186,17 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     loop.symlink_to(loop)
     code, _, err = run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(loop / "x"))
     assert code == 1 and "cannot be used" in one_line(err)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["search", "random", "--samples", "1000000000"], "would score 1,000,000,000 shapes; at most 50,000,000"),
+    (["search", "nsga2", "--pop", "100000", "--generations", "1000"], "would score 100,000,000 shapes"),
+    (["search", "hillclimb", "--budget", "1000000000000"], "at most 50,000,000"),
+    (["search", "exhaustive", "--step", "0.25"], "would score 374,805,361 shapes"),
+    (["evaluate-policy", "--checkpoint", ".", "--episodes", "100000000000000000000"], "--episodes must be in 1..10,000"),
+    (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),
+    (["train", "--envs-per-runner", "1000000"], "envs_per_runner must be at most 1,024"),
+])  # fmt: skip
+def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, argv, message):
+    code, _, err = run(capsys, *argv, "--log-dir", str(tmp_path))
+    assert code == 1 and message in one_line(err) and not list(tmp_path.iterdir())

@@ -15,6 +15,8 @@ from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 
 GIF_MAX_FRAMES = 120
+MAX_EPISODES = 10_000
+"""evaluate-policy rolls out at most this many episodes or starts (each about 10-50 ms)."""
 
 
 def register(sub: Any) -> None:
@@ -155,10 +157,10 @@ def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
 
 def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     """Roll a trained policy out greedily; report where it settles and the best shape it visited."""
-    if args.episodes < 1:
-        raise SmorphiError(f"--episodes must be >= 1, got {args.episodes}")
-    if args.starts is not None and args.starts < 1:
-        raise SmorphiError(f"--starts must be >= 1, got {args.starts}")
+    if not 1 <= args.episodes <= MAX_EPISODES:
+        raise SmorphiError(f"--episodes must be in 1..{MAX_EPISODES:,}, got {args.episodes}")
+    if args.starts is not None and not 1 <= args.starts <= MAX_EPISODES:
+        raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     from smorphi_rl.training.checkpoints import find_checkpoint
 
     checkpoint = find_checkpoint(args.checkpoint)

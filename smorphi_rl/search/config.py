@@ -31,6 +31,11 @@ METHOD_FIELDS = {
 """The SearchConfig fields each method reads (its command-line options)."""
 
 
+MAX_EVALUATIONS = 50_000_000
+"""A search scores at most this many shapes (about 20 minutes of planning on 2 cores on a 5 m map; the whole
+1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster."""
+
+
 class SearchConfigError(SmorphiError):
     """A search option out of range, named as the command line spells it."""
 
@@ -77,6 +82,21 @@ class SearchConfig:
             raise SearchConfigError(f"--budget and --starts must be >= 1, got {self.budget} and {self.starts}")
         elif self.method == "nsga2" and (self.pop < 2 or self.generations < 1):
             raise SearchConfigError(f"--pop must be >= 2 and --generations >= 1, got {self.pop} and {self.generations}")
+        total = self.evaluations
+        if total > MAX_EVALUATIONS:
+            raise SearchConfigError(f"{self.method} would score {total:,} shapes; at most {MAX_EVALUATIONS:,} "
+                                    "(a smaller budget, or a coarser --step)")  # fmt: skip
+
+    @property
+    def evaluations(self) -> int:
+        """The shapes the run scores at most."""
+        if self.method == "exhaustive":
+            return (round(180 / self.step) + 1) ** 3
+        if self.method == "random":
+            return self.samples
+        if self.method in LOCAL_METHODS:
+            return self.budget * self.starts
+        return self.pop * self.generations
 
     @property
     def run_name(self) -> str:

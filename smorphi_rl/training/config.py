@@ -39,6 +39,13 @@ DEFAULT_RECORD_EVERY = 100
 3,200 episodes' worth of each env's share, and the run slows by about 1 % (measured in bench_training)."""
 
 
+MAX_EVAL_STARTS = 1000
+"""Each evaluation rolls every start out (about 10 ms a start): more would stall the run at every evaluation."""
+MAX_ENVS_PER_RUNNER = 1024
+"""Each env keeps its own state and a runner steps them all at once: beyond this, memory, not speed, grows."""
+MAX_DESIGN_BUDGET = 100_000
+
+
 class TrainConfigError(SmorphiError):
     """A training option that is unknown or out of range."""
 
@@ -116,6 +123,10 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise TrainConfigError(f"{name} must be a non-negative integer (0: off), got {value!r}")
+        for name, most in (("eval_starts", MAX_EVAL_STARTS), ("select_starts", MAX_EVAL_STARTS),
+                           ("envs_per_runner", MAX_ENVS_PER_RUNNER), ("design_budget", MAX_DESIGN_BUDGET)):  # fmt: skip
+            if getattr(self, name) > most:
+                raise TrainConfigError(f"{name} must be at most {most:,}, got {getattr(self, name):,}")
         check_overrides(self.algo, self.overrides)
         hp = self.hyperparameters
         if hp.minibatch_size is not None:
