@@ -123,6 +123,6 @@ def test_the_shipped_designer_is_small_plain_and_designs(capsys):
     assert sum(p.stat().st_size for p in SHIPPED_DESIGNER.iterdir()) < 5 * 2**20
     assert policy.meta["command"].startswith("smorphi-rl sweep tune_configs/designer.yaml")
     assert policy.meta["trained"]["env_steps"] >= 1_000_000 and policy.env_config["observation"] == "floor"
-    code, out, err = run(capsys, "design", "--map", str(FLOOR), "--json")
+    code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--json")
     record = json.loads(out)
     assert code == 0 and record["evaluations"] == 200 and record["policy"].endswith("policies/designer")
