@@ -138,20 +138,34 @@ def record_option(p: argparse.ArgumentParser) -> None:
     option(p, TrainConfig, "record_every", metavar="N")
 
 
-def progress_line(label: str) -> Callable[[int, int], None]:
-    """A progress bar on stderr: rewritten in place on a terminal, every 10 % otherwise."""
+ETA_AFTER_S = 3.0
+"""The time left is estimated from the rate once the work has run this long (its first seconds warm caches up)."""
+
+
+def progress_line(label: str, hint: str = "") -> Callable[[int, int], None]:
+    """A progress bar on stderr with the rate and the time left: rewritten in place on a terminal, every 5 s
+    otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it)."""
     tty = sys.stderr.isatty()
     t0 = time.monotonic()
-    shown = [-1]
+    last = [-math.inf]
+    warned = [False]
 
     def show(done: int, total: int) -> None:
-        frac = done / total
-        tenth = int(10 * frac)
-        if not tty and tenth == shown[0] and done < total:
+        now = time.monotonic()
+        elapsed = now - t0
+        left = elapsed * (total - done) / done if done and elapsed >= ETA_AFTER_S else math.inf
+        if not warned[0] and done < total and math.isfinite(left) and left > 60:
+            warned[0] = True
+            sys.stderr.write(("\n" if tty else "") + f"{label}: about {left / 60:.0f} min more at this rate"
+                             + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
+        if not tty and done < total and now - last[0] < 5:
             return
-        shown[0] = tenth
+        last[0] = now
+        frac = done / total
         bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-        line = f"{label} [{bar}] {done:,}/{total:,} {time.monotonic() - t0:5.1f} s"
+        rate = f"{done / elapsed:,.0f}/s" if elapsed > 0 else "-"
+        eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
+        line = f"{label} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
         sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
         sys.stderr.flush()
 

@@ -63,7 +63,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II, local search or the exhaustive lattice on a map; results, front and plot under
     LOG_DIR/<run>/."""
     from smorphi_rl.plots import plot_pareto
-    from smorphi_rl.rundir import prepare_run_dir
+    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
     from smorphi_rl.search.config import METHOD_FIELDS, SearchConfig, run_search
     from smorphi_rl.search.results import save
 
@@ -74,7 +74,12 @@ def cmd_search(args: argparse.Namespace) -> int:
     cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options)
     on_map = w.weights_on(grid_map)
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
-    result = run_search(cfg, progress_line("exhaustive"))
+    hint = "a coarser --step, `maps resample` to a coarser resolution, or `maps crop` cut the work"
+    try:
+        result = run_search(cfg, progress_line("exhaustive", hint))
+    except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free
+        discard_run_dir(run_dir)
+        raise
     files = save(result, run_dir, on_map)
     front_rows = result.front_records(on_map)
     b = result.best(on_map)

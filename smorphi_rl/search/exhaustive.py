@@ -7,13 +7,17 @@ never planned again; the lattice is cut into chunks so progress can be shown.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 import multiprocessing as mp
 import os
 import sys
+import threading
 import time
-from collections.abc import Callable
-from concurrent.futures import ProcessPoolExecutor
+from collections import deque
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any
 
 import numpy as np
 
@@ -23,7 +27,12 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.search.results import SearchResult
 
 CHUNKS_PER_WORKER = 24
-"""Enough chunks for a smooth progress display; few enough that their overhead stays small."""
+"""At least this many chunks per worker, for a smooth progress display."""
+IN_FLIGHT_PER_WORKER = 2
+"""Chunks queued per worker at a time (one running, one ready)."""
+CHUNK_SHAPES = 4096
+"""At most about this many shapes a chunk: on a large floor a chunk takes seconds, so progress (and a stop) comes
+within seconds too."""
 
 
 def check_step(step_deg: float) -> float:
@@ -56,20 +65,62 @@ def die_with_parent(parent: int) -> None:
         os._exit(1)
 
 
-def _init(map_path: str, planning: Planning, parent: int) -> None:
-    global _worker
+_lattice: np.ndarray | None = None
+"""The lattice being searched: set by the parent before it forks its workers, which read their chunks from it
+(tasks are index ranges: a chunk of arrays in the task pipe could block it, and a stop with it)."""
+
+
+def _init(map_path: str, planning: Planning, parent: int, step: float) -> None:
+    global _worker, _lattice
+    import signal
+
+    if _lattice is None or len(_lattice) != (round(180 / step) + 1) ** 3:  # a spawned worker builds its own
+        _lattice = lattice_thetas(step)
     die_with_parent(parent)
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool,
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # with SIGTERM, which must end a worker wherever it is
     _worker = planning.evaluator(load_map(map_path), cache_limit=WORKER_CACHE_FOOTPRINTS)
 
 
-def _chunk(thetas: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
-    """Metrics of one chunk, and short digests of the footprints this worker planned for it (new ones only)."""
-    if _worker is None:  # pragma: no cover (the pool initializer always runs first)
+def _chunk(bounds: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
+    """Metrics of the lattice's rows [lo, hi), and short digests of the footprints this worker planned for them
+    (new ones only)."""
+    if _worker is None or _lattice is None:  # pragma: no cover (the pool initializer always runs first)
         raise RuntimeError("worker not initialised")
-    batch = _worker.evaluate_many(thetas)
+    batch = _worker.evaluate_many(_lattice[bounds[0] : bounds[1]])
     keys = _worker.drain_planned()
     digests = {hashlib.blake2b(key, digest_size=8).digest() for key in keys}
     return batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
+
+
+@contextmanager
+def _stop_requests() -> Iterator[threading.Event]:
+    """While the pool runs, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread happens to
+    be (a KeyboardInterrupt inside multiprocessing's locks can deadlock the pool's shutdown); `_wait` raises it
+    at a safe point. Outside the main thread, nothing is changed."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    import signal
+
+    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)
+
+
+def _wait(future: Any, stop: threading.Event) -> Any:
+    """The chunk's result, checking for a stop request every 0.1 s."""
+    while True:
+        if stop.is_set():
+            raise KeyboardInterrupt
+        try:
+            return future.get(timeout=0.1)
+        except mp.TimeoutError:
+            continue
 
 
 def run_exhaustive(
@@ -85,8 +136,9 @@ def run_exhaustive(
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
     n_workers = max(1, workers or os.cpu_count() or 1)
-    n_chunks = max(1, min(len(thetas) // 1000, n_workers * CHUNKS_PER_WORKER))
-    chunks = np.array_split(thetas, n_chunks)
+    n_chunks = max(1, min(len(thetas) // 1000, max(n_workers * CHUNKS_PER_WORKER, len(thetas) // CHUNK_SHAPES)))
+    edges = np.linspace(0, len(thetas), n_chunks + 1).astype(np.int64)
+    chunks = [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
     # compile (or load) the kernels before forking
     planning.evaluator(grid_map).evaluate_many(thetas[:2])
     p_c = np.zeros(len(thetas))
@@ -95,17 +147,34 @@ def run_exhaustive(
     digests: set[bytes] = set()
     t0 = time.perf_counter()
     context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
-    with ProcessPoolExecutor(n_workers, mp_context=context, initializer=_init,
-                             initargs=(str(map_path), planning, os.getpid())) as pool:  # fmt: skip
-        offsets = np.cumsum([0] + [len(c) for c in chunks])
-        done = 0
-        for i, (c_pc, c_len, c_ok, c_digests) in enumerate(pool.map(_chunk, chunks)):
-            lo, hi = offsets[i], offsets[i + 1]
-            p_c[lo:hi], p_len[lo:hi], feasible[lo:hi] = c_pc, c_len, c_ok
-            digests |= c_digests
-            done += hi - lo
-            if progress is not None:
-                progress(done, len(thetas))
+    global _lattice
+    _lattice = thetas  # the forked workers read their chunks from here
+    pool = context.Pool(n_workers, initializer=_init, initargs=(str(map_path), planning, os.getpid(), step))
+    try:
+        with _stop_requests() as stop:
+            pending: deque[tuple[int, Any]] = deque()
+            queued = iter(range(len(chunks)))
+            for i in itertools.islice(queued, IN_FLIGHT_PER_WORKER * n_workers):  # a few chunks ahead, not all
+                pending.append((i, pool.apply_async(_chunk, (chunks[i],))))
+            done = 0
+            while pending:
+                i, future = pending.popleft()
+                c_pc, c_len, c_ok, c_digests = _wait(future, stop)
+                for j in itertools.islice(queued, 1):
+                    pending.append((j, pool.apply_async(_chunk, (chunks[j],))))
+                lo, hi = chunks[i]
+                p_c[lo:hi], p_len[lo:hi], feasible[lo:hi] = c_pc, c_len, c_ok
+                digests |= c_digests
+                done += hi - lo
+                if progress is not None:
+                    progress(done, len(thetas))
+        pool.close()
+    except BaseException:  # Ctrl-C, SIGTERM, an error: the workers stop now, not when their chunk ends
+        pool.terminate()
+        raise
+    finally:
+        pool.join()
+        _lattice = None
     params = {
         "step_deg": step,
         "workers": n_workers,

@@ -148,3 +148,31 @@ def _running(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
     except OSError:
         return False
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_path, signame):
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    argv = [sys.executable, "-m", "smorphi_rl.cli", "search", "exhaustive", "--map", MAP_1, "--log-dir",
+            str(tmp_path), "--name", "ex"]  # fmt: skip
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    listing = ["ps", "-o", "pid=", "--ppid", str(proc.pid)]
+    deadline = time.monotonic() + 60
+    while (
+        time.monotonic() < deadline and len(subprocess.run(listing, capture_output=True, text=True).stdout.split()) < 2
+    ):
+        time.sleep(0.2)
+    workers = [int(p) for p in subprocess.run(listing, capture_output=True, text=True).stdout.split()]
+    time.sleep(1.0)
+    t0 = time.monotonic()
+    proc.send_signal(getattr(signal, signame))
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 130 and time.monotonic() - t0 < 5, err
+    assert "Traceback" not in err and err.strip().splitlines()[-1] == "smorphi-rl: interrupted"
+    time.sleep(0.5)
+    assert not [w for w in workers if _running(w)]
+    assert not (tmp_path / "ex").exists()  # nothing finished: the name is free again
