@@ -4,10 +4,12 @@ The policy walks from a fixed, seeded list of start shapes, one roll-out after a
 reaches is scored by FBCPP, and the answer is the best shape scored. The first `greedy` roll-outs take the
 most likely move of each hinge: such a roll-out is deterministic and its observation depends on the floor and
 the shape alone, so it stops at its first revisit (from there it would repeat a walk already scored) or at
-the env's `max_steps`. The rest of the budget goes to roll-outs that sample each move from the policy's own
-distribution (seeded), which explore around the regions the greedy walks lead to. The design stops when
-`budget` distinct shapes have been scored. The same procedure runs with the torch module (training's
-evaluation, the benchmarks) and with the NumPy copy of its policy net (`smorphi-rl design`).
+the env's `max_steps`. Then roll-outs sample each move from the policy's own distribution (seeded), which
+explore around the regions the greedy walks lead to. The policy spends three quarters of the budget; the last
+quarter goes to compass search from the best shape it found (`search/local.py`: +-32 down to +-1 degree per
+hinge), which climbs the peak the policy's walks came near. The answer is the best shape scored within
+`budget` distinct shapes. The same procedure runs with the torch module (training's evaluation, the
+benchmarks) and with the NumPy copy of its policy net (`smorphi-rl design`).
 """
 
 from __future__ import annotations
@@ -30,6 +32,8 @@ DEFAULT_BUDGET = 200
 """Planner evaluations (distinct shapes) a design may use by default."""
 GREEDY_ROLLOUTS = 16
 """Greedy roll-outs before the sampled ones."""
+REFINE_SHARE = 0.25
+"""The share of the budget left to compass search from the policy's best shape."""
 MAX_STEPS_PER_EVALUATION = 50
 """A design stops after this many env steps per budgeted evaluation even if budget is left (a policy that only
 revisits shapes it has scored)."""
@@ -49,6 +53,8 @@ class Design:
     """Distinct footprints planned: shapes with the same rasterised footprint share one plan."""
     rollouts: int
     wall_s: float
+    refined: int = 0
+    """Shapes the compass search scored after the policy's roll-outs."""
     walks: list[list[tuple[float, float, float]]] = field(default_factory=list)
     """Every roll-out's shapes, in order (for plots)."""
 
@@ -89,6 +95,7 @@ def run_design(
     """Roll-outs of the policy on `env` (a MorphologyEnv of one map) until `budget` distinct shapes are scored
     (module docstring); the best shape scored is the design."""
     budget = check_budget(budget)
+    policy_budget = max(1, budget - int(REFINE_SHARE * budget))
     starts = design_starts(step_deg=env.config.angle_step_deg) if starts is None else starts
     nvec = [int(n) for n in env.action_space.nvec]
     rng = np.random.default_rng(seed)
@@ -97,7 +104,7 @@ def run_design(
     scored: dict[tuple[float, float, float], Scored] = {}
     walks: list[list[tuple[float, float, float]]] = []
     steps, max_steps = 0, MAX_STEPS_PER_EVALUATION * budget
-    while len(scored) < budget and steps < max_steps:
+    while len(scored) < policy_budget and steps < max_steps:
         sampled = len(walks) >= greedy
         start = starts[len(walks) % len(starts)]
         obs, info = env.reset(seed=0, options={"theta": tuple(float(t) for t in start)})
@@ -108,7 +115,7 @@ def run_design(
             continue
         scored.setdefault(theta, env.current)
         for _ in range(env.config.max_steps):
-            if len(scored) >= budget:
+            if len(scored) >= policy_budget:
                 break
             obs, _, terminated, truncated, info = env.step(moves(logits([obs])[0], nvec, rng if sampled else None))
             steps += 1
@@ -119,5 +126,15 @@ def run_design(
             scored.setdefault(theta, env.current)
             if terminated or truncated:
                 break
+    rollouts = len(walks)
+    refined: list[tuple[float, float, float]] = []
+    if budget > len(scored):
+        from smorphi_rl.search.local import compass_refine
+
+        start = max(scored.values(), key=lambda s: s.R1).theta
+        refined = compass_refine(env, {t: s.R1 for t, s in scored.items()}, start, budget, rng)
+        scored |= {t: env.score(t) for t in refined}
+        walks.append(refined)
     best = max(scored.values(), key=lambda s: s.R1)
-    return Design(best, len(scored), env.planner_calls - calls0, len(walks), time.perf_counter() - t0, walks)
+    return Design(best, len(scored), env.planner_calls - calls0, rollouts, time.perf_counter() - t0,
+                  refined=len(refined), walks=walks)  # fmt: skip

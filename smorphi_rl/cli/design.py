@@ -52,7 +52,8 @@ def cmd_design(args: argparse.Namespace) -> int:
         "map": env.grid_map.name, "policy": str(designer.path), "theta": list(best.theta), "P_c": best.P_c,
         "coverage_free_pct": best.coverage_free_pct, "P_len": best.P_len, "R1": best.R1,
         "weights": env.floor.weights.formula(), "evaluations": result.evaluations,
-        "planner_calls": result.planner_calls, "rollouts": result.rollouts, "budget": args.budget,
+        "planner_calls": result.planner_calls, "rollouts": result.rollouts, "refined": result.refined,
+        "budget": args.budget,
     }  # fmt: skip
     if args.exact:
         from smorphi_rl.protocol import exact_optimum, optimum_cache
@@ -79,7 +80,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']})"),
         ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "
-                 f"planned), {result.rollouts} roll-outs"),
+                 f"planned): {result.rollouts} roll-outs of the policy, {result.refined} shapes of compass search"),
     ]  # fmt: skip
     if "exact" in record:
         ex = record["exact"]

@@ -160,6 +160,18 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
     return space.best()
 
 
+def compass_refine(
+    env: MorphologyEnv, seen: dict[Theta, float], start: Theta, budget: int, rng: np.random.Generator
+) -> list[Theta]:
+    """Compass search (`pattern`) on `env` from `start`, the shapes of `seen` (with their R1) counted as scored,
+    until `budget` shapes are scored in all; the shapes it scored, in order (what a design spends its last
+    evaluations on)."""
+    space = _Budgeted(env, budget)
+    space.seen.update(seen)
+    pattern(space, start, rng)
+    return [t for t in space.seen if t not in seen]
+
+
 SEARCHERS: dict[str, Callable[[_Budgeted, Theta, np.random.Generator], Theta]] = {
     "hillclimb": hill_climb, "anneal": anneal, "random_walk": random_walk, "random_search": random_search,
     "pattern": pattern,
