@@ -48,6 +48,15 @@ LABELS = {"random_search": "random search", "hillclimb": "hill climbing", "annea
 NSGA_POP = 20
 
 
+def progress(label: str, done: int, total: int, t0: float) -> None:
+    """One progress line on stderr: rewritten in place on a terminal, every tenth otherwise."""
+    tty = sys.stderr.isatty()
+    if tty or done == total or done % max(1, total // 10) == 0:
+        end = "\n" if not tty or done == total else ""
+        sys.stderr.write(f"{chr(13) if tty else ''}{label} {done}/{total} ({time.perf_counter() - t0:.0f} s){end}")
+        sys.stderr.flush()
+
+
 def gap_pct(optimum: float, value: float) -> float:
     return 100.0 * (optimum - value) / abs(optimum)
 
@@ -172,8 +181,7 @@ def main() -> None:
         grid_map = load_map(path)
         cfg = replace(env_config, maps=(str(Path(path).resolve()),))
         optima[grid_map.name] = exact_optimum(path, cfg.weights_on(grid_map), cfg.planning, cache).R1
-        sys.stderr.write(f"\rexact optima {i + 1}/{len(floors) + len(real)} ({time.perf_counter() - t0:.0f} s)")
-    sys.stderr.write("\n")
+        progress("exact optima", i + 1, len(floors) + len(real), t0)
     methods = [f"designer {i + 1}" for i in range(len(designers))] + list(LOCAL) + ([] if args.no_nsga2 else ["nsga2"])
     raw = env_config.to_dict() | {"maps": None}
     gaps: dict[str, dict[int, dict[str, float]]] = {m: {b: {} for b in budgets} for m in methods}
@@ -192,8 +200,7 @@ def main() -> None:
                 gaps[m][b][name] = baseline_gaps(m, path, {k: v for k, v in raw.items() if k != "maps"}, b, args.seeds,
                                                  optima[name])  # fmt: skip
                 timing[m] += time.perf_counter() - t
-        sys.stderr.write(f"\rfloors {j + 1}/{len(floors) + len(real)} ({time.perf_counter() - t0:.0f} s)")
-    sys.stderr.write("\n")
+        progress("floors", j + 1, len(floors) + len(real), t0)
     held = [load_map(p).name for p in floors]
     real_names = [load_map(p).name for p in real]
     report = {"budget": args.budget, "budgets": budgets, "floors": len(held), "seeds": args.seeds,

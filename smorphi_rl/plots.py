@@ -196,7 +196,7 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
     crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
     panels = [("episode_return_mean", "mean episode return"), ("eval_R1", "greedy settled R1 (fixed starts)")]
     if any("design_gap_mean" in c for lines in groups.values() for c in lines.values()):
-        panels.append(("design_gap", "designer's median gap on held-out floors (% of R1*)"))
+        panels.append(("design_gap", "designer's median gap on the evaluated maps (% of R1*)"))
     fig, axes = plt.subplots(len(panels), cols, figsize=(6 * cols + (5 if crowded else 0), 4 * len(panels)),
                              squeeze=False)  # fmt: skip
     for col, (maps, lines) in enumerate(groups.items()):
@@ -268,6 +268,18 @@ def plot_planners(
             theta = ", ".join(f"{t:g}" for t in morphology.angles)
             title = f"{grid_map.name}, ({theta}), planner {result.planner}"
             ax.set_title(f"{title}\nfree covered {result.coverage_free_pct:.1f} %, P_len {result.P_len}", fontsize=9)
+    return _save(fig, out)
+
+
+def plot_map_grid(maps: list[Map], titles: list[str], cols: int, out: str | Path) -> Path:
+    """Several maps in a grid of `cols` columns, each with its title (docs/floors.png)."""
+    rows = -(-len(maps) // cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(4.2 * cols, 4.2 * rows), squeeze=False)
+    for ax, grid_map, title in zip(axes.flat, maps, titles, strict=False):
+        draw_map(ax, grid_map)
+        ax.set_title(title, fontsize=8)
+    for ax in list(axes.flat)[len(maps) :]:
+        ax.axis("off")
     return _save(fig, out)
 
 
