@@ -93,6 +93,8 @@ class TrainConfig:
     empty: the training maps that are files. A generalist policy is evaluated on held-out floors this way."""
 
     def __post_init__(self) -> None:
+        if self.pretrained is not None:  # trials run in their own folders: a relative path would not be found
+            object.__setattr__(self, "pretrained", str(Path(self.pretrained).resolve()))
         if self.eval_maps:
             from smorphi_rl.map_sources import MapSourceError, is_generator, resolve
 
