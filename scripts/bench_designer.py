@@ -157,9 +157,13 @@ def main() -> None:
     parser.add_argument("--ppo-maps", type=int, default=4, help="floors for per-map PPO (0: skip it)")
     parser.add_argument("--ppo-steps", type=int, default=20_000)
     parser.add_argument("--no-nsga2", action="store_true")
+    parser.add_argument("--train-steps", type=int, default=0, help="also train the designer's sweep trial for this "
+                        "many env steps and report its rate and peak memory (0: skip)")  # fmt: skip
     parser.add_argument("--out", default=str(ROOT / "logs" / "bench-designer"), help="results.json and the PNG")
     parser.add_argument("--log-dir", default=str(ROOT / "logs"), help="where exact optima are cached")
     parser.add_argument("--write-docs", action="store_true", help="rewrite the Designer section of docs/benchmarks.md")
+    parser.add_argument("--record", action="store_true", help="write designer 1's held-out figures into its "
+                        "policy.json (`held_out`), beside the command that trained it")  # fmt: skip
     args = parser.parse_args()
     t_start = time.perf_counter()
     out = Path(args.out)
@@ -248,8 +252,10 @@ def main() -> None:
             lines.append(f"| {n} | {gaps['designer 1'][args.budget][n]:.2f} % | {by['scratch']['best_gap_pct']:.2f} / "
                          f"{by['scratch']['settled_gap_pct']:.2f} % | {by['fine-tune']['best_gap_pct']:.2f} / "
                          f"{by['fine-tune']['settled_gap_pct']:.2f} % |")  # fmt: skip
-    png = plot_curves(report, methods, out / "gap_vs_evaluations.png")
-    lines += ["", f"![gap against evaluations](../{png.relative_to(ROOT)})" if png.is_relative_to(ROOT) else ""]
+    if args.train_steps:
+        lines += ["", *training_cost(args.train_steps, work / "train")]
+    png = plot_curves(report, methods, (ROOT / "docs" if args.write_docs else out) / "designer_gap.png")
+    lines += ["", "![gap against evaluations](designer_gap.png)" if args.write_docs else f"plot: {png}"]
     d1 = report["methods"]["designer 1"]["at_budget"]
     targets = [
         f"median {d1['median']:.3f} % (target <= 1 %): {'met' if d1['median'] <= 1 else 'NOT met'}",
@@ -267,8 +273,54 @@ def main() -> None:
     print(text)
     (out / "results.json").write_text(json.dumps(report, indent=2, default=float))
     print(f"results: {out / 'results.json'}\nplot:    {png}")
+    if args.record:
+        record_figures(designers[0].path, report, args)
     if args.write_docs:
         print(f"docs:    {write_section('designer', '## Designer (`scripts/bench_designer.py`)' + chr(10) * 2 + text)}")
+
+
+def training_cost(steps: int, log_dir: Path) -> list[str]:
+    """The designer's sweep trial (tune_configs/designer.yaml, seed 0) for `steps` env steps under the memory
+    probe: wall time, env steps a second and the peak PSS of the process tree (Ray's processes included)."""
+    from _memory import PeakMemory
+
+    from smorphi_rl.protocol import CACHE_ENV
+    from smorphi_rl.training.run import train
+    from smorphi_rl.training.sweep_config import load_sweep
+
+    sweep = load_sweep(ROOT / "tune_configs" / "designer.yaml")
+    cfg = replace(sweep.base_config("ppo", sweep.map_sets[0], 0, {}), timesteps=steps)
+    os.environ.setdefault(CACHE_ENV, str(ROOT / "logs" / ".cache"))  # the validation floors' optima, computed once
+    t0 = time.perf_counter()
+    with PeakMemory() as mem, open(os.devnull, "w") as quiet:
+        summary = train(cfg, name="designer-cost", log_dir=log_dir, out=quiet)
+    wall = time.perf_counter() - t0
+    rate = summary.env_steps / summary.wall_s
+    full = 2_000_000 / rate / 60
+    print(f"designer training: {summary.env_steps:,} env steps in {summary.wall_s:.0f} s of training ({wall:.0f} s "
+          f"end to end), {rate:,.0f} env steps/s, peak PSS {mem.peak_pss / 2**30:.2f} GiB")  # fmt: skip
+    return [
+        f"Designer training (`tune_configs/designer.yaml`'s trial, seed 0, {summary.env_steps:,} env steps on "
+        f"2 env runners): {rate:,.0f} env steps/s ({full:.0f} min for its 2,000,000), {wall:.0f} s end to end, "
+        f"peak memory {mem.peak_pss / 2**30:.2f} GiB (PSS of the process tree, Ray's processes included)."
+    ]
+
+
+def record_figures(policy_dir: Path, report: dict, args: argparse.Namespace) -> None:
+    """Designer 1's held-out figures into its policy.json (rewritten through a temporary file)."""
+    from smorphi_rl.rundir import write_atomic
+
+    meta_file = policy_dir / "policy.json"
+    meta = json.loads(meta_file.read_text())
+    d1 = report["methods"]["designer 1"]
+    meta["held_out"] = {
+        "floors": report["floors"], "budget": args.budget, "command": "scripts/bench_designer.py --record",
+        "median_gap_pct": round(d1["at_budget"]["median"], 4), "p90_gap_pct": round(d1["at_budget"]["p90"], 4),
+        "share_within_1pct": round(d1["at_budget"]["within"], 4),
+        "median_gap_pct_by_budget": {str(b): round(v["median"], 4) for b, v in d1["curve"].items()},
+    }  # fmt: skip
+    write_atomic(meta_file, (json.dumps(meta, indent=2) + "\n").encode())
+    print(f"policy:  {meta_file} (held_out figures recorded)")
 
 
 def plot_curves(report: dict, methods: list[str], png: Path) -> Path:

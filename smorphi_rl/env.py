@@ -233,7 +233,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._floor: Floor | None = None
         self._lattice_max = round(180 / cfg.angle_step_deg)
         k = len(cfg.moves)
-        self._offsets = np.array([-m for m in reversed(cfg.moves)] + [0] + list(cfg.moves), dtype=np.int64)
+        self._offsets = (*(-m for m in reversed(cfg.moves)), 0, *cfg.moves)
+        """Lattice steps of each action index of a hinge (a tuple: the step's hot path indexes it)."""
+        self._indices = frozenset(range(2 * k + 1))
         self._stay = k
         """The action index that leaves a hinge where it is."""
         size = cfg.obs_size
@@ -358,7 +360,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def _score_current(self) -> Scored:
         """`score` of the current lattice point, memoised by lattice index on the floor: the env's hot path."""
-        scores = self.floor.scores
+        scores = (self._floor or self.floor).scores
         scored = scores.get(self._idx)
         if scored is None:
             if len(scores) >= SCORE_CACHE_SIZE:
@@ -382,7 +384,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self.floor.stats.sigma
 
     def _observe(self) -> dict[str, np.ndarray]:
-        last, floor = self._last, self.floor
+        last, floor = self._last, self._floor or self.floor
         angles = np.asarray(self.theta, dtype=np.float32) / np.float32(180.0)
         if self._layout is ObservationLayout.PICTURE:
             metrics = np.array([last.P_c / 100.0, last.P_len / (last.P_len + 100.0)], dtype=np.float32)
@@ -422,9 +424,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
         moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
-        top_index = 2 * self._stay
-        if len(moves) != 3 or any(not isinstance(m, int | np.integer) or not 0 <= m <= top_index for m in moves):
-            raise SmorphiError(f"action must be three values in 0..{top_index}, got {action!r}")
+        if len(moves) != 3 or any(m not in self._indices for m in moves):
+            raise SmorphiError(f"action must be three values in 0..{2 * self._stay}, got {action!r}")
         self._steps += 1
         before = self._last
         truncated = self._steps >= self.config.max_steps
@@ -432,12 +433,12 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             # committing keeps the shape and ends the episode, paid the value of that one design
             return self._observe(), float(before.R1 / self.sigma_map), True, False, self._info()
         top, offsets = self._lattice_max, self._offsets
-        i, j, k = (min(max(v + int(offsets[m]), 0), top) for v, m in zip(self._idx, moves, strict=True))
+        i, j, k = (min(max(v + offsets[m], 0), top) for v, m in zip(self._idx, moves, strict=True))
         unchanged = (i, j, k) == self._idx
         self._idx = (i, j, k)
         scored = self._score_current()
         self._record(scored)
-        stats = self.floor.stats
+        stats = self._floor.stats  # type: ignore[union-attr]  # set by reset
         if self._mode is RewardMode.PAPER:
             reward = scored.R1 - (self.config.beta if unchanged else 0.0)
         elif self._mode is RewardMode.LEVEL:
