@@ -5,7 +5,9 @@ The agent reshapes a Smorphi robot one hinge step at a time; every new shape is 
 FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
 
 ## Action Space
-`MultiDiscrete([3, 3, 3])`: per hinge 0, 1, 2 means -1, 0, +1 `angle_step_deg`, clipped to [0, 180].
+`MultiDiscrete([2K + 1] * 3)` for `moves` (K step sizes, default (1,)): per hinge, index K keeps the angle and
+the others move it by -m_K .. -m_1, +m_1 .. +m_K lattice steps of `angle_step_deg`, clipped to [0, 180]; with
+the default, 0, 1, 2 mean -1, 0, +1.
 
 ## Observation Space
 `Dict`, the same shape for every map so one policy transfers between maps:
@@ -15,7 +17,11 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
   (a quarter of float32's bytes through every connector; the policy divides by 255);
 - `angles`: `Box(0, 1, (3,))`, theta / 180;
 - `metrics`: `Box(0, 1, (2,))`, P_c / 100 and P_len / (P_len + 100) of the current shape.
-
+That is the `picture` layout (the default). The `floor` layout (`observation: floor`) pads the known box to a
+square before resampling (the picture keeps the floor's aspect), takes metrics that mean the same on any floor
+size (P_c, free coverage, the path against the free area, R1 / 100: `Box(0, 1, (4,))`) and adds `scale`,
+`Box(0, 1, (9,))`: the floor's size and resolution against the block and its clearance shares
+(`floor_scale`; docs/spec/env.md section 4).
 ## Rewards
 `R1 = w1 P_c - w2 P_len` of a shape (infeasible shapes score P_c = P_len = 0). By `reward` mode:
 - `paper`: `R = R1 + R2` of the new shape, `R2 = -beta` when the action leaves all three angles
@@ -38,7 +44,7 @@ FBCPP on the episode's map (cached by footprint, so revisits cost nothing).
 fixed seeded sample of random shapes on the map.
 
 ## Starting State
-A map drawn from `maps`, and theta uniform on the `angle_step_deg` lattice (or `start_theta`, or
+A map drawn from `maps` (files, or a `generate:KIND[:LO-HI]` entry that draws a fresh floor's seed), and theta uniform on the `angle_step_deg` lattice (or `start_theta`, or
 `reset(options={"theta": ...})`, rounded to the lattice), both from the env's seeded generator.
 
 ## Episode End
@@ -50,7 +56,8 @@ action; truncated after `max_steps`.
   were added without a version bump (no policy had been published); likewise the map channels now
   cover the known cells' bounding box (identical on maps with no unknown border, such as the shipped
   ones) and the config took `planner`, `start_xy` and `path_term` (defaults: the old behaviour), and
-  `move_cost` (default 0: the old behaviour).
+  `move_cost` (default 0: the old behaviour); then `observation` and `moves` (defaults: the old layout and
+  actions, so checkpoints written before them load as they were).
 """
 
 from __future__ import annotations
