@@ -44,8 +44,9 @@ size (P_c, free coverage, the path against the free area, R1 / 100: `Box(0, 1, (
 fixed seeded sample of random shapes on the map.
 
 ## Starting State
-A map drawn from `maps` (files, or a `generate:KIND[:LO-HI]` entry that draws a fresh floor's seed), and theta uniform on the `angle_step_deg` lattice (or `start_theta`, or
-`reset(options={"theta": ...})`, rounded to the lattice), both from the env's seeded generator.
+A map drawn from `maps` (files, or a `generate:KIND[:LO-HI]` entry that draws a fresh floor's seed), and theta
+uniform on the `angle_step_deg` lattice (or `start_theta`, or `reset(options={"theta": ...})`, rounded to the
+lattice), both from the env's seeded generator.
 
 ## Episode End
 Terminated when P_c >= `coverage_threshold` (off unless set), or in `commit` mode on the all-zero
