@@ -19,6 +19,7 @@ import numpy as np
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.protocol import within_band
+from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
@@ -182,5 +183,5 @@ def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, 
         best={m.label: (float(m.best_P_len), m.best_P_c) for m in methods},
     )
     lines += ["", f"![Pareto plot]({files['plot'].name})", ""]
-    files["report"].write_text("\n".join(lines))
+    write_text_atomic(files["report"], "\n".join(lines))
     return files

@@ -16,6 +16,7 @@ from matplotlib.patches import Polygon, Rectangle
 from smorphi_rl.coverage import CoverageResult, path_points_m
 from smorphi_rl.geometry import Morphology, all_corners
 from smorphi_rl.maps import Cell, Map
+from smorphi_rl.rundir import atomic_path
 
 BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 # free, occupied, unknown, covered free
@@ -251,7 +252,8 @@ def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str
     anim = FuncAnimation(fig, lambda i: _draw_replay_frame(ax, grid_map, frames[i], titles[i]), frames=len(frames))
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
-    anim.save(str(path), writer=PillowWriter(fps=fps), dpi=90)
+    with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a GIF
+        anim.save(str(tmp), writer=PillowWriter(fps=fps), dpi=90)
     plt.close(fig)
     return path
 
@@ -300,8 +302,11 @@ def _save(fig: plt.Figure, out: str | Path) -> Path:
     fig.tight_layout()
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a PNG
+            fig.savefig(tmp, dpi=120, format="png")
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.rundir import DEFAULT_LOG_DIR
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, write_text_atomic
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
@@ -159,7 +159,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     claims += _transfer_claims(transfer_runs)
     sections += ["", "## The paper's claims, one by one", "", *claims, ""]
     report = root / "report.md"
-    report.write_text("\n".join(sections))
+    write_text_atomic(report, "\n".join(sections))
     return report
 
 

@@ -8,10 +8,13 @@ name exactly one wins, and the others are refused before they write anything.
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import shutil
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 from smorphi_rl.errors import SmorphiError
@@ -80,6 +83,31 @@ def discard_run_dir(run_dir: Path) -> None:
     """Remove a run directory this process claimed and that holds no result (a run that never started)."""
     if (run_dir / MARKER).is_file():
         shutil.rmtree(run_dir, ignore_errors=True)
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """`write_atomic` of a text (UTF-8)."""
+    write_atomic(path, text.encode())
+
+
+@contextmanager
+def atomic_text(path: Path) -> Iterator[io.StringIO]:
+    """A text stream (for `csv.writer`) whose content replaces `path` atomically when the block ends well."""
+    buffer = io.StringIO(newline="")
+    yield buffer
+    write_text_atomic(path, buffer.getvalue())
+
+
+@contextmanager
+def atomic_path(path: Path) -> Iterator[Path]:
+    """A temporary name beside `path` for a writer that needs a file name (a figure, an animation); renamed over
+    `path` when the block ends without an error, removed otherwise: readers see the old file or the new one."""
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def write_atomic(path: Path, data: bytes) -> None:

@@ -85,3 +85,25 @@ def test_racing_searches_one_result_intact(tmp_path):
     assert all("already exists" in err for code, err in results if code == 1)
     loaded = load_result(tmp_path / "same")
     assert len(loaded.thetas) == 200 and np.isfinite(loaded.P_c).all()
+
+
+def test_a_write_killed_midway_leaves_the_old_file_or_the_new_one(tmp_path):
+    """Every output goes through write_atomic: SIGKILL at any moment leaves one whole version, never a mix."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    target = tmp_path / "summary.json"
+    size = 4 << 20
+    code = (f"from pathlib import Path\nfrom smorphi_rl.rundir import write_text_atomic\np = Path({str(target)!r})\n"
+            f"i = 0\nwhile True:\n    write_text_atomic(p, 'ab'[i % 2] * {size})\n    i += 1\n")  # fmt: skip
+    for delay in (0.3, 0.45, 0.6, 0.75, 0.9):
+        proc = subprocess.Popen([sys.executable, "-c", code])
+        time.sleep(delay)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+        if target.exists():
+            text = target.read_text()
+            assert len(text) == size and text in ("a" * size, "b" * size)
+    assert target.exists()

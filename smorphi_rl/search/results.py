@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.rundir import write_atomic
+from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 
@@ -65,7 +65,7 @@ def save(result: SearchResult, run_dir: Path, weights: Weights) -> dict[str, Pat
               "feasible": result.feasible}  # fmt: skip
     write_atomic(files["results"], _npz(arrays))  # a reader never sees half an archive
     front = result.front_records(weights)
-    with files["front"].open("w", newline="") as fh:
+    with atomic_text(files["front"]) as fh:
         writer = csv.writer(fh)
         writer.writerow(["theta1", "theta2", "theta3", "P_c", "P_len", "R1"])
         for row in front:
@@ -83,7 +83,7 @@ def save(result: SearchResult, run_dir: Path, weights: Weights) -> dict[str, Pat
                  "P_len": int(result.P_len[b]), "R1": float(weights.r1(result.P_c[b], result.P_len[b]))},
         "front_size": len(front),
     }  # fmt: skip
-    files["summary"].write_text(json.dumps(summary, indent=2))
+    write_text_atomic(files["summary"], json.dumps(summary, indent=2))
     return files
 
 

@@ -30,7 +30,7 @@ from smorphi_rl.protocol import (
     exact_optimum,
     optimum_cache,
 )
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, write_text_atomic
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -301,7 +301,7 @@ def train(
         quiet()
         with cluster.ray_session(address):
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
-            (run_dir / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": name, "address": address},
+            write_text_atomic(run_dir / "config.json", json.dumps(cfg.to_dict() | {"name": name, "address": address},
                                                             indent=2))  # fmt: skip
             results, progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
     except BaseException:
@@ -335,7 +335,7 @@ def train(
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
     files["summary"] = run_dir / "summary.json"
-    files["summary"].write_text(json.dumps(summary.to_dict(), indent=2))
+    write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
     return summary
 
 

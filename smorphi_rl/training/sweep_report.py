@@ -17,6 +17,7 @@ import numpy as np
 
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.rundir import atomic_text, write_text_atomic
 from smorphi_rl.stats import band, mean_interval
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import CURVE_KEY, convergence
@@ -138,13 +139,13 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
                       "" if r.converged_at is None else int(r.converged_at),
                       f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
-    with csv_path.open("w", newline="") as fh:
+    with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
         writer.writerows(table)
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(str(c) for c in row) + " |" for row in table]
-    md_path.write_text("\n".join(md) + "\n")
+    write_text_atomic(md_path, "\n".join(md) + "\n")
 
 
 def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
@@ -158,7 +159,7 @@ def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
 
 def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
     """sweep_groups.md: the table of `sweep_group_lines`."""
-    md_path.write_text("\n".join(sweep_group_lines(rows)) + "\n")
+    write_text_atomic(md_path, "\n".join(sweep_group_lines(rows)) + "\n")
 
 
 def sweep_group_lines(rows: list[TrialRow]) -> list[str]:

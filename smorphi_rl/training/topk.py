@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl.geometry import angles_text
+from smorphi_rl.rundir import atomic_text, write_text_atomic
 
 FOUND_CSV = "morphologies.csv"
 """Every distinct morphology a training run found, best first (next to the top-k tables)."""
@@ -130,12 +131,12 @@ def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
     for rank, f in enumerate(rows, 1):
         lines.append(f"| {rank} | {f.algorithm.upper()} | {f.map} | {f.angles} | {f.P_c:.2f} | {f.P_len} "
                      f"| {f.R1:.2f} | {f.env_steps:,} | {f.variants} |")  # fmt: skip
-    md_path.write_text("\n".join(lines) + "\n")
+    write_text_atomic(md_path, "\n".join(lines) + "\n")
 
 
 def write_csv(rows: list[Found], csv_path: Path) -> None:
     """Ranked rows as CSV (CSV_FIELDS)."""
-    with csv_path.open("w", newline="") as fh:
+    with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
         writer.writerow(CSV_FIELDS)
         for rank, f in enumerate(rows, 1):

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.rundir import DEFAULT_LOG_DIR
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, write_text_atomic
 from smorphi_rl.stats import mean_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
@@ -129,7 +129,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     from smorphi_rl.plots import plot_learning_curves
 
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
-    with files["csv"].open("w", newline="") as fh:
+    with atomic_text(files["csv"]) as fh:
         writer = csv.writer(fh)
         writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_settled_R1", "best_R1",
                          "pretrained_in_runners"])  # fmt: skip
@@ -158,7 +158,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
             f"| {mean_interval([r.plateau for r in tuned]).text()} "
             f"| {mean_interval([r.plateau for r in scratch]).text()} | {best} |"
         )
-    files["md"].write_text("\n".join(lines) + "\n")
+    write_text_atomic(files["md"], "\n".join(lines) + "\n")
     curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
     plot_learning_curves(curves, files["png"])
     return files
