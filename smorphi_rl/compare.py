@@ -9,7 +9,6 @@ method's set is measured against the same point and the exact front scores 1.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
+from smorphi_rl.inputs import read_json_object
 from smorphi_rl.protocol import within_band
 from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
@@ -69,7 +69,8 @@ def planner_of_run(run_dir: Path) -> str:
     there was a choice)."""
     config = run_dir / "config.json"
     if config.is_file():
-        return str((json.loads(config.read_text()).get("env") or {}).get("planner", "paper"))
+        env = read_json_object(config, "run configuration").get("env") or {}
+        return str(env.get("planner", "paper") if isinstance(env, dict) else "paper")
     if (run_dir / "results.npz").is_file():
         return str(load(run_dir).params.get("planner", "paper"))
     return "paper"
@@ -83,11 +84,12 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
         rows = [f for f in read_csv(run_dir / FOUND_CSV) if f.map == map_name]
         if not rows:
             raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
-        summary = json.loads((run_dir / "summary.json").read_text())
-        steps = summary.get("env_steps", 0)
+        summary = read_json_object(run_dir / "summary.json", "run summary")
+        steps = summary.get("env_steps", 0) if isinstance(summary.get("env_steps", 0), int) else 0
         thetas = np.array([f.theta for f in rows], dtype=float)
         label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
-        evaluation = summary.get("evaluation") or {}
+        found = summary.get("evaluation")
+        evaluation: dict[str, Any] = found if isinstance(found, dict) else {}
         return (label, f"{steps:,} env steps", thetas, np.array([f.P_c for f in rows]),
                 np.array([f.P_len for f in rows]), evaluation.get(map_name))  # fmt: skip
     if not (run_dir / "results.npz").is_file():

@@ -110,3 +110,16 @@ def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[
         if Path(item).resolve() == target:
             raise InputError(f"{flag} {value} is one of this command's inputs: write it somewhere else")
     return path
+
+
+def read_json_object(path: Path, what: str) -> dict[str, Any]:
+    """A JSON file that must hold an object (a run's summary or configuration), or one line naming it."""
+    import json
+
+    try:
+        doc = json.loads(path.read_text()) if path.stat().st_size <= MAX_YAML_BYTES * 16 else None
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        raise InputError(f"{path}: not a readable {what} ({type(exc).__name__})") from None
+    if not isinstance(doc, dict):
+        raise InputError(f"{path}: not a {what} (expected a JSON object)")
+    return doc

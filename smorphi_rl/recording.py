@@ -448,6 +448,11 @@ def read_episode(path: str | Path) -> Episode:
     steps = by_topic[TOPIC_STEP]
     if not steps:
         raise RecordingError(f"{path}: no step could be recovered" + ("" if complete else " (the file is cut short)"))
+    required = STEP_SCHEMA["required"]
+    for i, st in enumerate(steps):  # a step another writer made, or damaged: named, never a KeyError later
+        missing = [k for k in required if k not in st] if isinstance(st, dict) else required
+        if missing:
+            raise RecordingError(f"{path}: step message {i} lacks {', '.join(missing[:3])} (not a smorphi-rl step)")
     scenes = by_topic[TOPIC_SCENE][: len(steps)]
     steps = steps[: len(scenes)] if len(scenes) < len(steps) else steps
     grid = by_topic[TOPIC_MAP][0] if by_topic[TOPIC_MAP] else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
@@ -200,3 +201,28 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
 def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, argv, message):
     code, _, err = run(capsys, *argv, "--log-dir", str(tmp_path))
     assert code == 1 and message in one_line(err) and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(("damage", "message"), [
+    (lambda run: (run / "summary.json").write_text("[1, 2]"), "expected a JSON object"),
+    (lambda run: (run / "summary.json").write_text('{"method": 3, "map": "map-1", "evaluations": 1, "wall_s": 1}'),
+     "summary 'method' is 3"),
+    (lambda run: _rewrite(run, P_c=np.full(50, np.nan)), "not finite numbers"),
+    (lambda run: _rewrite(run, P_len=np.zeros(7)), "mismatched shapes"),
+    (lambda run: _rewrite(run, thetas=np.full((50, 3), 200.0)), "out of range"),
+])  # fmt: skip
+def test_compare_refuses_damaged_search_results(tmp_path, capsys, damage, message):
+    log = tmp_path / "logs"
+    assert run(capsys, "search", "random", "--map", MAP_1, "--samples", "50", "--log-dir", str(log))[0] == 0
+    (result,) = log.glob("*/results.npz")
+    damage(result.parent)
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(result.parent), "--log-dir", str(log))
+    assert code == 1 and message in one_line(err)
+
+
+def _rewrite(run_dir: Path, **arrays) -> None:
+    import numpy as np
+
+    with np.load(run_dir / "results.npz") as data:
+        kept = {k: data[k] for k in data.files}
+    np.savez(run_dir / "results.npz", **(kept | arrays))

@@ -231,3 +231,22 @@ def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_p
         assert not ep.truncated and ep.metadata["run"] == "vector" and ep.metadata["algorithm"] == "ppo"
         assert int(ep.metadata["episode"]) % 2 == 0
         assert [s["step"] for s in ep.steps] == list(range(len(ep.steps)))
+
+
+def test_a_recording_whose_steps_lack_fields_is_one_line(tmp_path, capsys):
+    """A step message without R1 (another writer's, or damaged) is named, not a KeyError."""
+    from mcap.writer import Writer
+
+    from smorphi_rl.cli import main
+
+    path = tmp_path / "x.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh)
+        writer.start()
+        schema = writer.register_schema("smorphi_rl.Step", "jsonschema", b"{}")
+        channel = writer.register_channel("/smorphi/step", "json", schema)
+        writer.add_message(channel, 0, json.dumps({"step": 0, "theta": [1, 2, 3]}).encode(), 0)
+        writer.finish()
+    code = main(["replay", str(path)])
+    err = capsys.readouterr().err
+    assert code == 1 and "step message 0 lacks" in err and err.count("\n") == 1

@@ -99,15 +99,39 @@ def _npz(arrays: dict[str, np.ndarray]) -> bytes:
 
 
 def load(run_dir: str | Path) -> SearchResult:
-    """A search run written by `save` (for `compare`)."""
+    """A search run written by `save` (for `compare`), checked: a summary of the right types, arrays of one length
+    with finite angles in [0, 180], coverage in [0, 100] and non-negative path lengths."""
+    from smorphi_rl.inputs import read_json_object
+
     root = Path(run_dir)
+
+    def bad(why: str) -> SmorphiError:
+        return SmorphiError(f"{root}: holds no readable search results ({why})")
+
     try:
-        summary = json.loads((root / "summary.json").read_text())
-        with np.load(root / RESULTS_FILE) as data:
+        summary = read_json_object(root / "summary.json", "search summary")
+        with np.load(root / RESULTS_FILE, allow_pickle=False) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
+    except SmorphiError as exc:
+        raise bad(str(exc).removeprefix(f"{root / 'summary.json'}: ")) from None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # missing, cut short, not ours
-        raise SmorphiError(f"{root}: holds no readable search results ({type(exc).__name__}: {exc})") from None
+        raise bad(f"{type(exc).__name__}: {exc}") from None
+    fields = {"method": str, "map": str, "evaluations": int, "wall_s": int | float}
+    for key, kind in fields.items():
+        if not isinstance(summary.get(key), kind) or isinstance(summary.get(key), bool):
+            raise bad(f"summary '{key}' is {summary.get(key)!r}")
+    if not isinstance(summary.get("params", {}), dict):
+        raise bad("summary 'params' is not a table")
+    thetas, p_c, p_len, feasible = (np.asarray(arrays[k]) for k in ("thetas", "P_c", "P_len", "feasible"))
+    n = thetas.shape[0] if thetas.ndim == 2 else -1
+    if thetas.ndim != 2 or thetas.shape[1] != 3 or any(a.shape != (n,) for a in (p_c, p_len, feasible)):
+        raise bad("arrays of mismatched shapes")
+    numeric = all(a.dtype.kind in "biuf" for a in (thetas, p_c, p_len, feasible))
+    if not numeric or not (np.isfinite(thetas).all() and np.isfinite(p_c).all() and np.isfinite(p_len).all()):
+        raise bad("values that are not finite numbers")
+    if (thetas < 0).any() or (thetas > 180).any() or (p_c < 0).any() or (p_c > 100).any() or (p_len < 0).any():
+        raise bad("angles, coverage or path lengths out of range")
     return SearchResult(
-        summary["method"], summary["map"], arrays["thetas"].astype(np.float64), arrays["P_c"], arrays["P_len"],
-        arrays["feasible"], int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),
+        summary["method"], summary["map"], thetas.astype(np.float64), p_c.astype(np.float64), p_len.astype(np.int64),
+        feasible.astype(bool), int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),
     )  # fmt: skip

@@ -153,6 +153,10 @@ def run_sweep(
     if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         fine_tune_from(sweep.pretrained, sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0],
                                                           {}).env.to_dict())  # fmt: skip
+    from smorphi_rl.env import MorphologyEnv
+
+    for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
+        MorphologyEnv(sweep.base_config(sweep.algorithms[0], maps, 0, {}).env.to_dict())
     cluster.check_reachable(address)
     exp = prepare_experiment(sweep, log_dir, resume)
     out = out or sys.stderr

@@ -120,3 +120,13 @@ def test_train_refuses_more_env_runners_than_the_local_ray_can_place(capsys, tmp
     got, err = run(capsys, "train", "--log-dir", str(tmp_path), "--env-runners", "8", "--timesteps", "1000")
     assert got == 1 and "8 env runner(s) need 5 CPUs" in err and "use fewer --env-runners" in err
     assert not list(tmp_path.iterdir())  # the refused run's folder is gone again
+
+
+def test_a_sweep_map_that_cannot_be_read_is_refused_before_ray(capsys, tmp_path):
+    (tmp_path / "m.pgm").write_bytes(b"P5\n2 2\n255\n\x00\x00\x00\x00")  # every cell occupied: nothing to cover
+    (tmp_path / "m.yaml").write_text("image: m.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+                                     "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    config = tmp_path / "s.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{tmp_path / 'm.yaml'}]\nseeds: [0]\n")
+    code, err = run(capsys, "sweep", str(config), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "has no free cell" in err and not (tmp_path / "logs").exists()
