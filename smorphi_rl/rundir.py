@@ -47,12 +47,40 @@ def safe_name(text: str) -> str:
     return name if RUN_NAME.fullmatch(name) else f"run_{name}"[:128]
 
 
+def _abandoned(run_dir: Path) -> bool:
+    """A folder holding nothing but the claim of a process that is no longer alive (a run killed before it wrote
+    anything): it may be claimed again."""
+    try:
+        if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:
+            return False
+        words = (run_dir / MARKER).read_text().split()
+        pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
+    except (OSError, ValueError):
+        return False
+    if pid <= 0 or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # alive, another user's
+        return False
+    return False
+
+
 def check_run_dir(log_dir: str | Path, name: str) -> Path:
-    """Where the run would go, checked without creating anything (a valid name, not taken)."""
+    """Where the run would go, checked without creating anything (a valid name, not taken). A folder whose
+    claiming process died before writing anything is taken again, with a line saying so."""
     try:
         run_dir = Path(log_dir).resolve() / check_run_name(name)
     except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder
         raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
+    if run_dir.is_dir() and _abandoned(run_dir):
+        import sys
+
+        (run_dir / MARKER).unlink(missing_ok=True)
+        print(f"smorphi-rl: {run_dir} held only the claim of a run that died before writing anything: reusing it",
+              file=sys.stderr)  # fmt: skip
     if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
         raise RunDirError(f"run directory {run_dir} already exists: choose another --name")
     return run_dir

@@ -107,3 +107,24 @@ def test_a_write_killed_midway_leaves_the_old_file_or_the_new_one(tmp_path):
             text = target.read_text()
             assert len(text) == size and text in ("a" * size, "b" * size)
     assert target.exists()
+
+
+def test_a_folder_claimed_by_a_dead_process_is_reused_and_a_live_one_is_not(tmp_path, capsys):
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import MARKER, RunDirError, prepare_run_dir
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    (tmp_path / "x").mkdir()
+    (tmp_path / "x" / MARKER).write_text(f"pid {int(dead.stdout)} at 2026-01-01T00:00:00\n")
+    assert prepare_run_dir(tmp_path, "x") == (tmp_path / "x").resolve()
+    assert "died before writing anything: reusing it" in capsys.readouterr().err
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        (tmp_path / "y").mkdir()
+        (tmp_path / "y" / MARKER).write_text(f"pid {live.pid} at 2026-01-01T00:00:00\n")
+        with pytest.raises(RunDirError, match="already exists"):
+            prepare_run_dir(tmp_path, "y")
+    finally:
+        live.kill()
