@@ -73,3 +73,14 @@ class Scored:
 
 INFO_FIELDS = ("theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "feasible", "R1", "map")
 BEST_FIELDS = ("theta", "P_c", "P_len", "R1", "coverage_free_pct", "path_length_m")
+
+
+def degenerate_warning(r1: float, p_c: float, path_term: str, map_name: str) -> str | None:
+    """One line when the weights make the ranking degenerate on a floor (the best R1 negative, or the best shape
+    covering under half of it: the path term swamps coverage), naming the option that fixes it; None otherwise."""
+    if path_term == "per_area" or (r1 >= 0 and p_c >= 50):
+        return None
+    return (
+        f"warning: on {map_name} the path term swamps coverage (best R1 {r1:.2f}, P_c {p_c:.1f} %): the floor is "
+        "larger than the weights were meant for; --path-term per_area states w2 per 25 m^2 of free floor"
+    )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -95,6 +96,12 @@ def cmd_search(args: argparse.Namespace) -> int:
         return 0
     said = "" if planning.is_paper_default else planning.describe(grid_map)
     print(format_search(result, front_rows, on_map, files, said))
+    from smorphi_rl.score import degenerate_warning
+
+    line = degenerate_warning(float(on_map.r1(result.P_c[b], result.P_len[b])), float(result.P_c[b]), w.path_term,
+                              grid_map.name)  # fmt: skip
+    if line:
+        print(line, file=sys.stderr)
     return 0
 
 

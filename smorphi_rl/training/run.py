@@ -31,6 +31,7 @@ from smorphi_rl.protocol import (
     optimum_cache,
 )
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, write_text_atomic
+from smorphi_rl.score import degenerate_warning
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -226,7 +227,10 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
         shown = cache.relative_to(Path.cwd()) if cache.is_relative_to(Path.cwd()) else cache
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {shown})\n")
         out.flush()
-        optima[grid_map.name] = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
+        optima[grid_map.name] = opt = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
+        line = degenerate_warning(opt.R1, opt.P_c, cfg.env.path_term, grid_map.name)
+        if line:
+            out.write(line + "\n")
     return optima
 
 

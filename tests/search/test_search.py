@@ -176,3 +176,15 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
     time.sleep(0.5)
     assert not [w for w in workers if _running(w)]
     assert not (tmp_path / "ex").exists()  # nothing finished: the name is free again
+
+
+def test_a_floor_too_large_for_the_weights_is_named_with_the_fix(tmp_path, capsys):
+    from smorphi_rl.maps import Map, save_map
+
+    hall = save_map(Map(np.zeros((300, 300), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")
+    argv = ["search", "random", "--map", str(hall), "--samples", "20", "--log-dir", str(tmp_path / "logs")]
+    assert main(argv) == 0
+    err = capsys.readouterr().err
+    assert "the path term swamps coverage" in err and "--path-term per_area" in err
+    assert main([*argv, "--path-term", "per_area", "--name", "b"]) == 0
+    assert "swamps" not in capsys.readouterr().err
