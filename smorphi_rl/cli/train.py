@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import shlex
 import sys
 import time
 from typing import Any
@@ -153,8 +154,10 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     summary = run_sweep(sweep, args.log_dir, args.address, args.resume)
     print(format_sweep_summary(summary, rel))
     if summary.interrupted:
+        where = "" if args.log_dir == DEFAULT_LOG_DIR else f" --log-dir {shlex.quote(str(args.log_dir))}"
+        cluster = "" if args.address is None else f" --address {shlex.quote(args.address)}"
         print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with "
-              f"`{PROG} sweep {args.config} --resume`", file=sys.stderr)  # fmt: skip
+              f"`{PROG} sweep {shlex.quote(str(args.config))} --resume{where}{cluster}`", file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED
     return 0
 

@@ -128,9 +128,10 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
     if not resume:
         try:
             exp = prepare_run_dir(log_dir, sweep.name)
-        except RunDirError as exc:
+        except RunDirError:
             if exp.is_dir():
-                raise RunDirError(f"{exc}, or add --resume to continue it") from None
+                raise RunDirError(f"experiment folder {exp} already exists: give the sweep file another `name`, or "
+                                  "add --resume to continue it") from None  # fmt: skip
             raise
         shutil.copyfile(sweep.path, exp / SWEEP_COPY)
         return exp
