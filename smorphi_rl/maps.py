@@ -9,7 +9,6 @@ from __future__ import annotations
 import contextlib
 import enum
 import math
-from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -280,29 +279,34 @@ def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") ->
         "occupied_thresh": SAVED_OCCUPIED_THRESH,
         "free_thresh": SAVED_FREE_THRESH,
     }
+    image_is_new = not image_path.exists()
     write_atomic(image_path, buffer.getvalue())  # each file whole or not at all: a full disk leaves the old one
-    write_atomic(path, yaml.safe_dump(meta, sort_keys=False, default_flow_style=None).encode())
+    try:
+        write_atomic(path, yaml.safe_dump(meta, sort_keys=False, default_flow_style=None).encode())
+    except OSError:
+        if image_is_new:
+            image_path.unlink(missing_ok=True)  # no image without its YAML
+        raise
     return path
 
 
 def _free_is_connected(occupied: np.ndarray) -> bool:
     """True when the free cells form one 4-connected region."""
+    from scipy.ndimage import label
+
     free = ~occupied
-    start = np.argwhere(free)
-    if start.size == 0:
+    if not free.any():
         return False
-    seen = np.zeros_like(free)
-    r0, c0 = start[0]
-    seen[r0, c0] = True
-    queue = deque([(int(r0), int(c0))])
-    h, w = free.shape
-    while queue:
-        r, c = queue.popleft()
-        for nr, nc in ((r, c + 1), (r + 1, c), (r, c - 1), (r - 1, c)):
-            if 0 <= nr < h and 0 <= nc < w and free[nr, nc] and not seen[nr, nc]:
-                seen[nr, nc] = True
-                queue.append((nr, nc))
-    return int(seen.sum()) == int(free.sum())
+    return int(label(free)[1]) == 1  # scipy's default structure: 4-connectivity
+
+
+def _ring_is_free(occupied: np.ndarray, r: int, c: int, rh: int, rw: int) -> bool:
+    """True when the one-cell ring around the rectangle lies inside the map and is all free: then the ring joins
+    every path the rectangle would cut, so adding it cannot split the free space (no flood fill needed)."""
+    h, w = occupied.shape
+    if r < 1 or c < 1 or r + rh >= h or c + rw >= w:
+        return False
+    return not occupied[r - 1 : r + rh + 1, c - 1 : c + rw + 1].any()
 
 
 MAX_GENERATED_CELLS = 25_000_000
@@ -352,7 +356,9 @@ def generate_map(
         trial = occupied.copy()
         trial[r : r + rh, c : c + rw] = True
         added = int(trial.sum()) - count
-        if added == 0 or count + added > target or not _free_is_connected(trial):
+        if added == 0 or count + added > target:
+            continue
+        if not _ring_is_free(occupied, r, c, rh, rw) and not _free_is_connected(trial):
             continue
         occupied, count = trial, count + added
     cells = np.where(occupied, Cell.OCCUPIED, Cell.FREE).astype(np.uint8)

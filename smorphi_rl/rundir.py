@@ -8,6 +8,7 @@ name exactly one wins, and the others are refused before they write anything.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import re
@@ -134,12 +135,17 @@ def atomic_path(path: Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+    except OSError as exc:  # a full disk: name the file the user asked for, not our temporary one
+        if exc.filename is None or Path(exc.filename) == tmp:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)
 
 
 def write_atomic(path: Path, data: bytes) -> None:
-    """Write `path` through a temporary file in the same folder and rename it: readers never see half a file."""
+    """Write `path` through a temporary file in the same folder and rename it: readers never see half a file.
+    A failed write (a full disk) names `path` in its error."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
     try:
         with open(tmp, "wb") as fh:
@@ -147,8 +153,28 @@ def write_atomic(path: Path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        if exc.filename is None or Path(exc.filename) == tmp:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+        raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+@contextmanager
+def claimed_files(paths: list[Path], force: bool = False) -> Iterator[None]:
+    """`claim_files` for the length of a block that writes them: a claimed file still empty when the block fails
+    (a full disk) is removed again, so nothing half-made is left behind."""
+    claim_files(paths, force)
+    try:
+        yield
+    except BaseException:
+        if not force:
+            for path in paths:
+                with contextlib.suppress(OSError):
+                    if path.stat().st_size == 0:
+                        path.unlink()
+        raise
 
 
 def claim_files(paths: list[Path], force: bool = False) -> None:

@@ -112,3 +112,39 @@ def _shared_optimum_cache(tmp_path_factory):
 
     os.environ["SMORPHI_RL_CACHE_DIR"] = str(tmp_path_factory.mktemp("optimum-cache"))
     yield
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 4 MB tmpfs to fill (mounting one needs root: skipped otherwise); `fill(left)` leaves `left` bytes free."""
+    import shutil
+    import subprocess
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4M", "tmpfs", str(disk)], capture_output=True)
+    if mounted.returncode != 0:
+        pytest.skip("mounting a small tmpfs needs root")
+    yield disk
+    shutil.rmtree(disk, ignore_errors=True)
+    subprocess.run(["umount", "-l", str(disk)], check=False)
+
+
+def fill_disk(disk: Path, left: int) -> None:
+    """Fill `disk` until about `left` bytes are free."""
+    import shutil
+
+    free = shutil.disk_usage(disk).free
+    (disk / "filler").write_bytes(b"\0" * max(0, free - left))
+
+
+def printed_command(text: str, prog: str = "smorphi-rl") -> list[str]:
+    """The `smorphi-rl ...` command a hint in `text` tells the user to run (in backticks or parentheses), as the
+    argv for `python -m smorphi_rl.cli`: tests run hints exactly as printed."""
+    import re
+    import shlex
+    import sys
+
+    found = re.search(rf"[`(]({re.escape(prog)} [^`)]+)[`)]", text)
+    assert found, f"no `{prog} ...` hint in: {text[-2000:]}"
+    return [sys.executable, "-m", "smorphi_rl.cli", *shlex.split(found.group(1))[1:]]

@@ -226,3 +226,20 @@ def _rewrite(run_dir: Path, **arrays) -> None:
     with np.load(run_dir / "results.npz") as data:
         kept = {k: data[k] for k in data.files}
     np.savez(run_dir / "results.npz", **(kept | arrays))
+
+
+@pytest.mark.parametrize("argv", [
+    ["maps", "generate", "--kind", "rooms", "--count", "3", "--out", "{disk}/floors"],
+    ["maps", "generate", "--width-m", "20", "--height-m", "20", "--out", "{disk}/m.yaml"],
+    ["maps", "crop", MAP_1, "--out", "{disk}/m.yaml"],
+    ["maps", "show", MAP_1, "--png", "{disk}/m.png"],
+    ["evaluate", "--map", MAP_1, "--angles", "1", "2", "3", "--plot", "{disk}/m.png"],
+])  # fmt: skip
+def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_made(small_disk, capsys, argv):
+    from conftest import fill_disk
+
+    fill_disk(small_disk, 0)
+    code, _, err = run(capsys, *(a.format(disk=small_disk) for a in argv))
+    line = one_line(err)
+    assert code == 1 and line.startswith("smorphi-rl: error: No space left on device: ") and str(small_disk) in line
+    assert sorted(p.name for p in small_disk.rglob("*") if p.is_file()) == ["filler"]

@@ -303,7 +303,7 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     if not args.force and (out.exists() or image.exists()):
         raise SmorphiError(f"{out if out.exists() else image} exists; pass --force to overwrite it")
     rng = np.random.default_rng(args.seed)
-    from smorphi_rl.rundir import claim_files
+    from smorphi_rl.rundir import claimed_files
 
     grid_map = generate_map(
         rng,
@@ -313,8 +313,8 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
         obstacle_density=args.density,
         name=out.stem,
     )
-    claim_files([out], args.force)  # of two runs writing one map at once, exactly one writes it
-    save_map(grid_map, out, image_format=args.format)
+    with claimed_files([out], args.force):  # of two runs writing one map at once, exactly one writes it
+        save_map(grid_map, out, image_format=args.format)
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
@@ -343,14 +343,14 @@ def _generate_floors(args: argparse.Namespace) -> int:
         if taken:
             raise SmorphiError(f"{out / taken[0]}.yaml exists ({len(taken)} of the {len(names)} floors do); pass "
                                "--force to overwrite them")  # fmt: skip
-    from smorphi_rl.rundir import claim_files
+    from smorphi_rl.rundir import claimed_files
 
-    claim_files([out / f"{n}.yaml" for n in names], args.force)  # two runs into one folder: exactly one writes
     cells = 0
-    for i, name in enumerate(names):
-        grid_map = generate_floor(args.kind, args.seed + i)
-        save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
-        cells += grid_map.cells.size
+    with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
+        for i, name in enumerate(names):
+            grid_map = generate_floor(args.kind, args.seed + i)
+            save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
+            cells += grid_map.cells.size
     print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
           f"{cells / len(names):,.0f} cells on average)")  # fmt: skip
     return 0
@@ -390,10 +390,10 @@ def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
         raise SmorphiError(f"--out {out}: its image would replace the input map's image; write it elsewhere")
     source = load_map(args.map)
     grid_map, islands = drop_islands(transform(source), args.min_island)
-    from smorphi_rl.rundir import claim_files
+    from smorphi_rl.rundir import claimed_files
 
-    claim_files([out], args.force)
-    save_map(grid_map, out)
+    with claimed_files([out], args.force):
+        save_map(grid_map, out)
 
     def size(m: Map) -> str:
         r = m.resolution_m
