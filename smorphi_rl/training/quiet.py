@@ -5,6 +5,8 @@ from __future__ import annotations
 import logging
 import os
 
+TRIAL_ERROR_LOGGERS = ("ray.tune.execution.tune_controller", "ray.tune.execution.experiment_state", "ray.tune.tune")
+"""Tune's loggers that print a failed trial's traceback (and a failed state save) on the driver."""
 NOISY_LOGGERS = ("ray", "ray.rllib", "ray.tune", "ray._common.deprecation", "ray.rllib.algorithms.algorithm_config")
 
 
@@ -15,3 +17,5 @@ def quiet() -> None:
     os.environ.setdefault("RAY_AIR_NEW_OUTPUT", "0")  # the new reporter prints a banner even at verbose=0
     for name in NOISY_LOGGERS:
         logging.getLogger(name).setLevel(logging.ERROR)
+    for name in TRIAL_ERROR_LOGGERS:  # a failed trial: our one line says why and where its full error is
+        logging.getLogger(name).setLevel(logging.CRITICAL)

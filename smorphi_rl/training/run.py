@@ -37,6 +37,7 @@ from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
+from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
@@ -254,7 +255,8 @@ def _train_trainable(config: dict[str, Any], cfg: TrainConfig, callbacks: type |
 
 
 def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None) -> Any:
-    """The Tune run itself (a local Ray or a cluster is already up): results, the progress kept, wall time."""
+    """The Tune run itself (a local Ray or a cluster is already up): the progress kept and the wall time; a failed
+    trial raises TrainingError in one line."""
     from ray import tune
 
     from smorphi_rl.training.tensorboard import TensorBoardLogger
@@ -274,10 +276,12 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
         ),
     )
     t0 = time.monotonic()
-    results = tuner.fit()
+    _, failed = fit(tuner, run_dir)
     wall = time.monotonic() - t0
     progress.finish()
-    return results, progress, wall
+    if failed:
+        raise TrainingError(failed.line)
+    return progress, wall
 
 
 def train(
@@ -307,16 +311,11 @@ def train(
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
             write_text_atomic(run_dir / "config.json", json.dumps(cfg.to_dict() | {"name": name, "address": address},
                                                             indent=2))  # fmt: skip
-            results, progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
+            progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
     except BaseException:
         if not any(p.name.startswith(f"{cfg.algo}-") for p in run_dir.iterdir()):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
         raise
-    errors = list(results.errors)
-    if errors:
-        first = str(errors[0]).strip().splitlines()
-        raise TrainingError(f"training failed: {first[-1] if first else type(errors[0]).__name__} "
-                            f"(full error under {run_dir})")  # fmt: skip
     files = write_outputs(run_dir, cfg, progress, optima)
     steps = int(progress.curve["env_steps"][-1]) if progress.curve["env_steps"] else 0
     checkpoints = checkpoints_under(run_dir)

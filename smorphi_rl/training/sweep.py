@@ -21,6 +21,7 @@ from smorphi_rl.protocol import Optimum
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
+from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
 from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import TrainingError, fmt_duration, training_optima, trial_callbacks
@@ -199,16 +200,15 @@ def run_sweep(
                 tune_config=tune.TuneConfig(num_samples=sweep.num_samples, trial_dirname_creator=_trial_dirname),
                 run_config=run_config,
             )
-        results = tuner.fit()
+        results, failed = fit(tuner, exp, "the sweep")
         wall = time.monotonic() - t0
         progress.finish()
+    if failed and (failed.disk_full or results is None):
+        raise TrainingError(failed.line)  # no tables either
     rows = read_sweep(exp)
     files = write_sweep_outputs(exp, rows)
-    errors = list(results.errors)
-    if errors:
-        first = str(errors[0]).strip().splitlines()
-        raise TrainingError(f"{len(errors)} trial(s) failed: {first[-1] if first else type(errors[0]).__name__} "
-                            f"(tables of the rest and the full errors under {exp})")  # fmt: skip
+    if failed:
+        raise TrainingError(f"{failed.line}; tables of the finished trials under {exp}")
     trials = [results[i] for i in range(len(results))]
     finished = sum(1 for r in trials if r.metrics and r.metrics.get("done"))
     return SweepSummary(exp, rows, len(trials), wall, finished < len(trials), files)
