@@ -4,10 +4,12 @@ from __future__ import annotations
 
 import csv
 import json
+import subprocess
 from pathlib import Path
 
 import pytest
-from cli_runs import cli, ctrl_c_after_checkpoint
+from cli_runs import cli, ctrl_c_after_checkpoint, ray_env
+from conftest import printed_command
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
@@ -50,7 +52,8 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     assert again.returncode == 1 and "add --resume" in again.stderr and "Traceback" not in again.stderr
     assert results(first) == before
 
-    resumed = cli("sweep", str(config), "--resume", cwd=tmp_path)
+    resumed = subprocess.run(printed_command(err), capture_output=True, text=True, cwd=tmp_path, env=ray_env(),
+                             timeout=400)  # the interrupt's hint, run exactly as printed  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert "ran 2 of 2 trials" in resumed.stdout and "table: logs/tiny/sweep.md" in resumed.stdout
 

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import pytest
 from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home
+from conftest import printed_command
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.env import MorphologyEnv
@@ -181,7 +182,8 @@ def test_train_records_episodes_that_replay_lists(ppo_run, tmp_path):
     files = sorted((run_dir / "episodes").glob("*.mcap"))
     assert len(files) >= 2  # each runner's first episode at least (every 25th)
     assert "episodes: logs/smoke/episodes" in proc.stdout
-    listing = cli("replay", str(run_dir / "episodes"), cwd=tmp_path)
+    hint = printed_command(proc.stdout)  # the summary's `smorphi-rl replay ...`, run as printed where train ran
+    listing = subprocess.run(hint, capture_output=True, text=True, cwd=run_dir.parents[1], timeout=120)
     assert listing.returncode == 0 and f"{len(files)} recordings" in listing.stdout
     shown = cli("replay", str(files[0]), cwd=tmp_path)
     assert shown.returncode == 0 and "(PPO, seed 0)" in shown.stdout and "steps      200" in shown.stdout
