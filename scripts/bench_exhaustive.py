@@ -24,9 +24,9 @@ from _benchdocs import run_documented
 from _memory import PeakMemory
 
 from smorphi_rl.coverage import Planner
-from smorphi_rl.evaluate import Planning, lattice_thetas
 from smorphi_rl.maps import load_map, save_map
 from smorphi_rl.maptools import crop_to_known, drop_islands
+from smorphi_rl.planning import Planning, lattice_thetas
 from smorphi_rl.score import Weights
 from smorphi_rl.search.exhaustive import run_exhaustive
 

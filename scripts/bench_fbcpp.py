@@ -23,9 +23,9 @@ from _benchdocs import run_documented
 
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.coverage_reference import evaluate_reference
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Evaluator
 
 TARGET_RATE = {"paper": 30_000, "fit": 10_000}
 TARGET_RATIO = {"paper": 30.0, "fit": 1.0}

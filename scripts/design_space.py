@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Evaluator, lattice_thetas
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 

@@ -14,10 +14,10 @@ from pathlib import Path
 import numpy as np
 
 from smorphi_rl.coverage import CoverageResult, Planner, sweep_positions
-from smorphi_rl.evaluate import Planning
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.maptools import coarsen, crop_to_known, drop_islands
+from smorphi_rl.planning import Planning
 from smorphi_rl.plots import plot_planners
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -76,11 +76,11 @@ from gymnasium import spaces
 from smorphi_rl.coverage import CoverageResult
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout, RewardMode
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator, Planning
 from smorphi_rl.floorplans import generate_floor
 from smorphi_rl.geometry import Morphology, check_block_side
 from smorphi_rl.map_sources import generators
 from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.planning import Evaluator, Planning
 from smorphi_rl.score import Scored, Weights
 
 ENV_ID = "smorphi_rl/Morphology-v0"

@@ -16,7 +16,7 @@ from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map
 from smorphi_rl.score import PATH_TERMS, Weights, effective_w2
 
 if TYPE_CHECKING:
-    from smorphi_rl.evaluate import Planning  # loads the compiled kernels: imported where planning starts
+    from smorphi_rl.planning import Planning  # loads the compiled kernels: imported where planning starts
 
 DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
 
@@ -182,7 +182,7 @@ class EnvConfig:
     @property
     def planning(self) -> Planning:
         """How this env plans every shape (block side, planner, start)."""
-        from smorphi_rl.evaluate import Planning
+        from smorphi_rl.planning import Planning
 
         return Planning(self.block_side_m, Planner(self.planner), self.start_xy)
 

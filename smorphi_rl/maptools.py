@@ -2,7 +2,7 @@
 
 Real occupancy maps waste most of their grid on unknown space (`tb3_world`: 94 % of 384 x 384 cells) and
 carry specks of free cells that no robot can reach. These functions return a new `Map` (the input is
-never changed); `smorphi-rl maps prepare` writes the result as a map_server YAML beside its image.
+never changed); `smorphi-rl maps crop` and `maps resample` write the result as a map_server YAML beside its image.
 """
 
 from __future__ import annotations

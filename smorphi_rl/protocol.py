@@ -24,7 +24,7 @@ import numpy as np
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
-    from smorphi_rl.evaluate import Planning
+    from smorphi_rl.planning import Planning
 
 EVAL_KEY = "eval"
 """The training result key of the periodic greedy evaluation (TensorBoard: ray/tune/eval/...)."""

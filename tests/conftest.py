@@ -139,12 +139,12 @@ def fill_disk(disk: Path, left: int) -> None:
 
 
 def printed_command(text: str, prog: str = "smorphi-rl") -> list[str]:
-    """The `smorphi-rl ...` command a hint in `text` tells the user to run (in backticks or parentheses), as the
-    argv for `python -m smorphi_rl.cli`: tests run hints exactly as printed."""
+    """The `smorphi-rl ...` command a hint in `text` tells the user to run (in backticks or parentheses, or after
+    a semicolon inside them), as the argv for `python -m smorphi_rl.cli`: tests run hints exactly as printed."""
     import re
     import shlex
     import sys
 
-    found = re.search(rf"[`(]({re.escape(prog)} [^`)]+)[`)]", text)
+    found = re.search(rf"(?:[`(]|; )({re.escape(prog)} [^`)]+)[`)]", text)
     assert found, f"no `{prog} ...` hint in: {text[-2000:]}"
     return [sys.executable, "-m", "smorphi_rl.cli", *shlex.split(found.group(1))[1:]]

@@ -12,9 +12,9 @@ from smorphi_rl import _kernels as k
 from smorphi_rl.coverage import Footprint, PreparedMap, Start, path_points_m, plan_coverage
 from smorphi_rl.coverage_reference import evaluate_reference, plan_reference
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import Cell
+from smorphi_rl.planning import Evaluator
 
 GOLDEN = {
     ("room12", (0, 0, 0)): (100.0, 11, 100.0, 32),

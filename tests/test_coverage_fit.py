@@ -9,9 +9,9 @@ from conftest import GOLDEN_THETAS, random_map, realmap
 
 from smorphi_rl.coverage import Planner, Start, sweep_positions
 from smorphi_rl.coverage_reference import plan_fit_reference
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology, footprint_matrix
 from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.planning import Evaluator
 
 # docs/fbcpp-fit.md section 8: (map, theta, start cell or None) -> P_c, coverable %, P_len, path cells, start
 GOLDEN_FIT = {

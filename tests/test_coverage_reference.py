@@ -9,9 +9,9 @@ import pytest
 
 from smorphi_rl.coverage import Planner
 from smorphi_rl.coverage_reference import QUICK_MAX_CELLS, quick_result
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Map, load_map
+from smorphi_rl.planning import Evaluator
 
 MAPS = Path(__file__).resolve().parents[1] / "maps"
 

@@ -283,7 +283,7 @@ def test_start_xy_moves_every_plan_and_must_be_free():
 
 def test_the_paper_planning_keeps_its_cache_key():
     """Optima cached before the planner became a choice stay valid: the default key is the block side alone."""
-    from smorphi_rl.evaluate import Planning
+    from smorphi_rl.planning import Planning
 
     assert Planning().key() == [0.17] and Planning(planner=Planner.FIT).key() != [0.17]
 

@@ -54,8 +54,8 @@ def test_map_summary_counts_gaps_and_the_1_percent_band():
 
 @pytest.mark.slow
 def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
-    from smorphi_rl.evaluate import Evaluator, Planning, lattice_thetas
     from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import Evaluator, Planning, lattice_thetas
 
     opt = exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path)
     thetas = lattice_thetas(10.0)

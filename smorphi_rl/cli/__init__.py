@@ -9,7 +9,7 @@ import sys
 from collections.abc import Sequence
 
 from smorphi_rl import interrupts
-from smorphi_rl.cli import design, evaluate, policy, search, train
+from smorphi_rl.cli import design, evaluate, maps, policy, search, train
 from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map
 from smorphi_rl.errors import SmorphiError
 
@@ -17,7 +17,8 @@ __all__ = ["build_parser", "main"]
 
 
 GROUPS = {
-    evaluate: ("evaluate", "maps"),
+    evaluate: ("evaluate",),
+    maps: ("maps",),
     train: ("train", "transfer", "sweep", "reproduce"),
     policy: ("replay", "evaluate-policy", "export-policy"),
     search: ("search", "compare"),

@@ -19,8 +19,8 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
 if TYPE_CHECKING:
     from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.evaluate import Planning
     from smorphi_rl.maps import Map
+    from smorphi_rl.planning import Planning
 
 PROG = "smorphi-rl"
 DEFAULT_MAP = Path("maps") / SHIPPED_DEFAULT_MAP.name
@@ -107,7 +107,7 @@ def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset
 def planning_of(args: argparse.Namespace, grid_map: Map | None = None) -> Planning:
     """The Planning the --planner / --start-xy options ask for (checked on `grid_map` when given)."""
     from smorphi_rl.coverage import Planner
-    from smorphi_rl.evaluate import Planning
+    from smorphi_rl.planning import Planning
 
     start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
     planning = Planning(planner=Planner(args.planner or Planner.PAPER.value), start_xy=start)

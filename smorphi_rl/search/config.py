@@ -9,7 +9,7 @@ from pathlib import Path
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import PAPER_PLANNING, Planning
+from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.search.results import SearchResult
 

@@ -22,8 +22,8 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.search.results import SearchResult
 
 CHUNKS_PER_WORKER = 24

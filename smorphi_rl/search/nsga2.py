@@ -19,8 +19,8 @@ from pymoo.operators.sampling.rnd import IntegerRandomSampling
 from pymoo.optimize import minimize
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import PAPER_PLANNING, Evaluator, Planning
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning
 from smorphi_rl.search.results import SearchResult
 
 

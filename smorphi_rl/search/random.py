@@ -7,8 +7,8 @@ import time
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.evaluate import PAPER_PLANNING, Planning
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.search.results import SearchResult
 
 

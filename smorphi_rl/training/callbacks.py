@@ -47,7 +47,7 @@ class MorphologyCallbacks(RLlibCallback):
     """Planner evaluations of the designer's figures at each evaluation (`policy.DesignEvaluation`; 0: none)."""
     _design: Any = None
     _evaluation: Any = None
-    """The PolicyEvaluation this run's evaluations reuse (its envs keep their scored shapes), made at the first:
+    """The GreedyRollouts this run's evaluations reuse (its envs keep their scored shapes), made at the first:
     the protocol's starts, then the selection starts, rolled out together (one forward pass a step for both)."""
     _kept: Any = None
     """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
@@ -127,18 +127,18 @@ class MorphologyCallbacks(RLlibCallback):
                 result[EVAL_KEY] |= _on_learner(algorithm, self._design)
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
-        """The protocol's greedy roll-outs from `starts` on every training map (a PolicyEvaluation)."""
+        """The protocol's greedy roll-outs from `starts` on every training map (a GreedyRollouts)."""
         import numpy as np
 
         from smorphi_rl.env_config import EnvConfig
         from smorphi_rl.protocol import Optimum
-        from smorphi_rl.training.policy import PolicyEvaluation
+        from smorphi_rl.training.policy import GreedyRollouts
 
         known = set(EnvConfig.__dataclass_fields__)
         raw = {k: v for k, v in dict(algorithm.config.env_config).items() if k in known}
         env = EnvConfig.from_dict(raw | ({"maps": list(self.eval_maps)} if self.eval_maps else {}))
         optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
-        return PolicyEvaluation(env, np.array(starts, dtype=np.float64), optima)
+        return GreedyRollouts(env, np.array(starts, dtype=np.float64), optima)
 
     def _design_evaluation(self, algorithm: Any) -> Any:
         """The designer's figures on the evaluated maps (a DesignEvaluation)."""

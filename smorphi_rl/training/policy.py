@@ -128,10 +128,10 @@ def evaluate_policy(
 ) -> list[MapEvaluation]:  # fmt: skip
     """The protocol on every map of `env_config`: greedy from each start, against that map's optimum
     (`optima` by map name). `wrap(env)`, if given, wraps each env (recording)."""
-    return PolicyEvaluation(env_config, starts, optima, method, wrap)(module)
+    return GreedyRollouts(env_config, starts, optima, method, wrap)(module)
 
 
-class PolicyEvaluation:
+class GreedyRollouts:
     """The protocol's greedy roll-outs, run again and again (training evaluates every few iterations): each map's
     envs are built once, so shapes scored by one evaluation are free for the next (the roll-outs of a settling
     policy revisit them). `wrap(env)`, if given, wraps each env (recording) and closes it after each run."""

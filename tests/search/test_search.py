@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
-from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Evaluator, lattice_thetas
 from smorphi_rl.score import Weights
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.nsga2 import run_nsga2

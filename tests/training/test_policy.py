@@ -36,10 +36,10 @@ def test_stopping_at_a_revisited_shape_changes_no_outcome():
 
 
 def test_a_reused_evaluation_gives_what_a_fresh_one_gives():
-    """Training evaluates with one PolicyEvaluation whose envs keep their scored shapes: same outcomes as new envs."""
+    """Training evaluates with one GreedyRollouts whose envs keep their scored shapes: same outcomes as new envs."""
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.protocol import Optimum
-    from smorphi_rl.training.policy import PolicyEvaluation, evaluate_policy
+    from smorphi_rl.training.policy import GreedyRollouts, evaluate_policy
 
     torch.manual_seed(5)
     env = EnvConfig.from_dict({"max_steps": 40})
@@ -48,7 +48,7 @@ def test_a_reused_evaluation_gives_what_a_fresh_one_gives():
                               model_config={})  # fmt: skip
     optima = {first.grid_map.name: Optimum((0.0, 0.0, 0.0), 100.0, 100.0, 1)}
     starts = eval_starts(6)
-    reused = PolicyEvaluation(env, starts, optima)
+    reused = GreedyRollouts(env, starts, optima)
     once = reused(module)
     with torch.no_grad():
         module._pi.head.bias.add_(torch.linspace(-1, 1, 9))  # another policy, as after an update

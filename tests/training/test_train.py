@@ -23,9 +23,9 @@ from tensorboard.backend.event_processing.event_accumulator import EventAccumula
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.evaluate import Evaluator
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Evaluator
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.policy import rollout

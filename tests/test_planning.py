@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from smorphi_rl.errors import MorphologyError, SmorphiError
-from smorphi_rl.evaluate import Evaluator, lattice_thetas
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Evaluator, lattice_thetas
 from smorphi_rl.score import Weights
 
 MAP_1 = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
@@ -128,8 +128,8 @@ def test_optimum_of_a_scored_lattice_is_the_brute_force_argmax(room12):
 
 def test_planning_says_where_plans_start_and_what_share_that_area_holds():
     from smorphi_rl.coverage import Planner
-    from smorphi_rl.evaluate import Planning
     from smorphi_rl.maps import Map
+    from smorphi_rl.planning import Planning
 
     two_rooms = Map.from_text("......#..\n......#..\n......#..", 0.5, name="two")  # 18 and 6 free cells
     assert "first traversable tile" in Planning().describe(two_rooms) and Planning().is_paper_default

@@ -1,4 +1,5 @@
-"""Cached, batched FBCPP evaluation: the entry point of the env, the searches and the CLI.
+"""Planning shapes on a map: the planner and its start (`Planning`) and cached, batched FBCPP plans
+(`Evaluator`), the entry point of the env, the searches and the CLI.
 
 The result of a morphology depends on its hinge angles only through the footprint matrix F
 (docs/spec/fbcpp.md section 7), so results are cached exactly under F's bits. Batches are rasterised

@@ -1,0 +1,205 @@
+"""`maps generate|show|crop|resample`: write floors, look at them, cut and coarsen real maps."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, seed_arg
+from smorphi_rl.cli.fields import param_default
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.floorplans import FloorKind
+from smorphi_rl.inputs import finite, output_file
+from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
+
+
+def register(sub: Any) -> None:
+    """Add `maps` and its subcommands to the command line."""
+    maps = sub.add_parser("maps", help="generate or inspect maps")
+    maps_sub = maps.add_subparsers(dest="maps_command", required=True, parser_class=Parser)
+    gen = maps_sub.add_parser("generate", help="write a map of rectangular obstacles, or a set of floor plans")
+    gen.add_argument("--out", required=True, help="YAML path to write (image written beside it); with --kind, the "
+                     "folder the set goes to")  # fmt: skip
+    gen.add_argument("--kind", choices=[k.value for k in FloorKind], help="write a set of seeded indoor floor plans "
+                     "of this kind (smorphi_rl/floorplans.py): rooms, corridor, hall, furniture or mixed")  # fmt: skip
+    gen.add_argument("--count", type=int, default=1, metavar="N", help="with --kind: floors to write, seeds S, "
+                     "S+1, ... (default 1)")  # fmt: skip
+    for flag, param, text in (("--width-m", "width_m", "metres"), ("--height-m", "height_m", "metres"),
+                              ("--resolution", "resolution_m", "metres per cell"),
+                              ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
+        default = param_default(generate_map, param)
+        gen.add_argument(flag, type=finite, default=default, help=f"{text} (default: {default:g})")
+    gen.add_argument("--seed", type=seed_arg, default=0)
+    gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
+    gen.add_argument("--force", action="store_true", help="overwrite an existing map")
+    gen.set_defaults(func=cmd_maps_generate)
+    show = maps_sub.add_parser("show", help="print a map's size and fractions and draw it")
+    show.add_argument("map", help="map_server YAML")
+    show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
+    show.set_defaults(func=cmd_maps_show)
+    crop = maps_sub.add_parser("crop", help="cut a map to its recorded (known) area or to a rectangle")
+    crop.add_argument(
+        "--rect",
+        nargs=4,
+        type=finite,
+        metavar=("X0", "Y0", "X1", "Y1"),
+        help="keep this rectangle, metres in the map frame (default: the known cells and a margin)",
+    )
+    crop.add_argument("--margin", type=finite, default=0.2, metavar="M",
+                      help="metres kept around the known cells (default 0.2)")  # fmt: skip
+    resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
+    resample.add_argument("--resolution", type=finite, required=True, metavar="R",
+                          help="metres a cell; a coarse cell is free only if every cell under it is")  # fmt: skip
+    for tool, run in ((crop, cmd_maps_crop), (resample, cmd_maps_resample)):
+        tool.add_argument("map", help="map_server YAML to read (left as it is)")
+        tool.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
+        tool.add_argument(
+            "--min-island",
+            type=finite,
+            default=0.0,
+            metavar="M2",
+            help="also drop free areas smaller than this many square metres (default 0: keep all)",
+        )
+        tool.add_argument("--force", action="store_true", help="overwrite an existing map")
+        tool.set_defaults(func=run)
+
+
+def cmd_maps_generate(args: argparse.Namespace) -> int:
+    """Write an indoor-like map of rectangular obstacles, or with --kind a set of floor plans."""
+    from smorphi_rl.maps import save_map
+
+    if args.kind is not None:
+        return _generate_floors(args)
+
+    out = Path(args.out)
+    if out.suffix != ".yaml":
+        raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
+    image = out.with_suffix(f".{args.format}")
+    if not args.force and (out.exists() or image.exists()):
+        raise SmorphiError(f"{out if out.exists() else image} exists; pass --force to overwrite it")
+    rng = np.random.default_rng(args.seed)
+    from smorphi_rl.rundir import claimed_files
+
+    grid_map = generate_map(
+        rng,
+        width_m=args.width_m,
+        height_m=args.height_m,
+        resolution_m=args.resolution,
+        obstacle_density=args.density,
+        name=out.stem,
+    )
+    with claimed_files([out], args.force):  # of two runs writing one map at once, exactly one writes it
+        save_map(grid_map, out, image_format=args.format)
+    occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
+    print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
+          f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    return 0
+
+
+MAX_FLOORS = 10_000
+"""`maps generate --kind` writes at most this many floors at once."""
+
+
+def _generate_floors(args: argparse.Namespace) -> int:
+    """`maps generate --kind K --count N --seed S --out DIR`: floors K-S .. K-(S+N-1), each a YAML and its image."""
+    from smorphi_rl.floorplans import floor_name, generate_floor
+    from smorphi_rl.maps import save_map
+
+    if not 1 <= args.count <= MAX_FLOORS:
+        raise SmorphiError(f"--count must be in 1..{MAX_FLOORS:,}, got {args.count}")
+    if args.seed + args.count > 2**63:
+        raise SmorphiError(f"--seed {args.seed} + --count {args.count} passes 2^63, the largest floor seed")
+    out = Path(args.out)
+    if out.suffix in (".yaml", ".yml") or (out.exists() and not out.is_dir()):
+        raise SmorphiError(f"--out {out}: with --kind, give the folder the floors go to")
+    names = [floor_name(args.kind, args.seed + i) for i in range(args.count)]
+    if not args.force:
+        taken = [n for n in names if (out / f"{n}.yaml").exists() or (out / f"{n}.{args.format}").exists()]
+        if taken:
+            raise SmorphiError(f"{out / taken[0]}.yaml exists ({len(taken)} of the {len(names)} floors do); pass "
+                               "--force to overwrite them")  # fmt: skip
+    from smorphi_rl.rundir import claimed_files
+
+    cells = 0
+    with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
+        for i, name in enumerate(names):
+            grid_map = generate_floor(args.kind, args.seed + i)
+            save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
+            cells += grid_map.cells.size
+    print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
+          f"{cells / len(names):,.0f} cells on average)")  # fmt: skip
+    return 0
+
+
+def cmd_maps_crop(args: argparse.Namespace) -> int:
+    """Cut a map to its known area (or a rectangle) into a new map_server YAML."""
+    from smorphi_rl.maptools import crop_to_known, crop_to_rect
+
+    def crop(source: Map) -> Map:
+        return crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+
+    return _write_prepared(args, crop)
+
+
+def cmd_maps_resample(args: argparse.Namespace) -> int:
+    """Coarsen a map, conservatively, into a new map_server YAML."""
+    from smorphi_rl.maptools import resample
+
+    return _write_prepared(args, lambda source: resample(source, args.resolution))
+
+
+def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
+    """Read the map, transform it, drop small islands, write it (never over the input or an existing map
+    without --force) and print both maps' sizes."""
+    from smorphi_rl.maps import save_map
+    from smorphi_rl.maptools import drop_islands
+
+    out = Path(args.out)
+    if out.suffix != ".yaml":
+        raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
+    if Path(args.map).resolve() == out.resolve():
+        raise SmorphiError(f"--out {out} is the input map: write the new map somewhere else")
+    if not args.force and (out.exists() or out.with_suffix(".pgm").exists()):
+        raise SmorphiError(f"{out} exists; pass --force to overwrite it")
+    if out.with_suffix(".pgm").resolve() in {p.resolve() for p in map_inputs(args.map)}:
+        raise SmorphiError(f"--out {out}: its image would replace the input map's image; write it elsewhere")
+    source = load_map(args.map)
+    grid_map, islands = drop_islands(transform(source), args.min_island)
+    from smorphi_rl.rundir import claimed_files
+
+    with claimed_files([out], args.force):
+        save_map(grid_map, out)
+
+    def size(m: Map) -> str:
+        r = m.resolution_m
+        free = 100 * m.fraction(Cell.FREE)
+        return f"{m.width} x {m.height} cells at {r:g} m ({m.width * r:g} x {m.height * r:g} m), {free:.1f} % free"
+
+    print(f"{'read':<8} {args.map}: {size(source)}")
+    print(f"{'wrote':<8} {out}: {size(grid_map)}")
+    print(f"{'islands':<8} {islands.count} dropped ({islands.area_m2:.2f} m^2 of free floor marked unknown)")
+    return 0
+
+
+def cmd_maps_show(args: argparse.Namespace) -> int:
+    """Print a map's size and cell fractions, and draw it."""
+    from smorphi_rl.plots import plot_map
+
+    if args.png is not None:
+        output_file(args.png, "--png", (".png",), map_inputs(args.map))
+    grid_map = load_map(args.map)
+    png = Path(args.png) if args.png else Path(DEFAULT_LOG_DIR) / "maps" / f"{grid_map.name}.png"
+    r = grid_map.resolution_m
+    rows = [
+        ("map", f"{args.map}"),
+        ("size", f"{grid_map.width} x {grid_map.height} cells, {grid_map.width * r:g} x {grid_map.height * r:g} m"),
+        ("resolution", f"{r:g} m/cell"),
+        ("origin", ", ".join(f"{v:g}" for v in grid_map.origin)),
+        *((c.name.lower(), f"{100 * grid_map.fraction(c):.2f} % ({grid_map.counts[c]} cells)") for c in Cell),
+        ("png", str(plot_map(grid_map, png))),
+    ]
+    print("\n".join(f"{k:<11} {v}" for k, v in rows))
+    return 0

@@ -1,0 +1,141 @@
+"""Reading recordings back for `replay`: complete or cut short, every flushed chunk recovered."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from smorphi_rl.maps import Cell, Map
+from smorphi_rl.recording.messages import (
+    MCAP_MAGIC,
+    METADATA_NAME,
+    OCCUPANCY,
+    OUR_TOPICS,
+    PART_SUFFIX,
+    STEP_SCHEMA,
+    SUFFIX,
+    TOPIC_LOG,
+    TOPIC_MAP,
+    TOPIC_SCENE,
+    TOPIC_STEP,
+    RecordingError,
+)
+
+
+@dataclass
+class Episode:
+    """What one recorded file holds: its metadata, every step and scene, the map, the log lines."""
+
+    path: Path
+    metadata: dict[str, str]
+    steps: list[dict[str, Any]]
+    scenes: list[dict[str, Any]]
+    grid: dict[str, Any] | None
+    logs: list[str]
+    truncated: bool
+
+    @property
+    def best(self) -> dict[str, Any] | None:
+        """The step with the highest R1 (the first, on ties)."""
+        return max(self.steps, key=lambda s: s["R1"], default=None)
+
+    def grid_cells(self) -> np.ndarray | None:
+        """The recorded map as Cell values, row 0 at the lowest y."""
+        if self.grid is None:
+            return None
+        raw = np.frombuffer(base64.b64decode(self.grid["data"]), dtype=np.uint8)
+        cells = np.full(raw.shape, Cell.UNKNOWN, dtype=np.uint8)
+        for cell, value in OCCUPANCY.items():
+            cells[raw == value] = cell
+        return cells.reshape(-1, self.grid["column_count"])
+
+    def grid_map(self) -> Map:
+        """The recorded map as a Map (for drawing the episode); an error when its message was not recovered."""
+        cells = self.grid_cells()
+        if cells is None or self.grid is None:
+            raise RecordingError(f"{self.path}: the map message was not recovered; nothing to draw on")
+        pos = self.grid["pose"]["position"]
+        return Map(cells, float(self.grid["cell_size"]["x"]), (pos["x"], pos["y"], 0.0), self.steps[0]["map"])
+
+    def changed_steps(self, max_frames: int) -> list[int]:
+        """Indices of the steps where the shape changed (and the first), thinned evenly to at most `max_frames`."""
+        changed = [i for i in range(len(self.steps)) if i == 0 or self.steps[i]["theta"] != self.steps[i - 1]["theta"]]
+        if len(changed) > max_frames:
+            changed = [changed[round(k)] for k in np.linspace(0, len(changed) - 1, max_frames)]
+        return changed
+
+    def frame(self, index: int) -> dict[str, Any]:
+        """Step `index` as plain values for a figure: blocks (x, y, yaw rad, side) and the path as (N, 2) metres."""
+        entities = {e["id"]: e for e in self.scenes[index]["entities"]}
+        blocks = []
+        for cube in entities["robot"]["cubes"]:
+            q = cube["pose"]["orientation"]
+            pos = cube["pose"]["position"]
+            blocks.append((pos["x"], pos["y"], 2 * math.atan2(q["z"], q["w"]), cube["size"]["x"]))
+        pts = [[p["x"], p["y"]] for line in entities["coverage_path"]["lines"] for p in line["points"]]
+        return {"blocks": blocks, "path": np.asarray(pts, dtype=float).reshape(-1, 2), "step": self.steps[index]}
+
+    @property
+    def episode_return(self) -> float:
+        return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
+
+
+def read_episode(path: str | Path) -> Episode:
+    """Read a recording, complete or cut short (every complete chunk is recovered; `truncated` says so)."""
+    from mcap.records import Channel, Footer, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    file = Path(path)
+    try:
+        with file.open("rb") as fh:
+            if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+                raise RecordingError(f"{path}: not an MCAP file")
+    except FileNotFoundError:
+        raise RecordingError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise RecordingError(f"{path}: is a directory") from None
+    topics: dict[int, str] = {}
+    meta: dict[str, str] = {}
+    by_topic: dict[str, list[dict[str, Any]]] = {t: [] for t in OUR_TOPICS}
+    complete = False
+    with file.open("rb") as fh:
+        try:
+            for record in StreamReader(fh).records:
+                if isinstance(record, Channel):
+                    topics[record.id] = record.topic
+                elif isinstance(record, Message) and topics.get(record.channel_id) in by_topic:
+                    by_topic[topics[record.channel_id]].append(json.loads(record.data))
+                elif isinstance(record, Metadata) and record.name == METADATA_NAME:
+                    meta = dict(record.metadata)
+                elif isinstance(record, Footer):
+                    complete = True
+        except Exception:  # a cut-short file ends in a partial record: keep what came before it
+            complete = False
+    if not topics or not any(t in OUR_TOPICS for t in topics.values()):
+        cut = not complete and not topics
+        what = "is cut short before any channel" if cut else "holds none of smorphi-rl's channels"
+        raise RecordingError(f"{path}: {what} ({', '.join(OUR_TOPICS)})")
+    steps = by_topic[TOPIC_STEP]
+    if not steps:
+        raise RecordingError(f"{path}: no step could be recovered" + ("" if complete else " (the file is cut short)"))
+    required = STEP_SCHEMA["required"]
+    for i, st in enumerate(steps):  # a step another writer made, or damaged: named, never a KeyError later
+        missing = [k for k in required if k not in st] if isinstance(st, dict) else required
+        if missing:
+            raise RecordingError(f"{path}: step message {i} lacks {', '.join(missing[:3])} (not a smorphi-rl step)")
+    scenes = by_topic[TOPIC_SCENE][: len(steps)]
+    steps = steps[: len(scenes)] if len(scenes) < len(steps) else steps
+    grid = by_topic[TOPIC_MAP][0] if by_topic[TOPIC_MAP] else None
+    return Episode(file, meta, steps, scenes, grid, [m["message"] for m in by_topic[TOPIC_LOG]], not complete)
+
+
+def episode_files(directory: str | Path) -> list[Path]:
+    """Every recording under `directory` (finished and .part), in name order."""
+    root = Path(directory)
+    return sorted(p for p in root.rglob("*") if p.is_file() and p.name.endswith((SUFFIX, PART_SUFFIX)))
