@@ -32,10 +32,51 @@ def _host_port(address: str) -> tuple[str, int] | None:
     return host, int(port)
 
 
+RAY_CURRENT_CLUSTER = "ray_current_cluster"
+"""The file in Ray's temp folder (RAY_TMPDIR, default /tmp/ray) where `ray start --head` leaves the address that
+`--address auto` attaches to (Ray 2.60), unless RAY_ADDRESS names one."""
+
+
+def _gcs_running() -> bool:
+    """Whether a Ray GCS server runs on this machine (Linux: by /proc; elsewhere assumed, and Ray decides)."""
+    if not os.path.isdir("/proc"):
+        return True
+    for pid in os.listdir("/proc"):
+        try:
+            with open(f"/proc/{pid}/comm") as fh:
+                if fh.read().strip() == "gcs_server":
+                    return True
+        except OSError:
+            continue
+    return False
+
+
+def auto_address() -> str | None:
+    """What `--address auto` resolves to, as Ray resolves it: RAY_ADDRESS, else the address the latest
+    `ray start` on this machine recorded, else "auto" itself while any Ray runs here (Ray then attaches to it);
+    None when there is nothing to attach to."""
+    if os.environ.get("RAY_ADDRESS", "").strip() not in ("", "auto"):
+        return os.environ["RAY_ADDRESS"].strip()
+    recorded = os.path.join(os.environ.get("RAY_TMPDIR", "/tmp/ray"), RAY_CURRENT_CLUSTER)
+    try:
+        with open(recorded) as fh:
+            address = fh.read().strip()
+    except OSError:
+        address = ""
+    return address or ("auto" if _gcs_running() else None)
+
+
 def check_reachable(address: str | None) -> None:
-    """Fail fast, before Ray starts, when a `host:port` cluster address does not answer."""
+    """Fail fast, before Ray starts (and before any optimum is computed), when the cluster an address names does
+    not answer; `auto` is resolved first, as Ray resolves it."""
     if address is None:
         return
+    if address == "auto":
+        resolved = auto_address()
+        if resolved is None:
+            raise ClusterError("--address auto: no Ray cluster started on this machine (RAY_ADDRESS is unset and "
+                               "`ray start --head` has left no address); start one or give HOST:PORT")  # fmt: skip
+        address = resolved
     target = _host_port(address)
     if target is None:
         return

@@ -1,0 +1,46 @@
+"""`--address auto` is resolved as Ray resolves it, and refused in one line, before any work, when nothing answers."""
+
+from __future__ import annotations
+
+import pytest
+
+from smorphi_rl.training import cluster
+from smorphi_rl.training.cluster import ClusterError, check_reachable
+
+
+@pytest.fixture
+def no_ray_here(tmp_path, monkeypatch):
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    monkeypatch.setenv("RAY_TMPDIR", str(tmp_path))
+    monkeypatch.setattr(cluster, "_gcs_running", lambda: False)
+    return tmp_path
+
+
+def test_auto_with_no_cluster_on_the_machine_is_refused(no_ray_here):
+    with pytest.raises(ClusterError, match="--address auto: no Ray cluster started on this machine"):
+        check_reachable("auto")
+
+
+def test_auto_follows_ray_address(no_ray_here, monkeypatch):
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+    with pytest.raises(ClusterError, match=r"cannot reach a Ray cluster at 127\.0\.0\.1:1"):
+        check_reachable("auto")
+
+
+def test_auto_follows_the_address_ray_start_recorded(no_ray_here):
+    (no_ray_here / cluster.RAY_CURRENT_CLUSTER).write_text("127.0.0.1:1\n")
+    with pytest.raises(ClusterError, match=r"cannot reach a Ray cluster at 127\.0\.0\.1:1"):
+        check_reachable("auto")
+
+
+def test_auto_attaches_to_a_ray_running_here(no_ray_here, monkeypatch):
+    monkeypatch.setattr(cluster, "_gcs_running", lambda: True)
+    check_reachable("auto")  # left to Ray, which attaches to it
+
+
+def test_train_with_auto_and_no_cluster_writes_nothing(no_ray_here, tmp_path, capsys):
+    from smorphi_rl.cli import main
+
+    assert main(["train", "--address", "auto", "--log-dir", str(tmp_path / "logs")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--address auto: no Ray cluster" in err[0] and not (tmp_path / "logs").exists()
