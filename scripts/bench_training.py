@@ -37,10 +37,10 @@ import numpy as np
 from _benchdocs import run_documented
 from _memory import PeakMemory
 
+from smorphi_rl import cluster
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.training import cluster
+from smorphi_rl.quiet import quiet
 from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
-from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import train
 
 TARGET_PPO_RATE = 2000.0

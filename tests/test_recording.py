@@ -208,8 +208,8 @@ def test_recording_config_is_validated():
 
 @pytest.mark.slow
 def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_path):
+    from smorphi_rl import cluster
     from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training import cluster
     from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
 
     cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1], "max_steps": 20}), record_every=2,

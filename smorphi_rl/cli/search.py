@@ -33,7 +33,7 @@ def register(sub: Any) -> None:
     """Add `search METHOD` and `compare` to the command line."""
     se = sub.add_parser("search", help="baselines and ground truth: random shapes, NSGA-II, the exhaustive lattice")
     se_sub = se.add_subparsers(dest="method", required=True, parser_class=Parser)
-    from smorphi_rl.search.config import METHOD_FIELDS, METHODS, SearchConfig
+    from smorphi_rl.search.config import METHOD_FIELDS, METHODS, RAY_METHODS, SearchConfig
 
     for method, text in METHODS.items():
         m = se_sub.add_parser(method, help=text)
@@ -44,6 +44,9 @@ def register(sub: Any) -> None:
         planner_option(m)
         for name in METHOD_FIELDS[method]:
             option(m, SearchConfig, name, type=seed_arg if name == "seed" else None)
+        if method in RAY_METHODS:
+            m.add_argument("--address", help="plan on the Ray cluster at HOST:PORT (or auto), one actor per CPU, "
+                           "with the same results; default: this machine's cores")  # fmt: skip
         m.set_defaults(func=cmd_search)
 
     co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
@@ -72,10 +75,15 @@ def cmd_search(args: argparse.Namespace) -> int:
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
-    cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options)
+    address = getattr(args, "address", None)
+    cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options, address=address)
     on_map = w.weights_on(grid_map)
+    if address is not None:
+        from smorphi_rl import cluster
+
+        cluster.check_reachable(address)  # no cluster there: one line, nothing written
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
-    hint = "a coarser --step, `maps resample` to a coarser resolution, or `maps crop` cut the work"
+    hint = "a coarser --step, `maps resample` to a coarser resolution, `maps crop`, or --address CLUSTER cut the work"
     try:
         result = run_search(cfg, progress_line("exhaustive", hint))
     except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free

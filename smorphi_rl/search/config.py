@@ -29,6 +29,8 @@ METHOD_FIELDS = {
     "anneal": ("seed", "budget", "starts"),
 }
 """The SearchConfig fields each method reads (its command-line options)."""
+RAY_METHODS = ("exhaustive", "random", "nsga2")
+"""The methods that also run on a Ray cluster (`--address`): those that score many shapes at once."""
 
 
 MAX_EVALUATIONS = 50_000_000
@@ -65,6 +67,8 @@ class SearchConfig:
     """hillclimb, anneal: the protocol's fixed seeded starts."""
     step: float = 1.0
     """exhaustive: lattice step in degrees; must divide 180."""
+    address: str | None = None
+    """exhaustive, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: this machine's cores."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
@@ -112,11 +116,11 @@ def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = 
     if cfg.method == "exhaustive":
         from smorphi_rl.search.exhaustive import run_exhaustive
 
-        return run_exhaustive(cfg.map_path, cfg.step, cfg.planning, progress=progress)
+        return run_exhaustive(cfg.map_path, cfg.step, cfg.planning, progress=progress, address=cfg.address)
     if cfg.method == "random":
         from smorphi_rl.search.random import run_random
 
-        return run_random(cfg.map_path, cfg.samples, cfg.seed, cfg.planning)
+        return run_random(cfg.map_path, cfg.samples, cfg.seed, cfg.planning, cfg.address)
     if cfg.method in LOCAL_METHODS:
         from smorphi_rl.search.local import run_local_search
 
@@ -125,4 +129,4 @@ def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = 
         return run_local_search(cfg.method, cfg.map_path, cfg.budget, cfg.seed, cfg.starts, env)
     from smorphi_rl.search.nsga2 import run_nsga2
 
-    return run_nsga2(cfg.map_path, cfg.pop, cfg.generations, cfg.seed, cfg.planning)
+    return run_nsga2(cfg.map_path, cfg.pop, cfg.generations, cfg.seed, cfg.planning, cfg.address)

@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.maps import load_map
+from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.search.results import SearchResult
 
@@ -123,22 +123,32 @@ def _wait(future: Any, stop: threading.Event) -> Any:
             continue
 
 
+def chunk_bounds(n_shapes: int, n_workers: int) -> list[tuple[int, int]]:
+    """Index ranges [lo, hi) covering `n_shapes`: enough per worker for a smooth progress display, at most about
+    CHUNK_SHAPES each, and none under 1,000 shapes (a chunk's overhead)."""
+    n_chunks = max(1, min(n_shapes // 1000, max(n_workers * CHUNKS_PER_WORKER, n_shapes // CHUNK_SHAPES)))
+    edges = np.linspace(0, n_shapes, n_chunks + 1).astype(np.int64)
+    return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
+
+
 def run_exhaustive(
     map_path: str,
     step_deg: float = 1.0,
     planning: Planning = PAPER_PLANNING,
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
+    address: str | None = None,
 ) -> SearchResult:
     """Evaluate every triple at `step_deg` on the map, planned as `planning` says, on `workers` processes
-    (default: every core)."""
+    (default: every core), or, given a Ray cluster's `address`, on `workers` actors there (default: one per CPU
+    of the cluster), with the same results."""
     step = check_step(step_deg)
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
+    if address is not None:
+        return _on_ray(grid_map, planning, step, thetas, workers, progress, address)
     n_workers = max(1, workers or os.cpu_count() or 1)
-    n_chunks = max(1, min(len(thetas) // 1000, max(n_workers * CHUNKS_PER_WORKER, len(thetas) // CHUNK_SHAPES)))
-    edges = np.linspace(0, len(thetas), n_chunks + 1).astype(np.int64)
-    chunks = [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
+    chunks = chunk_bounds(len(thetas), n_workers)
     # compile (or load) the kernels before forking
     planning.evaluator(grid_map).evaluate_many(thetas[:2])
     p_c = np.zeros(len(thetas))
@@ -183,3 +193,26 @@ def run_exhaustive(
     }
     return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, feasible, len(thetas),
                         time.perf_counter() - t0, params)  # fmt: skip
+
+
+def _on_ray(
+    grid_map: Map,
+    planning: Planning,
+    step: float,
+    thetas: np.ndarray,
+    workers: int | None,
+    progress: Callable[[int, int], None] | None,
+    address: str,
+) -> SearchResult:
+    """`run_exhaustive` on the Ray cluster at `address` (`search/on_ray.py`)."""
+    from smorphi_rl.search.on_ray import plan_chunks, ray_planners
+
+    with ray_planners(grid_map, planning, address, workers, step) as actors, _stop_requests() as stop:
+        t0 = time.perf_counter()
+        chunks = chunk_bounds(len(thetas), len(actors))
+        p_c, p_len, feasible, digests = plan_chunks(actors, len(thetas), chunks, stop, progress)
+        wall = time.perf_counter() - t0
+        n_workers = len(actors)
+    params = {"step_deg": step, "workers": n_workers, "distinct_footprints": len(digests),
+              "planner": planning.planner.value, "address": address}  # fmt: skip
+    return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, feasible, len(thetas), wall, params)

@@ -21,13 +21,14 @@ from pymoo.optimize import minimize
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning
+from smorphi_rl.search.on_ray import evaluator_for
 from smorphi_rl.search.results import SearchResult
 
 
 class _MorphologyProblem(Problem):
     """Three integer angles in [0, 180]; objectives (-P_c, P_len); infeasible shapes score worst."""
 
-    def __init__(self, evaluator: Evaluator) -> None:
+    def __init__(self, evaluator: Evaluator | Any) -> None:
         super().__init__(n_var=3, n_obj=2, xl=0, xu=180, vtype=int)
         self.evaluator = evaluator
         self.seen: list[np.ndarray] = []
@@ -40,15 +41,20 @@ class _MorphologyProblem(Problem):
 
 
 def run_nsga2(
-    map_path: str, pop: int, generations: int, seed: int, planning: Planning = PAPER_PLANNING
+    map_path: str,
+    pop: int,
+    generations: int,
+    seed: int,
+    planning: Planning = PAPER_PLANNING,
+    address: str | None = None,
 ) -> SearchResult:
-    """NSGA-II with `pop` individuals for `generations` generations."""
+    """NSGA-II with `pop` individuals for `generations` generations; each generation scored here, or spread over
+    the Ray cluster at `address` (the same search, shape for shape)."""
     if pop < 2:
         raise SmorphiError(f"--pop must be >= 2, got {pop}")
     if generations < 1:
         raise SmorphiError(f"--generations must be >= 1, got {generations}")
     grid_map = load_map(map_path)
-    problem = _MorphologyProblem(planning.evaluator(grid_map))
     algorithm = NSGA2(
         pop_size=pop,
         sampling=IntegerRandomSampling(),
@@ -56,10 +62,15 @@ def run_nsga2(
         mutation=PM(eta=20, vtype=float, repair=RoundingRepair()),
         eliminate_duplicates=True,
     )
-    t0 = time.perf_counter()
-    minimize(problem, algorithm, ("n_gen", generations), seed=seed, verbose=False)
-    wall = time.perf_counter() - t0
+    with evaluator_for(grid_map, planning, address) as evaluator:
+        problem = _MorphologyProblem(evaluator)
+        t0 = time.perf_counter()
+        minimize(problem, algorithm, ("n_gen", generations), seed=seed, verbose=False)
+        wall = time.perf_counter() - t0
     seen = np.vstack(problem.seen)
-    params = {"pop": pop, "generations": generations, "seed": seed, "planner": planning.planner.value}
+    params: dict[str, object] = {"pop": pop, "generations": generations, "seed": seed,
+                                 "planner": planning.planner.value}  # fmt: skip
+    if address is not None:
+        params["address"] = address
     return SearchResult("nsga2", grid_map.name, seen[:, :3], seen[:, 3], seen[:, 4].astype(np.int64),
                         seen[:, 5] > 0, len(seen), wall, params)  # fmt: skip

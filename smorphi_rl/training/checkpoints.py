@@ -237,7 +237,7 @@ def policy_spaces(policy: PolicyFile) -> tuple[Any, Any]:
 def load_module(checkpoint: Path) -> Any:
     """The trained MorphologyModule of a checkpoint (or of an exported policy's folder), on the CPU, ready for
     `forward_inference`; nothing the files say is run (module docstring)."""
-    from smorphi_rl.training.quiet import quiet
+    from smorphi_rl.quiet import quiet
 
     quiet()
     if is_policy_dir(checkpoint):

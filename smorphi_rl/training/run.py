@@ -16,6 +16,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl import cluster
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
@@ -30,16 +31,15 @@ from smorphi_rl.protocol import (
     exact_optimum,
     optimum_cache,
 )
+from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, write_text_atomic
 from smorphi_rl.score import degenerate_warning
-from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
-from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
 from smorphi_rl.training.trial import resources, run_trial

@@ -16,14 +16,14 @@ from typing import Any
 
 import yaml
 
+from smorphi_rl import cluster
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
+from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
-from smorphi_rl.training import cluster
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
-from smorphi_rl.training.quiet import quiet
 from smorphi_rl.training.run import TrainingError, fmt_duration, training_optima, trial_callbacks
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (

@@ -53,8 +53,8 @@ def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it
     from ray.rllib.core.learner.training_data import TrainingData
     from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 
+    from smorphi_rl import cluster
     from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training import cluster
     from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
     from smorphi_rl.training.learners import LearnerThreadError
 

@@ -2,23 +2,16 @@
 
 from __future__ import annotations
 
-import contextlib
 import csv
 import json
 import math
 import os
-import shutil
-import signal
-import socket
 import subprocess
-import sys
-import tempfile
-import time
 from pathlib import Path
 
 import pytest
 from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home
-from conftest import printed_command
+from conftest import printed_command, ray_cluster
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.env import MorphologyEnv
@@ -268,50 +261,13 @@ def test_async_learners_train_and_report(algo, tmp_path):
     load_module(summary.checkpoint)
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return int(s.getsockname()[1])
-
-
-def _stop_cluster(temp_dir: str) -> None:
-    """Stop only the Ray processes of the cluster under `temp_dir` (`ray stop` would stop every Ray here)."""
-    for sig in (signal.SIGTERM, signal.SIGKILL):
-        pids = []
-        for entry in Path("/proc").iterdir():
-            try:
-                if entry.name.isdigit() and temp_dir in (entry / "cmdline").read_bytes().decode(errors="replace"):
-                    pids.append(int(entry.name))
-            except OSError:
-                continue
-        for pid in pids:
-            with contextlib.suppress(OSError):
-                os.kill(pid, sig)
-        if not pids:
-            return
-        time.sleep(3)
-
-
 def test_attaches_to_a_running_cluster(tmp_path):
-    ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
-    port = _free_port()
-    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
-    # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
-    start = [ray, "start", "--head", "--num-cpus=2", f"--port={port}", "--include-dashboard=false",
-             "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
-    subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
-    try:
-        proc = cli("train", "--address", f"127.0.0.1:{port}", "--timesteps", "2000", "--name", "attached",
+    with ray_cluster(2) as address:
+        proc = cli("train", "--address", address, "--timesteps", "2000", "--name", "attached",
                    "--map", MAP_1, "--env-runners", "2", "--envs-per-runner", "2", cwd=tmp_path)  # fmt: skip
         assert proc.returncode == 0, proc.stderr[-3000:]
         assert "PPO trained for 2,000 env steps" in proc.stdout
-        assert (
-            json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == f"127.0.0.1:{port}"
-        )
-    finally:
-        _stop_cluster(temp_dir)
-        shutil.rmtree(temp_dir, ignore_errors=True)
+        assert json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == address
 
 
 def test_ctrl_c_stops_cleanly_and_keeps_checkpoints(tmp_path):

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from smorphi_rl.training import cluster
-from smorphi_rl.training.cluster import ClusterError, check_reachable
+from smorphi_rl import cluster
+from smorphi_rl.cluster import ClusterError, check_reachable
 
 
 @pytest.fixture

@@ -125,7 +125,7 @@ def ray_session(address: str | None) -> Iterator[None]:
         "include_dashboard": False,
         "log_to_driver": False,
         "logging_level": logging.ERROR,
-        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.training.quiet.quiet"},
+        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.quiet.quiet"},
     }
     if address is None:
         kwargs["num_cpus"] = local_cpus()
