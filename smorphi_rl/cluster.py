@@ -23,8 +23,12 @@ class ClusterError(SmorphiError):
 
 
 def _host_port(address: str) -> tuple[str, int] | None:
-    """(host, port) of a `host:port` address; None for `auto` and `ray://` client addresses."""
-    if address == "auto" or "://" in address:
+    """(host, port) of a `host:port` or `ray://host:port` address; None for `auto` and other schemes."""
+    if address == "auto":
+        return None
+    if address.startswith("ray://"):
+        address = address.removeprefix("ray://")
+    elif "://" in address:
         return None
     host, sep, port = address.rpartition(":")
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:

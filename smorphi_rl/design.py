@@ -66,10 +66,16 @@ def design_starts(n: int = DESIGN_STARTS, step_deg: float = 1.0) -> np.ndarray:
     return eval_starts(n, step_deg, DESIGN_SEED)
 
 
+MAX_BUDGET = 100_000
+"""A design's budget is at most this: the designer is for a few hundred evaluations; beyond this, the exhaustive
+search (5.9 million shapes, seconds to minutes) answers exactly."""
+
+
 def check_budget(budget: Any) -> int:
     """A budget is a whole number of planner evaluations, at least 1."""
-    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or budget < 1:
-        raise SmorphiError(f"--budget must be a whole number of planner evaluations >= 1, got {budget!r}")
+    if isinstance(budget, bool) or not isinstance(budget, int | np.integer) or not 1 <= budget <= MAX_BUDGET:
+        raise SmorphiError(f"--budget must be a whole number of planner evaluations in 1..{MAX_BUDGET:,}, got "
+                           f"{budget!r} (`search exhaustive` evaluates every shape)")  # fmt: skip
     return int(budget)
 
 

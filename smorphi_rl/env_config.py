@@ -56,6 +56,13 @@ class EnvConfigError(SmorphiError):
     """An `env_config` key that is unknown or has a bad value."""
 
 
+MAX_EPISODE_STEPS = 100_000
+"""An episode is at most this many steps (the paper's are 200): longer ones are a typo, and one roll-out of them
+would run for minutes."""
+MAX_WEIGHT = 1e6
+"""R1's weights are at most this: far beyond any ranking, and R1 stays a number a table can print."""
+
+
 @dataclass(frozen=True)
 class EnvConfig:
     """Everything the env takes, validated once; the only place its defaults live."""
@@ -118,6 +125,10 @@ class EnvConfig:
             raise EnvConfigError(
                 f"env_config 'planner': unknown planner '{self.planner}' (choose from {', '.join(PLANNERS)})"
             )
+        if not 0 < self.w1 <= MAX_WEIGHT or not 0 <= self.w2 <= MAX_WEIGHT:
+            top = f"{MAX_WEIGHT:g}"
+            raise EnvConfigError(f"env_config 'w1' must be in (0, {top}] and 'w2' in [0, {top}] (R1 rewards "
+                                 f"coverage and charges the path), got w1 {self.w1:g}, w2 {self.w2:g}")  # fmt: skip
         for name in ("step_cost", "move_cost"):
             if getattr(self, name) < 0:
                 raise EnvConfigError(f"env_config '{name}' must be >= 0, got {getattr(self, name)}")
@@ -137,8 +148,8 @@ class EnvConfig:
         step = self.angle_step_deg
         if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
             raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
-        if self.max_steps < 1:
-            raise EnvConfigError(f"env_config 'max_steps' must be >= 1, got {self.max_steps}")
+        if not 1 <= self.max_steps <= MAX_EPISODE_STEPS:
+            raise EnvConfigError(f"env_config 'max_steps' must be in 1..{MAX_EPISODE_STEPS:,}, got {self.max_steps}")
         if self.obs_size < 4:
             raise EnvConfigError(f"env_config 'obs_size' must be >= 4, got {self.obs_size}")
         if self.coverage_threshold is not None and not 0 < self.coverage_threshold <= 100:

@@ -62,6 +62,9 @@ def check_image_size(path: Path) -> None:
     try:
         with Image.open(path) as img:
             width, height = img.size
+    except Image.DecompressionBombError:  # Pillow's own refusal, at twice its limit: far beyond ours
+        raise MapError(f"{path}: an image of far more than {MAX_IMAGE_PIXELS:,} pixels, the most that are read "
+                       "(crop the map first)") from None  # fmt: skip
     except Exception:  # a missing or unreadable image: the decoder says so, with the file's name
         return
     if width * height > MAX_IMAGE_PIXELS:
@@ -87,6 +90,14 @@ def check_seed(seed: Any, what: str = "seed") -> int:
     return seed
 
 
+def resolved(path: Path, what: str) -> Path:
+    """`path.resolve()`, or one line naming it when it cannot be (a symlink loop, an unreadable folder)."""
+    try:
+        return path.resolve()
+    except (RuntimeError, OSError) as exc:
+        raise InputError(f"{what} {path}: cannot be resolved ({exc})") from None
+
+
 def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[Path | str, ...] = ()) -> Path:
     """An output path used exactly as given: it ends in one of `suffixes`, is not a folder, its folder exists or
     can be made (the nearest existing one is a writable folder; nothing is created here), and it is none of the
@@ -100,14 +111,14 @@ def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[
         raise InputError(f"{flag} {value}: is a folder; give a file name ending in {' or '.join(suffixes)}")
     import os
 
-    target = path.resolve()
+    target = resolved(path, flag)
     folder = target.parent
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         raise InputError(f"{flag} {value}: {folder} is not a folder this process can write into")
     for item in inputs:
-        if Path(item).resolve() == target:
+        if resolved(Path(item), "input") == target:
             raise InputError(f"{flag} {value} is one of this command's inputs: write it somewhere else")
     return path
 

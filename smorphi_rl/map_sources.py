@@ -19,6 +19,7 @@ from pathlib import Path
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import HELD_OUT_SEED, FloorKind
+from smorphi_rl.inputs import MAX_SEED
 
 GENERATE_PREFIX = "generate:"
 VALIDATION_SEED = 900_000
@@ -26,7 +27,7 @@ VALIDATION_SEED = 900_000
 TRAINING_SEEDS = (0, VALIDATION_SEED)
 """Training floors are drawn from [0, VALIDATION_SEED) unless a range is given."""
 VALIDATION_SEEDS = (VALIDATION_SEED, HELD_OUT_SEED)
-HELD_OUT_SEEDS = (HELD_OUT_SEED, 2**63 - 1)
+HELD_OUT_SEEDS = (HELD_OUT_SEED, MAX_SEED)
 
 
 class MapSourceError(SmorphiError):
@@ -73,8 +74,8 @@ def parse_generator(entry: str) -> FloorSource:
         if not (sep and a.isdigit() and b.isdigit()):
             raise MapSourceError(f"map entry {entry!r}: the seed range must be LO-HI, two integers")
         lo, hi = int(a), int(b)
-        if not 0 <= lo < hi <= 2**63 - 1:
-            raise MapSourceError(f"map entry {entry!r}: need 0 <= LO < HI <= 2^63-1")
+        if not 0 <= lo < hi <= MAX_SEED:
+            raise MapSourceError(f"map entry {entry!r}: need 0 <= LO < HI <= 2^32-1")
     return FloorSource(kind, lo, hi)
 
 

@@ -86,6 +86,11 @@ def resample(grid_map: Map, resolution_m: float) -> Map:
             f"map {grid_map.name} is at {grid_map.resolution_m:g} m a cell: resample only to a coarser resolution, "
             f"not {resolution_m:g} m"
         )
+    side = max(grid_map.cells.shape)
+    if factor > side:
+        most = side * grid_map.resolution_m
+        raise MapError(f"resolution {resolution_m:g} m: a cell larger than map {grid_map.name} itself "
+                       f"({side} cells of {grid_map.resolution_m:g} m); at most {most:g} m")  # fmt: skip
     if abs(factor - round(factor)) > 1e-6:
         own = grid_map.resolution_m
         raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m")

@@ -76,6 +76,8 @@ def check_run_dir(log_dir: str | Path, name: str) -> Path:
         run_dir = Path(log_dir).resolve() / check_run_name(name)
     except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder
         raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
+    if run_dir.parent.exists() and not run_dir.parent.is_dir():
+        raise RunDirError(f"log directory {log_dir} is not a folder")
     if run_dir.is_dir() and _abandoned(run_dir):
         import sys
 

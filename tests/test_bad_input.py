@@ -197,6 +197,8 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     (["evaluate-policy", "--checkpoint", ".", "--episodes", str(10**20)], "--episodes must be in 1..10,000"),
     (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),
     (["train", "--envs-per-runner", "1000000"], "envs_per_runner must be at most 1,024"),
+    (["train", "--timesteps", str(10**14)], "at most 1,000,000,000"),
+    (["design", "--budget", "10000000"], "in 1..100,000"),
 ])  # fmt: skip
 def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, argv, message):
     code, _, err = run(capsys, *argv, "--log-dir", str(tmp_path))
@@ -243,3 +245,81 @@ def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_made(sm
     line = one_line(err)
     assert code == 1 and line.startswith("smorphi-rl: error: No space left on device: ") and str(small_disk) in line
     assert sorted(p.name for p in small_disk.rglob("*") if p.is_file()) == ["filler"]
+
+
+@pytest.mark.parametrize("argv", [
+    ["evaluate", "--map", MAP_1, "--angles", "90", "90", "90", "--plot", "{loop}.png"],
+    ["maps", "show", MAP_1, "--png", "{loop}.png"],
+    ["maps", "resample", MAP_1, "--resolution", "0.2", "--out", "{loop}.yaml"],
+    ["design", "--map", MAP_1, "--plot", "{loop}.png"],
+])  # fmt: skip
+def test_an_output_path_in_a_symlink_loop_is_one_line(tmp_path, capsys, argv):
+    for suffix in (".png", ".yaml"):
+        (tmp_path / f"a{suffix}").symlink_to(tmp_path / f"b{suffix}")
+        (tmp_path / f"b{suffix}").symlink_to(tmp_path / f"a{suffix}")
+    code, _, err = run(capsys, *(a.format(loop=tmp_path / "a") for a in argv))
+    assert code == 1 and "cannot be resolved" in one_line(err)
+
+
+def test_an_image_header_beyond_pillows_own_limit_is_one_line(tmp_path, capsys):
+    (tmp_path / "huge.pgm").write_bytes(b"P5 100000 100000 255\n")
+    (tmp_path / "huge.yaml").write_text("image: huge.pgm\nresolution: 0.05\norigin: [0, 0, 0]\nnegate: 0\n"
+                                        "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    for argv in (["evaluate", "--map", str(tmp_path / "huge.yaml"), "--angles", "1", "2", "3"],
+                 ["maps", "show", str(tmp_path / "huge.yaml")]):  # fmt: skip
+        code, _, err = run(capsys, *argv)
+        assert code == 1 and "far more than 25,000,000 pixels" in one_line(err)
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["maps", "resample", MAP_1, "--resolution", "1e30", "--out", "{tmp}/r.yaml"], "a cell larger than map map-1"),
+    (["maps", "generate", "--kind", "rooms", "--count", "2", "--seed", "4294967295", "--out", "{tmp}/k"],
+     "passes 2^32-1"),
+    (["maps", "generate", "--kind", "hall", "--out", "{tmp}/k", "--density", "0.5"], "--density: options of the rect"),
+    (["search", "random", "--w2", "-1"], "'w2' in [0, 1e+06]"),
+    (["search", "random", "--w1", "1e300"], "'w1' must be in (0, 1e+06]"),
+    (["search", "random", "--log-dir", ""], "expected a name, got an empty string"),
+    (["search", "random", "--name", ""], "expected a name, got an empty string"),
+    (["search", "random", "--log-dir", "/dev/full"], "log directory /dev/full is not a folder"),
+    (["evaluate", "--angles", "1", "2", "3", "--start", "tile:-1,-1"], "tile indices count from 0"),
+    (["evaluate-policy", "--checkpoint", "{tmp}", "--starts", "2", "--episodes", "2"], "give one"),
+    (["train", "--address", "ray://127.0.0.1:1"], "cannot reach a Ray cluster at ray://127.0.0.1:1"),
+])  # fmt: skip
+def test_nonsense_is_refused_in_one_line(tmp_path, capsys, argv, message):
+    code, _, err = run(capsys, *(a.format(tmp=tmp_path) for a in argv))
+    assert code in (1, 2) and message in one_line(err)
+    assert not [p for p in tmp_path.rglob("*") if p.is_file()]
+
+
+def _found_csv(run_dir: Path, rows: str) -> Path:
+    run_dir.mkdir()
+    (run_dir / "summary.json").write_text('{"env_steps": 10}')
+    (run_dir / "morphologies.csv").write_bytes(rows.encode() if isinstance(rows, str) else rows)
+    return run_dir
+
+
+HEADER = "algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,variants\n"
+
+
+@pytest.mark.parametrize(("rows", "message"), [
+    ("\x80\x81 not text", "not a readable table"),
+    ("a,b\n1,2\n", "line 2: not a row smorphi-rl writes (KeyError"),
+    (HEADER + "ppo,map-1,1,2,3,90,nan,80,1,1\n", "line 2: not a row smorphi-rl writes (ValueError"),
+    (HEADER + "ppo,map-1,999,-5,125,150,-3,80,1,1\n", "line 2: values out of range"),
+])  # fmt: skip
+def test_compare_refuses_a_damaged_training_table(tmp_path, capsys, rows, message):
+    run_dir = _found_csv(tmp_path / "run", rows)
+    if rows.startswith("\x80"):
+        (run_dir / "morphologies.csv").write_bytes(b"\x80\x81 not text")
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--runs", str(run_dir), "--step", "30",
+                       "--log-dir", str(tmp_path / "logs"))  # fmt: skip
+    assert code == 1 and message in one_line(err) and not (tmp_path / "logs").exists()
+
+
+def test_compare_refuses_an_exact_front_of_another_planner(tmp_path, capsys):
+    assert run(capsys, "search", "exhaustive", "--step", "30", "--planner", "fit", "--name", "e",
+               "--log-dir", str(tmp_path))[0] == 0  # fmt: skip
+    assert run(capsys, "search", "random", "--samples", "20", "--name", "r", "--log-dir", str(tmp_path))[0] == 0
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
+                       str(tmp_path / "e"), "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "pass --planner fit" in one_line(err)

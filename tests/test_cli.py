@@ -71,7 +71,7 @@ def test_a_shape_that_fits_nowhere_is_one_line(capsys, tmp_path):
 
     corridor = save_map(Map.from_text(CORRIDOR, 0.1, name="corridor"), tmp_path / "corridor.yaml")
     code, out, err = run(capsys, "evaluate", "--map", str(corridor), "--angles", "0", "180", "0", "--planner", "fit")
-    assert code != 0 and out == "" and "fits nowhere on the map corridor" in err and len(err.splitlines()) == 1
+    assert code != 0 and out == "" and "fits nowhere on map corridor" in err and len(err.splitlines()) == 1
 
 
 def test_evaluate_path_needs_json_and_one_shape(capsys):

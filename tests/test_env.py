@@ -122,7 +122,7 @@ def test_resample_keeps_fractions():
     [
         ({"colour": 1}, "unknown key 'colour'"),
         ({"angle_step_deg": 7}, "must divide 180"),
-        ({"max_steps": 0}, "'max_steps' must be >= 1"),
+        ({"max_steps": 0}, "'max_steps' must be in 1..100,000"),
         ({"max_steps": 2.5}, "'max_steps': bad value"),
         ({"w1": "big"}, "'w1': bad value"),
         ({"start_theta": [0, 0, 200]}, "'start_theta'"),

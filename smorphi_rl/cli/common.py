@@ -55,6 +55,14 @@ def seed_arg(text: str) -> int:
     return value
 
 
+def nonempty(text: str) -> str:
+    """argparse type of a name or a folder: anything but the empty string (which would mean "here" or "the
+    default" without saying so)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError("expected a name, got an empty string")
+    return text
+
+
 def number(text: str, what: str) -> float:
     """A finite number from the command line, or an error naming `what`."""
     try:
@@ -125,9 +133,12 @@ def weights(args: argparse.Namespace) -> EnvConfig:
 
 def run_options(parser: argparse.ArgumentParser, what: str = "run name: results go to LOG_DIR/NAME") -> None:
     """--name and --log-dir, as every command that writes a run directory takes them."""
-    parser.add_argument("--name", help=what)
+    parser.add_argument("--name", type=nonempty, help=what)
     parser.add_argument(
-        "--log-dir", default=DEFAULT_LOG_DIR, help=f"root of the run directories (default: {DEFAULT_LOG_DIR})"
+        "--log-dir",
+        type=nonempty,
+        default=DEFAULT_LOG_DIR,
+        help=f"root of the run directories (default: {DEFAULT_LOG_DIR})",
     )
 
 
@@ -163,7 +174,8 @@ def progress_line(label: str, hint: str = "") -> Callable[[int, int], None]:
         last[0] = now
         frac = done / total
         bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-        rate = f"{done / elapsed:,.0f}/s" if elapsed > 0 else "-"
+        per_s = done / elapsed if elapsed > 0 else math.nan
+        rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
         line = f"{label} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
         sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")

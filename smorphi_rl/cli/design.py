@@ -12,7 +12,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, rel
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, rel
 from smorphi_rl.design import DEFAULT_BUDGET
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import output_file
@@ -32,7 +32,7 @@ def register(sub: Any) -> None:
                     "10-60 s the first time, cached under LOG_DIR/.cache) and report the gap")  # fmt: skip
     ds.add_argument("--json", action="store_true", help="print one JSON object")
     ds.add_argument("--plot", help="write a PNG of the proposed shape's coverage on the floor")
-    ds.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help=f"where --exact caches optima (default: "
+    ds.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR, help=f"where --exact caches optima (default: "
                     f"{DEFAULT_LOG_DIR})")  # fmt: skip
     ds.set_defaults(func=cmd_design)
 

@@ -113,9 +113,12 @@ def parse_start(text: str | None, grid_map: Map) -> Start:
         raise SmorphiError(f"--start {text!r}: use tile:A,B or xy:X,Y")
     if kind == "tile":
         try:
-            return Start.tile(int(parts[0]), int(parts[1]))
+            a, b = int(parts[0]), int(parts[1])
         except ValueError:
             raise SmorphiError(f"--start {text!r}: tile indices must be integers") from None
+        if a < 0 or b < 0:
+            raise SmorphiError(f"--start {text!r}: tile indices count from 0")
+        return Start.tile(a, b)
     x, y = (number(p, "--start coordinate") for p in parts)
     return Start.point(grid_map, x, y)
 
@@ -176,9 +179,9 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology) 
         fit = planner is Planner.FIT
         result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
     if planner is Planner.FIT and result.feasible and result.placements is not None and not len(result.placements):
-        where = "nowhere on the map" if start.kind == 0 else f"at {start.describe()}"
+        where = "fits nowhere on" if start.kind == 0 else f"does not fit at {start.describe()} on"
         l, w = result.footprint_cells
-        raise SmorphiError(f"shape {angles_text(morphology.angles)}: its footprint ({l} x {w} cells) fits {where} "
+        raise SmorphiError(f"shape {angles_text(morphology.angles)}: its footprint ({l} x {w} cells) {where} map "
                            f"{grid_map.name} without touching an occupied, unknown or outside cell")  # fmt: skip
     plot_path = None
     if args.plot:

@@ -12,7 +12,7 @@ from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, seed_arg
 from smorphi_rl.cli.fields import param_default
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import FloorKind
-from smorphi_rl.inputs import finite, output_file
+from smorphi_rl.inputs import MAX_SEED, finite, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
 
 
@@ -106,12 +106,18 @@ MAX_FLOORS = 10_000
 def _generate_floors(args: argparse.Namespace) -> int:
     """`maps generate --kind K --count N --seed S --out DIR`: floors K-S .. K-(S+N-1), each a YAML and its image."""
     from smorphi_rl.floorplans import floor_name, generate_floor
-    from smorphi_rl.maps import save_map
+    from smorphi_rl.maps import generate_map, save_map
 
+    shaped = [flag for flag, param, value in (("--width-m", "width_m", args.width_m), ("--height-m", "height_m",
+              args.height_m), ("--resolution", "resolution_m", args.resolution), ("--density", "obstacle_density",
+              args.density)) if value != param_default(generate_map, param)]  # fmt: skip
+    if shaped:
+        raise SmorphiError(f"{', '.join(shaped)}: options of the rectangle generator; a --kind floor plan draws its "
+                           "own size, resolution and furniture from its seed")  # fmt: skip
     if not 1 <= args.count <= MAX_FLOORS:
         raise SmorphiError(f"--count must be in 1..{MAX_FLOORS:,}, got {args.count}")
-    if args.seed + args.count > 2**63:
-        raise SmorphiError(f"--seed {args.seed} + --count {args.count} passes 2^63, the largest floor seed")
+    if args.seed + args.count - 1 > MAX_SEED:
+        raise SmorphiError(f"--seed {args.seed} with --count {args.count} passes 2^32-1, the largest floor seed")
     out = Path(args.out)
     if out.suffix in (".yaml", ".yml") or (out.exists() and not out.is_dir()):
         raise SmorphiError(f"--out {out}: with --kind, give the folder the floors go to")
@@ -160,11 +166,11 @@ def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
     out = Path(args.out)
     if out.suffix != ".yaml":
         raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
-    if Path(args.map).resolve() == out.resolve():
+    if resolved(Path(args.map), "map") == resolved(out, "--out"):
         raise SmorphiError(f"--out {out} is the input map: write the new map somewhere else")
     if not args.force and (out.exists() or out.with_suffix(".pgm").exists()):
         raise SmorphiError(f"{out} exists; pass --force to overwrite it")
-    if out.with_suffix(".pgm").resolve() in {p.resolve() for p in map_inputs(args.map)}:
+    if resolved(out.with_suffix(".pgm"), "--out") in {resolved(Path(p), "map") for p in map_inputs(args.map)}:
         raise SmorphiError(f"--out {out}: its image would replace the input map's image; write it elsewhere")
     source = load_map(args.map)
     grid_map, islands = drop_islands(transform(source), args.min_island)

@@ -7,7 +7,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, rel, scored_text, seed_arg
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, rel, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import output_file
@@ -39,7 +39,8 @@ def register(sub: Any) -> None:
     ep.add_argument("--starts", type=int, default=None, metavar="N",
                     help=f"the evaluation protocol instead: greedy from N fixed seeded starts ({EVAL_STARTS} in "
                          "training) on each map, against the exact optimum")  # fmt: skip
-    ep.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help="where the exact optima are cached (LOG_DIR/.cache)")
+    ep.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR,
+                    help="where the exact optima are cached (LOG_DIR/.cache)")  # fmt: skip
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
     ex = sub.add_parser("export-policy", help="write a trained policy as plain files (policy.json, weights.npz)")
@@ -161,6 +162,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--episodes must be in 1..{MAX_EPISODES:,}, got {args.episodes}")
     if args.starts is not None and not 1 <= args.starts <= MAX_EPISODES:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
+    if args.starts is not None and args.episodes != 1:
+        raise SmorphiError("--episodes and --starts are two ways to evaluate: give one (--starts runs the protocol)")
     from smorphi_rl.training.checkpoints import find_checkpoint
 
     checkpoint = find_checkpoint(args.checkpoint)

@@ -63,6 +63,19 @@ def register(sub: Any) -> None:
     co.set_defaults(func=cmd_compare)
 
 
+PROGRESS_UNITS = {"exhaustive": "exhaustive: shapes", "nsga2": "nsga2: generations", "hillclimb": "hillclimb: starts",
+                  "anneal": "anneal: starts"}  # fmt: skip
+"""What each method's progress line counts."""
+CUT_HINTS = {
+    "exhaustive": "a coarser --step, `maps resample` to a coarser resolution, `maps crop`, or --address CLUSTER cut "
+    "the work",
+    "nsga2": "a smaller --pop, fewer --generations, or --address CLUSTER cut the work",
+    "hillclimb": "fewer --starts or a smaller --budget cut the work",
+    "anneal": "fewer --starts or a smaller --budget cut the work",
+}
+"""What the line that says a run will take over a minute suggests."""
+
+
 def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II, local search or the exhaustive lattice on a map; results, front and plot under
     LOG_DIR/<run>/."""
@@ -83,9 +96,9 @@ def cmd_search(args: argparse.Namespace) -> int:
 
         cluster.check_reachable(address)  # no cluster there: one line, nothing written
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
-    hint = "a coarser --step, `maps resample` to a coarser resolution, `maps crop`, or --address CLUSTER cut the work"
+    hint = CUT_HINTS.get(args.method, "")
     try:
-        result = run_search(cfg, progress_line("exhaustive", hint))
+        result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
     except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free
         discard_run_dir(run_dir)
         raise
@@ -158,6 +171,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
+    if exact is not None and (made_with := str(exact.params.get("planner", "paper"))) != planning.planner.value:
+        raise SmorphiError(f"{args.exhaustive}: its front was planned by the {made_with} planner, the runs here are "
+                           f"compared under {planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
         exact = run_exhaustive(str(args.map), args.step, planning, progress=progress_line("exact front"))

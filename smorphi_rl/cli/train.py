@@ -14,6 +14,7 @@ from smorphi_rl.cli.common import (
     EXIT_INTERRUPTED,
     PROG,
     map_paths,
+    nonempty,
     planner_option,
     record_option,
     rel,
@@ -49,7 +50,8 @@ def register(sub: Any) -> None:
     sw.add_argument("config", help="sweep file (schema in the README; examples in tune_configs/)")
     sw.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     sw.add_argument("--resume", action="store_true", help="continue the interrupted experiment of this sweep")
-    sw.add_argument("--log-dir", default=DEFAULT_LOG_DIR, help="the experiment goes to LOG_DIR/<the sweep's name>")
+    sw.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR,
+                    help="the experiment goes to LOG_DIR/<the sweep's name>")  # fmt: skip
     sw.set_defaults(func=cmd_sweep)
 
     from smorphi_rl.reproduce import BUDGETS
@@ -138,6 +140,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if missing:
         print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
     print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\ncurves: {rel(files['png'])}")
+    if any(r.interrupted for r in runs):
+        print(f"{PROG}: interrupted: the table holds the {len(runs)} run(s) that started, the last one cut short",
+              file=sys.stderr)  # fmt: skip
+        return EXIT_INTERRUPTED
     return 0
 
 

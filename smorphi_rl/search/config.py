@@ -112,7 +112,8 @@ class SearchConfig:
 
 
 def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = None) -> SearchResult:
-    """Run the configured method on its map (`progress(done, total)`: the exhaustive search's chunks)."""
+    """Run the configured method on its map (`progress(done, total)`: shapes of the exhaustive search, starts of
+    the local searches, generations of NSGA-II; random search is one batch)."""
     if cfg.method == "exhaustive":
         from smorphi_rl.search.exhaustive import run_exhaustive
 
@@ -126,7 +127,7 @@ def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = 
 
         env = {"w1": cfg.w1, "w2": cfg.w2, "path_term": cfg.path_term, "planner": cfg.planning.planner.value,
                "start_xy": cfg.planning.start_xy}  # fmt: skip
-        return run_local_search(cfg.method, cfg.map_path, cfg.budget, cfg.seed, cfg.starts, env)
+        return run_local_search(cfg.method, cfg.map_path, cfg.budget, cfg.seed, cfg.starts, env, progress)
     from smorphi_rl.search.nsga2 import run_nsga2
 
-    return run_nsga2(cfg.map_path, cfg.pop, cfg.generations, cfg.seed, cfg.planning, cfg.address)
+    return run_nsga2(cfg.map_path, cfg.pop, cfg.generations, cfg.seed, cfg.planning, cfg.address, progress)

@@ -179,10 +179,17 @@ SEARCHERS: dict[str, Callable[[_Budgeted, Theta, np.random.Generator], Theta]] =
 
 
 def run_local(
-    method: str, env: MorphologyEnv, starts: np.ndarray, budget: int, seed: int, visited: list[_Budgeted] | None = None
+    method: str,
+    env: MorphologyEnv,
+    starts: np.ndarray,
+    budget: int,
+    seed: int,
+    visited: list[_Budgeted] | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[Outcome]:
     """`method` from every start on `env`'s (single) map, each with `budget` evaluations and its own stream
-    (SeedSequence(seed) spawned per start). `visited`, if given, receives each start's scored shapes."""
+    (SeedSequence(seed) spawned per start). `visited`, if given, receives each start's scored shapes;
+    `progress(done, total)` hears of each start finished."""
     if method not in SEARCHERS:
         raise ValueError(f"unknown local method '{method}' (choose from {', '.join(METHODS)})")
     if budget < 1:
@@ -199,18 +206,26 @@ def run_local(
         scored = env.score(end)
         outcomes.append(Outcome(theta0, end, float(scored.R1), float(scored.P_c), int(scored.P_len),
                                 len(space.seen)))  # fmt: skip
+        if progress is not None:
+            progress(len(outcomes), len(starts))
     return outcomes
 
 
 def run_local_search(
-    method: str, map_path: str, budget: int, seed: int, starts: int = EVAL_STARTS, env_config: dict | None = None
+    method: str,
+    map_path: str,
+    budget: int,
+    seed: int,
+    starts: int = EVAL_STARTS,
+    env_config: dict | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> SearchResult:
     """`search hillclimb|anneal`: the method from the protocol's fixed starts, every shape it scored pooled into
     one SearchResult (for `compare`), with the protocol's outcome per start in `params`."""
     env = MorphologyEnv({**(env_config or {}), "maps": [map_path]})
     spaces: list[_Budgeted] = []
     t0 = time.perf_counter()
-    outcomes = run_local(method, env, eval_starts(starts, env.config.angle_step_deg), budget, seed, spaces)
+    outcomes = run_local(method, env, eval_starts(starts, env.config.angle_step_deg), budget, seed, spaces, progress)
     wall = time.perf_counter() - t0
     shapes = {t: m for space in spaces for t, m in space.metrics.items()}
     thetas = np.array(list(shapes), dtype=np.float64).reshape(-1, 3)

@@ -7,10 +7,12 @@ result is the whole search, not only its last population.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
 from pymoo.algorithms.moo.nsga2 import NSGA2
+from pymoo.core.callback import Callback
 from pymoo.core.problem import Problem
 from pymoo.operators.crossover.sbx import SBX
 from pymoo.operators.mutation.pm import PM
@@ -40,6 +42,18 @@ class _MorphologyProblem(Problem):
         out["F"] = np.column_stack([-batch.P_c, np.where(batch.feasible, batch.P_len, np.inf)])
 
 
+class _Generations(Callback):
+    """pymoo's per-generation hook: tells `progress` how many generations are done."""
+
+    def __init__(self, generations: int, progress: Callable[[int, int], None] | None) -> None:
+        super().__init__()
+        self.generations, self.progress = generations, progress
+
+    def notify(self, algorithm: Any) -> None:
+        if self.progress is not None:
+            self.progress(min(int(algorithm.n_gen), self.generations), self.generations)
+
+
 def run_nsga2(
     map_path: str,
     pop: int,
@@ -47,9 +61,11 @@ def run_nsga2(
     seed: int,
     planning: Planning = PAPER_PLANNING,
     address: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
 ) -> SearchResult:
     """NSGA-II with `pop` individuals for `generations` generations; each generation scored here, or spread over
-    the Ray cluster at `address` (the same search, shape for shape)."""
+    the Ray cluster at `address` (the same search, shape for shape); `progress(done, total)` hears of each
+    generation."""
     if pop < 2:
         raise SmorphiError(f"--pop must be >= 2, got {pop}")
     if generations < 1:
@@ -65,7 +81,8 @@ def run_nsga2(
     with evaluator_for(grid_map, planning, address) as evaluator:
         problem = _MorphologyProblem(evaluator)
         t0 = time.perf_counter()
-        minimize(problem, algorithm, ("n_gen", generations), seed=seed, verbose=False)
+        minimize(problem, algorithm, ("n_gen", generations), seed=seed, verbose=False,
+                 callback=_Generations(generations, progress))  # fmt: skip
         wall = time.perf_counter() - t0
     seen = np.vstack(problem.seen)
     params: dict[str, object] = {"pop": pop, "generations": generations, "seed": seed,

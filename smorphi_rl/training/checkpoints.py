@@ -160,7 +160,9 @@ def check_metadata(meta: Path, state_file: str) -> None:
     except (OSError, ValueError, UnicodeDecodeError):
         doc = None
     want = {"class_and_ctor_args_file": CTOR_FILE, "state_file": state_file}
-    if not isinstance(doc, dict) or any(doc.get(k, v) != v for k, v in want.items()):
+    if not isinstance(doc, dict):
+        raise CheckpointError(f"{meta}: not RLlib's metadata (not a JSON object of at most 64 KB)")
+    if any(doc.get(k, v) != v for k, v in want.items()):
         raise CheckpointError(f"{meta}: refused, it names files other than RLlib's {CTOR_FILE} and {state_file}")
 
 

@@ -46,6 +46,10 @@ MAX_ENVS_PER_RUNNER = 1024
 MAX_DESIGN_BUDGET = 100_000
 
 
+MAX_TIMESTEPS = 10**9
+"""A training budget beyond this is a typo, not a run (weeks on a laptop; split it across runs on a cluster)."""
+
+
 class TrainConfigError(SmorphiError):
     """A training option that is unknown or out of range."""
 
@@ -112,6 +116,10 @@ class TrainConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise TrainConfigError(f"{name} must be a positive integer, got {value!r}")
+        if self.timesteps > MAX_TIMESTEPS:
+            days = MAX_TIMESTEPS / 1000 / 86400
+            raise TrainConfigError(f"timesteps {self.timesteps:,}: at most {MAX_TIMESTEPS:,} (at about 1,000 env steps "
+                                   f"a second on 2 cores that is {days:.0f} days already)")  # fmt: skip
         runners = self.num_env_runners
         if runners is not None and (isinstance(runners, bool) or not isinstance(runners, int) or runners < 0):
             raise TrainConfigError(f"env runners must be 0 (sample in the trial process) or more, got {runners!r}")

@@ -38,18 +38,26 @@ def policy_digest(state: dict[str, Any]) -> str:
     return h.hexdigest()
 
 
+def _layout(observation_space: Any, action_space: Any) -> dict[str, str]:
+    """What a policy's input and output look like: each observation's shape and the action's choices."""
+    layout = {f"observation '{k}'": str(tuple(v.shape)) for k, v in observation_space.spaces.items()}
+    layout["actions"] = str([int(n) for n in getattr(action_space, "nvec", [])])
+    return layout
+
+
 def check_pretrained(checkpoint: Path, env_config: dict[str, Any]) -> str:
     """Before Ray starts: the checkpoint is ours and its observations fit the env; returns its policy digest."""
     from smorphi_rl.env import MorphologyEnv
 
     module = load_module(checkpoint)
     env = MorphologyEnv(env_config)
-    want, have = module.observation_space["map"].shape, env.observation_space["map"].shape  # type: ignore[index]
-    if tuple(want) != tuple(have):
-        raise CheckpointError(
-            f"{checkpoint}: the pretrained policy expects map observations of shape {tuple(want)}, "
-            f"the env gives {tuple(have)} (obs_size must match)"
-        )
+    want, have = _layout(module.observation_space, module.action_space), _layout(env.observation_space,
+                                                                              env.action_space)  # fmt: skip
+    if want != have:
+        differ = sorted(k for k in set(want) | set(have) if want.get(k) != have.get(k))
+        told = "; ".join(f"{k}: the policy's {want.get(k, 'none')}, the env's {have.get(k, 'none')}" for k in differ)
+        raise CheckpointError(f"{checkpoint}: the pretrained policy does not fit this env ({told}); train with the "
+                              "env options it was trained with (observation, moves, obs_size)")  # fmt: skip
     return policy_digest(module.get_state())
 
 

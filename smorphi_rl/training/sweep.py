@@ -140,7 +140,8 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
     if not copy.is_file():
         raise RunDirError(f"nothing to resume: {exp} holds no sweep started by smorphi-rl")
     if yaml.safe_load(copy.read_text()) != yaml.safe_load(sweep.path.read_text()):  # comments may differ
-        raise RunDirError(f"{sweep.path} has changed since {exp} started; resume with the original ({copy})")
+        raise RunDirError(f"{sweep.path} has changed since {exp} started: restore it from {copy} to resume, or "
+                          "give the changed sweep another `name`")  # fmt: skip
     return exp
 
 

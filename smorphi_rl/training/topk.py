@@ -9,11 +9,13 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.rundir import atomic_text, write_text_atomic
 
@@ -145,18 +147,26 @@ def write_csv(rows: list[Found], csv_path: Path) -> None:
 
 
 def read_csv(csv_path: Path) -> list[Found]:
-    """Rows written by `write_csv` (for `compare`)."""
-    with csv_path.open(newline="") as fh:
-        return [
-            Found(
-                row["algorithm"],
-                row["map"],
-                (float(row["theta1"]), float(row["theta2"]), float(row["theta3"])),
-                float(row["P_c"]),
-                int(row["P_len"]),
-                float(row["R1"]),
-                int(row["first_seen_env_steps"]),
-                int(row["variants"]),
-            )
-            for row in csv.DictReader(fh)
-        ]
+    """Rows written by `write_csv` (for `compare`), checked: angles in 0-180, P_c in 0-100, P_len and counts
+    whole and not negative; anything else is refused in one line naming the file and the row."""
+    rows: list[Found] = []
+    try:
+        with csv_path.open(newline="") as fh:
+            for i, row in enumerate(csv.DictReader(fh), 2):
+                try:
+                    found = Found(row["algorithm"], row["map"],
+                                  (float(row["theta1"]), float(row["theta2"]), float(row["theta3"])),
+                                  float(row["P_c"]), int(row["P_len"]), float(row["R1"]),
+                                  int(row["first_seen_env_steps"]), int(row["variants"]))  # fmt: skip
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise SmorphiError(f"{csv_path}, line {i}: not a row smorphi-rl writes ({type(exc).__name__}: "
+                                       f"{exc})") from None  # fmt: skip
+                ok = (all(0 <= t <= 180 for t in found.theta) and 0 <= found.P_c <= 100 and found.P_len >= 0
+                      and math.isfinite(found.R1) and found.env_steps >= 0)  # fmt: skip
+                if not ok:
+                    raise SmorphiError(f"{csv_path}, line {i}: values out of range (angles 0-180, P_c 0-100, "
+                                       "P_len and steps not negative)")  # fmt: skip
+                rows.append(found)
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise SmorphiError(f"{csv_path}: not a readable table ({type(exc).__name__})") from None
+    return rows

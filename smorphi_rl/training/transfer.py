@@ -7,6 +7,7 @@ job and writes its table and curves.
 from __future__ import annotations
 
 import csv
+import itertools
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -34,6 +35,8 @@ class TransferRun:
     pretrained_in_runners: bool | None
     run_dir: Path
     curve: dict[str, list[float]]
+    interrupted: bool = False
+    """Stopped (Ctrl-C, SIGTERM) before its budget: the job stopped with it."""
 
 
 @dataclass(frozen=True)
@@ -85,7 +88,8 @@ def run_transfer(
     out: Any = None,
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget."""
-    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl import cluster
+    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.convergence import CURVE_KEY, convergence
     from smorphi_rl.training.finetune import check_pretrained
@@ -98,21 +102,28 @@ def run_transfer(
         cfg = job.train_config(replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps))
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)
+    cluster.check_reachable(address)  # no cluster there: one line, no folder
     job_dir = prepare_run_dir(log_dir, name)
     runs: list[TransferRun] = []
-    for cfg in configs:
-        map_name = Path(cfg.env.maps[0]).stem
-        for seed in job.seeds:
-            for mode in ("fine-tune", "scratch"):
-                run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
-                run_name = safe_name(f"{map_name}-{mode}-seed{seed}")
-                summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{job.algo.upper()} {run_name}")  # fmt: skip
-                curve = summary_curve(summary.run_dir)
-                at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
-                best = summary.best.R1 if summary.best else float("nan")
-                runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
-                                        summary.pretrained_in_runners, summary.run_dir, curve))  # fmt: skip
+    try:
+        for cfg, seed, mode in itertools.product(configs, job.seeds, ("fine-tune", "scratch")):
+            map_name = Path(cfg.env.maps[0]).stem
+            run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
+            run_name = safe_name(f"{map_name}-{mode}-seed{seed}")
+            summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
+                            label=f"{job.algo.upper()} {run_name}")  # fmt: skip
+            curve = summary_curve(summary.run_dir)
+            at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
+            best = summary.best.R1 if summary.best else float("nan")
+            runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
+                                    summary.pretrained_in_runners, summary.run_dir, curve,
+                                    summary.interrupted))  # fmt: skip
+            if summary.interrupted:
+                break  # a stop request ends the job: what finished is reported, marked as such
+    except BaseException:
+        if not runs:
+            discard_run_dir(job_dir)  # nothing trained: the name stays free
+        raise
     return job_dir, runs
 
 

@@ -85,7 +85,7 @@ def test_design_loads_without_torch_or_ray(policy):
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["--budget", "0"], "--budget must be a whole number of planner evaluations >= 1, got 0"),
+    (["--budget", "0"], "--budget must be a whole number of planner evaluations in 1..100,000, got 0"),
     (["--budget", "-5"], "got -5"),
     (["--plot", "x.txt"], "give a file name ending in .png"),
     (["--plot", str(FLOOR / "x.png")], "is not a folder this process can write into"),
