@@ -22,10 +22,15 @@ from _benchdocs import run_documented
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.run import train
-from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
+from smorphi_rl.training.transfer import TransferJob, TransferRun, run_transfer, write_transfer_report
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 TARGET_RATIO = 5.0
+
+
+def _steps(run: TransferRun) -> str:
+    """Env steps until the run converged, or that it did not within its budget (never a number then)."""
+    return f"not converged within {run.env_steps:,}" if run.converged_at is None else f"{run.converged_at:,.0f}"
 
 
 def main() -> None:
@@ -56,13 +61,16 @@ def main() -> None:
     for map_name in dict.fromkeys(r.map_name for r in runs):
         tuned = next(r for r in runs if r.map_name == map_name and r.mode == "fine-tune")
         scratch = next(r for r in runs if r.map_name == map_name and r.mode == "scratch")
-        t = tuned.converged_at if tuned.converged_at is not None else float(tuned.env_steps)
-        s = scratch.converged_at if scratch.converged_at is not None else float(scratch.env_steps)
-        ratio = s / t if t else float("inf")
-        verdict = "meets" if ratio >= TARGET_RATIO else "misses"
-        print(f"{map_name}: fine-tuned {t:,.0f} vs scratch {s:,.0f} env steps to converge: {ratio:.2f}x "
-              f"({verdict} the {TARGET_RATIO:g}x target); final-shape R1 plateau {tuned.plateau:.2f} vs "
-              f"{scratch.plateau:.2f}; "
+
+        if tuned.converged_at is not None and scratch.converged_at is not None:
+            ratio = scratch.converged_at / tuned.converged_at if tuned.converged_at else float("inf")
+            verdict = f"{ratio:.2f}x ({'meets' if ratio >= TARGET_RATIO else 'misses'} the {TARGET_RATIO:g}x target)"
+        elif tuned.converged_at is not None:
+            verdict = "no ratio: the scratch run did not converge (only a lower bound, not a measurement)"
+        else:
+            verdict = "no ratio: the fine-tuned run did not converge"
+        print(f"{map_name}: env steps to converge fine-tuned {_steps(tuned)}, scratch {_steps(scratch)}: {verdict}; "
+              f"settled R1 plateau {tuned.plateau:.2f} vs {scratch.plateau:.2f}; "
               f"pretrained policy in every runner: {tuned.pretrained_in_runners}")  # fmt: skip
     print(f"total {time.perf_counter() - t0:.0f} s; runs under {root}")
 
