@@ -1,0 +1,51 @@
+"""A Ray cluster of its own on this machine, for the benchmarks and the tests that attach to one."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+
+@contextmanager
+def local_ray_cluster(num_cpus: int) -> Iterator[str]:
+    """A Ray cluster of its own (`ray start --head` on a free loopback port, its own temp folder) for the block;
+    yields its address. Only its own processes are stopped afterwards (`ray stop` would stop every Ray here)."""
+    import shutil
+    import signal
+    import socket
+    import subprocess
+    import sys
+    import tempfile
+    import time
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = int(s.getsockname()[1])
+    ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
+    temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
+    # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
+    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
+    start = [ray, "start", "--head", f"--num-cpus={num_cpus}", f"--port={port}", "--include-dashboard=false",
+             "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
+    subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
+    try:
+        yield f"127.0.0.1:{port}"
+    finally:
+        for sig in (signal.SIGTERM, signal.SIGKILL):
+            pids = []
+            for entry in Path("/proc").iterdir():
+                try:
+                    if entry.name.isdigit() and temp_dir in (entry / "cmdline").read_bytes().decode(errors="replace"):
+                        pids.append(int(entry.name))
+                except OSError:
+                    continue
+            for pid in pids:
+                with contextlib.suppress(OSError):
+                    os.kill(pid, sig)
+            if not pids:
+                break
+            time.sleep(3)
+        shutil.rmtree(temp_dir, ignore_errors=True)
