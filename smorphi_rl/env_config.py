@@ -246,6 +246,8 @@ def _coerce(name: str, value: Any) -> Any:
                 raise TypeError
             return int(value)
         return _real(value)
+    except EnvConfigError:
+        raise  # already names the problem (a ValueError too)
     except (TypeError, ValueError):
         raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
 

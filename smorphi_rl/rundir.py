@@ -166,17 +166,39 @@ def write_atomic(path: Path, data: bytes) -> None:
 @contextmanager
 def claimed_files(paths: list[Path], force: bool = False) -> Iterator[None]:
     """`claim_files` for the length of a block that writes them: a claimed file still empty when the block fails
-    (a full disk) is removed again, so nothing half-made is left behind."""
+    (a full disk) is removed again, so nothing half-made is left behind. With `force`, a lock beside the first
+    file is held instead, so two overwriting writers never mix their files: the second is refused."""
+    if force:
+        with _write_lock(paths[0]):
+            yield
+        return
     claim_files(paths, force)
     try:
         yield
     except BaseException:
-        if not force:
-            for path in paths:
-                with contextlib.suppress(OSError):
-                    if path.stat().st_size == 0:
-                        path.unlink()
+        for path in paths:
+            with contextlib.suppress(OSError):
+                if path.stat().st_size == 0:
+                    path.unlink()
         raise
+
+
+@contextmanager
+def _write_lock(path: Path) -> Iterator[None]:
+    """`.NAME.lock` beside `path`, created with O_EXCL for the block and removed after it."""
+    lock = path.with_name(f".{path.name}.lock")
+    try:
+        lock.parent.mkdir(parents=True, exist_ok=True)
+        os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
+    except FileExistsError:
+        raise RunDirError(f"{path} is being written by another process (its lock {lock} exists; remove it if no "
+                          "process is writing)") from None  # fmt: skip
+    except OSError as exc:
+        raise RunDirError(f"cannot write {path} ({exc.strerror or exc})") from None
+    try:
+        yield
+    finally:
+        lock.unlink(missing_ok=True)
 
 
 def claim_files(paths: list[Path], force: bool = False) -> None:

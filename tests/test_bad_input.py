@@ -284,10 +284,12 @@ def test_an_image_header_beyond_pillows_own_limit_is_one_line(tmp_path, capsys):
     (["evaluate", "--angles", "1", "2", "3", "--start", "tile:-1,-1"], "tile indices count from 0"),
     (["evaluate-policy", "--checkpoint", "{tmp}", "--starts", "2", "--episodes", "2"], "give one"),
     (["train", "--address", "ray://127.0.0.1:1"], "cannot reach a Ray cluster at ray://127.0.0.1:1"),
+    (["train", "--map", "{tmp}/none/*.yaml"], "map glob '{tmp}/none/*.yaml' matches no map YAML"),
+    (["evaluate", "--angles-file", ""], "--angles-file: give the path of a CSV"),
 ])  # fmt: skip
 def test_nonsense_is_refused_in_one_line(tmp_path, capsys, argv, message):
     code, _, err = run(capsys, *(a.format(tmp=tmp_path) for a in argv))
-    assert code in (1, 2) and message in one_line(err)
+    assert code in (1, 2) and message.format(tmp=tmp_path) in one_line(err)
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]
 
 
@@ -323,3 +325,10 @@ def test_compare_refuses_an_exact_front_of_another_planner(tmp_path, capsys):
     code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
                        str(tmp_path / "e"), "--log-dir", str(tmp_path))  # fmt: skip
     assert code == 1 and "pass --planner fit" in one_line(err)
+
+
+def test_two_forced_writers_of_one_map_never_mix_their_files(tmp_path, capsys):
+    (tmp_path / ".m.yaml.lock").write_text("")  # another `maps generate --force` is writing m.yaml
+    code, _, err = run(capsys, "maps", "generate", "--out", str(tmp_path / "m.yaml"), "--force")
+    assert code == 1 and "is being written by another process" in one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [".m.yaml.lock"]

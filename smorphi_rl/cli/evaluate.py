@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option
+from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, progress_line
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -123,6 +123,10 @@ def parse_start(text: str | None, grid_map: Map) -> Start:
     return Start.point(grid_map, x, y)
 
 
+FILE_CHUNK = 50_000
+"""An angles file is planned and written this many rows at a time (progress on stderr past one chunk)."""
+
+
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
     if (args.angles is None) == (args.angles_file is None):
@@ -136,7 +140,9 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.plot is not None:
         inputs = map_inputs(args.map) + ((Path(args.angles_file),) if args.angles_file else ())
         args.plot = str(output_file(args.plot, "--plot", (".png",), inputs))
-    thetas = read_angles_file(Path(args.angles_file)) if args.angles_file else None
+    if args.angles_file == "":
+        raise SmorphiError("--angles-file: give the path of a CSV of t1,t2,t3 rows")
+    thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
     if thetas is not None:
@@ -144,13 +150,15 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
         evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
                               planner=Planner(args.planner))  # fmt: skip
-        batch = evaluator.evaluate_many(thetas)
-        if args.json:
-            lines = [json.dumps(r) for r in batch.records()]
-        else:
-            header = "t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w"
-            lines = [header, *(_csv_row(r) for r in batch)]
-        sys.stdout.write("\n".join(lines) + "\n")
+        if not args.json:
+            sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w\n")
+        show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
+        for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
+            batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
+            lines = [json.dumps(r) for r in batch.records()] if args.json else [_csv_row(r) for r in batch]
+            sys.stdout.write("\n".join(lines) + "\n")
+            if show is not None:
+                show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
