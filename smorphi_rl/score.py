@@ -78,6 +78,8 @@ BEST_FIELDS = ("theta", "P_c", "P_len", "R1", "coverage_free_pct", "path_length_
 def degenerate_warning(r1: float, p_c: float, path_term: str, map_name: str) -> str | None:
     """One line when the weights make the ranking degenerate on a floor (the best R1 negative, or the best shape
     covering under half of it: the path term swamps coverage), naming the option that fixes it; None otherwise."""
+    if p_c <= 0:
+        return f"warning: on {map_name} no shape covers any of the floor (best P_c 0 %): is it narrower than a block?"
     if path_term == "per_area" or (r1 >= 0 and p_c >= 50):
         return None
     return (

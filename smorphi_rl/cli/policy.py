@@ -56,8 +56,10 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.export import export_policy
 
     out = Path(args.out)
-    if out.exists() and (not out.is_dir() or any(out.iterdir())):
-        raise SmorphiError(f"--out {out} exists and is not an empty folder: choose another")
+    if out.exists() and not out.is_dir():
+        raise SmorphiError(f"--out {out} is a file, not a folder: give the folder the policy goes to")
+    if out.exists() and any(out.iterdir()):
+        raise SmorphiError(f"--out {out} is a folder that holds files already: choose another")
     checkpoint = find_checkpoint(args.checkpoint)
     about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
     written = export_policy(checkpoint, out, about)
@@ -164,6 +166,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     if args.starts is not None and args.episodes != 1:
         raise SmorphiError("--episodes and --starts are two ways to evaluate: give one (--starts runs the protocol)")
+    if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
+        raise SmorphiError(f"--record {args.record} is a file: give the folder the recordings go to")
     from smorphi_rl.training.checkpoints import find_checkpoint
 
     checkpoint = find_checkpoint(args.checkpoint)

@@ -127,4 +127,4 @@ def test_export_policy_writes_a_folder_once(exported, tmp_path, capsys):
     assert json.loads((tmp_path / "p" / "policy.json").read_text())["command"] == "a b"
     capsys.readouterr()
     assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "p")]) == 1
-    assert "is not an empty folder" in capsys.readouterr().err
+    assert "is a folder that holds files already" in capsys.readouterr().err
