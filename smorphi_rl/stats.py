@@ -11,6 +11,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -20,7 +21,7 @@ RESAMPLES = 10_000
 
 @dataclass(frozen=True)
 class Interval:
-    """A mean over seeds and its 95 % bootstrap interval (lo = hi = mean with one seed)."""
+    """A mean (or median) over seeds and its 95 % bootstrap interval (lo = hi = the value with one seed)."""
 
     mean: float
     lo: float
@@ -35,17 +36,26 @@ class Interval:
 
 def mean_interval(values: Sequence[float], seed: int = 0) -> Interval:
     """Mean of `values` (one per seed) with its 95 % percentile bootstrap interval."""
+    return _interval(values, np.mean, seed)
+
+
+def median_interval(values: Sequence[float], seed: int = 0) -> Interval:
+    """Median of `values` (one per seed) with its 95 % percentile bootstrap interval (`Interval.mean` holds it)."""
+    return _interval(values, np.median, seed)
+
+
+def _interval(values: Sequence[float], statistic: Any, seed: int) -> Interval:
     from scipy.stats import bootstrap
 
     data = np.asarray([v for v in values if math.isfinite(v)], dtype=float)
     if data.size == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    mean = float(data.mean())
+    point = float(statistic(data))
     if data.size < 2 or np.all(data == data[0]):
-        return Interval(mean, mean, mean, int(data.size))
-    res = bootstrap((data,), np.mean, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+        return Interval(point, point, point, int(data.size))
+    res = bootstrap((data,), statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
                     random_state=np.random.default_rng(seed))  # fmt: skip
-    return Interval(mean, float(res.confidence_interval.low), float(res.confidence_interval.high), int(data.size))
+    return Interval(point, float(res.confidence_interval.low), float(res.confidence_interval.high), int(data.size))
 
 
 def ratio_interval(numerator: Sequence[float], denominator: Sequence[float], seed: int = 0) -> Interval:

@@ -1,39 +1,49 @@
-"""When a learning curve has converged: one definition, used by `transfer`, the sweeps and the benchmarks.
+"""When a run has converged: one definition, used by `sweep`, `transfer`, `reproduce` and the benchmarks.
 
-The curve is the evaluation protocol's settled R1 (`eval/settled_R1_mean`): the mean R1 of the
-shapes the greedy policy settles on from the fixed seeded starts, measured every few iterations.
-A run has converged at the first evaluation from which that curve stays within `tol` (2 %) of the
-run's plateau, the mean of its last `plateau_frac` (20 %) of evaluations; the convergence step is
-that iteration's env-step count. A run that enters the band only within those last 20 % has not
-shown that it stays there: not converged (None). Iterations without an evaluation are skipped.
-The episode return is not used (a random policy's is within 2 % of a trained one's), nor the
-stochastic final-shape R1 (exploration makes it swing by several points). No Ray here.
+Every few iterations the evaluation protocol rolls the greedy policy out from fixed seeded starts and
+reports the share of starts whose settled shape is within 1 % of the exact optimum's R1. A run has
+converged at the first evaluation from which that share stays at least 90 % for the rest of the run; the
+convergence step is that evaluation's env-step count. A run whose last evaluation is under 90 % has not
+converged within its budget (None), which reports show as such, never as a number. Iterations without an
+evaluation are skipped. The plateau reported beside it is the mean greedy settled R1 over the run's last
+20 % of evaluations. No Ray here.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-CURVE_KEY = "eval_R1"
+CURVE_KEY = "eval_within"
 """The curve (of `sweep_report.curve_point`, which every report reads) that convergence is measured on."""
-TOLERANCE = 0.02
+PLATEAU_KEY = "eval_R1"
+"""The curve whose end is the run's plateau (the greedy settled R1)."""
+SHARE = 0.9
+"""Converged: at least this share of the protocol's starts within 1 % of the optimum, from then on."""
 PLATEAU_FRACTION = 0.2
 
 
-def convergence(
-    env_steps: np.ndarray, curve: np.ndarray, tol: float = TOLERANCE, plateau_frac: float = PLATEAU_FRACTION
-) -> tuple[float | None, float]:
-    """(env steps at convergence or None, the plateau). None when the curve is still outside the band at its end."""
-    finite = np.isfinite(np.asarray(curve, dtype=float))  # iterations without a measurement are skipped
-    steps = np.asarray(env_steps, dtype=float)[finite]
-    values = np.asarray(curve, dtype=float)[finite]
+def converged_at(env_steps: np.ndarray, within: np.ndarray, share: float = SHARE) -> float | None:
+    """Env steps at the first evaluation from which `within` (the share of starts within 1 %) stays >= `share`
+    to the end; None when the last evaluation is below it, or there is none."""
+    measured = np.isfinite(np.asarray(within, dtype=float))
+    steps = np.asarray(env_steps, dtype=float)[measured]
+    values = np.asarray(within, dtype=float)[measured]
+    if not values.size or values[-1] < share:
+        return None
+    below = np.flatnonzero(values < share)
+    return float(steps[int(below[-1]) + 1 if below.size else 0])
+
+
+def plateau(curve: np.ndarray, fraction: float = PLATEAU_FRACTION) -> float:
+    """The mean of the last `fraction` of the curve's measured points (NaN when there are none)."""
+    values = np.asarray(curve, dtype=float)
+    values = values[np.isfinite(values)]
     if not values.size:
-        return None, float("nan")
-    n_tail = max(1, round(plateau_frac * float(values.size)))
-    plateau = float(np.mean(values[-n_tail:]))
-    inside = np.abs(values - plateau) <= tol * abs(plateau)
-    outside = np.flatnonzero(~inside)
-    first = 0 if not outside.size else int(outside[-1]) + 1
-    if first >= len(values) - n_tail:  # inside only within the plateau window, if at all
-        return None, plateau
-    return float(steps[first]), plateau
+        return float("nan")
+    return float(np.mean(values[-max(1, round(fraction * float(values.size))) :]))
+
+
+def convergence(curve: dict[str, list[float]]) -> tuple[float | None, float]:
+    """(env steps at convergence or None, the settled-R1 plateau) of a run's curves (`sweep_report.result_curve`)."""
+    steps = np.array(curve["env_steps"], dtype=float)
+    return converged_at(steps, np.array(curve[CURVE_KEY], dtype=float)), plateau(np.array(curve[PLATEAU_KEY]))

@@ -18,9 +18,9 @@ import numpy as np
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
-from smorphi_rl.stats import band, mean_interval
+from smorphi_rl.stats import band, median_interval
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.convergence import CURVE_KEY, convergence
+from smorphi_rl.training.convergence import PLATEAU_KEY, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
 CURVE_POINTS = 100
@@ -42,6 +42,10 @@ class TrialRow:
     converged_at: float | None
     settled_R1_plateau: float
     curve: dict[str, list[float]]
+    median_gap: float = math.nan
+    """The last evaluation's median gap of the greedy settled R1 to the exact optimum (NaN: never evaluated)."""
+    share_within_1pct: float = math.nan
+    """The last evaluation's share of starts settled within 1 % of the optimum."""
 
 
 def result_rows(result_json: Path) -> list[dict[str, Any]]:
@@ -102,7 +106,8 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
     for r in rows:
         top.add_episode_bests(spec["algo"], episode_bests(r), int(r.get(keys.STEPS) or 0))
     curve = result_curve(rows)
-    at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
+    at, plateau = convergence(curve)
+    last = next((r.get(EVAL_KEY) for r in reversed(rows) if r.get(EVAL_KEY)), None) or {}
     best = top.top(1)
     return TrialRow(
         trial=trial_dir.name,
@@ -117,6 +122,8 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         converged_at=at,
         settled_R1_plateau=plateau,
         curve=curve,
+        median_gap=_num(last.get("median_gap")),
+        share_within_1pct=_num(last.get("share_within_1pct")),
     )
 
 
@@ -130,14 +137,16 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     """sweep.csv (every column) and sweep.md (the same, sorted by best R1)."""
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
-              "best_map", "best_P_c", "best_P_len", "converged_at_env_steps", "settled_R1_plateau"]  # fmt: skip
+              "best_map", "best_P_c", "best_P_len", "greedy_median_gap", "share_within_1pct",
+              "converged_at_env_steps", "settled_R1_plateau"]  # fmt: skip
     table = []
     for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
         b = r.best
         table.append([r.trial, r.algo, r.maps, r.seed, *[_fmt(r.hyperparameters.get(k)) for k in hp_keys],
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
-                      "" if r.converged_at is None else int(r.converged_at),
+                      _fixed(r.median_gap), _fixed(r.share_within_1pct),
+                      "not converged" if r.converged_at is None else int(r.converged_at),
                       f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
@@ -165,15 +174,21 @@ def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
 def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     """Each algorithm and hyperparameters on each map set over its seeds, means with 95 % bootstrap intervals;
     a trial that never converged is counted as such, not as a number (a note, a blank line, the table)."""
-    lines = ["Over seeds: mean [95 % bootstrap interval]; env steps to converge over the converged trials only.", "",
-             "| maps | algorithm and hyperparameters | seeds | plateau greedy settled R1 | converged "
-             "| env steps to converge | best R1 |", "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
+    lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
+             "protocol's starts settle within 1 % of the optimum; env steps to converge are over the converged "
+             "trials only, the others are counted as not converged.", "",
+             "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
+             "| env steps to converge | plateau greedy settled R1 | best R1 |",
+             "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     for (maps, label), trials in _groups(rows).items():
         steps = [float(t.converged_at) for t in trials if t.converged_at is not None]
-        plateau = mean_interval([t.settled_R1_plateau for t in trials])
-        best = mean_interval([t.best.R1 for t in trials if t.best is not None])
-        lines.append(f"| {maps} | {label} | {len(trials)} | {plateau.text()} | {len(steps)} of {len(trials)} "
-                     f"| {mean_interval(steps).text(',.0f')} | {best.text()} |")  # fmt: skip
+        gap = median_interval([t.median_gap for t in trials if math.isfinite(t.median_gap)])
+        within = median_interval([t.share_within_1pct for t in trials if math.isfinite(t.share_within_1pct)])
+        plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
+        best = median_interval([t.best.R1 for t in trials if t.best is not None])
+        to_converge = median_interval(steps).text(",.0f")
+        lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {len(steps)} of "
+                     f"{len(trials)} | {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
     return lines
 
 
@@ -189,7 +204,7 @@ def group_curves(rows: list[TrialRow]) -> dict[str, dict[str, dict[str, np.ndarr
             end = min(max(t.curve["env_steps"]) for t in trials)
             grid = np.linspace(0, end, CURVE_POINTS)
             line: dict[str, np.ndarray] = {"env_steps": grid}
-            keys = ["episode_return_mean", CURVE_KEY]
+            keys = ["episode_return_mean", PLATEAU_KEY]
             if any(np.isfinite(t.curve.get("design_gap", [math.nan])).any() for t in trials):
                 keys.append("design_gap")  # the designer's gap on held-out floors, where the sweep measured it
             for key in keys:
@@ -211,6 +226,10 @@ def _interp(grid: np.ndarray, x: list[float], y: list[float]) -> np.ndarray:
 
 def _num(value: Any) -> float:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
+
+
+def _fixed(value: float) -> str:
+    return "" if not math.isfinite(value) else f"{value:.4g}"
 
 
 def _fmt(value: Any) -> str:

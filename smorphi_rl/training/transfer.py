@@ -13,8 +13,6 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, write_text_atomic
 from smorphi_rl.stats import mean_interval, ratio_interval
@@ -91,7 +89,7 @@ def run_transfer(
     from smorphi_rl import cluster
     from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
-    from smorphi_rl.training.convergence import CURVE_KEY, convergence
+    from smorphi_rl.training.convergence import convergence
     from smorphi_rl.training.finetune import check_pretrained
     from smorphi_rl.training.run import train
 
@@ -113,7 +111,7 @@ def run_transfer(
             summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                             label=f"{job.algo.upper()} {run_name}")  # fmt: skip
             curve = summary_curve(summary.run_dir)
-            at, plateau = convergence(np.array(curve["env_steps"]), np.array(curve[CURVE_KEY]))
+            at, plateau = convergence(curve)
             best = summary.best.R1 if summary.best else float("nan")
             runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
                                     summary.pretrained_in_runners, summary.run_dir, curve,
@@ -149,8 +147,9 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
             writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
                              r.pretrained_in_runners])  # fmt: skip
     lines = [
-        "Over seeds: mean [95 % bootstrap interval]. Env steps to converge count converged runs only; a run that "
-        "never settled is counted as not converged, not as a number.",
+        "Over seeds: mean [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
+        "protocol's starts settle within 1 % of the optimum. Env steps to converge count converged runs only; a run "
+        "that never converged is counted as not converged, not as a number.",
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "

@@ -8,43 +8,36 @@ from pathlib import Path
 
 import numpy as np
 
-from smorphi_rl.training.convergence import TOLERANCE, convergence
+from smorphi_rl.training.convergence import SHARE, converged_at, convergence, plateau
 from smorphi_rl.training.sweep_report import group_curves, read_sweep, read_trial, write_sweep_tables
 
 
-def test_converges_where_the_curve_enters_the_band_for_good():
-    steps = np.arange(1, 21) * 1000.0
-    curve = np.r_[np.linspace(80, 88, 8), np.full(12, 88.0)]  # rises for 8 iterations, then flat
-    at, plateau = convergence(steps, curve)
-    assert plateau == 88.0
-    first_inside = np.flatnonzero(np.abs(curve - 88) <= TOLERANCE * 88)[0]
-    assert at == steps[first_inside] and 1000 < at < 8000
-
-
-def test_a_late_excursion_moves_convergence_after_it():
-    steps = np.arange(1, 21) * 1000.0
-    curve = np.full(20, 88.0)
-    curve[12] = 80.0  # one iteration far outside the band
-    at, _ = convergence(steps, curve)
-    assert at == 14000.0
-
-
-def test_a_flat_curve_converges_at_once_and_nan_iterations_do_not_count_as_inside():
+def test_converges_at_the_first_evaluation_from_which_90_percent_of_starts_stay_within_1_percent():
     steps = np.arange(1, 11) * 1000.0
-    assert convergence(steps, np.full(10, 85.0))[0] == 1000.0
-    curve = np.r_[np.nan, np.nan, np.full(8, 85.0)]  # no episode finished in the first two iterations
-    assert convergence(steps, curve)[0] == 3000.0
-    at, plateau = convergence(steps, np.full(10, np.nan))
-    assert at is None and math.isnan(plateau)
+    within = np.array([0.1, 0.5, 0.95, 0.85, 0.9, 0.9, 1.0, 0.95, 1.0, 0.9])  # dips under 90 % once, at 4,000
+    assert converged_at(steps, within) == 5000.0
+    assert converged_at(steps, np.full(10, 1.0)) == 1000.0  # from the first evaluation
+    assert SHARE == 0.9
 
 
-def test_a_curve_still_moving_at_its_end_has_not_converged():
+def test_a_run_under_90_percent_at_its_end_has_not_converged():
     steps = np.arange(1, 11) * 1000.0
-    curve = np.r_[np.full(8, 80.0), 95.0, 95.0]  # in the band only over the plateau window itself
-    at, plateau = convergence(steps, curve)
-    assert at is None and plateau == 95.0
-    curve = np.r_[np.full(7, 80.0), 95.0, 95.0, 95.0]  # and one iteration before it: converged there
-    assert convergence(steps, curve)[0] == 8000.0
+    assert converged_at(steps, np.r_[np.full(9, 1.0), 0.85]) is None
+    assert converged_at(steps, np.full(10, np.nan)) is None  # never evaluated
+
+
+def test_iterations_without_an_evaluation_are_skipped():
+    steps = np.arange(1, 11) * 1000.0
+    within = np.array([0.2, np.nan, np.nan, 0.95, np.nan, 0.9, np.nan, np.nan, 1.0, np.nan])
+    assert converged_at(steps, within) == 4000.0
+
+
+def test_the_plateau_is_the_mean_settled_r1_of_the_last_fifth_of_evaluations():
+    curve = {"env_steps": [1000.0 * i for i in range(1, 12)], "eval_within": [0.0] * 8 + [1.0, np.nan, 1.0],
+             "eval_R1": [80.0] * 8 + [90.0, np.nan, 92.0]}  # fmt: skip
+    at, level = convergence(curve)
+    assert at == 9000.0 and level == 91.0  # the last 2 of 10 measured points
+    assert math.isnan(plateau(np.full(3, np.nan)))
 
 
 def _trial(root: Path, name: str, algo: str, lr: float, rows: list[dict]) -> Path:
@@ -86,7 +79,9 @@ def test_sweep_table_and_curves(tmp_path):
     write_sweep_tables(rows, tmp_path / "s.csv", tmp_path / "s.md")
     lines = (tmp_path / "s.csv").read_text().splitlines()
     assert lines[0].startswith("trial,algo,maps,seed,lr,env_steps")
+    assert lines[0].endswith("greedy_median_gap,share_within_1pct,converged_at_env_steps,settled_R1_plateau")
     assert lines[1].startswith("ppo-a,ppo,map-1,0,0.001,5000,5,10,90.00,")  # sorted by best R1
+    assert lines[1].endswith(",5,0.5,not converged,85.00")  # the last evaluation: gap 90 - 85, half within 1 %
     groups = group_curves(rows)
     (lines_by_label,) = groups.values()
     assert set(lines_by_label) == {"PPO lr=0.001 (1 seed)", "PPO lr=0.003 (1 seed)"}

@@ -12,7 +12,7 @@ def _trial(seed: int, lr: float, plateau: float, converged_at: float | None) -> 
     curve = {"env_steps": steps, "episode_return_mean": [1.0, 2.0, 3.0], "eval_R1": [80.0, 85.0 + seed, plateau]}
     best = Found("ppo", "map-1", (1.0, 2.0, 3.0), 95.0, 60, 89.0 + seed / 10, 100)
     return TrialRow(f"t{seed}-{lr}", "ppo", "map-1", seed, {"lr": lr}, 10_000, 5, 60.0, best, converged_at, plateau,
-                    curve)  # fmt: skip
+                    curve, median_gap=1.0 + seed, share_within_1pct=0.9 - seed / 10)  # fmt: skip
 
 
 def test_groups_table_gives_intervals_over_seeds_and_counts_non_converged(tmp_path):
@@ -22,8 +22,9 @@ def test_groups_table_gives_intervals_over_seeds_and_counts_non_converged(tmp_pa
     lines = (tmp_path / "groups.md").read_text().splitlines()
     first = next(line for line in lines if "lr=0.001" in line)
     cells = [c.strip() for c in first.strip("|").split("|")]
-    assert cells[2] == "3" and cells[3].startswith("87.90 [") and cells[4] == "2 of 3"
-    assert cells[5].startswith("5,000 [")
+    # seeds, median gap, share within 1 %, converged, env steps to converge, plateau: medians with intervals
+    assert cells[2] == "3" and cells[3].startswith("2.00 [") and cells[4].startswith("0.80 [") and cells[5] == "2 of 3"
+    assert cells[6].startswith("5,000 [") and cells[7].startswith("88.00 [")
     lone = next(line for line in lines if "lr=0.0003" in line)
     assert "(1 seed)" in lone and "0 of 1" in lone
     assert (tmp_path / "groups.md").read_text().count("| map-1 |") == 2
