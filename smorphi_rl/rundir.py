@@ -163,8 +163,12 @@ def write_atomic(path: Path, data: bytes) -> None:
         tmp.unlink(missing_ok=True)
 
 
+FORCE_HINT = "pass --force to overwrite it"
+"""What a command that takes --force says when its output exists."""
+
+
 @contextmanager
-def claimed_files(paths: list[Path], force: bool = False) -> Iterator[None]:
+def claimed_files(paths: list[Path], force: bool = False, taken: str = FORCE_HINT) -> Iterator[None]:
     """`claim_files` for the length of a block that writes them: a claimed file still empty when the block fails
     (a full disk) is removed again, so nothing half-made is left behind. With `force`, a lock beside the first
     file is held instead, so two overwriting writers never mix their files: the second is refused."""
@@ -172,7 +176,7 @@ def claimed_files(paths: list[Path], force: bool = False) -> Iterator[None]:
         with _write_lock(paths[0]):
             yield
         return
-    claim_files(paths, force)
+    claim_files(paths, force, taken)
     try:
         yield
     except BaseException:
@@ -201,7 +205,7 @@ def _write_lock(path: Path) -> Iterator[None]:
         lock.unlink(missing_ok=True)
 
 
-def claim_files(paths: list[Path], force: bool = False) -> None:
+def claim_files(paths: list[Path], force: bool = False, taken: str = FORCE_HINT) -> None:
     """Claim new output files by creating each with O_EXCL (of two racing writers exactly one wins; the other is
     refused before it writes anything); `force`: overwrite whatever is there instead. The claimed files are
     empty until written (atomically) over."""
@@ -216,7 +220,7 @@ def claim_files(paths: list[Path], force: bool = False) -> None:
     except FileExistsError:
         for path in made:
             path.unlink(missing_ok=True)
-        raise RunDirError(f"{path} exists; pass --force to overwrite it") from None
+        raise RunDirError(f"{path} exists; {taken}") from None
     except OSError as exc:
         for path in made:
             path.unlink(missing_ok=True)

@@ -62,7 +62,12 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--out {out} is a folder that holds files already: choose another")
     checkpoint = find_checkpoint(args.checkpoint)
     about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
-    written = export_policy(checkpoint, out, about)
+    from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
+    from smorphi_rl.rundir import claimed_files
+
+    with claimed_files([out / POLICY_JSON, out / WEIGHTS_NPZ], taken="another export is writing there: choose another "
+                       "--out"):  # of two exports into one folder, exactly one writes it  # fmt: skip
+        written = export_policy(checkpoint, out, about)
     size = sum(p.stat().st_size for p in written.iterdir())
     print(f"policy   {rel(checkpoint)}\nwrote    {rel(written)} (policy.json, weights.npz: {size / 1024:.0f} KiB)")
     return 0
