@@ -123,10 +123,29 @@ def _wait(future: Any, stop: threading.Event) -> Any:
             continue
 
 
-def chunk_bounds(n_shapes: int, n_workers: int) -> list[tuple[int, int]]:
+CHUNK_SECONDS = 1.0
+"""A chunk plans for about this long at most (every shape planned), so progress and a stop come within seconds."""
+SAMPLE_PLANS = 16
+
+
+def chunk_shapes(grid_map: Map, planning: Planning) -> int:
+    """How many shapes a chunk holds on this map: CHUNK_SHAPES, fewer where one plan is slow (timed on a few
+    random shapes, uncached), at least 64. Loads or compiles the kernels first, before any worker forks."""
+    evaluator = planning.evaluator(grid_map, cache=False)
+    sample = np.random.default_rng(0).integers(0, 181, size=(SAMPLE_PLANS, 3)).astype(np.float64)
+    evaluator.evaluate_many(sample[:2])
+    t0 = time.perf_counter()
+    evaluator.evaluate_many(sample)
+    per_plan = (time.perf_counter() - t0) / SAMPLE_PLANS
+    return int(max(64, min(CHUNK_SHAPES, CHUNK_SECONDS / max(per_plan, 1e-9))))
+
+
+def chunk_bounds(n_shapes: int, n_workers: int, most: int = CHUNK_SHAPES) -> list[tuple[int, int]]:
     """Index ranges [lo, hi) covering `n_shapes`: enough per worker for a smooth progress display, at most about
-    CHUNK_SHAPES each, and none under 1,000 shapes (a chunk's overhead)."""
-    n_chunks = max(1, min(n_shapes // 1000, max(n_workers * CHUNKS_PER_WORKER, n_shapes // CHUNK_SHAPES)))
+    `most` shapes each, and none under min(1,000, `most`) shapes (a chunk's overhead)."""
+    least = min(1000, most)
+    fewest = -(-n_shapes // most)  # no chunk over `most`
+    n_chunks = max(1, fewest, min(n_shapes // least, max(n_workers * CHUNKS_PER_WORKER, fewest)))
     edges = np.linspace(0, n_shapes, n_chunks + 1).astype(np.int64)
     return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
@@ -148,9 +167,7 @@ def run_exhaustive(
     if address is not None:
         return _on_ray(grid_map, planning, step, thetas, workers, progress, address)
     n_workers = max(1, workers or os.cpu_count() or 1)
-    chunks = chunk_bounds(len(thetas), n_workers)
-    # compile (or load) the kernels before forking
-    planning.evaluator(grid_map).evaluate_many(thetas[:2])
+    chunks = chunk_bounds(len(thetas), n_workers, chunk_shapes(grid_map, planning))  # also compiles the kernels
     p_c = np.zeros(len(thetas))
     p_len = np.zeros(len(thetas), dtype=np.int32)
     feasible = np.zeros(len(thetas), dtype=bool)
@@ -209,7 +226,7 @@ def _on_ray(
 
     with ray_planners(grid_map, planning, address, workers, step) as actors, _stop_requests() as stop:
         t0 = time.perf_counter()
-        chunks = chunk_bounds(len(thetas), len(actors))
+        chunks = chunk_bounds(len(thetas), len(actors), chunk_shapes(grid_map, planning))
         p_c, p_len, feasible, digests = plan_chunks(actors, len(thetas), chunks, stop, progress)
         wall = time.perf_counter() - t0
         n_workers = len(actors)

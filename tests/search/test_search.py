@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import json
 from pathlib import Path
 
@@ -188,3 +189,15 @@ def test_a_floor_too_large_for_the_weights_is_named_with_the_fix(tmp_path, capsy
     assert "the path term swamps coverage" in err and "--path-term per_area" in err
     assert main([*argv, "--path-term", "per_area", "--name", "b"]) == 0
     assert "swamps" not in capsys.readouterr().err
+
+
+def test_chunks_shrink_where_plans_are_slow_so_progress_comes_within_seconds():
+    from smorphi_rl.planning import PAPER_PLANNING
+    from smorphi_rl.search.exhaustive import CHUNK_SHAPES, chunk_bounds, chunk_shapes
+
+    assert chunk_shapes(load_map(MAP_1), PAPER_PLANNING) == CHUNK_SHAPES  # a plan of map-1 takes microseconds
+    for most in (64, 1000, CHUNK_SHAPES):
+        chunks = chunk_bounds(5_929_741, 2, most)
+        assert chunks[0][0] == 0 and chunks[-1][1] == 5_929_741
+        assert all(a == b for (_, a), (b, _) in itertools.pairwise(chunks))  # contiguous
+        assert max(hi - lo for lo, hi in chunks) <= most
