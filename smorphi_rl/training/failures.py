@@ -104,6 +104,7 @@ def fit(tuner: Any, folder: Path, what: str = "training") -> tuple[Any, Failure 
     except Exception as exc:  # KeyboardInterrupt passes: the caller keeps what finished
         if disk_full(folder, [str(exc)]) or disk_full(folder, None):
             return None, _disk_full_failure(folder, what)
-        return None, Failure(f"{what} failed: Tune could not read its results back ({type(exc).__name__}: {exc}; "
-                             f"see the trial folders under {folder})", False)  # fmt: skip
+        said = (str(exc).strip().splitlines() or [""])[0]
+        return None, Failure(f"{what} failed: {type(exc).__name__}{': ' + said if said else ''} (see the trial "
+                             f"folders under {folder})", False)  # fmt: skip
     return results, failure(results, folder, what)
