@@ -17,6 +17,7 @@ from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LI
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
+from smorphi_rl.training.snapshot import snapshot_module, update_lock
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 
 WINDOW = 50
@@ -66,6 +67,7 @@ class MorphologyCallbacks(RLlibCallback):
         from ray.rllib.algorithms.impala import IMPALA  # APPO is an IMPALA
 
         torch.set_num_threads(1 if isinstance(algorithm, IMPALA) else max(1, min(2, os.cpu_count() or 1)))
+        _on_learner_itself(algorithm, lambda learner: update_lock(learner) and None)  # before the first step
         settle_heap()  # the built algorithm's objects live as long as the trial: out of the collector's way
 
     def on_episode_end(
@@ -164,14 +166,24 @@ class MorphologyCallbacks(RLlibCallback):
             return protocol, steps
         from smorphi_rl.training.finetune import push_module_to_runners  # finetune imports this module
 
-        _on_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
+        _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
         return kept[3], int(kept[1])
 
 
 def _on_learner(algorithm: Any, call: Any) -> Any:
-    """`call(module)` on the learner's module (the local learner, or the first remote one)."""
-    (first, *_) = list(algorithm.learner_group.foreach_learner(lambda learner: call(learner.module[DEFAULT_MODULE_ID])))
+    """`call(module)` on a snapshot of the learner's module (the local learner, or the first remote one): a copy
+    holding one update's weights, never the module an asynchronous learner's thread may be writing (`snapshot`)."""
+    return _on_learner_itself(algorithm, lambda learner: call(snapshot_module(learner)))
+
+
+def _on_live_learner(algorithm: Any, call: Any) -> Any:
+    """`call(module)` on the learner's own module (to change it)."""
+    return _on_learner_itself(algorithm, lambda learner: call(learner.module[DEFAULT_MODULE_ID]))
+
+
+def _on_learner_itself(algorithm: Any, call: Any) -> Any:
+    (first, *_) = list(algorithm.learner_group.foreach_learner(call))
     return first.get()
 
 

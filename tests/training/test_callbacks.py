@@ -19,3 +19,70 @@ def test_more_starts_within_one_percent_rank_first_then_the_smaller_median_gap()
     two_in_far = selection_score(_evaluation(89.5, 89.2, 85.0, 85.0))
     assert three_in > two_in_close > two_in_far
     assert selection_score(_evaluation(90.0, 80.0)) == (1, -5.0)
+
+
+def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_optimizer():
+    """A learner thread steps an optimizer that sets every weight to k, one tensor at a time with a pause
+    between (an update under way), for k = 1, 2, ...: a plain copy often holds two updates' weights; a
+    snapshot never does."""
+    import threading
+    import time
+
+    import torch
+    from ray.rllib.core import DEFAULT_MODULE_ID
+
+    from smorphi_rl.training.snapshot import snapshot_module, snapshot_state, update_lock
+
+    class SlowStep(torch.optim.Optimizer):
+        def __init__(self, params):
+            super().__init__(params, {})
+            self.k = 0
+
+        @torch.no_grad()
+        def step(self, closure=None):
+            self.k += 1
+            for group in self.param_groups:
+                for p in group["params"]:
+                    p.fill_(float(self.k))
+                    time.sleep(0.0005)
+
+    module = torch.nn.Sequential(torch.nn.Linear(8, 8), torch.nn.Linear(8, 8), torch.nn.Linear(8, 2))
+    optimizer = SlowStep(module.parameters())
+
+    class Learner:
+        def __init__(self):
+            self.module = {DEFAULT_MODULE_ID: module}
+
+        def get_optimizers_for_module(self, module_id):
+            return [("default_optimizer", optimizer)]
+
+    learner = Learner()
+    update_lock(learner)  # as the callbacks do before training starts
+    stop = threading.Event()
+
+    def learn() -> None:
+        while not stop.is_set():
+            optimizer.step()
+            time.sleep(0.002)
+
+    def torn(state: dict) -> bool:
+        return len({float(v.flatten()[0]) for v in state.values()}) > 1
+
+    thread = threading.Thread(target=learn, daemon=True)
+    thread.start()
+    try:
+        plain, snapshots = [], []
+        for copies, copy in ((plain, lambda: {k: v.clone() for k, v in module.state_dict().items()}),
+                             (snapshots, lambda: snapshot_state(learner))):  # fmt: skip
+            end = time.monotonic() + 0.3
+            while time.monotonic() < end:
+                copies.append(torn(copy()))
+                time.sleep(0.0002)
+        twin = snapshot_module(learner)
+    finally:
+        stop.set()
+        thread.join()
+    assert any(plain)  # the test can fail: unguarded copies are torn
+    assert not any(snapshots)
+    assert twin is not module and not torn(twin.state_dict())
+    assert optimizer.k > 10  # the learner kept learning meanwhile

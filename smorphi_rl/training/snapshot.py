@@ -1,0 +1,58 @@
+"""Consistent copies of a learner's module, for evaluating while an asynchronous learner trains.
+
+IMPALA's and APPO's learner thread steps the optimizer while the driver evaluates the policy; a copy taken
+during a step holds two updates' weights. Every optimizer of the learner's module gets a lock held for the
+length of its step (torch's public `register_step_pre_hook` / `register_step_post_hook`), and a snapshot is
+copied under that lock, so it holds the weights of one update. The evaluation then runs on a copy of the
+module, never on the module the thread writes. PPO learns in the driver's thread: the lock is never contended.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+import weakref
+from typing import Any
+
+from ray.rllib.core import DEFAULT_MODULE_ID
+
+_LOCKS: weakref.WeakKeyDictionary[Any, threading.Lock] = weakref.WeakKeyDictionary()
+
+
+def update_lock(learner: Any) -> threading.Lock:
+    """The lock held while any optimizer of the learner's module steps; hooks registered on first use (call it
+    before training starts: a step already under way when the hooks arrive releases nothing it did not take)."""
+    lock = _LOCKS.get(learner)
+    if lock is not None:
+        return lock
+    lock = _LOCKS[learner] = threading.Lock()
+    for _, optimizer in learner.get_optimizers_for_module(DEFAULT_MODULE_ID):
+        held = threading.local()
+
+        def before(*_: Any, held: Any = held) -> None:
+            lock.acquire()
+            held.on = True
+
+        def after(*_: Any, held: Any = held) -> None:
+            if getattr(held, "on", False):
+                held.on = False
+                lock.release()
+
+        optimizer.register_step_pre_hook(before)
+        optimizer.register_step_post_hook(after)
+    return lock
+
+
+def snapshot_state(learner: Any) -> dict[str, Any]:
+    """A copy of the learner module's weights, taken while no optimizer step is under way."""
+    module = learner.module[DEFAULT_MODULE_ID]
+    with update_lock(learner):
+        return {name: value.detach().clone() for name, value in module.state_dict().items()}
+
+
+def snapshot_module(learner: Any) -> Any:
+    """A copy of the learner's module holding `snapshot_state(learner)`: evaluated without touching the live one."""
+    state = snapshot_state(learner)
+    twin = copy.deepcopy(learner.module[DEFAULT_MODULE_ID])
+    twin.load_state_dict(state)
+    return twin
