@@ -17,6 +17,7 @@ import time
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
+from multiprocessing import connection as mp_connection
 from typing import Any
 
 import numpy as np
@@ -82,22 +83,32 @@ def _init(map_path: str, planning: Planning, parent: int, step: float) -> None:
     _worker = planning.evaluator(load_map(map_path), cache_limit=WORKER_CACHE_FOOTPRINTS)
 
 
-def _chunk(bounds: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
+def _chunk(bounds: tuple[int, int]) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
     """Metrics of the lattice's rows [lo, hi), and short digests of the footprints this worker planned for them
     (new ones only)."""
-    if _worker is None or _lattice is None:  # pragma: no cover (the pool initializer always runs first)
+    if _worker is None or _lattice is None:  # pragma: no cover (the initializer always runs first)
         raise RuntimeError("worker not initialised")
     batch = _worker.evaluate_many(_lattice[bounds[0] : bounds[1]])
     keys = _worker.drain_planned()
     digests = {hashlib.blake2b(key, digest_size=8).digest() for key in keys}
-    return batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
+    return bounds[0], bounds[1], batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
+
+
+def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: float) -> None:
+    """A worker: index ranges in, their metrics out, over its own pipe (no lock shared with any other process,
+    so killing a worker anywhere can never block the parent), until it is sent None."""
+    try:
+        _init(map_path, planning, parent, step)
+        while (bounds := conn.recv()) is not None:
+            conn.send(_chunk(bounds))
+    except Exception as exc:  # said by the parent in one line, not as a worker's traceback
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
 
 
 @contextmanager
 def _stop_requests() -> Iterator[threading.Event]:
-    """While the pool runs, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread happens to
-    be (a KeyboardInterrupt inside multiprocessing's locks can deadlock the pool's shutdown); `_wait` raises it
-    at a safe point. Outside the main thread, nothing is changed."""
+    """While the workers run, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread happens
+    to be; the search's loop checks it every 0.1 s and stops there. Outside the main thread, nothing is changed."""
     stop = threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield stop
@@ -110,17 +121,6 @@ def _stop_requests() -> Iterator[threading.Event]:
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
-
-
-def _wait(future: Any, stop: threading.Event) -> Any:
-    """The chunk's result, checking for a stop request every 0.1 s."""
-    while True:
-        if stop.is_set():
-            raise KeyboardInterrupt
-        try:
-            return future.get(timeout=0.1)
-        except mp.TimeoutError:
-            continue
 
 
 CHUNK_SECONDS = 1.0
@@ -176,31 +176,53 @@ def run_exhaustive(
     context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     global _lattice
     _lattice = thetas  # the forked workers read their chunks from here
-    pool = context.Pool(n_workers, initializer=_init, initargs=(str(map_path), planning, os.getpid(), step))
+    workers_: list[tuple[Any, Any]] = []
+    finished = False
     try:
+        for _ in range(n_workers):
+            here, there = context.Pipe()
+            proc = context.Process(target=_serve, args=(there, str(map_path), planning, os.getpid(), step), daemon=True)
+            proc.start()
+            there.close()
+            workers_.append((proc, here))
         with _stop_requests() as stop:
-            pending: deque[tuple[int, Any]] = deque()
-            queued = iter(range(len(chunks)))
-            for i in itertools.islice(queued, IN_FLIGHT_PER_WORKER * n_workers):  # a few chunks ahead, not all
-                pending.append((i, pool.apply_async(_chunk, (chunks[i],))))
-            done = 0
+            queued = deque(chunks)
+            for (_, conn), _ in itertools.product(workers_, range(IN_FLIGHT_PER_WORKER)):  # a few ahead, not all
+                if queued:
+                    conn.send(queued.popleft())
+            done, pending = 0, len(chunks)
+            alive = {conn: proc for proc, conn in workers_}
             while pending:
-                i, future = pending.popleft()
-                c_pc, c_len, c_ok, c_digests = _wait(future, stop)
-                for j in itertools.islice(queued, 1):
-                    pending.append((j, pool.apply_async(_chunk, (chunks[j],))))
-                lo, hi = chunks[i]
-                p_c[lo:hi], p_len[lo:hi], feasible[lo:hi] = c_pc, c_len, c_ok
-                digests |= c_digests
-                done += hi - lo
-                if progress is not None:
-                    progress(done, len(thetas))
-        pool.close()
-    except BaseException:  # Ctrl-C, SIGTERM, an error: the workers stop now, not when their chunk ends
-        pool.terminate()
-        raise
-    finally:
-        pool.join()
+                if stop.is_set():
+                    raise KeyboardInterrupt
+                ready: list[Any] = list(mp_connection.wait(list(alive), timeout=0.1))
+                for conn in ready:
+                    try:
+                        answer = conn.recv()
+                    except EOFError:
+                        raise SmorphiError(f"a search worker died (exit code {alive[conn].exitcode})") from None
+                    if answer[0] == "error":
+                        raise SmorphiError(f"a search worker failed: {answer[1]}")
+                    lo, hi, c_pc, c_len, c_ok, c_digests = answer
+                    if queued:
+                        conn.send(queued.popleft())
+                    p_c[lo:hi], p_len[lo:hi], feasible[lo:hi] = c_pc, c_len, c_ok
+                    digests |= c_digests
+                    done, pending = done + hi - lo, pending - 1
+                    if progress is not None:
+                        progress(done, len(thetas))
+        for _, conn in workers_:
+            conn.send(None)
+        finished = True
+    finally:  # Ctrl-C, SIGTERM, an error or the end: every worker is gone before this returns
+        for proc, conn in workers_:
+            if not finished:
+                proc.kill()  # at once, wherever it is: it shares no lock with anyone
+            proc.join(timeout=5.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+            conn.close()
         _lattice = None
     params = {
         "step_deg": step,
