@@ -41,38 +41,23 @@ RAY_CURRENT_CLUSTER = "ray_current_cluster"
 `--address auto` attaches to (Ray 2.60), unless RAY_ADDRESS names one."""
 
 
-def _gcs_running() -> bool:
-    """Whether a Ray GCS server runs on this machine (Linux: by /proc; elsewhere assumed, and Ray decides)."""
-    if not os.path.isdir("/proc"):
-        return True
-    for pid in os.listdir("/proc"):
-        try:
-            with open(f"/proc/{pid}/comm") as fh:
-                if fh.read().strip() == "gcs_server":
-                    return True
-        except OSError:
-            continue
-    return False
-
-
 def auto_address() -> str | None:
-    """What `--address auto` resolves to, as Ray resolves it: RAY_ADDRESS, else the address the latest
-    `ray start` on this machine recorded, else "auto" itself while any Ray runs here (Ray then attaches to it);
-    None when there is nothing to attach to."""
+    """What `--address auto` attaches to: RAY_ADDRESS, else the address the latest `ray start` on this machine
+    recorded; None when neither exists. (Ray itself would also attach to any Ray running here, such as another
+    run's private local Ray, and fail inside it: not a cluster to share.)"""
     if os.environ.get("RAY_ADDRESS", "").strip() not in ("", "auto"):
         return os.environ["RAY_ADDRESS"].strip()
     recorded = os.path.join(os.environ.get("RAY_TMPDIR", "/tmp/ray"), RAY_CURRENT_CLUSTER)
     try:
         with open(recorded) as fh:
-            address = fh.read().strip()
+            return fh.read().strip() or None
     except OSError:
-        address = ""
-    return address or ("auto" if _gcs_running() else None)
+        return None
 
 
 def check_reachable(address: str | None) -> None:
     """Fail fast, before Ray starts (and before any optimum is computed), when the cluster an address names does
-    not answer; `auto` is resolved first, as Ray resolves it."""
+    not answer; `auto` is resolved first (`auto_address`)."""
     if address is None:
         return
     if address == "auto":
@@ -121,6 +106,8 @@ def ray_session(address: str | None) -> Iterator[None]:
     """A local Ray started for this run (address None), or a connection to an existing cluster."""
     import ray
 
+    if address == "auto":
+        address = auto_address() or address  # the recorded cluster, not whichever Ray Ray's own "auto" finds
     if address is None:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
     # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
