@@ -7,6 +7,7 @@ area's sides, the resolution against the block) and refuses others in one line.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -67,7 +68,14 @@ def load_designer(path: Path) -> Designer:
 
 def accepts(designer: Designer, grid_map: Map) -> None:
     """Refuse, naming the limit, a floor the designer's observation cannot represent."""
-    limits = {**ACCEPTS, **dict(designer.policy.meta.get("accepts") or {})}
+    given = designer.policy.meta.get("accepts") or {}
+    if not isinstance(given, dict) or not all(
+        k in ACCEPTS and isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+        for k, v in given.items()
+    ):
+        raise SmorphiError(f"{designer.path}: its policy.json's 'accepts' must map {', '.join(ACCEPTS)} to positive "
+                           "numbers")  # fmt: skip
+    limits = {**ACCEPTS, **given}
     r = grid_map.resolution_m
     rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
     sides = ((rows.max() - rows.min() + 1) * r, (cols.max() - cols.min() + 1) * r)

@@ -267,11 +267,6 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             check_block_side(cfg.block_side_m, grid_map.resolution_m)
         except SmorphiError as exc:
             raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
-        side = cfg.block_side_m / grid_map.resolution_m
-        if min(grid_map.cells.shape) < side:
-            h, w = grid_map.cells.shape
-            raise EnvConfigError(f"map {grid_map.name} ({w} x {h} cells of {grid_map.resolution_m:g} m) is narrower "
-                                 f"than one block ({cfg.block_side_m:g} m): no shape can clean any of it")  # fmt: skip
         try:
             cfg.planning.start_on(grid_map)
         except SmorphiError as exc:

@@ -22,6 +22,10 @@ SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.y
 """The default map of every command and of the env: map-1, shipped beside the package."""
 
 
+MIN_RESOLUTION_M, MAX_RESOLUTION_M = 0.001, 10.0
+"""A map file's cell size: a millimetre to ten metres (ROS maps are 0.01-0.1 m); beyond, the file is wrong."""
+
+
 class Cell(enum.IntEnum):
     """State of one map cell."""
 
@@ -208,8 +212,9 @@ def load_map(yaml_path: str | Path) -> Map:
     if not isinstance(image, str) or not image:
         raise MapError(f"{path}: 'image' must be a file name, got {image!r}")
     resolution = _number(meta, "resolution", path)
-    if resolution <= 0:
-        raise MapError(f"{path}: 'resolution' must be > 0, got {resolution}")
+    if not MIN_RESOLUTION_M <= resolution <= MAX_RESOLUTION_M:
+        raise MapError(f"{path}: 'resolution' must be {MIN_RESOLUTION_M:g}-{MAX_RESOLUTION_M:g} m a cell, got "
+                       f"{resolution:g}")  # fmt: skip
     origin = meta.get("origin", [0.0, 0.0, 0.0])
     if (
         not isinstance(origin, list)

@@ -39,9 +39,20 @@ class NumpyPolicy:
         self.freqs = (np.arange(1, frequencies + 1, dtype=np.float32) * np.float32(math.pi)).astype(np.float32)
         self.extras = tuple(k for k in EXTRA_KEYS if k in observation)
         width = sum(int(np.prod(observation[k])) for k in self.extras) + 3 * (1 + 2 * frequencies) + self.fc[0].shape[0]
-        if self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec):
-            raise SmorphiError("the policy's layers do not fit its observation and action sizes")
+        if self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec) or not self._chained():
+            raise SmorphiError("the policy's layers do not fit its observation and action sizes, or each other")
         self._kept: tuple[np.ndarray, np.ndarray] | None = None
+
+    def _chained(self) -> bool:
+        """Each layer's bias fits its weight and each layer's input the layer before's output."""
+        (c0, _), (c1, _) = self.conv
+        layers = [self.fc, *self.mlp, self.head]
+        shapes_ok = c0.ndim == c1.ndim == 4 and all(w.ndim == 2 for w, _ in layers)
+        if not shapes_ok or any(b.shape != (w.shape[0],) for w, b in [*self.conv, *layers]):
+            return False
+        return (c1.shape[1] == c0.shape[0] and self.fc[0].shape[1] == c1.shape[0] * POOL * POOL
+                and self.mlp[1][0].shape[1] == self.mlp[0][0].shape[0]
+                and self.head[0].shape[1] == self.mlp[1][0].shape[0])  # fmt: skip
 
     def map_features(self, picture: np.ndarray) -> np.ndarray:
         """The map branch's 64 features of one (C, S, S) uint8 picture (kept for the last picture seen)."""

@@ -92,6 +92,18 @@ class BatchResult:
         )
 
 
+def check_fits(grid_map: Map, block_side_m: float) -> float:
+    """The block side, checked against the map's cells (`check_block_side`) and its size: a map narrower than one
+    block holds no robot."""
+    side = check_block_side(block_side_m, grid_map.resolution_m)
+    if min(grid_map.cells.shape) * grid_map.resolution_m < side:
+        h, w = grid_map.cells.shape
+        size = f"{w} x {h} cells of {grid_map.resolution_m:g} m"
+        raise MorphologyError(f"map {grid_map.name} ({size}) is narrower than one block ({side:g} m): the robot "
+                              "does not fit on it")  # fmt: skip
+    return side
+
+
 def validate_thetas(thetas: np.ndarray) -> np.ndarray:
     """(N, 3) float64 array of finite angles in [0, 180], or a MorphologyError naming row and value."""
     arr = np.asarray(thetas, dtype=np.float64)
@@ -118,7 +130,7 @@ class Evaluator:
         planner: Planner = Planner.PAPER,
         cache_limit: int | None = None,
     ) -> None:
-        self.block_side_m = check_block_side(block_side_m, grid_map.resolution_m)
+        self.block_side_m = check_fits(grid_map, block_side_m)
         self.start = start
         self.use_cache = cache
         self.planner = planner

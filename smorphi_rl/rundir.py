@@ -187,10 +187,24 @@ def claimed_files(paths: list[Path], force: bool = False, taken: str = FORCE_HIN
         raise
 
 
+def _check_parent(path: Path) -> None:
+    """The nearest existing folder above `path` is a folder (not a file or a device such as /dev/full)."""
+    above = path.parent
+    try:
+        while not above.exists() and above != above.parent:
+            above = above.parent
+        ok = above.is_dir()
+    except OSError:
+        ok = False
+    if not ok:
+        raise RunDirError(f"cannot write {path}: {above} is not a folder")
+
+
 @contextmanager
 def _write_lock(path: Path) -> Iterator[None]:
     """`.NAME.lock` beside `path`, created with O_EXCL for the block and removed after it."""
     lock = path.with_name(f".{path.name}.lock")
+    _check_parent(path)
     try:
         lock.parent.mkdir(parents=True, exist_ok=True)
         os.close(os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644))
@@ -212,6 +226,8 @@ def claim_files(paths: list[Path], force: bool = False, taken: str = FORCE_HINT)
     if force:
         return
     made: list[Path] = []
+    for path in paths:
+        _check_parent(path)
     try:
         for path in paths:
             path.parent.mkdir(parents=True, exist_ok=True)

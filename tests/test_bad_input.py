@@ -56,7 +56,7 @@ def test_a_resolution_yaml_reads_as_text_is_still_a_number(tmp_path, capsys):
     image = Path(MAP_1).with_suffix(".pgm")
     (tmp_path / "m.yaml").write_text(text.replace("image: map-1.pgm", f"image: {image}"))
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "10", "20", "30")
-    assert code == 1 and "spans" in one_line(err)  # a block of 0.17 m is far too many cells of 1e-9 m
+    assert code == 1 and "'resolution' must be 0.001-10 m a cell, got 1e-09" in one_line(err)  # read as a number
 
 
 def test_a_generated_map_too_large_is_refused(tmp_path, capsys):
@@ -286,6 +286,14 @@ def test_an_image_header_beyond_pillows_own_limit_is_one_line(tmp_path, capsys):
     (["train", "--address", "ray://127.0.0.1:1"], "cannot reach a Ray cluster at ray://127.0.0.1:1"),
     (["train", "--map", "{tmp}/none/*.yaml"], "map glob '{tmp}/none/*.yaml' matches no map YAML"),
     (["evaluate", "--angles-file", ""], "--angles-file: give the path of a CSV"),
+    (["evaluate", "--angles", "1", "2", "3", "--start", ""], "--start: give tile:A,B or xy:X,Y"),
+    (["maps", "generate", "--out", "/dev/full/x.yaml"], "cannot write /dev/full/x.yaml: /dev/full is not a folder"),
+    (["maps", "generate", "--out", "/dev/full/x.yaml", "--force"], "/dev/full is not a folder"),
+    (["maps", "generate", "--out", "{tmp}/m.yaml", "--count", "3"], "--count: writes a set of --kind floor plans"),
+    (["maps", "crop", MAP_1, "--out", "{tmp}/c.yaml", "--rect", "0", "0", "1", "1", "--margin", "0.5"],
+     "--margin: applies to a crop to the known area"),
+    (["search", "nsga2", "--pop", "100000000"], "(a smaller --pop or fewer --generations)"),
+    (["search", "random", "--samples", "60000000"], "(fewer --samples)"),
 ])  # fmt: skip
 def test_nonsense_is_refused_in_one_line(tmp_path, capsys, argv, message):
     code, _, err = run(capsys, *(a.format(tmp=tmp_path) for a in argv))
@@ -332,3 +340,38 @@ def test_two_forced_writers_of_one_map_never_mix_their_files(tmp_path, capsys):
     code, _, err = run(capsys, "maps", "generate", "--out", str(tmp_path / "m.yaml"), "--force")
     assert code == 1 and "is being written by another process" in one_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == [".m.yaml.lock"]
+
+
+def test_a_map_narrower_than_one_block_is_refused_where_shapes_are_planned(tmp_path, capsys):
+    (tmp_path / "one.pgm").write_bytes(b"P5 1 1 255\n\xfe")
+    (tmp_path / "one.yaml").write_text("image: one.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+                                       "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    for argv in (["search", "random", "--samples", "5", "--log-dir", str(tmp_path / "logs")], ["design"]):
+        code, _, err = run(capsys, *argv, "--map", str(tmp_path / "one.yaml"))
+        assert code == 1 and "is narrower than one block (0.17 m)" in one_line(err)
+    assert not (tmp_path / "logs").exists()
+
+
+def test_crop_names_the_file_that_is_in_the_way(tmp_path, capsys):
+    (tmp_path / "c.pgm").write_bytes(b"not ours")
+    code, _, err = run(capsys, "maps", "crop", MAP_1, "--out", str(tmp_path / "c.yaml"))
+    assert code == 1 and f"{tmp_path / 'c.pgm'} exists; pass --force" in one_line(err)
+    assert (tmp_path / "c.pgm").read_bytes() == b"not ours"
+
+
+def test_an_angles_file_whose_first_row_holds_a_nan_names_that_row(tmp_path, capsys):
+    (tmp_path / "a.csv").write_text("90,90,nan\n")
+    code, _, err = run(capsys, "evaluate", "--angles-file", str(tmp_path / "a.csv"))
+    assert code == 1 and "line 1: expected three numbers" in one_line(err)
+
+
+def test_a_designer_whose_limits_are_not_numbers_is_refused(tmp_path, capsys):
+    import json
+    import shutil
+
+    policy = tmp_path / "designer"
+    shutil.copytree(ROOT / "smorphi_rl" / "policies" / "designer", policy)
+    meta = json.loads((policy / "policy.json").read_text())
+    (policy / "policy.json").write_text(json.dumps(meta | {"accepts": {"max_side_m": "x"}}))
+    code, _, err = run(capsys, "design", "--policy", str(policy), "--budget", "20")
+    assert code == 1 and "'accepts' must map" in one_line(err)

@@ -149,7 +149,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["--map", "{missing.yaml}", "--angles", "1", "2", "3"], "map file not found"),
         (["--map", "{malformed.yaml}", "--angles", "1", "2", "3"], "malformed YAML"),
         (["--map", "{nores.yaml}", "--angles", "1", "2", "3"], "missing key 'resolution'"),
-        (["--map", "{zero.yaml}", "--angles", "1", "2", "3"], "'resolution' must be > 0"),
+        (["--map", "{zero.yaml}", "--angles", "1", "2", "3"], "'resolution' must be 0.001-10 m a cell"),
         (["--map", "{noimage.yaml}", "--angles", "1", "2", "3"], "map image not found"),
         (["--map", "{black.yaml}", "--angles", "1", "2", "3"], "has no free cell"),
         (["--angles", "1", "2", "181"], "outside [0, 180]"),

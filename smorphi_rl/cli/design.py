@@ -14,6 +14,7 @@ from typing import Any
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, rel
 from smorphi_rl.design import DEFAULT_BUDGET
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import output_file
 from smorphi_rl.maps import map_inputs
@@ -43,6 +44,8 @@ def cmd_design(args: argparse.Namespace) -> int:
 
     t0 = time.perf_counter()
     check_budget(args.budget)
+    if args.exact and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
+        raise SmorphiError(f"--log-dir {args.log_dir}: not a folder (--exact caches the optimum under it)")
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(str(args.map)))
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))

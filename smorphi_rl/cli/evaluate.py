@@ -80,8 +80,8 @@ def _read_angles_rows(path: Path) -> np.ndarray:
         raise SmorphiError(f"angles file not found: {path}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
-    if rows and not _is_numeric_row(rows[0][1]):
-        rows = rows[1:]  # header
+    if rows and not any(_is_number(c) for c in rows[0][1]):
+        rows = rows[1:]  # a header: no cell reads as a number (a row with a NaN is data, and named below)
     if not rows:
         raise SmorphiError(f"{path}: no angles in the file (expected rows of t1,t2,t3)")
     out = np.empty((len(rows), 3))
@@ -103,10 +103,20 @@ def _is_numeric_row(row: Sequence[str]) -> bool:
         return False
 
 
+def _is_number(cell: str) -> bool:
+    try:
+        float(cell)
+    except ValueError:
+        return False
+    return True
+
+
 def parse_start(text: str | None, grid_map: Map) -> Start:
     """--start tile:A,B (a tile of the resized map) or xy:X,Y (a free point, metres)."""
     if text is None:
         return Start()
+    if not text.strip():
+        raise SmorphiError("--start: give tile:A,B or xy:X,Y (or leave the option out for the planner's default)")
     kind, _, rest = text.partition(":")
     parts = rest.split(",")
     if kind not in ("tile", "xy") or len(parts) != 2:
@@ -131,6 +141,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
     if (args.angles is None) == (args.angles_file is None):
         raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
+    if args.start is not None and not args.start.strip():
+        raise SmorphiError("--start: give tile:A,B or xy:X,Y (or leave the option out for the planner's default)")
     if args.angles_file is not None and args.plot is not None:
         raise SmorphiError("--plot draws one morphology: use it with --angles")
     if args.path and not (args.json and args.angles):

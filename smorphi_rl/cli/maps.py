@@ -15,6 +15,9 @@ from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.inputs import MAX_SEED, finite, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
 
+CROP_MARGIN_M = 0.2
+"""`maps crop`'s margin around the known cells, metres."""
+
 
 def register(sub: Any) -> None:
     """Add `maps` and its subcommands to the command line."""
@@ -48,7 +51,7 @@ def register(sub: Any) -> None:
         metavar=("X0", "Y0", "X1", "Y1"),
         help="keep this rectangle, metres in the map frame (default: the known cells and a margin)",
     )
-    crop.add_argument("--margin", type=finite, default=0.2, metavar="M",
+    crop.add_argument("--margin", type=finite, default=CROP_MARGIN_M, metavar="M",
                       help="metres kept around the known cells (default 0.2)")  # fmt: skip
     resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
     resample.add_argument("--resolution", type=finite, required=True, metavar="R",
@@ -73,6 +76,8 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
 
     if args.kind is not None:
         return _generate_floors(args)
+    if args.count != 1:
+        raise SmorphiError("--count: writes a set of --kind floor plans; the rectangle generator writes one map")
 
     out = Path(args.out)
     if out.suffix != ".yaml":
@@ -144,6 +149,9 @@ def cmd_maps_crop(args: argparse.Namespace) -> int:
     """Cut a map to its known area (or a rectangle) into a new map_server YAML."""
     from smorphi_rl.maptools import crop_to_known, crop_to_rect
 
+    if args.rect is not None and args.margin != CROP_MARGIN_M:
+        raise SmorphiError("--margin: applies to a crop to the known area; --rect gives the rectangle itself")
+
     def crop(source: Map) -> Map:
         return crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
 
@@ -168,10 +176,11 @@ def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
         raise SmorphiError(f"--out {out}: give the map's YAML path, ending in .yaml")
     if resolved(Path(args.map), "map") == resolved(out, "--out"):
         raise SmorphiError(f"--out {out} is the input map: write the new map somewhere else")
-    if not args.force and (out.exists() or out.with_suffix(".pgm").exists()):
-        raise SmorphiError(f"{out} exists; pass --force to overwrite it")
     if resolved(out.with_suffix(".pgm"), "--out") in {resolved(Path(p), "map") for p in map_inputs(args.map)}:
         raise SmorphiError(f"--out {out}: its image would replace the input map's image; write it elsewhere")
+    taken = next((p for p in (out, out.with_suffix(".pgm")) if p.exists()), None)
+    if not args.force and taken is not None:
+        raise SmorphiError(f"{taken} exists; pass --force to overwrite it")
     source = load_map(args.map)
     grid_map, islands = drop_islands(transform(source), args.min_island)
     from smorphi_rl.rundir import claimed_files

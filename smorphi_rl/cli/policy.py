@@ -10,7 +10,7 @@ from typing import Any
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, rel, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import output_file
+from smorphi_rl.inputs import output_file, resolved
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 
@@ -56,18 +56,22 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.export import export_policy
 
     out = Path(args.out)
+    resolved(out, "--out")  # a symlink loop: one line
     if out.exists() and not out.is_dir():
         raise SmorphiError(f"--out {out} is a file, not a folder: give the folder the policy goes to")
     if out.exists() and any(out.iterdir()):
         raise SmorphiError(f"--out {out} is a folder that holds files already: choose another")
     checkpoint = find_checkpoint(args.checkpoint)
+    from smorphi_rl.training.checkpoints import load_module
+
+    module = load_module(checkpoint)  # a checkpoint that is refused is refused before --out is made
     about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
     from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
     from smorphi_rl.rundir import claimed_files
 
     with claimed_files([out / POLICY_JSON, out / WEIGHTS_NPZ], taken="another export is writing there: choose another "
                        "--out"):  # of two exports into one folder, exactly one writes it  # fmt: skip
-        written = export_policy(checkpoint, out, about)
+        written = export_policy(checkpoint, out, about, module)
     size = sum(p.stat().st_size for p in written.iterdir())
     print(f"policy   {rel(checkpoint)}\nwrote    {rel(written)} (policy.json, weights.npz: {size / 1024:.0f} KiB)")
     return 0

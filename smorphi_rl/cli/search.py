@@ -87,6 +87,9 @@ def cmd_search(args: argparse.Namespace) -> int:
     w = weights(args)
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
+    from smorphi_rl.planning import check_fits
+
+    check_fits(grid_map, planning.block_side_m)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     address = getattr(args, "address", None)
     cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options, address=address)

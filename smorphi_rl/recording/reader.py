@@ -119,7 +119,7 @@ def read_episode(path: str | Path) -> Episode:
             complete = False
     if not topics or not any(t in OUR_TOPICS for t in topics.values()):
         cut = not complete and not topics
-        what = "is cut short before any channel" if cut else "holds none of smorphi-rl's channels"
+        what = "is damaged or cut short before any channel" if cut else "holds none of smorphi-rl's channels"
         raise RecordingError(f"{path}: {what} ({', '.join(OUR_TOPICS)})")
     steps = by_topic[TOPIC_STEP]
     if not steps:

@@ -9,10 +9,10 @@ from smorphi_rl.policy_file import write_policy
 from smorphi_rl.training.checkpoints import TARGET_PREFIX, load_module
 
 
-def export_policy(checkpoint: Path, out_dir: Path, about: dict[str, Any]) -> Path:
+def export_policy(checkpoint: Path, out_dir: Path, about: dict[str, Any], module: Any = None) -> Path:
     """Write the policy and value nets of `checkpoint` (read safely) to `out_dir` with `about` (where it came from,
     its figures) beside them; APPO's target net is left out (fine-tuning rebuilds it from the policy)."""
-    module = load_module(checkpoint)
+    module = module if module is not None else load_module(checkpoint)
     weights = {k: v.detach().numpy() for k, v in module.state_dict().items() if not k.startswith(TARGET_PREFIX)}
     observation = {k: tuple(int(d) for d in space.shape) for k, space in module.observation_space.spaces.items()}
     nvec = [int(n) for n in module.action_space.nvec]
