@@ -346,7 +346,11 @@ def test_a_map_narrower_than_one_block_is_refused_where_shapes_are_planned(tmp_p
     (tmp_path / "one.pgm").write_bytes(b"P5 1 1 255\n\xfe")
     (tmp_path / "one.yaml").write_text("image: one.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
                                        "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
-    for argv in (["search", "random", "--samples", "5", "--log-dir", str(tmp_path / "logs")], ["design"]):
+    for argv in (
+        ["search", "random", "--samples", "5", "--log-dir", str(tmp_path / "logs")],
+        ["design"],
+        ["evaluate", "--angles", "1", "2", "3"],
+    ):
         code, _, err = run(capsys, *argv, "--map", str(tmp_path / "one.yaml"))
         assert code == 1 and "is narrower than one block (0.17 m)" in one_line(err)
     assert not (tmp_path / "logs").exists()
