@@ -368,3 +368,17 @@ def generate_map(
         occupied, count = trial, count + added
     cells = np.where(occupied, Cell.OCCUPIED, Cell.FREE).astype(np.uint8)
     return Map(cells, resolution_m, name=name)
+
+
+def check_fits(grid_map: Map, block_side_m: float) -> float:
+    """The block side, checked against the map's cells (`geometry.check_block_side`) and its size: a map narrower
+    than one block holds no robot."""
+    from smorphi_rl.geometry import check_block_side
+
+    side = check_block_side(block_side_m, grid_map.resolution_m)
+    if min(grid_map.cells.shape) * grid_map.resolution_m < side:
+        h, w = grid_map.cells.shape
+        size = f"{w} x {h} cells of {grid_map.resolution_m:g} m"
+        raise MapError(f"map {grid_map.name} ({size}) is narrower than one block ({side:g} m): the robot does not "
+                       "fit on it")  # fmt: skip
+    return side

@@ -27,8 +27,8 @@ from smorphi_rl.coverage import (
     result_dict,
 )
 from smorphi_rl.errors import MorphologyError
-from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology, check_block_side
-from smorphi_rl.maps import Map
+from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.maps import Map, check_fits
 
 _PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_BOUND]  # what the cache holds per F
 
@@ -90,18 +90,6 @@ class BatchResult:
                 strict=True,
             )
         )
-
-
-def check_fits(grid_map: Map, block_side_m: float) -> float:
-    """The block side, checked against the map's cells (`check_block_side`) and its size: a map narrower than one
-    block holds no robot."""
-    side = check_block_side(block_side_m, grid_map.resolution_m)
-    if min(grid_map.cells.shape) * grid_map.resolution_m < side:
-        h, w = grid_map.cells.shape
-        size = f"{w} x {h} cells of {grid_map.resolution_m:g} m"
-        raise MorphologyError(f"map {grid_map.name} ({size}) is narrower than one block ({side:g} m): the robot "
-                              "does not fit on it")  # fmt: skip
-    return side
 
 
 def validate_thetas(thetas: np.ndarray) -> np.ndarray:

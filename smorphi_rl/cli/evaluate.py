@@ -157,7 +157,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
-    from smorphi_rl.planning import check_fits
+    from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, args.block_side)  # a map narrower than one block holds no robot
     if thetas is not None:

@@ -87,7 +87,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     w = weights(args)
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
-    from smorphi_rl.planning import check_fits
+    from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, planning.block_side_m)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
