@@ -40,6 +40,10 @@ class ShapePlanner:
         digests = {hashlib.blake2b(key, digest_size=8).digest() for key in self.evaluator.drain_planned()}
         return lo, hi, batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
 
+    def ready(self) -> bool:
+        """True once the actor holds its planner (its kernels loaded): start-up is over."""
+        return True
+
     def plan(self, thetas: np.ndarray) -> BatchResult:
         """`Evaluator.evaluate_many` of these shapes."""
         return self.evaluator.evaluate_many(thetas)
@@ -64,6 +68,7 @@ def ray_planners(
         map_ref = ray.put(grid_map)
         actors = [actor_class.remote(map_ref, planning, step) for _ in range(n)]
         try:
+            ray.get([a.ready.remote() for a in actors])  # start-up (map, kernels, lattice) before any work is timed
             yield actors
         finally:
             for actor in actors:
@@ -93,7 +98,10 @@ def plan_chunks(
         while idle and queued:
             actor = idle.popleft()
             pending[actor.chunk.remote(*queued.popleft())] = actor
-        ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.1)
+        ready, rest = ray.wait(list(pending), num_returns=1, timeout=0.1)
+        if ready and rest:  # and every other chunk already done, without waiting
+            more, _ = ray.wait(rest, num_returns=len(rest), timeout=0)
+            ready += more
         if stop.is_set():
             raise KeyboardInterrupt
         for ref in ready:
