@@ -9,6 +9,7 @@ method's set is measured against the same point and the exact front scores 1.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -90,8 +91,22 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
         label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
         found = summary.get("evaluation")
         evaluation: dict[str, Any] = found if isinstance(found, dict) else {}
+        settled = evaluation.get(map_name)
+        if settled is not None and not (
+            isinstance(settled, dict)
+            and all(
+                isinstance(settled.get(k), int | float)
+                and not isinstance(settled.get(k), bool)
+                and math.isfinite(settled[k])
+                for k in ("median_gap", "share_within_1pct")
+            )
+        ):
+            raise SmorphiError(f"{run_dir / 'summary.json'}: its evaluation on '{map_name}' is not what smorphi-rl "
+                               "writes (median_gap and share_within_1pct as numbers)")  # fmt: skip
+        if steps < 0:
+            raise SmorphiError(f"{run_dir / 'summary.json'}: env_steps {steps} is negative")
         return (label, f"{steps:,} env steps", thetas, np.array([f.P_c for f in rows]),
-                np.array([f.P_len for f in rows]), evaluation.get(map_name))  # fmt: skip
+                np.array([f.P_len for f in rows]), settled)  # fmt: skip
     if not (run_dir / "results.npz").is_file():
         raise SmorphiError(
             f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"

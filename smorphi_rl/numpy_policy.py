@@ -39,7 +39,10 @@ class NumpyPolicy:
         self.freqs = (np.arange(1, frequencies + 1, dtype=np.float32) * np.float32(math.pi)).astype(np.float32)
         self.extras = tuple(k for k in EXTRA_KEYS if k in observation)
         width = sum(int(np.prod(observation[k])) for k in self.extras) + 3 * (1 + 2 * frequencies) + self.fc[0].shape[0]
-        if self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec) or not self._chained():
+        channels = tuple(observation.get("map", ()))[:1]
+        fits_map = self.conv[0][0].ndim == 4 and tuple(self.conv[0][0].shape[1:]) == (*channels, 3, 3)
+        if (self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec) or not self._chained()
+                or not fits_map or min(self.nvec, default=0) < 1):  # fmt: skip
             raise SmorphiError("the policy's layers do not fit its observation and action sizes, or each other")
         self._kept: tuple[np.ndarray, np.ndarray] | None = None
 
@@ -47,7 +50,7 @@ class NumpyPolicy:
         """Each layer's bias fits its weight and each layer's input the layer before's output."""
         (c0, _), (c1, _) = self.conv
         layers = [self.fc, *self.mlp, self.head]
-        shapes_ok = c0.ndim == c1.ndim == 4 and all(w.ndim == 2 for w, _ in layers)
+        shapes_ok = c0.ndim == c1.ndim == 4 and c1.shape[2:] == (3, 3) and all(w.ndim == 2 for w, _ in layers)
         if not shapes_ok or any(b.shape != (w.shape[0],) for w, b in [*self.conv, *layers]):
             return False
         return (c1.shape[1] == c0.shape[0] and self.fc[0].shape[1] == c1.shape[0] * POOL * POOL

@@ -332,7 +332,33 @@ def test_compare_refuses_an_exact_front_of_another_planner(tmp_path, capsys):
     assert run(capsys, "search", "random", "--samples", "20", "--name", "r", "--log-dir", str(tmp_path))[0] == 0
     code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
                        str(tmp_path / "e"), "--log-dir", str(tmp_path))  # fmt: skip
-    assert code == 1 and "pass --planner fit" in one_line(err)
+    assert code == 1 and "the runs were scored by different planners" in one_line(err)  # no --planner fixes it
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
+                       str(tmp_path / "r"), "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "a `search random` run, not an exact front" in one_line(err)
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
+                       str(tmp_path / "e"), "--step", "10", "--planner", "fit", "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "--step: the exact front is computed here only without --exhaustive" in one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["e", "r"]  # nothing claimed by the refused compares
+
+
+def test_compare_refuses_a_summary_whose_evaluation_is_not_numbers(tmp_path, capsys):
+    import json
+
+    run_dir = _found_csv(tmp_path / "run", HEADER + "ppo,map-1,1,2,3,90,60,84,1,1\n")
+    (run_dir / "summary.json").write_text(json.dumps({"env_steps": 10, "evaluation": {"map-1": {"median_gap": "big"}}}))
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--runs", str(run_dir), "--log-dir", str(tmp_path / "l"))
+    assert code == 1 and "its evaluation on 'map-1' is not what smorphi-rl writes" in one_line(err)
+    assert not (tmp_path / "l").exists()
+
+
+@pytest.mark.parametrize("argv", [
+    ["export-policy", "--checkpoint", str(ROOT / "smorphi_rl" / "policies" / "designer"), "--out", ""],
+    ["evaluate-policy", "--checkpoint", str(ROOT / "smorphi_rl" / "policies" / "designer"), "--record", ""],
+])  # fmt: skip
+def test_an_empty_output_folder_is_refused(argv, capsys):
+    code, _, err = run(capsys, *argv)
+    assert code == 2 and "expected a name, got an empty string" in one_line(err)
 
 
 def test_two_forced_writers_of_one_map_never_mix_their_files(tmp_path, capsys):

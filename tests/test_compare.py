@@ -58,7 +58,7 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
     ("argv", "message"),
     [
         ([], "give at least one run to compare"),
-        (["--random", "/no/such/run"], "run directory not found: /no/such/run"),
+        (["--random", "/no/such/run"], "/no/such/run: not a run folder"),
         (["--random", "{logs}"], "holds no results"),
         (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
     ],

@@ -35,7 +35,7 @@ def register(sub: Any) -> None:
     ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
-    ep.add_argument("--record", metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
+    ep.add_argument("--record", type=nonempty, metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
     ep.add_argument("--starts", type=int, default=None, metavar="N",
                     help=f"the evaluation protocol instead: greedy from N fixed seeded starts ({EVAL_STARTS} in "
                          "training) on each map, against the exact optimum")  # fmt: skip
@@ -45,7 +45,7 @@ def register(sub: Any) -> None:
 
     ex = sub.add_parser("export-policy", help="write a trained policy as plain files (policy.json, weights.npz)")
     ex.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
-    ex.add_argument("--out", required=True, help="the folder to write (new, or empty)")
+    ex.add_argument("--out", type=nonempty, required=True, help="the folder to write (new, or empty)")
     ex.add_argument("--command", default="", help="the command that trained it, kept in policy.json")
     ex.set_defaults(func=cmd_export_policy)
 

@@ -163,20 +163,36 @@ def cmd_compare(args: argparse.Namespace) -> int:
     dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or []), *(args.local or [])]]
     if not dirs:
         raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
+    for d in dirs:
+        if not d.is_dir():
+            raise SmorphiError(f"{d}: not a run folder (give the folder a `train` or `search` run wrote)")
     grid_map = load_map(args.map)
     on_map = weights(args).weights_on(grid_map)
     planning = planning_of(args, grid_map)
-    for d in dirs:  # shapes scored by another planner cannot be set against this front
-        if (made_with := planner_of_run(d)) != planning.planner.value:
-            raise SmorphiError(f"{d}: its shapes were scored by the {made_with} planner, the exact front here by "
+    from smorphi_rl.search.config import SearchConfig
+    from smorphi_rl.search.exhaustive import check_step
+
+    check_step(args.step)
+    exact = load(args.exhaustive) if args.exhaustive else None
+    if exact is not None and exact.method != "exhaustive":
+        raise SmorphiError(f"{args.exhaustive}: a `search {exact.method}` run, not an exact front (give a `search "
+                           "exhaustive` run)")  # fmt: skip
+    if exact is not None and args.step != SearchConfig.step:
+        raise SmorphiError("--step: the exact front is computed here only without --exhaustive (its lattice is the "
+                           "run's own)")  # fmt: skip
+    planners = {str(d): planner_of_run(d) for d in dirs}
+    if exact is not None:
+        planners[str(args.exhaustive)] = str(exact.params.get("planner", "paper"))
+    if len(set(planners.values())) > 1:
+        told = ", ".join(f"{where}: {p}" for where, p in planners.items())
+        raise SmorphiError(f"the runs were scored by different planners ({told}): compare runs of one planner")
+    for where, made_with in planners.items():  # shapes scored by another planner cannot be set against this front
+        if made_with != planning.planner.value:
+            raise SmorphiError(f"{where}: its shapes were scored by the {made_with} planner, the exact front here by "
                                f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
-    exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
-    if exact is not None and (made_with := str(exact.params.get("planner", "paper"))) != planning.planner.value:
-        raise SmorphiError(f"{args.exhaustive}: its front was planned by the {made_with} planner, the runs here are "
-                           f"compared under {planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
         exact = run_exhaustive(str(args.map), args.step, planning, progress=progress_line("exact front"))

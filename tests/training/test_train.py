@@ -231,7 +231,9 @@ def test_pretrained_checkpoint_must_fit_the_env(ppo_run, tmp_path):
 
     run_dir, _ = ppo_run
     cfg = TrainConfig(pretrained=str(run_dir)).with_env(obs_size=32)
-    with pytest.raises(CheckpointError, match=r"expects map observations of shape \(2, 64, 64\)"):
+    with pytest.raises(
+        CheckpointError, match=r"observation 'map': the policy's \(2, 64, 64\), the env's \(2, 32, 32\)"
+    ):
         train(cfg, name="misfit", log_dir=tmp_path)
     assert not (tmp_path / "misfit").exists()  # refused before anything was written
 
