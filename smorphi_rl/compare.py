@@ -82,7 +82,10 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")
     if (run_dir / FOUND_CSV).is_file():
-        rows = [f for f in read_csv(run_dir / FOUND_CSV) if f.map == map_name]
+        every = read_csv(run_dir / FOUND_CSV)
+        if not every:
+            raise SmorphiError(f"{run_dir / FOUND_CSV}: holds no rows of the table smorphi-rl writes")
+        rows = [f for f in every if f.map == map_name]
         if not rows:
             raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
         summary = read_json_object(run_dir / "summary.json", "run summary")

@@ -82,14 +82,14 @@ def accepts(designer: Designer, grid_map: Map) -> None:
     cells_per_block = designer.env_config.block_side_m / r
     free_m2 = grid_map.counts[Cell.FREE] * r * r
     name = grid_map.name
-    if max(sides) > limits["max_side_m"]:
-        raise SmorphiError(f"{name}: its known area is {max(sides):.1f} m across; this designer takes floors up to "
-                           f"{limits['max_side_m']:g} m (crop it with `maps crop`)")  # fmt: skip
     if not limits["min_cells_per_block"] <= cells_per_block <= limits["max_cells_per_block"]:
         lo = designer.env_config.block_side_m / limits["max_cells_per_block"]
         hi = designer.env_config.block_side_m / limits["min_cells_per_block"]
-        raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell "
-                           "(`maps resample` coarsens a finer map)")  # fmt: skip
+        fix = " (`maps resample` coarsens a finer map)" if r < lo else ""
+        raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell{fix}")
+    if max(sides) > limits["max_side_m"]:
+        raise SmorphiError(f"{name}: its known area is {max(sides):.1f} m across; this designer takes floors up to "
+                           f"{limits['max_side_m']:g} m (crop it with `maps crop`)")  # fmt: skip
     if free_m2 > limits["max_free_m2"]:
         raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
                            f"{limits['max_free_m2']:g} m^2")  # fmt: skip

@@ -213,7 +213,7 @@ def check_block_side(block_side_m: float, resolution_m: float) -> float:
     cells = block_side_m / resolution_m
     if cells < 1:
         raise MorphologyError(f"a block of {block_side_m:g} m is smaller than one cell of this map "
-                              f"({resolution_m:g} m): use a finer map or a larger --block-side")  # fmt: skip
+                              f"({resolution_m:g} m): plan on a map of cells no larger than a block")  # fmt: skip
     if cells > MAX_BLOCK_CELLS:
         raise MorphologyError(f"a block of {block_side_m:g} m spans {cells:,.0f} cells of this map "
                               f"({resolution_m:g} m); at most {MAX_BLOCK_CELLS}: resample the map coarser")  # fmt: skip
