@@ -405,3 +405,16 @@ def test_a_designer_whose_limits_are_not_numbers_is_refused(tmp_path, capsys):
     (policy / "policy.json").write_text(json.dumps(meta | {"accepts": {"max_side_m": "x"}}))
     code, _, err = run(capsys, "design", "--policy", str(policy), "--budget", "20")
     assert code == 1 and "'accepts' must map" in one_line(err)
+
+
+def test_an_exact_front_whose_step_was_edited_is_refused(tmp_path, capsys):
+    import json
+
+    assert run(capsys, "search", "exhaustive", "--step", "30", "--name", "e", "--log-dir", str(tmp_path))[0] == 0
+    summary = tmp_path / "e" / "summary.json"
+    doc = json.loads(summary.read_text())
+    doc["params"]["step_deg"] = 7
+    summary.write_text(json.dumps(doc))
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "e"), "--exhaustive",
+                       str(tmp_path / "e"), "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "whose step 7 does not divide 180" in one_line(err)

@@ -131,6 +131,12 @@ def load(run_dir: str | Path) -> SearchResult:
         raise bad("values that are not finite numbers")
     if (thetas < 0).any() or (thetas > 180).any() or (p_c < 0).any() or (p_c > 100).any() or (p_len < 0).any():
         raise bad("angles, coverage or path lengths out of range")
+    params = summary.get("params", {})
+    if summary["method"] == "exhaustive":
+        step = params.get("step_deg")
+        whole = isinstance(step, int | float) and 0 < step <= 180 and float(180 / step).is_integer()
+        if not whole or n != (round(180 / step) + 1) ** 3:
+            raise bad(f"an exhaustive run whose step {step!r} does not divide 180 or does not match its {n:,} shapes")
     return SearchResult(
         summary["method"], summary["map"], thetas.astype(np.float64), p_c.astype(np.float64), p_len.astype(np.int64),
         feasible.astype(bool), int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),

@@ -162,10 +162,10 @@ def read_csv(csv_path: Path) -> list[Found]:
                     raise SmorphiError(f"{csv_path}, line {i}: not a row smorphi-rl writes ({type(exc).__name__}: "
                                        f"{exc})") from None  # fmt: skip
                 ok = (all(0 <= t <= 180 for t in found.theta) and 0 <= found.P_c <= 100 and found.P_len >= 0
-                      and math.isfinite(found.R1) and found.env_steps >= 0)  # fmt: skip
+                      and math.isfinite(found.R1) and found.env_steps >= 0 and found.variants >= 1)  # fmt: skip
                 if not ok:
                     raise SmorphiError(f"{csv_path}, line {i}: values out of range (angles 0-180, P_c 0-100, "
-                                       "P_len and steps not negative)")  # fmt: skip
+                                       "P_len and steps not negative, variants at least 1)")  # fmt: skip
                 rows.append(found)
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SmorphiError(f"{csv_path}: not a readable table ({type(exc).__name__})") from None
