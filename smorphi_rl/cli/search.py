@@ -66,14 +66,15 @@ def register(sub: Any) -> None:
 PROGRESS_UNITS = {"exhaustive": "exhaustive: shapes", "nsga2": "nsga2: generations", "hillclimb": "hillclimb: starts",
                   "anneal": "anneal: starts"}  # fmt: skip
 """What each method's progress line counts."""
-CUT_HINTS = {
-    "exhaustive": "a coarser --step, `maps resample` to a coarser resolution, `maps crop`, or --address CLUSTER cut "
-    "the work",
-    "nsga2": "a smaller --pop, fewer --generations, or --address CLUSTER cut the work",
-    "hillclimb": "fewer --starts or a smaller --budget cut the work",
-    "anneal": "fewer --starts or a smaller --budget cut the work",
-}
-"""What the line that says a run will take over a minute suggests."""
+
+
+def cut_hint(method: str) -> str:
+    """What the line that says a run will take over a minute suggests (`search.config.CUTS`, and more)."""
+    from smorphi_rl.search.config import CUTS, RAY_METHODS
+
+    ways = [CUTS[method], *(["`maps resample` to a coarser resolution", "`maps crop`"] if method == "exhaustive"
+                            else []), *(["--address CLUSTER"] if method in RAY_METHODS else [])]  # fmt: skip
+    return ", ".join(ways[:-1]) + f" or {ways[-1]} cut the work" if len(ways) > 1 else f"{ways[0]} cuts the work"
 
 
 def cmd_search(args: argparse.Namespace) -> int:
@@ -99,7 +100,7 @@ def cmd_search(args: argparse.Namespace) -> int:
 
         cluster.check_reachable(address)  # no cluster there: one line, nothing written
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
-    hint = CUT_HINTS.get(args.method, "")
+    hint = cut_hint(args.method)
     try:
         result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
     except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free

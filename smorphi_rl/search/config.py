@@ -33,7 +33,14 @@ RAY_METHODS = ("exhaustive", "random", "nsga2")
 """The methods that also run on a Ray cluster (`--address`): those that score many shapes at once."""
 
 
-LOCAL_CUT = "a smaller --budget or fewer --starts"
+CUTS = {
+    "exhaustive": "a coarser --step",
+    "random": "fewer --samples",
+    "nsga2": "a smaller --pop or fewer --generations",
+    "hillclimb": "a smaller --budget or fewer --starts",
+    "anneal": "a smaller --budget or fewer --starts",
+}
+"""What cuts each method's work: named when a budget is refused and when a run will take over a minute."""
 MAX_EVALUATIONS = 50_000_000
 """A search scores at most this many shapes (about 20 minutes of planning on 2 cores on a 5 m map; the whole
 1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster."""
@@ -89,9 +96,8 @@ class SearchConfig:
             raise SearchConfigError(f"--pop must be >= 2 and --generations >= 1, got {self.pop} and {self.generations}")
         total = self.evaluations
         if total > MAX_EVALUATIONS:
-            cut = {"exhaustive": "a coarser --step", "random": "fewer --samples",
-                   "nsga2": "a smaller --pop or fewer --generations"}.get(self.method, LOCAL_CUT)  # fmt: skip
-            raise SearchConfigError(f"{self.method} would score {total:,} shapes; at most {MAX_EVALUATIONS:,} ({cut})")
+            raise SearchConfigError(f"{self.method} would score {total:,} shapes; at most {MAX_EVALUATIONS:,} "
+                                    f"({CUTS[self.method]})")  # fmt: skip
 
     @property
     def evaluations(self) -> int:
