@@ -133,8 +133,13 @@ def load(run_dir: str | Path) -> SearchResult:
         raise bad("angles, coverage or path lengths out of range")
     params = summary.get("params", {})
     if summary["method"] == "exhaustive":
+        from smorphi_rl.search.exhaustive import check_step  # exhaustive imports this module
+
         step = params.get("step_deg")
-        whole = isinstance(step, int | float) and 0 < step <= 180 and float(180 / step).is_integer()
+        try:
+            whole = isinstance(step, int | float) and check_step(float(step)) > 0
+        except SmorphiError:
+            whole = False
         if not whole or n != (round(180 / step) + 1) ** 3:
             raise bad(f"an exhaustive run whose step {step!r} does not divide 180 or does not match its {n:,} shapes")
     return SearchResult(

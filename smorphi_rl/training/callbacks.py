@@ -17,7 +17,7 @@ from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LI
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
-from smorphi_rl.training.snapshot import snapshot_module, update_lock
+from smorphi_rl.training.snapshot import snapshot_module, snapshot_state, update_lock
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 
 WINDOW = 50
@@ -160,7 +160,7 @@ class MorphologyCallbacks(RLlibCallback):
         score = selection_score(selection)
         kept = self._kept
         if kept is None or score >= kept[0]:
-            self._kept = (score, steps, _on_learner(algorithm, _module_state), protocol)
+            self._kept = (score, steps, _on_learner_itself(algorithm, snapshot_state), protocol)
             return protocol, steps
         if not last:
             return protocol, steps
@@ -185,11 +185,6 @@ def _on_live_learner(algorithm: Any, call: Any) -> Any:
 def _on_learner_itself(algorithm: Any, call: Any) -> Any:
     (first, *_) = list(algorithm.learner_group.foreach_learner(call))
     return first.get()
-
-
-def _module_state(module: Any) -> dict[str, Any]:
-    """A copy of a module's weights, as `load_state_dict` takes them back."""
-    return {name: value.detach().clone() for name, value in module.state_dict().items()}
 
 
 def selection_score(evaluations: list[Any]) -> tuple[int, float]:
