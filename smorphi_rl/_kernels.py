@@ -19,6 +19,13 @@ from numba import njit
 COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS, COL_BOUND = range(11)
 N_COLS = 11
 STATUS_OK, STATUS_START_BLOCKED, STATUS_START_OUTSIDE, STATUS_PAD_TOO_SMALL, STATUS_TILE_START_FIT = 0, 1, 2, 3, 4
+STATUS_PRUNED = 5
+"""A bounded plan stopped early: no path from this footprint can reach the R1 it was asked to beat."""
+NO_PRUNE = np.zeros(0)
+PRUNE_THRESHOLD, PRUNE_W1, PRUNE_W2, PRUNE_PC0, PRUNE_PC_PER_CELL, PRUNE_CELLS, PRUNE_ACTIVE = range(7)
+"""A search's `prune` array: the R1 to beat, w1, w2 (in effect), P_c = PC0 + PC_PER_CELL * covered cells, the most
+cells any plan covers, and 1 to prune (0: plan everything). A search needs no coverable bound, so any non-empty
+array skips it; an empty array plans as `evaluate` does."""
 START_AUTO, START_TILE, START_CELL = 0, 1, 2
 PLANNER_PAPER, PLANNER_FIT = 0, 1
 
@@ -851,6 +858,23 @@ def components(safe: np.ndarray, h: int, wd: int) -> np.ndarray:
 
 
 @njit(cache=True)
+def r1_upper(nodes: int, tile_cells: int, prune: np.ndarray) -> float:
+    """The most R1 a plan can score that visits at most `nodes` lattice nodes of `tile_cells` cells each
+    (docs/exact-search.md): n nodes cover at most min(cells, n * tile_cells) cells and take at least n - 1 moves,
+    so R1 <= max over 1 <= n <= nodes of w1 P_c(min(cells, n * tile_cells)) - w2 (n - 1): concave and piecewise
+    linear in n, so its maximum is at n = 1 or on either side of where coverage saturates."""
+    w1, w2, pc0, per = prune[PRUNE_W1], prune[PRUNE_W2], prune[PRUNE_PC0], prune[PRUNE_PC_PER_CELL]
+    cells = prune[PRUNE_CELLS]
+    most = max(nodes, 1)
+    best = -np.inf
+    fill = cells / tile_cells  # nodes whose tiles could hold every coverable cell
+    for n in (1, min(most, max(1, math.floor(fill))), min(most, max(1, math.ceil(fill)))):
+        r1 = w1 * (pc0 + per * min(cells, float(n * tile_cells))) - w2 * (n - 1)
+        best = max(best, r1)
+    return best
+
+
+@njit(cache=True)
 def plan_fit_into(
     padded: np.ndarray,
     prefix: np.ndarray,
@@ -861,13 +885,16 @@ def plan_fit_into(
     sq: int,
     covered: np.ndarray,
     path: np.ndarray,
+    prune: np.ndarray,
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """The footprint-safe planner (docs/fbcpp-fit.md) for footprint f (l x w).
 
     `padded` and `prefix` as for `plan_into`; `bits` is the map's `fit_bits`. Fills `covered` and up to len(path)
     placements (row, column of F's corner) as `plan_into` does. Returns (status, covered free cells, P_len,
     east/west moves, north/south moves, path length, coverable-bound cells, start row, start column); a shape
-    with no safe start covers nothing (start -1, -1)."""
+    with no safe start covers nothing (start -1, -1). Given a `prune` array, a footprint whose R1 bound
+    (`r1_upper`) falls short of the R1 to beat returns STATUS_PRUNED before its lattice is walked (and no coverable
+    bound is counted: 0)."""
     h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
     l, w = f.shape
     if padded.shape[0] < h + 2 * l or padded.shape[1] < wd + 2 * w:
@@ -884,11 +911,13 @@ def plan_fit_into(
     for c in range(candidates.shape[0]):
         y0, x0 = candidates[c] // wd, candidates[c] % wd
         cand_label[c] = label[_run_at(row_start, x0s, x1s, y0, x0)]
-    east, north = _moves(safe, h, wd, l, w)
     # The lattice that reaches the most nodes, the earliest candidate of equal ones. A lattice reaches at most
     # the safe placements of its class in its candidate's group, so candidates are tried from the largest such
     # bound down, and the search stops once no bound left can match the best reach found.
     upper = _class_bounds(candidates, cand_label, row_start, x0s, x1s, label, n_labels, h, l, w, wd)
+    if prune.shape[0] > 0 and prune[PRUNE_ACTIVE] > 0 and r1_upper(upper.max(), l * w, prune) < prune[PRUNE_THRESHOLD]:
+        return STATUS_PRUNED, 0, 0, 0, 0, 0, 0, -1, -1
+    east, north = _moves(safe, h, wd, l, w)
     best, best_reach = -1, -1
     n_nodes = ((h + l - 1) // l) * ((wd + w - 1) // w)  # the most nodes a lattice has
     seen, queue = np.zeros(n_nodes, np.bool_), np.empty(n_nodes, np.int64)
@@ -920,8 +949,8 @@ def plan_fit_into(
     n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, fd, nr, nc, edge_e, edge_n, start, oy, ox, path, covered, h, wd)
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
-    group = cand_label[best]
-    n_bound = _bound(row_start, x0s, x1s, label, group, h, wd, l, w, f_start, f_j0, f_len)
+    n_bound = 0 if prune.shape[0] > 0 else _bound(row_start, x0s, x1s, label, cand_label[best], h, wd, l, w, f_start,
+                                                  f_j0, f_len)  # fmt: skip
     return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path, n_bound, y0, x0
 
 
@@ -937,12 +966,13 @@ def plan_any(
     sq: int,
     covered: np.ndarray,
     path: np.ndarray,
+    prune: np.ndarray,
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage, as
     it covers every reachable tile; its start placement is not reported: -1, -1). `fit` is the map's `fit_bits`
-    (empty for the paper planner)."""
+    (empty for the paper planner). `prune` bounds the fit planner only (`plan_fit_into`)."""
     if planner == PLANNER_FIT:
-        return plan_fit_into(padded, prefix, fit, f, start_kind, sp, sq, covered, path)
+        return plan_fit_into(padded, prefix, fit, f, start_kind, sp, sq, covered, path, prune)
     status, n_cov, p_len, n_ew, n_ns, n_path = plan_into(padded, prefix, f, start_kind, sp, sq, covered, path)
     return status, n_cov, p_len, n_ew, n_ns, n_path, n_cov, -1, -1
 
@@ -960,8 +990,11 @@ def evaluate_batch(
     side: int,
     planner: int,
     fit: np.ndarray,
+    prune: np.ndarray,
 ) -> np.ndarray:
-    """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*)."""
+    """Uncached evaluation of every row of `thetas` (N x 3): one result row each (COL_*). Given a `prune` array
+    (branch and bound), a row that cannot beat prune[PRUNE_THRESHOLD] is STATUS_PRUNED, and each plan that scores
+    higher raises the threshold in place, so the caller reads back the best R1 found."""
     out = np.zeros((thetas.shape[0], N_COLS))
     buf = np.zeros((side, side), np.uint8)
     no_covered = np.zeros((0, 0), np.uint8)
@@ -971,10 +1004,13 @@ def evaluate_batch(
         out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
         out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
         if feasible and l > 0:
-            res = plan_any(planner, padded, prefix, fit, buf[:l, :w], start_kind, sp, sq, no_covered, no_path)
+            res = plan_any(planner, padded, prefix, fit, buf[:l, :w], start_kind, sp, sq, no_covered, no_path, prune)
             out[i, COL_STATUS] = res[0]
             out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
             out[i, COL_BOUND] = res[6]
+            if prune.shape[0] > 0 and prune[PRUNE_ACTIVE] > 0 and res[0] == STATUS_OK:
+                r1 = prune[PRUNE_W1] * (prune[PRUNE_PC0] + prune[PRUNE_PC_PER_CELL] * res[1]) - prune[PRUNE_W2] * res[2]
+                prune[PRUNE_THRESHOLD] = max(prune[PRUNE_THRESHOLD], r1 - 1e-9 * (1.0 + abs(r1)))
     return out
 
 
@@ -1012,8 +1048,48 @@ def plan_batch(
     for i in range(bits.shape[0]):
         l, w = shapes[i, 0], shapes[i, 1]
         f = bits[i].reshape((side, side))[:l, :w]
-        res = plan_any(planner, padded, prefix, fit, f, start_kind, sp, sq, no_covered, no_path)
+        res = plan_any(planner, padded, prefix, fit, f, start_kind, sp, sq, no_covered, no_path, NO_PRUNE)
         out[i, COL_STATUS] = res[0]
         out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
         out[i, COL_BOUND] = res[6]
     return out
+
+
+@njit(cache=True)
+def _mix(h: np.uint64) -> np.uint64:
+    """splitmix64's finaliser: every input bit reaches every output bit."""
+    h ^= h >> np.uint64(30)
+    h *= np.uint64(0xBF58476D1CE4E5B9)
+    h ^= h >> np.uint64(27)
+    h *= np.uint64(0x94D049BB133111EB)
+    h ^= h >> np.uint64(31)
+    return h
+
+
+@njit(cache=True)
+def footprint_keys(thetas: np.ndarray, s: float, r: float, side: int) -> np.ndarray:
+    """A 128-bit key of each row's F (N x 2 words): equal F, equal key (F's shape and bits are hashed, 64 cells a
+    word, by two independent chains); (0, 0) where the shape is infeasible, (0, 1) where F has no cell."""
+    keys = np.zeros((thetas.shape[0], 2), np.uint64)
+    buf = np.zeros((side, side), np.uint8)
+    for i in range(thetas.shape[0]):
+        feasible, l, w, _, _ = footprint_into(thetas[i, 0], thetas[i, 1], thetas[i, 2], s, r, buf)
+        if not feasible:
+            continue
+        if l == 0:  # no cell: a footprint of its own, which covers nothing
+            keys[i, 1] = _ONE
+            continue
+        a = _mix(np.uint64(0x9E3779B97F4A7C15) ^ np.uint64(l * 4096 + w))
+        b = _mix(np.uint64(0xD1B54A32D192ED03) ^ np.uint64(l * 4096 + w))
+        word, n = np.uint64(0), 0
+        for y in range(l):
+            for x in range(w):
+                if buf[y, x]:
+                    word |= _ONE << np.uint64(n)
+                n += 1
+                if n == 64:
+                    a, b = _mix(a ^ word), _mix(b + word * np.uint64(0xA24BAED4963EE407))
+                    word, n = np.uint64(0), 0
+        a, b = _mix(a ^ word), _mix(b + word * np.uint64(0xA24BAED4963EE407))
+        keys[i, 0], keys[i, 1] = a | _ONE, b  # never (0, 0)
+    return keys

@@ -286,7 +286,7 @@ def plan_coverage(
         path = np.zeros((capacity, 2), dtype=np.int32)
         status, n_cov, p_len, n_ew, n_ns, n_path, n_bound, _, _ = k.plan_any(
             prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, f, int(start.kind),
-            start.row, start.col, covered, path,
+            start.row, start.col, covered, path, k.NO_PRUNE,
         )  # fmt: skip
         raise_for_status(status, start, (l, w), grid_map)
         if n_path <= capacity:

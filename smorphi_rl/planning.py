@@ -29,6 +29,7 @@ from smorphi_rl.coverage import (
 from smorphi_rl.errors import MorphologyError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
 from smorphi_rl.maps import Map, check_fits
+from smorphi_rl.score import Weights
 
 _PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_BOUND]  # what the cache holds per F
 
@@ -122,9 +123,10 @@ class Evaluator:
         self.start = start
         self.use_cache = cache
         self.planner = planner
-        self._side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
-        self.prepared = PreparedMap(grid_map, pad_cells=2 * self._side, planner=planner)
-        self._buf = np.zeros((self._side, self._side), dtype=np.uint8)
+        self.footprint_side = k.buffer_side(self.block_side_m, grid_map.resolution_m)
+        """The side of the square buffer every F of this map fits in (cells)."""
+        self.prepared = PreparedMap(grid_map, pad_cells=2 * self.footprint_side, planner=planner)
+        self._buf = np.zeros((self.footprint_side, self.footprint_side), dtype=np.uint8)
         self._no_covered = np.zeros((0, 0), dtype=np.uint8)
         self._no_path = np.zeros((0, 2), dtype=np.int32)
         self._cache: dict[bytes, tuple[float, ...]] = {}
@@ -177,7 +179,7 @@ class Evaluator:
             prepared = self.prepared
             status, *plan = k.plan_any(
                 self.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, self._buf[:l, :w],
-                int(self.start.kind), self.start.row, self.start.col, self._no_covered, self._no_path,
+                int(self.start.kind), self.start.row, self.start.col, self._no_covered, self._no_path, k.NO_PRUNE,
             )  # fmt: skip
             raise_for_status(status, self.start, (l, w), self.grid_map)
             counts = tuple(float(plan[i]) for i in (0, 1, 2, 3, 5))  # covered, P_len, E/W, N/S, bound
@@ -218,11 +220,11 @@ class Evaluator:
         )
         code, fit = self.planner.code, self.prepared.fit_bits
         if not self.use_cache:
-            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self._side, code, fit)
+            out = k.evaluate_batch(arr, s, r, padded, prefix, kind, sp, sq, self.footprint_side, code, fit, k.NO_PRUNE)
             self.misses += int(out[:, k.COL_FEASIBLE].sum())
             self._check_statuses(out)
             return self._to_batch(arr, out)
-        out, bits = k.footprints_batch(arr, s, r, self._side)
+        out, bits = k.footprints_batch(arr, s, r, self.footprint_side)
         feasible = out[:, k.COL_FEASIBLE] > 0
         keys = np.ascontiguousarray(bits).view(np.dtype((np.void, bits.shape[1])))[:, 0]
         unique_keys, first, inverse = np.unique(keys[feasible], return_index=True, return_inverse=True)
@@ -239,7 +241,7 @@ class Evaluator:
         if missing:
             rows = np.flatnonzero(feasible)[first[missing]]
             shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
-            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self._side, code, fit)
+            fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self.footprint_side, code, fit)
             fresh[:, [k.COL_L, k.COL_W]] = shapes
             self._check_statuses(fresh)
             plans[missing] = fresh[:, _PLAN_COLS]
@@ -247,6 +249,30 @@ class Evaluator:
                 self._remember(unique_keys[u].tobytes(), tuple(float(v) for v in plan))
         out[np.flatnonzero(feasible)[:, None], _PLAN_COLS] = plans[inverse.ravel()]
         return self._to_batch(arr, out)
+
+    def prune_bound(self, weights: Weights | None, threshold: float = -np.inf) -> np.ndarray:
+        """What `evaluate_bounded` prunes by: R1 under `weights` (in effect on this map) and the R1 to beat; None
+        prunes nothing. Only the fit planner prunes (docs/exact-search.md); the paper planner plans everything."""
+        prepared = self.prepared
+        known = prepared.n_free if self.planner is Planner.FIT else prepared.n_free + prepared.n_occupied
+        base = 0.0 if self.planner is Planner.FIT else 100.0 * prepared.n_occupied / known
+        w1, w2 = (0.0, 0.0) if weights is None else (weights.w1, weights.w2)
+        return np.array([threshold, w1, w2, base, 100.0 / known, float(prepared.n_free), float(weights is not None)])
+
+    def evaluate_bounded(self, thetas: np.ndarray, bound: np.ndarray) -> tuple[BatchResult, np.ndarray]:
+        """Uncached metrics of every row (one plan a row: give distinct footprints), and which rows were pruned:
+        no plan of theirs can beat the R1 `bound` holds (`prune_bound`; its threshold rises in place to the best R1
+        planned). A pruned row's metrics are zeros; no row's coverable bound is counted (0)."""
+        arr = validate_thetas(thetas)
+        p, start = self.prepared, self.start
+        out = k.evaluate_batch(arr, self.block_side_m, self.grid_map.resolution_m, p.padded, p.free_prefix,
+                               int(start.kind), start.row, start.col, self.footprint_side, self.planner.code,
+                               p.fit_bits, bound)  # fmt: skip
+        pruned = out[:, k.COL_STATUS] == k.STATUS_PRUNED
+        out[pruned, k.COL_STATUS] = k.STATUS_OK
+        self.misses += int(np.count_nonzero(out[:, k.COL_FEASIBLE]) - np.count_nonzero(pruned))
+        self._check_statuses(out)
+        return self._to_batch(arr, out), pruned
 
     def _check_statuses(self, out: np.ndarray) -> None:
         bad = np.flatnonzero(out[:, k.COL_STATUS] != k.STATUS_OK)

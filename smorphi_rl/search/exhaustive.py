@@ -1,12 +1,13 @@
-"""Every triple on a lattice of hinge angles, in parallel: the exact Pareto front and the best R1.
+"""Every triple on a lattice of hinge angles, in parallel: the exact Pareto front and the best R1, or the best R1
+alone by branch and bound (docs/exact-search.md).
 
-Each worker process keeps one Evaluator for the whole run, so a footprint it has planned once is
-never planned again; the lattice is cut into chunks so progress can be shown.
+Two passes over worker processes: the first keys every shape by its footprint F (results depend on the angles only
+through F), the second plans each distinct F once, in chunks so progress can be shown and a stop comes within
+seconds.
 """
 
 from __future__ import annotations
 
-import hashlib
 import itertools
 import math
 import multiprocessing as mp
@@ -14,7 +15,6 @@ import os
 import sys
 import threading
 import time
-from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from multiprocessing import connection as mp_connection
@@ -22,9 +22,11 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
+from smorphi_rl.score import Weights
 from smorphi_rl.search.results import SearchResult
 
 CHUNKS_PER_WORKER = 24
@@ -47,11 +49,8 @@ def check_step(step_deg: float) -> float:
 
 
 _worker: Evaluator | None = None
-
-
-WORKER_CACHE_FOOTPRINTS = 100_000
-"""Footprints a worker keeps between chunks (about 70 MB at 0.05 m): memory stays flat however many distinct
-footprints a large map has; a chunk's repeats are still planned once (`evaluate_many` groups them)."""
+_bound: np.ndarray = NO_PRUNE
+"""The worker's branch-and-bound state (`Evaluator.prune_bound`: inactive when every footprint is planned)."""
 
 
 def die_with_parent(parent: int) -> None:
@@ -67,40 +66,45 @@ def die_with_parent(parent: int) -> None:
 
 
 _lattice: np.ndarray | None = None
-"""The lattice being searched: set by the parent before it forks its workers, which read their chunks from it
-(tasks are index ranges: a chunk of arrays in the task pipe could block it, and a stop with it)."""
+"""The lattice being searched: set by the parent before it forks its workers, which read their tasks' shapes from
+it (a task names rows of it, never carries shapes)."""
 
 
-def _init(map_path: str, planning: Planning, parent: int, step: float) -> None:
-    global _worker, _lattice
+def _init(map_path: str, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
+    global _worker, _lattice, _bound
     import signal
 
     if _lattice is None or len(_lattice) != (round(180 / step) + 1) ** 3:  # a spawned worker builds its own
         _lattice = lattice_thetas(step)
     die_with_parent(parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool,
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers,
     signal.signal(signal.SIGTERM, signal.SIG_DFL)  # with SIGTERM, which must end a worker wherever it is
-    _worker = planning.evaluator(load_map(map_path), cache_limit=WORKER_CACHE_FOOTPRINTS)
+    _worker = planning.evaluator(load_map(map_path), cache=False)
+    _bound = _worker.prune_bound(weights)
 
 
-def _chunk(bounds: tuple[int, int]) -> tuple[int, int, np.ndarray, np.ndarray, np.ndarray, set[bytes]]:
-    """Metrics of the lattice's rows [lo, hi), and short digests of the footprints this worker planned for them
-    (new ones only)."""
+def _task(task: tuple[Any, ...]) -> tuple[Any, ...]:
+    """One task: ("keys", lo, hi): the footprint keys of lattice rows [lo, hi); ("plan", tag, rows, threshold): the
+    metrics of those rows (one distinct footprint each), pruned where they cannot beat R1 `threshold`, and the best
+    R1 this worker has planned."""
     if _worker is None or _lattice is None:  # pragma: no cover (the initializer always runs first)
         raise RuntimeError("worker not initialised")
-    batch = _worker.evaluate_many(_lattice[bounds[0] : bounds[1]])
-    keys = _worker.drain_planned()
-    digests = {hashlib.blake2b(key, digest_size=8).digest() for key in keys}
-    return bounds[0], bounds[1], batch.P_c, batch.P_len.astype(np.int32), batch.feasible, digests
+    if task[0] == "keys":
+        _, lo, hi = task
+        return "keys", lo, hi, footprint_keys(_worker, _lattice[lo:hi])
+    _, tag, rows, threshold = task
+    _bound[0] = max(_bound[0], threshold)
+    batch, pruned = _worker.evaluate_bounded(_lattice[rows], _bound)
+    return "plan", tag, batch.P_c, batch.P_len.astype(np.int32), batch.feasible, pruned, float(_bound[0])
 
 
-def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: float) -> None:
-    """A worker: index ranges in, their metrics out, over its own pipe (no lock shared with any other process,
-    so killing a worker anywhere can never block the parent), until it is sent None."""
+def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
+    """A worker: tasks in, answers out, over its own pipe (no lock shared with any other process, so killing a
+    worker anywhere can never block the parent), until it is sent None."""
     try:
-        _init(map_path, planning, parent, step)
-        while (bounds := conn.recv()) is not None:
-            conn.send(_chunk(bounds))
+        _init(map_path, planning, parent, step, weights)
+        while (task := conn.recv()) is not None:
+            conn.send(_task(task))
     except Exception as exc:  # said by the parent in one line, not as a worker's traceback
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
 
@@ -126,6 +130,8 @@ def _stop_requests() -> Iterator[threading.Event]:
 CHUNK_SECONDS = 1.0
 """A chunk plans for about this long at most (every shape planned), so progress and a stop come within seconds."""
 SAMPLE_PLANS = 16
+KEY_CHUNK_SHAPES = 100_000
+"""Shapes a keying task rasterises (about a quarter of a second)."""
 
 
 def chunk_shapes(grid_map: Map, planning: Planning) -> int:
@@ -134,6 +140,8 @@ def chunk_shapes(grid_map: Map, planning: Planning) -> int:
     evaluator = planning.evaluator(grid_map, cache=False)
     sample = np.random.default_rng(0).integers(0, 181, size=(SAMPLE_PLANS, 3)).astype(np.float64)
     evaluator.evaluate_many(sample[:2])
+    footprint_keys(evaluator, sample[:2])
+    evaluator.evaluate_bounded(sample[:2], evaluator.prune_bound(Weights(1.0, 0.1)))
     t0 = time.perf_counter()
     evaluator.evaluate_many(sample)
     per_plan = (time.perf_counter() - t0) / SAMPLE_PLANS
@@ -150,6 +158,117 @@ def chunk_bounds(n_shapes: int, n_workers: int, most: int = CHUNK_SHAPES) -> lis
     return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
 
 
+def footprint_keys(evaluator: Evaluator, thetas: np.ndarray) -> np.ndarray:
+    """Two 64-bit words per row: equal exactly when the rows' footprints F are (a 128-bit hash of F's shape and
+    bits; both zero where the shape is infeasible)."""
+    from smorphi_rl import _kernels as k
+
+    arr = np.ascontiguousarray(thetas, dtype=np.float64)
+    return k.footprint_keys(arr, evaluator.block_side_m, evaluator.grid_map.resolution_m, evaluator.footprint_side)
+
+
+def footprint_classes(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(first row of each distinct key, each row's class) for an (N, 2) array of keys: sorted on the first word
+    (three times faster than on both), on both where two keys share a first word."""
+    _, first, inverse = np.unique(keys[:, 0], return_index=True, return_inverse=True)
+    if not np.array_equal(keys[first[inverse.ravel()], 1], keys[:, 1]):
+        _, first, inverse = np.unique(keys.view(np.dtype((np.void, 16))).ravel(), return_index=True,
+                                      return_inverse=True)  # fmt: skip
+    return first, inverse.ravel()
+
+
+class _Workers:
+    """Worker processes, each with its own pipe, that run tasks (`_task`) and are all gone when this is left."""
+
+    def __init__(self, n: int, map_path: str, planning: Planning, step: float, weights: Weights | None) -> None:
+        context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+        self.procs: list[tuple[Any, Any]] = []
+        args = (str(map_path), planning, os.getpid(), step, weights)
+        for _ in range(n):
+            here, there = context.Pipe()
+            proc = context.Process(target=_serve, args=(there, *args), daemon=True)
+            proc.start()
+            there.close()
+            self.procs.append((proc, here))
+
+    def run(self, tasks: Iterator[tuple[Any, ...]], stop: threading.Event) -> Iterator[tuple[Any, ...]]:
+        """Every task's answer as it comes: a few tasks ahead per worker, not all (a task is drawn from `tasks`
+        only when a worker is about to need it, so it sees every answer handled before)."""
+        alive = {conn: proc for proc, conn in self.procs}
+        busy = dict.fromkeys(alive, 0)
+
+        def feed(conn: Any) -> None:
+            task = next(tasks, None)
+            if task is not None:
+                conn.send(task)
+                busy[conn] += 1
+
+        for conn, _ in itertools.product(list(alive), range(IN_FLIGHT_PER_WORKER)):
+            feed(conn)
+        while any(busy.values()):
+            if stop.is_set():
+                raise KeyboardInterrupt
+            ready: list[Any] = list(mp_connection.wait([c for c, n in busy.items() if n], timeout=0.1))
+            for conn in ready:
+                try:
+                    answer: tuple[Any, ...] = conn.recv()
+                except EOFError:
+                    raise SmorphiError(f"a search worker died (exit code {alive[conn].exitcode})") from None
+                if answer[0] == "error":
+                    raise SmorphiError(f"a search worker failed: {answer[1]}")
+                busy[conn] -= 1
+                yield answer
+                feed(conn)
+
+    def close(self, finished: bool) -> None:
+        """Every worker gone: asked to end after a finished run, killed at once otherwise (it shares no lock)."""
+        for proc, conn in self.procs:
+            if finished:
+                conn.send(None)
+            else:
+                proc.kill()
+        for proc, conn in self.procs:
+            proc.join(timeout=5.0)
+            if proc.is_alive():
+                proc.kill()
+                proc.join()
+            conn.close()
+
+
+WARM_STEP_DEG = 10.0
+"""Branch and bound plans the footprints of this coarser lattice first, so a good R1 to beat is known early."""
+
+
+def _plan_order(thetas: np.ndarray, rows: np.ndarray, inverse: np.ndarray, n_reps: int, warm: bool) -> np.ndarray:
+    """The order distinct footprints are planned in: lattice order, and for branch and bound the footprints of
+    the WARM_STEP_DEG lattice first."""
+    if not warm:
+        return np.arange(n_reps)
+    coarse = np.all(np.isclose(np.mod(thetas[rows], WARM_STEP_DEG), 0.0), axis=1)
+    first = np.unique(inverse[coarse])
+    rest = np.setdiff1d(np.arange(n_reps), first, assume_unique=True)
+    return np.concatenate([first, rest])
+
+
+class _Settled:
+    """What is known of each distinct footprint as plans come back: metrics, or pruned; and the best R1 so far."""
+
+    def __init__(self, n_reps: int, infeasible: int) -> None:
+        self.p_c = np.zeros(n_reps)
+        self.p_len = np.zeros(n_reps, dtype=np.int32)
+        self.feasible = np.zeros(n_reps, dtype=bool)
+        self.pruned = np.zeros(n_reps, dtype=bool)
+        self.threshold = -math.inf
+        self.settled = infeasible
+        """Shapes whose result is known (infeasible shapes from the start)."""
+
+    def record(self, ids: np.ndarray, p_c: np.ndarray, p_len: np.ndarray, ok: np.ndarray, pruned: np.ndarray,
+               best: float, sizes: np.ndarray) -> None:  # fmt: skip
+        self.p_c[ids], self.p_len[ids], self.feasible[ids], self.pruned[ids] = p_c, p_len, ok, pruned
+        self.threshold = max(self.threshold, best)
+        self.settled += int(sizes[ids].sum())
+
+
 def run_exhaustive(
     map_path: str,
     step_deg: float = 1.0,
@@ -157,81 +276,76 @@ def run_exhaustive(
     workers: int | None = None,
     progress: Callable[[int, int], None] | None = None,
     address: str | None = None,
+    best_for: Weights | None = None,
 ) -> SearchResult:
     """Evaluate every triple at `step_deg` on the map, planned as `planning` says, on `workers` processes
     (default: every core), or, given a Ray cluster's `address`, on `workers` actors there (default: one per CPU
-    of the cluster), with the same results."""
+    of the cluster), with the same results.
+
+    Each distinct footprint is planned once (a first pass keys every shape by its footprint). Given `best_for`
+    (R1's weights on the map), only the best R1 is sought, by branch and bound (docs/exact-search.md): a footprint
+    whose bound cannot reach the best R1 found is not planned, and the result holds only the shapes whose
+    footprint was planned (every shape of the best R1 among them). `progress(done, total)` counts shapes keyed,
+    then (from 0 again) shapes settled."""
     step = check_step(step_deg)
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
     if address is not None:
+        if best_for is not None:
+            raise SmorphiError("the best-R1 search runs on this machine's cores only (drop --address)")
         return _on_ray(grid_map, planning, step, thetas, workers, progress, address)
     n_workers = max(1, workers or os.cpu_count() or 1)
-    chunks = chunk_bounds(len(thetas), n_workers, chunk_shapes(grid_map, planning))  # also compiles the kernels
-    p_c = np.zeros(len(thetas))
-    p_len = np.zeros(len(thetas), dtype=np.int32)
-    feasible = np.zeros(len(thetas), dtype=bool)
-    digests: set[bytes] = set()
+    per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels
+    n = len(thetas)
     t0 = time.perf_counter()
-    context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
     global _lattice
-    _lattice = thetas  # the forked workers read their chunks from here
-    workers_: list[tuple[Any, Any]] = []
+    _lattice = thetas  # the forked workers read their tasks' shapes from here
+    pool = _Workers(n_workers, str(map_path), planning, step, best_for)
     finished = False
     try:
-        for _ in range(n_workers):
-            here, there = context.Pipe()
-            proc = context.Process(target=_serve, args=(there, str(map_path), planning, os.getpid(), step), daemon=True)
-            proc.start()
-            there.close()
-            workers_.append((proc, here))
         with _stop_requests() as stop:
-            queued = deque(chunks)
-            for (_, conn), _ in itertools.product(workers_, range(IN_FLIGHT_PER_WORKER)):  # a few ahead, not all
-                if queued:
-                    conn.send(queued.popleft())
-            done, pending = 0, len(chunks)
-            alive = {conn: proc for proc, conn in workers_}
-            while pending:
-                if stop.is_set():
-                    raise KeyboardInterrupt
-                ready: list[Any] = list(mp_connection.wait(list(alive), timeout=0.1))
-                for conn in ready:
-                    try:
-                        answer = conn.recv()
-                    except EOFError:
-                        raise SmorphiError(f"a search worker died (exit code {alive[conn].exitcode})") from None
-                    if answer[0] == "error":
-                        raise SmorphiError(f"a search worker failed: {answer[1]}")
-                    lo, hi, c_pc, c_len, c_ok, c_digests = answer
-                    if queued:
-                        conn.send(queued.popleft())
-                    p_c[lo:hi], p_len[lo:hi], feasible[lo:hi] = c_pc, c_len, c_ok
-                    digests |= c_digests
-                    done, pending = done + hi - lo, pending - 1
-                    if progress is not None:
-                        progress(done, len(thetas))
-        for _, conn in workers_:
-            conn.send(None)
+            keys = np.zeros((n, 2), dtype=np.uint64)
+            key_tasks = (("keys", lo, hi) for lo, hi in chunk_bounds(n, n_workers, KEY_CHUNK_SHAPES))
+            keyed = 0
+            for _, lo, hi, chunk in pool.run(key_tasks, stop):
+                keys[lo:hi] = chunk
+                keyed += hi - lo
+                if progress is not None:
+                    progress(keyed, n)
+            rows = np.flatnonzero(keys.any(axis=1))  # the feasible shapes
+            first, inverse = footprint_classes(keys[rows])
+            reps = rows[first]  # one shape per distinct footprint
+            sizes = np.bincount(inverse, minlength=len(reps))
+            parts = np.array_split(_plan_order(thetas, rows, inverse, len(reps), best_for is not None),
+                                   max(1, -(-len(reps) // per_chunk)))  # fmt: skip
+            state = _Settled(len(reps), n - len(rows))
+            plan_tasks = (("plan", i, reps[part].astype(np.int32), state.threshold) for i, part in enumerate(parts))
+            for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
+                state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
+                if progress is not None:
+                    progress(state.settled, n)
         finished = True
     finally:  # Ctrl-C, SIGTERM, an error or the end: every worker is gone before this returns
-        for proc, conn in workers_:
-            if not finished:
-                proc.kill()  # at once, wherever it is: it shares no lock with anyone
-            proc.join(timeout=5.0)
-            if proc.is_alive():
-                proc.kill()
-                proc.join()
-            conn.close()
+        pool.close(finished)
         _lattice = None
-    params = {
-        "step_deg": step,
-        "workers": n_workers,
-        "distinct_footprints": len(digests),
-        "planner": planning.planner.value,
-    }
-    return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, feasible, len(thetas),
-                        time.perf_counter() - t0, params)  # fmt: skip
+    rep_of_row = np.full(n, -1, dtype=np.int64)
+    rep_of_row[rows] = inverse
+    params: dict[str, Any] = {"step_deg": step, "workers": n_workers, "distinct_footprints": len(reps),
+                              "planner": planning.planner.value}  # fmt: skip
+    wall = time.perf_counter() - t0
+    if best_for is None:
+        p_c = np.zeros(n)
+        p_len = np.zeros(n, dtype=np.int32)
+        p_c[rows], p_len[rows] = state.p_c[inverse], state.p_len[inverse]
+        ok = np.zeros(n, dtype=bool)
+        ok[rows] = state.feasible[inverse]
+        return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, ok, n, wall, params)
+    kept = np.flatnonzero((rep_of_row >= 0) & ~state.pruned[np.maximum(rep_of_row, 0)])
+    idx = rep_of_row[kept]
+    params |= {"planned_footprints": int(np.count_nonzero(~state.pruned)), "pruned_footprints":
+               int(np.count_nonzero(state.pruned)), "weights": {"w1": best_for.w1, "w2": best_for.w2}}  # fmt: skip
+    return SearchResult("optimum", grid_map.name, thetas[kept], state.p_c[idx], state.p_len[idx],
+                        state.feasible[idx], len(kept), wall, params)  # fmt: skip
 
 
 def _on_ray(

@@ -22,7 +22,8 @@ from smorphi_rl.planning import BatchResult, Planning, lattice_thetas
 IN_FLIGHT_PER_ACTOR = 2
 """Chunks sent to an actor at a time (one planning, one ready), as the local pool does."""
 ACTOR_CACHE_FOOTPRINTS = 100_000
-"""Footprints an actor keeps between chunks (`exhaustive.WORKER_CACHE_FOOTPRINTS`)."""
+"""Footprints an actor keeps between chunks (about 70 MB at 0.05 m): memory stays flat however many distinct
+footprints a large map has; a chunk's repeats are still planned once (`Evaluator.evaluate_many` groups them)."""
 
 
 class ShapePlanner:
