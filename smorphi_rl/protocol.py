@@ -162,7 +162,7 @@ def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
 def _optimum_in_process(key: str, map_path: str, weights: Weights, planning: Planning) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
-    result = run_exhaustive(map_path, 1.0, planning)
+    result = run_exhaustive(map_path, 1.0, planning, best_for=weights)  # branch and bound: the best R1 alone
     return Optimum.of(result.thetas, result.P_c, result.P_len, weights)
 
 

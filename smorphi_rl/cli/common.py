@@ -153,21 +153,29 @@ ETA_AFTER_S = 3.0
 """The time left is estimated from the rate once the work has run this long (its first seconds warm caches up)."""
 
 
-def progress_line(label: str, hint: str = "") -> Callable[[int, int], None]:
+def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int, int], None]:
     """A progress bar on stderr with the rate and the time left: rewritten in place on a terminal, every 5 s
-    otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it)."""
+    otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it).
+    Given several labels, a count that goes back down starts the next pass, under the next label."""
+    labels = (label,) if isinstance(label, str) else label
     tty = sys.stderr.isatty()
-    t0 = time.monotonic()
+    t0 = [time.monotonic()]
     last = [-math.inf]
     warned = [False]
+    stage = [0, 0]  # pass, last count
 
     def show(done: int, total: int) -> None:
         now = time.monotonic()
-        elapsed = now - t0
+        if done < stage[1] and stage[0] + 1 < len(labels):
+            stage[0] += 1
+            t0[0], last[0], warned[0] = now, -math.inf, False
+        stage[1] = done
+        name = labels[stage[0]]
+        elapsed = now - t0[0]
         left = elapsed * (total - done) / done if done and elapsed >= ETA_AFTER_S else math.inf
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
-            sys.stderr.write(("\n" if tty else "") + f"{label}: about {left / 60:.0f} min more at this rate"
+            sys.stderr.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
                              + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
         if not tty and done < total and now - last[0] < 5:
             return
@@ -177,7 +185,7 @@ def progress_line(label: str, hint: str = "") -> Callable[[int, int], None]:
         per_s = done / elapsed if elapsed > 0 else math.nan
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
-        line = f"{label} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
+        line = f"{name} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
         sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
         sys.stderr.flush()
 

@@ -63,16 +63,18 @@ def register(sub: Any) -> None:
     co.set_defaults(func=cmd_compare)
 
 
-PROGRESS_UNITS = {"exhaustive": "exhaustive: shapes", "nsga2": "nsga2: generations", "hillclimb": "hillclimb: starts",
-                  "anneal": "anneal: starts"}  # fmt: skip
-"""What each method's progress line counts."""
+PROGRESS_UNITS: dict[str, str | tuple[str, ...]] = {
+    **{m: (f"{m}: shapes keyed by footprint", f"{m}: shapes settled") for m in ("exhaustive", "optimum")},
+    "nsga2": "nsga2: generations", "hillclimb": "hillclimb: starts", "anneal": "anneal: starts",
+}  # fmt: skip
+"""What each method's progress line counts (the lattice methods: two passes)."""
 
 
 def cut_hint(method: str) -> str:
     """What the line that says a run will take over a minute suggests (`search.config.CUTS`, and more)."""
-    from smorphi_rl.search.config import CUTS, RAY_METHODS
+    from smorphi_rl.search.config import CUTS, LATTICE_METHODS, RAY_METHODS
 
-    ways = [CUTS[method], *(["`maps resample` to a coarser resolution", "`maps crop`"] if method == "exhaustive"
+    ways = [CUTS[method], *(["`maps resample` to a coarser resolution", "`maps crop`"] if method in LATTICE_METHODS
                             else []), *(["--address CLUSTER"] if method in RAY_METHODS else [])]  # fmt: skip
     return ", ".join(ways[:-1]) + f" or {ways[-1]} cut the work" if len(ways) > 1 else f"{ways[0]} cuts the work"
 
@@ -138,14 +140,21 @@ def format_search(
     extra = result.params.get("distinct_footprints")
     footprints = f", {extra:,} distinct footprints" if extra is not None else ""
     feasible = int(np.count_nonzero(result.feasible))
-    lines = [f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
-             f"{result.wall_s:.1f} s ({feasible:,} feasible)",
-             *([planning] if planning else []),
-             f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
-    for row in front_rows:
-        lines.append(
-            f"  {angles_text(row['theta']):<17} P_c {row['P_c']:7.2f} %  P_len {row['P_len']:4d}  R1 {row['R1']:7.2f}"
-        )
+    if result.method == "optimum":
+        p = result.params
+        n_lattice = (round(180 / p["step_deg"]) + 1) ** 3
+        lines = [f"optimum on {result.map_name}: the best R1 of {n_lattice:,} shapes ({p['step_deg']:g}-degree "
+                 f"lattice) in {result.wall_s:.1f} s: {extra:,} distinct footprints, {p['planned_footprints']:,} "
+                 f"planned, {p['pruned_footprints']:,} pruned by the bound",
+                 *([planning] if planning else [])]  # fmt: skip
+    else:
+        lines = [f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
+                 f"{result.wall_s:.1f} s ({feasible:,} feasible)",
+                 *([planning] if planning else []),
+                 f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
+        for row in front_rows:
+            theta, p_c, p_len, r1 = angles_text(row["theta"]), row["P_c"], row["P_len"], row["R1"]
+            lines.append(f"  {theta:<17} P_c {p_c:7.2f} %  P_len {p_len:4d}  R1 {r1:7.2f}")
     b = result.best(weights)
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "
@@ -196,7 +205,12 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     if exact is None:
-        exact = run_exhaustive(str(args.map), args.step, planning, progress=progress_line("exact front"))
+        exact = run_exhaustive(
+            str(args.map),
+            args.step,
+            planning,
+            progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
+        )
     exact_score, methods = score_methods(exact, runs, on_map)
     files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
     print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map)))

@@ -17,14 +17,18 @@ METHODS = {
     "random": "uniformly random integer shapes (paper Table 4)",
     "nsga2": "NSGA-II over integer angles (paper Table 6, Figure 7)",
     "exhaustive": "every triple on the lattice: the exact front and best R1",
+    "optimum": "the exact best R1 on the lattice alone, by branch and bound: far fewer plans on large floors",
     "hillclimb": "steepest ascent over the 26 one-step moves from the protocol's fixed starts",
     "anneal": "simulated annealing over the same moves from the same starts",
 }
 LOCAL_METHODS = ("hillclimb", "anneal")
+LATTICE_METHODS = ("exhaustive", "optimum")
+"""The methods that go over every triple of a lattice (`--step`)."""
 METHOD_FIELDS = {
     "random": ("samples", "seed"),
     "nsga2": ("pop", "generations", "seed"),
     "exhaustive": ("step",),
+    "optimum": ("step",),
     "hillclimb": ("seed", "budget", "starts"),
     "anneal": ("seed", "budget", "starts"),
 }
@@ -35,6 +39,7 @@ RAY_METHODS = ("exhaustive", "random", "nsga2")
 
 CUTS = {
     "exhaustive": "a coarser --step",
+    "optimum": "a coarser --step",
     "random": "fewer --samples",
     "nsga2": "a smaller --pop or fewer --generations",
     "hillclimb": "a smaller --budget or fewer --starts",
@@ -58,7 +63,8 @@ class SearchConfig:
     map_path: str
     planning: Planning = PAPER_PLANNING
     w1: float = EnvConfig.w1
-    """R1's weights (only the local methods rank by R1 while they search; the others keep every front point)."""
+    """R1's weights (the local methods and `optimum` rank by R1 while they search; the others keep every front
+    point)."""
     w2: float = EnvConfig.w2
     path_term: str = EnvConfig.path_term
     seed: int = 0
@@ -74,14 +80,14 @@ class SearchConfig:
     starts: int = EVAL_STARTS
     """hillclimb, anneal: the protocol's fixed seeded starts."""
     step: float = 1.0
-    """exhaustive: lattice step in degrees; must divide 180."""
+    """exhaustive, optimum: lattice step in degrees; must divide 180."""
     address: str | None = None
     """exhaustive, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: this machine's cores."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
             raise SearchConfigError(f"unknown search method '{self.method}' (choose from {', '.join(METHODS)})")
-        if self.method == "exhaustive":
+        if self.method in LATTICE_METHODS:
             from smorphi_rl.search.exhaustive import check_step
 
             try:
@@ -102,7 +108,7 @@ class SearchConfig:
     @property
     def evaluations(self) -> int:
         """The shapes the run scores at most."""
-        if self.method == "exhaustive":
+        if self.method in LATTICE_METHODS:
             return (round(180 / self.step) + 1) ** 3
         if self.method == "random":
             return self.samples
@@ -112,20 +118,29 @@ class SearchConfig:
 
     @property
     def run_name(self) -> str:
-        """The default run folder: method, map and the step (exhaustive) or the seed."""
+        """The default run folder: method, map and the step (exhaustive, optimum) or the seed."""
         from smorphi_rl.rundir import safe_name
 
-        suffix = f"step{self.step:g}" if self.method == "exhaustive" else f"seed{self.seed}"
+        suffix = f"step{self.step:g}" if self.method in LATTICE_METHODS else f"seed{self.seed}"
         return safe_name(f"{self.method}-{Path(self.map_path).stem}-{suffix}")
 
 
 def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = None) -> SearchResult:
-    """Run the configured method on its map (`progress(done, total)`: shapes of the exhaustive search, starts of
-    the local searches, generations of NSGA-II; random search is one batch)."""
-    if cfg.method == "exhaustive":
+    """Run the configured method on its map (`progress(done, total)`: shapes of the lattice methods, keyed and
+    then, from 0 again, settled; starts of the local searches; generations of NSGA-II; random search is one
+    batch)."""
+    if cfg.method in LATTICE_METHODS:
         from smorphi_rl.search.exhaustive import run_exhaustive
 
-        return run_exhaustive(cfg.map_path, cfg.step, cfg.planning, progress=progress, address=cfg.address)
+        best_for = None
+        if cfg.method == "optimum":
+            from smorphi_rl.maps import load_map
+
+            best_for = EnvConfig.from_dict({"w1": cfg.w1, "w2": cfg.w2, "path_term": cfg.path_term}).weights_on(
+                load_map(cfg.map_path)
+            )
+        return run_exhaustive(cfg.map_path, cfg.step, cfg.planning, progress=progress, address=cfg.address,
+                              best_for=best_for)  # fmt: skip
     if cfg.method == "random":
         from smorphi_rl.search.random import run_random
 

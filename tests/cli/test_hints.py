@@ -61,3 +61,16 @@ def test_the_degenerate_weights_warning_names_the_option_that_fixes_them(tmp_pat
     flag = hinted(warned.stderr, "--path-term per_area")
     fixed = smorphi(*argv, "--name", "per-area", *flag, cwd=tmp_path)
     assert fixed.returncode == 0 and "warning" not in fixed.stderr
+
+
+def test_a_progress_line_of_two_passes_names_each(capsys):
+    """A count that goes back down starts the next pass under its own label, with its own clock."""
+    from smorphi_rl.cli.common import progress_line
+
+    show = progress_line(("x: keyed", "x: settled"))
+    show(10, 10)
+    show(3, 10)
+    show(10, 10)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("x: keyed [") and lines[0].count("#") == 30
+    assert all(line.startswith("x: settled [") for line in lines[1:]) and len(lines) == 3
