@@ -88,6 +88,10 @@ class Map:
     def fraction(self, cell: Cell) -> float:
         return self.counts[cell] / self.cells.size
 
+    def world_of(self, row: int, col: int) -> tuple[float, float]:
+        """The centre of cell (row, col) in metres, map frame (the inverse of `cell_of`)."""
+        return (self.origin[0] + (col + 0.5) * self.resolution_m, self.origin[1] + (row + 0.5) * self.resolution_m)
+
     def cell_of(self, x_m: float, y_m: float) -> tuple[int, int]:
         """(row, col) of the cell holding a point in the map frame (yaw ignored, as nav2 does)."""
         col = math.floor((x_m - self.origin[0]) / self.resolution_m)

@@ -8,6 +8,7 @@ in one compiled call, deduplicated by F, and only unseen footprints are planned.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -28,7 +29,7 @@ from smorphi_rl.coverage import (
 )
 from smorphi_rl.errors import MorphologyError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
-from smorphi_rl.maps import Map, check_fits
+from smorphi_rl.maps import Cell, Map, check_fits
 from smorphi_rl.score import Weights
 
 _PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_BOUND]  # what the cache holds per F
@@ -341,6 +342,26 @@ class Planning:
         share = free_area_share(grid_map, cell)
         return f"planner {self.planner.value} ({spec}): plans start {where}, {share:.1f} % of the free cells"
 
+    def start_warning(self, grid_map: Map) -> str | None:
+        """One line when plans start in a free area holding under START_AREA_MIN_PCT of the free cells (the paper's
+        default start is the first free cell in row order, which on a SLAM map can be a speck of laser noise),
+        naming the options that fix it; None otherwise."""
+        start = self.start_on(grid_map)
+        if self.start_xy is not None:
+            cell: tuple[int, int] | None = (start.row, start.col)
+        elif self.planner is Planner.FIT:
+            cell = None  # the largest free area
+        else:
+            free = np.argwhere(grid_map.cells == Cell.FREE)
+            cell = (int(free[0, 0]), int(free[0, 1])) if len(free) else None
+        share = free_area_share(grid_map, cell)
+        if share >= START_AREA_MIN_PCT:
+            return None
+        x, y = grid_map.world_of(*cell) if cell is not None else (math.nan, math.nan)
+        return (f"warning: on {grid_map.name} plans start in a free area holding {share:.1f} % of the free cells "
+                f"(around ({x:.2f}, {y:.2f}) m): --start-xy X Y starts them on the floor to clean, and "
+                "`maps crop --min-island M2` drops specks of free space")  # fmt: skip
+
     def key(self) -> list[object]:
         """What a cache of results keys on (the paper planner's default start keeps its old key)."""
         key: list[object] = [self.block_side_m]
@@ -349,6 +370,8 @@ class Planning:
         return key
 
 
+START_AREA_MIN_PCT = 10.0
+"""A start area holding less of the free floor than this is named in a warning (`Planning.start_warning`)."""
 PAPER_PLANNING = Planning()
 """The paper's planning: docs/spec/fbcpp.md with its default start and the commercial block."""
 

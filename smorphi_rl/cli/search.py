@@ -108,9 +108,13 @@ def cmd_search(args: argparse.Namespace) -> int:
     except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free
         discard_run_dir(run_dir)
         raise
-    files = save(result, run_dir, on_map)
-    front_rows = result.front_records(on_map)
     b = result.best(on_map)
+    from smorphi_rl.geometry import Morphology
+
+    best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
+    cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
+    files = save(result, run_dir, on_map, cover)
+    front_rows = result.front_records(on_map)
     files["plot"] = plot_pareto(
         {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
         run_dir / "pareto.png",
@@ -122,21 +126,27 @@ def cmd_search(args: argparse.Namespace) -> int:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         return 0
     said = "" if planning.is_paper_default else planning.describe(grid_map)
-    print(format_search(result, front_rows, on_map, files, said))
+    print(format_search(result, front_rows, on_map, files, said, cover))
     from smorphi_rl.score import degenerate_warning
 
-    line = degenerate_warning(float(on_map.r1(result.P_c[b], result.P_len[b])), float(result.P_c[b]), w.path_term,
-                              grid_map.name)  # fmt: skip
+    line = planning.start_warning(grid_map) or degenerate_warning(
+        float(on_map.r1(result.P_c[b], result.P_len[b])), float(result.P_c[b]), w.path_term, grid_map.name
+    )  # a start on a speck explains a small coverage first
     if line:
         print(line, file=sys.stderr)
     return 0
 
 
 def format_search(
-    result: Any, front_rows: list[dict[str, Any]], weights: Weights, files: dict[str, Path], planning: str = ""
+    result: Any,
+    front_rows: list[dict[str, Any]],
+    weights: Weights,
+    files: dict[str, Path],
+    planning: str = "",
+    cover: dict[str, float] | None = None,
 ) -> str:
-    """The human-readable report of a search: its size, (a non-default) planning, its front, its best shape and
-    where the files are."""
+    """The human-readable report of a search: its size, (a non-default) planning, its front, its best shape (with
+    the free floor it covers and its coverable bound, given `cover`) and where the files are."""
     extra = result.params.get("distinct_footprints")
     footprints = f", {extra:,} distinct footprints" if extra is not None else ""
     feasible = int(np.count_nonzero(result.feasible))
@@ -159,6 +169,9 @@ def format_search(
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "
                  f"P_c {result.P_c[b]:.2f} %, P_len {result.P_len[b]}, R1 {r1_best:.2f}")  # fmt: skip
+    if cover is not None:
+        lines.append(f"  it covers {cover['coverage_free_pct']:.2f} % of the free floor; any path from its start "
+                     f"could cover {cover['coverable_pct']:.2f} % (its coverable bound)")  # fmt: skip
     lines.extend(f"{key + ':':<9} {rel(files[key])}" for key in ("results", "front", "summary", "plot"))
     return "\n".join(lines)
 

@@ -58,8 +58,10 @@ class SearchResult:
         ]
 
 
-def save(result: SearchResult, run_dir: Path, weights: Weights) -> dict[str, Path]:
-    """results.npz (every evaluation, compressed), front.csv and summary.json; returns the paths."""
+def save(result: SearchResult, run_dir: Path, weights: Weights, best_extra: dict[str, float] | None = None
+         ) -> dict[str, Path]:  # fmt: skip
+    """results.npz (every evaluation, compressed), front.csv and summary.json (its best shape with `best_extra`:
+    the free floor it covers, its coverable bound); returns the paths."""
     files = {"results": run_dir / RESULTS_FILE, "front": run_dir / "front.csv", "summary": run_dir / "summary.json"}
     arrays = {"thetas": result.thetas.astype(np.float32), "P_c": result.P_c, "P_len": result.P_len.astype(np.int32),
               "feasible": result.feasible}  # fmt: skip
@@ -80,7 +82,8 @@ def save(result: SearchResult, run_dir: Path, weights: Weights) -> dict[str, Pat
         "wall_s": round(result.wall_s, 3),
         "weights": {"w1": weights.w1, "w2": weights.w2},
         "best": {"theta": [float(t) for t in result.thetas[b]], "P_c": float(result.P_c[b]),
-                 "P_len": int(result.P_len[b]), "R1": float(weights.r1(result.P_c[b], result.P_len[b]))},
+                 "P_len": int(result.P_len[b]), "R1": float(weights.r1(result.P_c[b], result.P_len[b])),
+                 **(best_extra or {})},
         "front_size": len(front),
     }  # fmt: skip
     write_text_atomic(files["summary"], json.dumps(summary, indent=2))

@@ -201,3 +201,24 @@ def test_chunks_shrink_where_plans_are_slow_so_progress_comes_within_seconds():
         assert chunks[0][0] == 0 and chunks[-1][1] == 5_929_741
         assert all(a == b for (_, a), (b, _) in itertools.pairwise(chunks))  # contiguous
         assert max(hi - lo for lo, hi in chunks) <= most
+
+
+def test_a_start_on_a_speck_is_named_with_the_fix_and_the_summary_says_what_the_best_covers(tmp_path, capsys):
+    """The paper's planner starts at the first free cell in row order: on a speck of noise below the floor it
+    cleans the speck. The warning names --start-xy; summary.json gives the free floor covered and the bound."""
+    from smorphi_rl.maps import Cell, Map, save_map
+
+    cells = np.full((60, 60), Cell.OCCUPIED, dtype=np.uint8)
+    cells[0, 5] = Cell.FREE  # the speck, first in row order (row 0 is the lowest y)
+    cells[30:58, 5:55] = Cell.FREE  # beyond a wall thicker than any tile
+    floor = save_map(Map(cells, 0.1, name="speck"), tmp_path / "speck.yaml")
+    argv = ["search", "random", "--map", str(floor), "--samples", "20", "--log-dir", str(tmp_path / "logs")]
+    assert main(argv) == 0
+    captured = capsys.readouterr()
+    assert "plans start in a free area holding 0.1 % of the free cells (around (0.55, 0.05) m)" in captured.err
+    assert "--start-xy X Y" in captured.err and "swamps" not in captured.err
+    assert "of the free floor; any path from its start could cover" in captured.out
+    summary = json.loads((tmp_path / "logs" / "random-speck-seed0" / "summary.json").read_text())
+    assert summary["best"]["coverage_free_pct"] < 1.0 and summary["best"]["coverable_pct"] < 1.0
+    assert main([*argv, "--start-xy", "2.5", "3.0", "--name", "b"]) == 0
+    assert "plans start in a free area" not in capsys.readouterr().err
