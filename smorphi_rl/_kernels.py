@@ -226,7 +226,8 @@ def plan_into(
         if trav[t]:
             edge_e[t] = t % nc + 1 < nc and trav[t + 1]
             edge_n[t] = t // nc + 1 < nr and trav[t + nc]
-    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, start, 0, 0, path, covered, h, wd)
+    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, start, 0, 0, path, covered, h, wd,
+                                             False)  # fmt: skip
     return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
 
 
@@ -258,11 +259,14 @@ def _walk(
     covered: np.ndarray,
     h: int,
     wd: int,
+    all_free: bool,
 ) -> tuple[int, int, int, int, int]:
     """docs/spec/fbcpp.md sections 5-6 on an nr x nc lattice of nodes whose node (a, b) puts F's corner at cell
     (oy + a l, ox + b w), joined where `edge_e` (to b + 1) and `edge_n` (to a + 1) say: distance transform,
     greedy walk with breadth-first escapes from dead ends, and the footprint swept along every move.
-    Returns (covered free cells, P_len, east/west moves, north/south moves, path nodes)."""
+    Returns (covered free cells, P_len, east/west moves, north/south moves, path nodes). `all_free`: every
+    cell the walk sweeps is free (the fit planner's moves pass safe placements only), so the sweep is ORed into
+    64-cell words and counted once at the end instead of cell by cell."""
     l, w = f.shape
     stride = padded.shape[1]
     n = nr * nc
@@ -294,9 +298,19 @@ def _walk(
                 for k in range(l + 1):
                     swept_y[i + k, j] = True
     off_f, off_x, off_y = _offsets(f, stride), _offsets(swept_x, stride), _offsets(swept_y, stride)
-    work = padded.ravel().copy()
+    if all_free:
+        pat_f, pat_x, pat_y = _patterns(f), _patterns(swept_x), _patterns(swept_y)
+        nwc = (wd + 2 * w + 63) // 64 + pat_x.shape[1] + 1
+        sweep = np.zeros((h + 2 * l + 1, nwc), np.uint64)
+        work = np.zeros(0, np.uint8)
+        _or_pattern(sweep, pat_f, oy + (start // nc) * l, ox + (start % nc) * w)
+        n_cov = 0
+    else:
+        sweep = np.zeros((0, 0), np.uint64)
+        work = padded.ravel().copy()
     origin = oy * stride + ox
-    n_cov = _stamp(off_f, origin + (start // nc) * l * stride + (start % nc) * w, work)
+    if not all_free:
+        n_cov = _stamp(off_f, origin + (start // nc) * l * stride + (start % nc) * w, work)
     swept_ew = np.zeros(n, np.bool_)  # edge (a, b)-(a, b+1) stored at a*nc + b
     swept_ns = np.zeros(n, np.bool_)  # edge (a, b)-(a+1, b) stored at a*nc + b
     visited = np.zeros(n, np.bool_)
@@ -354,13 +368,19 @@ def _walk(
                 e = pa * nc + min(pb, qb)
                 if not swept_ew[e]:
                     swept_ew[e] = True
-                    n_cov += _stamp(off_x, origin + pa * l * stride + min(pb, qb) * w, work)
+                    if all_free:
+                        _or_pattern(sweep, pat_x, oy + pa * l, ox + min(pb, qb) * w)
+                    else:
+                        n_cov += _stamp(off_x, origin + pa * l * stride + min(pb, qb) * w, work)
             else:
                 n_ns += 1
                 e = min(pa, qa) * nc + pb
                 if not swept_ns[e]:
                     swept_ns[e] = True
-                    n_cov += _stamp(off_y, origin + min(pa, qa) * l * stride + pb * w, work)
+                    if all_free:
+                        _or_pattern(sweep, pat_y, oy + min(pa, qa) * l, ox + pb * w)
+                    else:
+                        n_cov += _stamp(off_y, origin + min(pa, qa) * l * stride + pb * w, work)
             if n_path < path.shape[0]:
                 path[n_path, 0], path[n_path, 1] = qa, qb
             n_path += 1
@@ -369,11 +389,41 @@ def _walk(
             if not visited[cur]:
                 visited[cur] = True
                 n_visited += 1
+    if all_free:
+        for y in range(h):
+            for k in range(sweep.shape[1]):
+                n_cov += _popcount(sweep[y, k])
     if covered.shape[0] == h and covered.shape[1] == wd:
         for y in range(h):
             for x in range(wd):
-                covered[y, x] = work[y * stride + x] == 2
+                covered[y, x] = _bit(sweep, y, x) if all_free else work[y * stride + x] == 2
     return n_cov, p_len, n_ew, n_ns, n_path
+
+
+@njit(cache=True)
+def _patterns(mask: np.ndarray) -> np.ndarray:
+    """The rows of a boolean mask as 64-cell words (row i, word q holds cells 64 q .. 64 q + 63)."""
+    rows, cols = mask.shape
+    out = np.zeros((rows, (cols + 63) // 64), np.uint64)
+    for i in range(rows):
+        for j in range(cols):
+            if mask[i, j]:
+                out[i, j >> 6] |= _ONE << np.uint64(j & 63)
+    return out
+
+
+@njit(cache=True)
+def _or_pattern(rows: np.ndarray, pattern: np.ndarray, y: int, x: int) -> None:
+    """rows |= `pattern` (`_patterns`) with its cell (0, 0) on cell (y, x)."""
+    q0, b = x >> 6, np.uint64(x & 63)
+    for i in range(pattern.shape[0]):
+        row = rows[y + i]
+        carry = np.uint64(0)
+        for q in range(pattern.shape[1]):
+            v = pattern[i, q]
+            row[q0 + q] |= (v << b) | carry
+            carry = (v >> (np.uint64(64) - b)) if b != 0 else np.uint64(0)
+        row[q0 + pattern.shape[1]] |= carry
 
 
 _ONE = np.uint64(1)
@@ -484,26 +534,44 @@ def _or_rows(acc: np.ndarray, src: np.ndarray, dy: int, s: int, up: bool, n_rows
 
 @njit(cache=True)
 def _safe_bits(
-    bits: np.ndarray, h: int, wd: int, l: int, w: int, f_start: np.ndarray, f_j0: np.ndarray, f_len: np.ndarray
-) -> np.ndarray:
+    bits: np.ndarray, h: int, wd: int, l: int, w: int, f_start: np.ndarray, f_j0: np.ndarray, f_len: np.ndarray,
+    y_lo: int, y_hi: int,
+) -> np.ndarray:  # fmt: skip
     """Bit rows of the safe placements (F with its corner on cell (y, x) overlaps only free cells): a row of
     placements is unsafe where some run of F's row i meets a not-free cell of map row y + i, 64 placements
-    per operation. Rows past h and bits past wd are clear; spare words let rows be shifted by up to
-    max(l, w) + 1 cells."""
+    per operation. Only rows y_lo .. y_hi - 1 can hold a safe placement (`_placement_rows`); the others, rows past
+    h and bits past wd are clear; spare words let rows be shifted by up to max(l, w) + 1 cells."""
     nw = (wd + 63) // 64
     safe = np.zeros((h + l + 1, nw + (max(l, w) + 1) // 64 + 2), np.uint64)
-    for i in range(l):  # safe holds the unsafe placements until the end
+    if y_hi <= y_lo:
+        return safe
+    window = safe[y_lo:]
+    for i in range(l):  # the window holds the unsafe placements until the end
         for r in range(f_start[i], f_start[i + 1]):
             k = _level(f_len[r])
-            _or_rows(safe, bits[k], i, f_j0[r], False, h, nw)
+            _or_rows(window, bits[k], i + y_lo, f_j0[r], False, y_hi - y_lo, nw)
             if f_len[r] > (1 << k):
-                _or_rows(safe, bits[k], i, f_j0[r] + f_len[r] - (1 << k), False, h, nw)
+                _or_rows(window, bits[k], i + y_lo, f_j0[r] + f_len[r] - (1 << k), False, y_hi - y_lo, nw)
     tail = _ALL if wd & 63 == 0 else (_ONE << np.uint64(wd & 63)) - _ONE
-    for y in range(h):
+    for y in range(y_lo, y_hi):
         for k in range(nw):
             safe[y, k] = ~safe[y, k]
         safe[y, nw - 1] &= tail
     return safe
+
+
+@njit(cache=True)
+def _placement_rows(prefix: np.ndarray, l: int) -> tuple[int, int]:
+    """The rows [lo, hi) that can hold a safe placement of an F of l rows (its first and last rows both hold cells,
+    so both must lie on rows with a free cell): from the first free row to the last free row less l - 1. On a SLAM
+    map mostly unknown, a small share of the rows."""
+    h, wd = prefix.shape[0] - 1, prefix.shape[1] - 1
+    lo, hi = h, -1
+    for y in range(h):
+        if prefix[y + 1, wd] - prefix[y, wd] > 0:
+            lo = min(lo, y)
+            hi = y
+    return lo, max(lo, hi - l + 2)
 
 
 @njit(cache=True)
@@ -716,15 +784,17 @@ def _class_bounds(
 
 
 @njit(cache=True)
-def _moves(safe: np.ndarray, h: int, wd: int, l: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+def _moves(
+    safe: np.ndarray, h: int, wd: int, l: int, w: int, y_lo: int, y_hi: int
+) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Bit rows of the placements a lattice move may leave from: east (every placement x .. x + w of the row
     safe) and north (every placement y .. y + l of the column safe). West and south moves are those of the
-    neighbour they reach."""
+    neighbour they reach. Only rows y_lo .. y_hi - 1 hold safe placements; the others stay clear."""
     nws = safe.shape[1]
     east = np.zeros((h, nws), np.uint64)
     north = np.zeros((h, nws), np.uint64)
     run = np.empty(nws, np.uint64)
-    for y in range(h):
+    for y in range(y_lo, y_hi):
         run[:] = safe[y]  # run: every placement x .. x + span - 1 safe
         span = 1
         while 2 * span <= w + 1:
@@ -902,7 +972,8 @@ def plan_fit_into(
     if start_kind == START_TILE:
         return STATUS_TILE_START_FIT, 0, 0, 0, 0, 0, 0, -1, -1
     f_start, f_j0, f_len = _f_runs(f)
-    safe = _safe_bits(bits, h, wd, l, w, f_start, f_j0, f_len)
+    y_lo, y_hi = _placement_rows(prefix, l)
+    safe = _safe_bits(bits, h, wd, l, w, f_start, f_j0, f_len, y_lo, y_hi)
     row_start, x0s, x1s, label, n_labels = _run_groups(safe, h, wd)
     candidates = _fit_candidates(safe, bits, f, h, wd, start_kind, sp, sq, row_start, x0s, x1s, label, n_labels)
     if candidates.shape[0] == 0:
@@ -917,7 +988,7 @@ def plan_fit_into(
     upper = _class_bounds(candidates, cand_label, row_start, x0s, x1s, label, n_labels, h, l, w, wd)
     if prune.shape[0] > 0 and prune[PRUNE_ACTIVE] > 0 and r1_upper(upper.max(), l * w, prune) < prune[PRUNE_THRESHOLD]:
         return STATUS_PRUNED, 0, 0, 0, 0, 0, 0, -1, -1
-    east, north = _moves(safe, h, wd, l, w)
+    east, north = _moves(safe, h, wd, l, w, y_lo, y_hi)
     best, best_reach = -1, -1
     n_nodes = ((h + l - 1) // l) * ((wd + w - 1) // w)  # the most nodes a lattice has
     seen, queue = np.zeros(n_nodes, np.bool_), np.empty(n_nodes, np.int64)
@@ -946,7 +1017,8 @@ def plan_fit_into(
         for j in range(w):
             fd[i, j] = f[i, j] != 0
     start = (y0 // l) * nc + x0 // w
-    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, fd, nr, nc, edge_e, edge_n, start, oy, ox, path, covered, h, wd)
+    n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, fd, nr, nc, edge_e, edge_n, start, oy, ox, path, covered, h, wd,
+                                             True)  # fmt: skip
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
     n_bound = 0 if prune.shape[0] > 0 else _bound(row_start, x0s, x1s, label, cand_label[best], h, wd, l, w, f_start,
