@@ -33,7 +33,7 @@ METHOD_FIELDS = {
     "anneal": ("seed", "budget", "starts"),
 }
 """The SearchConfig fields each method reads (its command-line options)."""
-RAY_METHODS = ("exhaustive", "random", "nsga2")
+RAY_METHODS = ("exhaustive", "optimum", "random", "nsga2")
 """The methods that also run on a Ray cluster (`--address`): those that score many shapes at once."""
 
 

@@ -27,6 +27,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.score import Weights
+from smorphi_rl.search.lattice_tasks import footprint_keys, run_task
 from smorphi_rl.search.results import SearchResult
 
 CHUNKS_PER_WORKER = 24
@@ -83,28 +84,15 @@ def _init(map_path: str, planning: Planning, parent: int, step: float, weights: 
     _bound = _worker.prune_bound(weights)
 
 
-def _task(task: tuple[Any, ...]) -> tuple[Any, ...]:
-    """One task: ("keys", lo, hi): the footprint keys of lattice rows [lo, hi); ("plan", tag, rows, threshold): the
-    metrics of those rows (one distinct footprint each), pruned where they cannot beat R1 `threshold`, and the best
-    R1 this worker has planned."""
-    if _worker is None or _lattice is None:  # pragma: no cover (the initializer always runs first)
-        raise RuntimeError("worker not initialised")
-    if task[0] == "keys":
-        _, lo, hi = task
-        return "keys", lo, hi, footprint_keys(_worker, _lattice[lo:hi])
-    _, tag, rows, threshold = task
-    _bound[0] = max(_bound[0], threshold)
-    batch, pruned = _worker.evaluate_bounded(_lattice[rows], _bound)
-    return "plan", tag, batch.P_c, batch.P_len.astype(np.int32), batch.feasible, pruned, float(_bound[0])
-
-
 def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
     """A worker: tasks in, answers out, over its own pipe (no lock shared with any other process, so killing a
     worker anywhere can never block the parent), until it is sent None."""
     try:
         _init(map_path, planning, parent, step, weights)
         while (task := conn.recv()) is not None:
-            conn.send(_task(task))
+            if _worker is None or _lattice is None:  # pragma: no cover (the initializer always runs first)
+                raise RuntimeError("worker not initialised")
+            conn.send(run_task(_worker, _lattice, _bound, task))
     except Exception as exc:  # said by the parent in one line, not as a worker's traceback
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
 
@@ -156,15 +144,6 @@ def chunk_bounds(n_shapes: int, n_workers: int, most: int = CHUNK_SHAPES) -> lis
     n_chunks = max(1, fewest, min(n_shapes // least, max(n_workers * CHUNKS_PER_WORKER, fewest)))
     edges = np.linspace(0, n_shapes, n_chunks + 1).astype(np.int64)
     return [(int(a), int(b)) for a, b in itertools.pairwise(edges)]
-
-
-def footprint_keys(evaluator: Evaluator, thetas: np.ndarray) -> np.ndarray:
-    """Two 64-bit words per row: equal exactly when the rows' footprints F are (a 128-bit hash of F's shape and
-    bits; both zero where the shape is infeasible)."""
-    from smorphi_rl import _kernels as k
-
-    arr = np.ascontiguousarray(thetas, dtype=np.float64)
-    return k.footprint_keys(arr, evaluator.block_side_m, evaluator.grid_map.resolution_m, evaluator.footprint_side)
 
 
 def footprint_classes(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -269,6 +248,35 @@ class _Settled:
         self.settled += int(sizes[ids].sum())
 
 
+@contextmanager
+def _local_pool(
+    map_path: str, planning: Planning, step: float, weights: Weights | None, workers: int | None, thetas: np.ndarray
+) -> Iterator[tuple[_Workers, int]]:
+    """`workers` processes (default: every core) forked with the lattice, all gone when the block is left."""
+    global _lattice
+    n = max(1, workers or os.cpu_count() or 1)
+    _lattice = thetas  # the forked workers read their tasks' shapes from here
+    pool = _Workers(n, map_path, planning, step, weights)
+    finished = False
+    try:
+        yield pool, n
+        finished = True
+    finally:  # Ctrl-C, SIGTERM, an error or the end: every worker is gone before this returns
+        pool.close(finished)
+        _lattice = None
+
+
+@contextmanager
+def _ray_pool(
+    grid_map: Map, planning: Planning, step: float, weights: Weights | None, workers: int | None, address: str
+) -> Iterator[tuple[Any, int]]:
+    """`workers` planner actors (default: one per CPU) on the Ray cluster at `address` (`search/on_ray.py`)."""
+    from smorphi_rl.search.on_ray import RayTasks, ray_planners
+
+    with ray_planners(grid_map, planning, address, workers, step, weights) as actors:
+        yield RayTasks(actors), len(actors)
+
+
 def run_exhaustive(
     map_path: str,
     step_deg: float = 1.0,
@@ -290,49 +298,19 @@ def run_exhaustive(
     step = check_step(step_deg)
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
-    if address is not None:
-        if best_for is not None:
-            raise SmorphiError("the best-R1 search runs on this machine's cores only (drop --address)")
-        return _on_ray(grid_map, planning, step, thetas, workers, progress, address)
-    n_workers = max(1, workers or os.cpu_count() or 1)
-    per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels
+    per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels, before any worker forks
+    pools = (_local_pool(str(map_path), planning, step, best_for, workers, thetas) if address is None
+             else _ray_pool(grid_map, planning, step, best_for, workers, address))  # fmt: skip
+    with pools as (pool, n_workers), _stop_requests() as stop:
+        t0 = time.perf_counter()  # start-up (workers, their kernels) is not timed
+        rows, inverse, reps, state = _two_passes(pool, thetas, n_workers, per_chunk, best_for is not None, stop,
+                                                 progress)  # fmt: skip
+        wall = time.perf_counter() - t0
     n = len(thetas)
-    t0 = time.perf_counter()
-    global _lattice
-    _lattice = thetas  # the forked workers read their tasks' shapes from here
-    pool = _Workers(n_workers, str(map_path), planning, step, best_for)
-    finished = False
-    try:
-        with _stop_requests() as stop:
-            keys = np.zeros((n, 2), dtype=np.uint64)
-            key_tasks = (("keys", lo, hi) for lo, hi in chunk_bounds(n, n_workers, KEY_CHUNK_SHAPES))
-            keyed = 0
-            for _, lo, hi, chunk in pool.run(key_tasks, stop):
-                keys[lo:hi] = chunk
-                keyed += hi - lo
-                if progress is not None:
-                    progress(keyed, n)
-            rows = np.flatnonzero(keys.any(axis=1))  # the feasible shapes
-            first, inverse = footprint_classes(keys[rows])
-            reps = rows[first]  # one shape per distinct footprint
-            sizes = np.bincount(inverse, minlength=len(reps))
-            parts = np.array_split(_plan_order(thetas, rows, inverse, len(reps), best_for is not None),
-                                   max(1, -(-len(reps) // per_chunk)))  # fmt: skip
-            state = _Settled(len(reps), n - len(rows))
-            plan_tasks = (("plan", i, reps[part].astype(np.int32), state.threshold) for i, part in enumerate(parts))
-            for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
-                state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
-                if progress is not None:
-                    progress(state.settled, n)
-        finished = True
-    finally:  # Ctrl-C, SIGTERM, an error or the end: every worker is gone before this returns
-        pool.close(finished)
-        _lattice = None
-    rep_of_row = np.full(n, -1, dtype=np.int64)
-    rep_of_row[rows] = inverse
     params: dict[str, Any] = {"step_deg": step, "workers": n_workers, "distinct_footprints": len(reps),
                               "planner": planning.planner.value}  # fmt: skip
-    wall = time.perf_counter() - t0
+    if address is not None:
+        params["address"] = address
     if best_for is None:
         p_c = np.zeros(n)
         p_len = np.zeros(n, dtype=np.int32)
@@ -340,6 +318,8 @@ def run_exhaustive(
         ok = np.zeros(n, dtype=bool)
         ok[rows] = state.feasible[inverse]
         return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, ok, n, wall, params)
+    rep_of_row = np.full(n, -1, dtype=np.int64)
+    rep_of_row[rows] = inverse
     kept = np.flatnonzero((rep_of_row >= 0) & ~state.pruned[np.maximum(rep_of_row, 0)])
     idx = rep_of_row[kept]
     params |= {"planned_footprints": int(np.count_nonzero(~state.pruned)), "pruned_footprints":
@@ -348,24 +328,36 @@ def run_exhaustive(
                         state.feasible[idx], len(kept), wall, params)  # fmt: skip
 
 
-def _on_ray(
-    grid_map: Map,
-    planning: Planning,
-    step: float,
+def _two_passes(
+    pool: Any,
     thetas: np.ndarray,
-    workers: int | None,
+    n_workers: int,
+    per_chunk: int,
+    bounded: bool,
+    stop: threading.Event,
     progress: Callable[[int, int], None] | None,
-    address: str,
-) -> SearchResult:
-    """`run_exhaustive` on the Ray cluster at `address` (`search/on_ray.py`)."""
-    from smorphi_rl.search.on_ray import plan_chunks, ray_planners
-
-    with ray_planners(grid_map, planning, address, workers, step) as actors, _stop_requests() as stop:
-        t0 = time.perf_counter()
-        chunks = chunk_bounds(len(thetas), len(actors), chunk_shapes(grid_map, planning))
-        p_c, p_len, feasible, digests = plan_chunks(actors, len(thetas), chunks, stop, progress)
-        wall = time.perf_counter() - t0
-        n_workers = len(actors)
-    params = {"step_deg": step, "workers": n_workers, "distinct_footprints": len(digests),
-              "planner": planning.planner.value, "address": address}  # fmt: skip
-    return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, feasible, len(thetas), wall, params)
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, _Settled]:
+    """Key every shape, then plan one shape of each distinct footprint (pruned where `bounded`), on `pool` (its
+    `run(tasks, stop)` yields each task's answer). Returns (the feasible rows, each one's footprint class, one
+    row of each class, what is known of each class)."""
+    n = len(thetas)
+    keys = np.zeros((n, 2), dtype=np.uint64)
+    keyed = 0
+    for _, lo, hi, chunk in pool.run((("keys", lo, hi) for lo, hi in chunk_bounds(n, n_workers, KEY_CHUNK_SHAPES)),
+                                     stop):  # fmt: skip
+        keys[lo:hi] = chunk
+        keyed += hi - lo
+        if progress is not None:
+            progress(keyed, n)
+    rows = np.flatnonzero(keys.any(axis=1))  # the feasible shapes
+    first, inverse = footprint_classes(keys[rows])
+    reps = rows[first]  # one shape per distinct footprint
+    sizes = np.bincount(inverse, minlength=len(reps))
+    parts = np.array_split(_plan_order(thetas, rows, inverse, len(reps), bounded), max(1, -(-len(reps) // per_chunk)))
+    state = _Settled(len(reps), n - len(rows))
+    plan_tasks = (("plan", i, reps[part].astype(np.int32), state.threshold) for i, part in enumerate(parts))
+    for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
+        state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
+        if progress is not None:
+            progress(state.settled, n)
+    return rows, inverse, reps, state
