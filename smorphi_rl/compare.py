@@ -77,6 +77,20 @@ def planner_of_run(run_dir: Path) -> str:
     return "paper"
 
 
+def start_of_run(run_dir: Path) -> tuple[float, float] | None:
+    """The point (metres) a training or search run's plans started from; None: the planner's default start (and
+    for runs from before a start could be given)."""
+    raw: Any = None
+    config = run_dir / "config.json"
+    if config.is_file():
+        env = read_json_object(config, "run configuration").get("env") or {}
+        raw = env.get("start_xy") if isinstance(env, dict) else None
+    elif (run_dir / "results.npz").is_file():
+        raw = load(run_dir).params.get("start_xy")
+    ok = isinstance(raw, list | tuple) and len(raw) == 2 and all(isinstance(v, int | float) for v in raw)
+    return (float(raw[0]), float(raw[1])) if ok else None
+
+
 def points_of_run(run_dir: Path, map_name: str) -> Points:
     """What a training run directory or a search run directory found on `map_name`."""
     if not run_dir.is_dir():

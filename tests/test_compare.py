@@ -83,3 +83,27 @@ def test_compare_refuses_runs_scored_by_another_planner(tmp_path, capsys):
     assert main(["compare", "--random", str(tmp_path / "r"), "--log-dir", str(tmp_path), "--step", "30"]) != 0
     err = capsys.readouterr().err
     assert "scored by the fit planner" in err and "--planner fit" in err and not (tmp_path / "compare-map-1").exists()
+
+
+def test_compare_refuses_runs_planned_from_another_start(tmp_path, capsys):
+    from smorphi_rl.cli import main
+
+    argv = ["search", "random", "--samples", "20", "--planner", "fit", "--start-xy", "1.0", "1.0"]
+    assert main([*argv, "--log-dir", str(tmp_path), "--name", "r"]) == 0
+    capsys.readouterr()
+    compare = [
+        "compare",
+        "--random",
+        str(tmp_path / "r"),
+        "--planner",
+        "fit",
+        "--log-dir",
+        str(tmp_path),
+        "--step",
+        "30",
+    ]
+    assert main(compare) != 0
+    err = capsys.readouterr().err
+    assert "planned from (1, 1) m, the exact front here from the planner's default start: pass --start-xy 1 1" in err
+    assert err.count("\n") == 1 and not (tmp_path / "compare-map-1").exists()
+    assert main([*compare, "--start-xy", "1.0", "1.0"]) == 0

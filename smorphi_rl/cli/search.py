@@ -108,6 +108,8 @@ def cmd_search(args: argparse.Namespace) -> int:
     except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free
         discard_run_dir(run_dir)
         raise
+    if planning.start_xy is not None:
+        result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
     b = result.best(on_map)
     from smorphi_rl.geometry import Morphology
 
@@ -135,6 +137,11 @@ def cmd_search(args: argparse.Namespace) -> int:
     if line:
         print(line, file=sys.stderr)
     return 0
+
+
+def start_text(start: tuple[float, float] | None) -> str:
+    """Where plans start, as the compare refusals say it."""
+    return "the planner's default start" if start is None else f"({start[0]:g}, {start[1]:g}) m"
 
 
 def format_search(
@@ -178,7 +185,14 @@ def format_search(
 
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
-    from smorphi_rl.compare import planner_of_run, points_of_run, report_lines, score_methods, write_report
+    from smorphi_rl.compare import (
+        planner_of_run,
+        points_of_run,
+        report_lines,
+        score_methods,
+        start_of_run,
+        write_report,
+    )
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -213,6 +227,16 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if made_with != planning.planner.value:
             raise SmorphiError(f"{where}: its shapes were scored by the {made_with} planner, the exact front here by "
                                f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
+    starts = {str(d): start_of_run(d) for d in dirs}
+    if exact is not None:
+        raw = exact.params.get("start_xy")
+        starts[str(args.exhaustive)] = (float(raw[0]), float(raw[1])) if isinstance(raw, list) else None
+    for where, start in starts.items():  # shapes planned from another start cannot be set against this front
+        if start != planning.start_xy:
+            said = start_text(start)
+            fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
+            raise SmorphiError(f"{where}: its shapes were planned from {said}, the exact front here from "
+                               f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
     runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
