@@ -53,6 +53,18 @@ def sub_env_generator(run_seed: int, worker_index: int, env_index: int, generati
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed, spawn_key=key)))
 
 
+ACTIONS_STREAM = 0xAC7
+"""The spawn-key word of an env runner's action-sampling stream (sub-envs use their own indices there)."""
+
+
+def action_seed(run_seed: int, worker_index: int) -> int:
+    """The torch seed of one remote env runner's action sampling: its own `SeedSequence` child of the run's seed
+    (RLlib's `seed + worker_index` gives seed s, runner 2 the actions of seed s + 1, runner 1)."""
+    return int(
+        np.random.SeedSequence(run_seed, spawn_key=(worker_index, ACTIONS_STREAM)).generate_state(1, np.uint64)[0]
+    )
+
+
 class MorphologyVectorEnv(VectorEnv):
     """`num_envs` morphology envs (each possibly wrapped for recording) behind gymnasium's VectorEnv API."""
 

@@ -6,7 +6,6 @@ Runs inside the env runners (`on_episode_end`) and the trial process (`on_algori
 
 from __future__ import annotations
 
-import os
 from dataclasses import replace
 from typing import Any
 
@@ -17,9 +16,13 @@ from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LI
 from smorphi_rl.protocol import EVAL_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
+from smorphi_rl.training.runners import push_module_to_runners
 from smorphi_rl.training.snapshot import snapshot_module, snapshot_state, update_lock
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
+from smorphi_rl.vector_env import SEED_KEY, action_seed
 
+LEARNER_THREADS = 2
+"""Torch threads of PPO's learner (IMPALA and APPO take 1): a fixed number, not the machine's cores."""
 WINDOW = 50
 """Episodes each mean is taken over (RLlib's own episode_return_mean uses 100)."""
 
@@ -54,19 +57,29 @@ class MorphologyCallbacks(RLlibCallback):
     """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
-        """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index)."""
+        """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index), and give a
+        remote runner's action sampling its own stream (`vector_env.action_seed`) in place of RLlib's
+        `seed + worker_index` (RLlib makes a runner's env once, when it builds the runner). The trial process's
+        runner keeps the run's seed: its torch generator is the learner's too."""
+        worker = int(getattr(env_context, "worker_index", 0) or 0)
         if hasattr(env, "set_worker_index"):
-            env.set_worker_index(int(getattr(env_context, "worker_index", 0) or 0))
+            env.set_worker_index(worker)
+        run_seed = env_context.get(SEED_KEY) if hasattr(env_context, "get") else None
+        if worker > 0 and run_seed is not None:
+            import torch
+
+            torch.manual_seed(action_seed(int(run_seed), worker))
 
     def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
         """Torch threads of the trial's learner, and its garbage collector settled (`heap`). PPO samples, then
-        learns: its learner has the machine to itself and takes two threads. IMPALA and APPO learn while their
+        learns: its learner has the machine to itself and takes LEARNER_THREADS (fixed, so a seeded run's bits do
+        not depend on the machine's cores). IMPALA and APPO learn while their
         env runners sample, so a second thread only contends with them; on 2 cores IMPALA trained 5,208 ->
         6,644 env steps/s and APPO 5,008 -> 6,187 with one (README, Training throughput)."""
         import torch
         from ray.rllib.algorithms.impala import IMPALA  # APPO is an IMPALA
 
-        torch.set_num_threads(1 if isinstance(algorithm, IMPALA) else max(1, min(2, os.cpu_count() or 1)))
+        torch.set_num_threads(1 if isinstance(algorithm, IMPALA) else LEARNER_THREADS)
         _on_learner_itself(algorithm, lambda learner: update_lock(learner) and None)  # before the first step
         settle_heap()  # the built algorithm's objects live as long as the trial: out of the collector's way
 
@@ -164,8 +177,6 @@ class MorphologyCallbacks(RLlibCallback):
             return protocol, steps
         if not last:
             return protocol, steps
-        from smorphi_rl.training.finetune import push_module_to_runners  # finetune imports this module
-
         _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
         return kept[3], int(kept[1])

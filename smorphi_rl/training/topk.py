@@ -116,11 +116,6 @@ class TopMorphologies:
     def maps(self) -> list[str]:
         return sorted({f.map for f in self._found.values()})
 
-    def first_reaching(self, r1: float, map_name: str | None = None) -> Found | None:
-        """The earliest-found shape with R1 >= r1 (None if training never found one)."""
-        hits = [f for f in self._found.values() if r1 <= f.R1 and (map_name is None or f.map == map_name)]
-        return min(hits, key=lambda f: (f.env_steps, -f.R1), default=None)
-
 
 def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
     """CSV for tools and Markdown for people, both ranked best first."""

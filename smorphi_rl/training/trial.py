@@ -21,7 +21,7 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
-from smorphi_rl.training.finetune import push_module_to_runners, reseed_runners
+from smorphi_rl.training.runners import push_module_to_runners, reseed_runners
 
 
 def resources(cfg: TrainConfig) -> Any:

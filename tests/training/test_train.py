@@ -192,8 +192,9 @@ def test_compare_takes_a_training_run(ppo_run, tmp_path):
 
 
 def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_path):
-    from smorphi_rl.training.finetune import PRETRAINED_KEY, policy_digest
+    from smorphi_rl.training.finetune import PRETRAINED_KEY
     from smorphi_rl.training.module import MorphologyModule
+    from smorphi_rl.training.runners import policy_digest
 
     run_dir, _ = ppo_run
     checkpoint = find_checkpoint(run_dir)
