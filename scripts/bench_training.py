@@ -140,25 +140,33 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench-training-") as tmp:
         rates: dict[str, float] = {}
-        for algo in args.algos:
+        layouts: list[tuple[str, tuple[int, int] | None]] = [(algo, None) for algo in args.algos]
+        if "ppo" in args.algos:  # the other layout beside the default: sampling in the trial process
+            layouts.insert(args.algos.index("ppo") + 1, ("ppo", (0, 32)))
+        for algo, layout in layouts:
             cfg = replace(base, algo=algo, timesteps=args.timesteps, seed=args.seed, checkpoint_every=1000)
+            if layout is not None:
+                cfg = replace(cfg, num_env_runners=layout[0], envs_per_runner=layout[1])
+            name = algo if layout is None else f"{algo}-{layout[0]}x{layout[1]}"
             sampling = sampling_rate(cfg)
-            summary = run_train(cfg, tmp, algo)
+            summary = run_train(cfg, tmp, name)
             after = env_step_rate(base.env.to_dict())  # the machine's speed drifts: measure around each run
             yardstick = (bare + after) / 2
-            mem = peak_memory(cfg, tmp, f"{algo}-memory")
+            mem = peak_memory(cfg, tmp, f"{name}-memory")
             bare = env_step_rate(base.env.to_dict())
             rate = summary.env_steps / summary.wall_s  # type: ignore[attr-defined]
-            rates[algo] = rate
+            rates[name] = rate
             ev = summary.evaluation  # type: ignore[attr-defined]
             gib = mem.peak_pss / 2**30
-            print(f"\n{algo.upper()} ({cfg.env_runners} remote env runners x {cfg.envs_per_runner} envs, preset fast)")
+            told = "the default layout" if layout is None else "the other layout"
+            print(f"\n{algo.upper()} ({cfg.env_runners} remote env runners x {cfg.envs_per_runner} envs, preset fast, "
+                  f"{told})")  # fmt: skip
             sampling_note = ""
-            if algo == "ppo":
+            if name == "ppo":
                 sampling_note = f" (target 5,000: {'met' if sampling >= TARGET_SAMPLING else 'MISSED'})"
             print(f"  sampling alone: {sampling:,.0f} env steps/s{sampling_note}")
             verdict = "met" if rate >= TARGET_PPO_RATE and rate / yardstick >= TARGET_RATIO else "MISSED"
-            target = f" (PPO target 2,000/s and 0.12: {verdict})" if algo == "ppo" else ""
+            target = f" (PPO target 2,000/s and 0.12: {verdict})" if name == "ppo" else ""
             steps, wall = summary.env_steps, summary.wall_s  # type: ignore[attr-defined]
             print(f"  train: {steps:,} env steps in {wall:.1f} s = {rate:,.0f} env steps/s, "
                   f"{rate / yardstick:.3f} of the bare env{target}")  # fmt: skip

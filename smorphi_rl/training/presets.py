@@ -112,6 +112,9 @@ DEFAULT_TIMESTEPS = 200_000
 150,000 steps PPO settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2
 (seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three
 seeds."""
-ENVS_PER_RUNNER = 32
-"""Sub-envs each env runner steps together: one forward pass serves them all (16: 1,740 env steps/s end to end,
-32: 2,500/s, 64: no faster, on 2 cores; see the README's speed table)."""
+ENVS_PER_RUNNER = 16
+"""Sub-envs each env runner steps together (one forward pass serves them all): on the default 2 runners, the 32
+envs in all the presets were tuned on, each fragment 62 steps of each env. With 2 x 32 (fragments of 31 steps) the
+main job settled 14, 20, 20 of 20 starts within 1 % on map-1 and 17, 20, 20 on map-2 (seeds 0-2); with 2 x 16,
+20, 20, 20 and 20, 18, 20 (docs/decisions.md). `--env-runners 0 --envs-per-runner 32` is the same 32 envs
+in the trial process."""
