@@ -133,7 +133,6 @@ class Evaluator:
         self._cache: dict[bytes, tuple[float, ...]] = {}
         self.cache_limit = cache_limit
         """At most this many footprints are kept (the cache is emptied when full); None: no limit."""
-        self._planned: list[bytes] = []
         self.hits = 0
         self.misses = 0
 
@@ -144,18 +143,11 @@ class Evaluator:
     def cache_size(self) -> int:
         return len(self._cache)
 
-    def drain_planned(self) -> list[bytes]:
-        """The bits of every F planned since the last call (each once per plan; with a cache limit, an F
-        planned again after the cache was emptied comes back again)."""
-        planned, self._planned = self._planned, []
-        return planned
-
     def _remember(self, key: bytes, counts: tuple[float, ...]) -> None:
         """Keep one plan's counts under F's bits, emptying a full cache first (bounded memory on huge runs)."""
         if self.cache_limit is not None and len(self._cache) >= self.cache_limit:
             self._cache.clear()
         self._cache[key] = counts
-        self._planned.append(key)
 
     def footprint(self, morphology: Morphology) -> Footprint:
         """F and the footprint size of one morphology (compiled rasteriser)."""

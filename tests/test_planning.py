@@ -46,8 +46,7 @@ def test_a_bounded_cache_stays_bounded_and_changes_no_result(map_1, thetas):
     bounded = Evaluator(map_1, cache_limit=7)
     results = [bounded.evaluate_many(thetas[i : i + 20]) for i in range(0, 100, 20)]
     assert bounded.cache_size() <= 7
-    planned = bounded.drain_planned()
-    assert len(planned) >= len(set(planned)) > 7 and bounded.drain_planned() == []
+    assert bounded.misses > 7  # more footprints planned than the cache holds
     plain = Evaluator(map_1, cache=False).evaluate_many(thetas[:100])
     for field, whole in zip(zip(*(_fields(r) for r in results), strict=True), _fields(plain), strict=True):
         assert np.array_equal(np.concatenate(field), whole)

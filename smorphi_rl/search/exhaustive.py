@@ -157,7 +157,7 @@ def footprint_classes(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 class _Workers:
-    """Worker processes, each with its own pipe, that run tasks (`_task`) and are all gone when this is left."""
+    """Worker processes, each with its own pipe, that run tasks (`lattice_tasks.run_task`); `close` ends them all."""
 
     def __init__(self, n: int, map_path: str, planning: Planning, step: float, weights: Weights | None) -> None:
         context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()

@@ -68,7 +68,7 @@ class TrainConfig:
     preset: str = "fast"
     """Hyperparameters: fast (2 cores) or paper (Table 1)."""
     num_env_runners: int | None = None
-    """Remote env runners; None: the preset's layout (0 samples in the trial process)."""
+    """Remote env runners; None: the preset's layout (2; 0 samples in the trial process)."""
     envs_per_runner: int = ENVS_PER_RUNNER
     """Envs each env runner steps as one vector env (one policy forward pass for all of them)."""
     checkpoint_every: int = 10
