@@ -297,7 +297,10 @@ def _walk(
                     swept_x[i, j + k] = True
                 for k in range(l + 1):
                     swept_y[i + k, j] = True
-    off_f, off_x, off_y = _offsets(f, stride), _offsets(swept_x, stride), _offsets(swept_y, stride)
+    if all_free:  # bit rows only: the cell offsets are not needed
+        off_f = off_x = off_y = np.zeros(0, np.int64)
+    else:
+        off_f, off_x, off_y = _offsets(f, stride), _offsets(swept_x, stride), _offsets(swept_y, stride)
     if all_free:
         pat_f, pat_x, pat_y = _patterns(f), _patterns(swept_x), _patterns(swept_y)
         nwc = (wd + 2 * w + 63) // 64 + pat_x.shape[1] + 1
