@@ -87,6 +87,11 @@ def start_of_run(run_dir: Path) -> tuple[float, float] | None:
         raw = env.get("start_xy") if isinstance(env, dict) else None
     elif (run_dir / "results.npz").is_file():
         raw = load(run_dir).params.get("start_xy")
+    return start_from(raw)
+
+
+def start_from(raw: Any) -> tuple[float, float] | None:
+    """A start point as a run records it ([x, y] in metres), or None where it records none (or not one of ours)."""
     ok = isinstance(raw, list | tuple) and len(raw) == 2 and all(isinstance(v, int | float) for v in raw)
     return (float(raw[0]), float(raw[1])) if ok else None
 

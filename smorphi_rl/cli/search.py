@@ -190,6 +190,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         points_of_run,
         report_lines,
         score_methods,
+        start_from,
         start_of_run,
         write_report,
     )
@@ -229,8 +230,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     starts = {str(d): start_of_run(d) for d in dirs}
     if exact is not None:
-        raw = exact.params.get("start_xy")
-        starts[str(args.exhaustive)] = (float(raw[0]), float(raw[1])) if isinstance(raw, list) else None
+        starts[str(args.exhaustive)] = start_from(exact.params.get("start_xy"))
     for where, start in starts.items():  # shapes planned from another start cannot be set against this front
         if start != planning.start_xy:
             said = start_text(start)
