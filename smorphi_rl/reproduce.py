@@ -44,6 +44,9 @@ class Budget:
     exhaustive_step: float
     envs_per_runner: int = ENVS_PER_RUNNER
     """Envs per env runner (the tiny budget uses few, so whole 200-step episodes end within it)."""
+    env_runners: int | None = None
+    """Remote env runners of every training run; None: the preset's (2). The tiny budget samples in the trial
+    process (0): a smoke check of the pipeline, not of the layout, in a third of the time."""
     transfer_seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of the transfer job: each held-out map is fine-tuned and trained from scratch once per seed."""
 
@@ -66,6 +69,7 @@ BUDGETS = {
         3,
         10.0,
         envs_per_runner=2,
+        env_runners=0,
         transfer_seeds=(0,),
     ),
 }
@@ -108,7 +112,8 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         for algo in b.algorithms:
             say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps")
             env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
-            cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner)
+            cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner,
+                              num_env_runners=b.env_runners)  # fmt: skip
             training[(algo, map_name)] = train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
                                                label=f"{algo.upper()} {map_name}").run_dir  # fmt: skip
     searches: dict[tuple[str, str], SearchResult] = {}
@@ -124,14 +129,15 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
             searches[(result.method, map_name)] = result
     say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
     pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
-    pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner)
+    pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
+                          num_env_runners=b.env_runners)  # fmt: skip
     pre = train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain")
     say(
         f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
         f"seeds {', '.join(map(str, b.transfer_seeds))}"
     )
     job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
-                      envs_per_runner=b.envs_per_runner)  # fmt: skip
+                      envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
     job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 

@@ -44,6 +44,8 @@ def register(sub: Any) -> None:
     run_options(tf, "job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
     option(tf, TransferJob, "record_every", metavar="N")
     option(tf, TransferJob, "envs_per_runner", metavar="N")
+    option(tf, TransferJob, "num_env_runners", "--env-runners", type=int, metavar="N",
+           default_text="the preset's: 2")  # fmt: skip
     tf.set_defaults(func=cmd_transfer)
 
     sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
@@ -91,7 +93,7 @@ def _register_train(sub: Any) -> None:
     weight_options(tr)
     planner_option(tr, unset=True)
     option(tr, TrainConfig, "num_env_runners", "--env-runners", type=int, metavar="N",
-           default_text="the preset's: 0 for PPO, 2 for IMPALA/APPO on the fast preset")  # fmt: skip
+           default_text="the preset's: 2")  # fmt: skip
     for name in ("envs_per_runner", "eval_every", "eval_starts", "select_starts"):
         option(tr, TrainConfig, name, metavar="N")
     record_option(tr)
@@ -129,7 +131,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     # the options and maps are checked before anything runs
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
-                      args.algo, args.preset, args.record_every, args.envs_per_runner)  # fmt: skip
+                      args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
     for path in args.maps:
         load_map(path)
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"

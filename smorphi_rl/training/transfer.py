@@ -59,6 +59,8 @@ class TransferJob:
     """Record every Nth episode of each env to MCAP; 0: no recording."""
     envs_per_runner: int = TrainConfig.envs_per_runner
     """Envs each env runner steps as one vector env."""
+    num_env_runners: int | None = TrainConfig.num_env_runners
+    """Remote env runners of every run (0: sample in the trial process); None: the preset's (2)."""
 
     def __post_init__(self) -> None:
         if not self.seeds:
@@ -75,7 +77,8 @@ class TransferJob:
     def train_config(self, env: EnvConfig | None = None) -> TrainConfig:
         """The training run of one map (its env given; else the default env) before seed and mode are set."""
         return TrainConfig(algo=self.algo, env=env or EnvConfig(), timesteps=self.timesteps, preset=self.preset,
-                           record_every=self.record_every, envs_per_runner=self.envs_per_runner)  # fmt: skip
+                           record_every=self.record_every, envs_per_runner=self.envs_per_runner,
+                           num_env_runners=self.num_env_runners)  # fmt: skip
 
 
 def run_transfer(

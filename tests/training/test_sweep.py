@@ -26,9 +26,11 @@ search:
   train_batch_size: 1000
 env: {{max_steps: 20}}
 checkpoint: {{every: 1}}
+env_runners: 0
 """
 ITERATIONS = 10
-"""10,000 steps in batches of 1,000 (32 envs: 1,024 a batch)."""
+"""10,000 steps in batches of 1,000 (16 envs: 1,008 a batch). The trials sample in their own process: this is
+about stopping and resuming a sweep, and takes half the time it takes on 2 runners (whose runs test_train has)."""
 pytestmark = pytest.mark.slow
 
 
@@ -64,7 +66,7 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     for trial in trials:
         rows = results(trial)
         assert sorted({r["smorphi_iteration"] for r in rows}) == list(range(1, ITERATIONS + 1))
-        per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 32 envs
+        per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 16 envs
         assert rows[-1]["num_env_steps_sampled_lifetime"] == ITERATIONS * per_iteration >= 10_000  # restored
         load_module(find_checkpoint(trial))
         evaluated = [r for r in rows if r.get("eval")]  # every trial runs train's evaluation protocol
