@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import os
 import socket
-import sys
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -78,30 +77,6 @@ def check_reachable(address: str | None) -> None:
 
 
 @contextmanager
-def _daemons_in_their_own_session() -> Iterator[None]:
-    """Start a local Ray's daemons (GCS, raylet and the workers they spawn) in a session of their own.
-
-    `timeout` and batch schedulers send SIGTERM to the whole process group; Ray's daemons would die at
-    once and the driver could no longer stop its trials and write their summary. In their own session
-    they get no group signal; they still die with the driver (Ray's kill-on-parent-death fate sharing)."""
-    from ray._private import services
-
-    original = services.ConsolePopen
-
-    class _Detached(original):  # type: ignore[valid-type, misc]
-        def __init__(self, *args: Any, **kwargs: Any) -> None:
-            if sys.platform != "win32":
-                kwargs.setdefault("start_new_session", True)
-            super().__init__(*args, **kwargs)
-
-    services.ConsolePopen = _Detached  # type: ignore[misc]
-    try:
-        yield
-    finally:
-        services.ConsolePopen = original  # type: ignore[misc]
-
-
-@contextmanager
 def ray_session(address: str | None) -> Iterator[None]:
     """A local Ray started for this run (address None), or a connection to an existing cluster."""
     import ray
@@ -122,7 +97,9 @@ def ray_session(address: str | None) -> Iterator[None]:
         kwargs["num_cpus"] = local_cpus()
     try:
         if address is None:
-            with _daemons_in_their_own_session():
+            from smorphi_rl import rllib_compat
+
+            with rllib_compat.daemons_in_their_own_session():
                 ray.init(address=address, **kwargs)
         else:
             ray.init(address=address, **kwargs)

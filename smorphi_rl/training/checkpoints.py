@@ -87,10 +87,10 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     import collections
 
     import gymnasium.spaces as spaces
-    from numpy.random import PCG64, SeedSequence, bit_generator
-    from numpy.random import _pickle as random_pickle  # numpy's own unpickling helpers for a Generator
+    from numpy.random import PCG64, SeedSequence
 
-    core = getattr(np, "_core", None) or np.core
+    from smorphi_rl import rllib_compat
+
     allowed: dict[tuple[str, str], Any] = {
         ("collections", "OrderedDict"): collections.OrderedDict,
         ("numpy", "dtype"): np.dtype,
@@ -100,16 +100,9 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
         ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): spaces.MultiDiscrete,
         ("numpy.random._pcg64", "PCG64"): PCG64,
         ("numpy.random.bit_generator", "SeedSequence"): SeedSequence,
-        ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"): getattr(
-            bit_generator, "__pyx_unpickle_SeedSequence"
-        ),
-        ("numpy.random._pickle", "__generator_ctor"): random_pickle.__generator_ctor,
-        ("numpy.random._pickle", "__bit_generator_ctor"): random_pickle.__bit_generator_ctor,
         ("smorphi_rl.training.module", "MorphologyModule"): MODULE_CLASS,
     }
-    for prefix in ("numpy._core", "numpy.core"):
-        allowed[(f"{prefix}.multiarray", "_reconstruct")] = core.multiarray._reconstruct
-        allowed[(f"{prefix}.numeric", "_frombuffer")] = core.numeric._frombuffer
+    allowed |= rllib_compat.numpy_unpickle_helpers()  # numpy's own (private) helpers for arrays and Generators
     SAFE_GLOBALS.update(allowed)
     return SAFE_GLOBALS
 

@@ -181,7 +181,7 @@ class TrainConfig:
         return out
 
 
-FRACTIONS = ("gamma", "lambda_", "value_lambda")
+FRACTIONS = ("gamma", "lambda_")
 """Hyperparameters that must lie in [0, 1]."""
 
 
@@ -315,7 +315,7 @@ def algorithm_config(
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
     from smorphi_rl.training.callbacks import MorphologyCallbacks
-    from smorphi_rl.training.learners import LEARNERS, VALUE_LAMBDA_KEY
+    from smorphi_rl.training.learners import LEARNERS
     from smorphi_rl.training.module import MorphologyModule
     from smorphi_rl.training.sampling import LEAN_SAMPLING
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
@@ -340,8 +340,6 @@ def algorithm_config(
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
-        if hp.value_lambda is not None:
-            training["learner_config_dict"] = {VALUE_LAMBDA_KEY: hp.value_lambda}
     else:
         training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size}
     config = (

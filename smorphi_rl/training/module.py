@@ -26,6 +26,7 @@ from ray.rllib.core.rl_module.apis import TARGET_NETWORK_ACTION_DIST_INPUTS, Tar
 from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
+from smorphi_rl import rllib_compat
 from smorphi_rl.training.distribution import HingeCategorical
 from smorphi_rl.training.presets import ANGLE_FREQUENCIES
 
@@ -246,7 +247,8 @@ class _Net(nn.Module):
         the weights change (an env runner steps the same map, with the same weights, for a whole iteration)."""
         if torch.is_grad_enabled() or maps.shape[0] != 1:
             return self.map_fc(self.cnn(maps.float() / MAP_LEVELS))
-        version = tuple((id(p), p._version) for p in self._map_parameters)  # optimiser steps and loads bump it
+        # optimiser steps and loads bump a tensor's version
+        version = tuple((id(p), rllib_compat.tensor_version(p)) for p in self._map_parameters)
         kept = self._kept
         if kept is not None and kept[0] == version and torch.equal(kept[1], maps):
             return kept[2]

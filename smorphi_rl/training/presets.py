@@ -5,7 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 ALGORITHMS = ("ppo", "impala", "appo")
-PPO_ONLY = ("lambda_", "value_lambda")
+PPO_ONLY = ("lambda_",)
 """Hyperparameters only PPO uses (IMPALA and APPO use v-trace instead of GAE)."""
 
 ANGLE_FREQUENCIES = 8
@@ -28,8 +28,6 @@ class Preset:
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
     policy_angle_frequencies: int = ANGLE_FREQUENCIES
     """Fourier frequencies of the angles the policy net sees (the critic always sees ANGLE_FREQUENCIES)."""
-    value_lambda: float | None = None
-    """PPO only: GAE lambda of the critic's targets; None: `lambda_` (RLlib's one lambda)."""
     num_epochs: int = 1
     minibatch_size: int | None = None
     """IMPALA/APPO: a multiple of `rollout_fragment_length` (RLlib's rule); None: the whole batch."""

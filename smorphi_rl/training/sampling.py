@@ -16,27 +16,25 @@ before (a test checks identical samples).
   tree utilities (`split_by_env`), and `StackObservations` takes the env's batch those rows came from rather
   than stacking them again;
 - it skips the per-env, per-step episode callbacks that no callback overrides;
-- it takes our vector env's info dicts without gymnasium's round trip through info columns (`InfoLists`);
-- episodes stack their steps in one numpy call per column (`stack_items`) instead of RLlib's item-by-item copy.
+- it takes our vector env's info dicts without gymnasium's round trip through info columns (`InfoLists`).
+The first two reach into RLlib's private step loop; they live in `rllib_compat` (`runner_mixin`).
 """
 
 from __future__ import annotations
 
-import inspect
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
 import torch
 from gymnasium.wrappers.vector import DictInfoToList
-from ray.rllib.callbacks.callbacks import RLlibCallback
 from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
 from ray.rllib.core.distribution.torch.torch_distribution import TorchMultiCategorical
-from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
-from ray.rllib.env.utils.infinite_lookback_buffer import InfiniteLookbackBuffer
 from ray.rllib.utils.numpy import convert_to_numpy
+from ray.rllib.utils.spaces.space_utils import unbatch as rllib_unbatch
 
+from smorphi_rl import rllib_compat
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.module import observation_tensors
 from smorphi_rl.training.threads import one_torch_thread
@@ -181,56 +179,23 @@ def split_by_env(batched: Any) -> list[Any]:
         rows = Rows(dict(zip(keys, row, strict=True)) for row in zip(*columns, strict=True))
         rows.batched = batched
         return rows
-    return _RLLIB_UNBATCH(batched)
-
-
-def stack_items(items: list[Any], **kwargs: Any) -> Any:
-    """RLlib's `batch` (what an episode's `to_numpy` stacks its lists of steps with) for lists of same-shape arrays
-    or of flat dicts of them, in one numpy call per column instead of a Python assignment per item and tree
-    utilities; anything else, or a stack whose dtype is not the first item's, goes through RLlib's own `batch`.
-    A numpy stack that keeps the first item's dtype holds what RLlib's (which casts into that dtype) holds."""
-    first = items[0] if items and not kwargs else None
-    if type(first) is np.ndarray:
-        stacked = _stack(items, first)
-        if stacked is not None:
-            return stacked
-    elif type(first) is dict and first and all(type(v) is np.ndarray for v in first.values()):
-        keys = first.keys()
-        if all(type(item) is dict and item.keys() == keys for item in items):
-            columns = {key: _stack([item[key] for item in items], first[key]) for key in keys}
-            if all(column is not None for column in columns.values()):
-                return columns
-    return _RLLIB_BATCH(items, **kwargs)
-
-
-def _stack(column: list[Any], first: np.ndarray) -> np.ndarray | None:
-    """`np.stack(column)` if it has the first item's dtype and shape per row; None otherwise."""
-    try:
-        stacked = np.stack(column)
-    except ValueError:
-        return None
-    return stacked if stacked.dtype == first.dtype and stacked.shape[1:] == first.shape else None
-
-
-_RUNNER_MODULE = inspect.getmodule(SingleAgentEnvRunner)
-_RLLIB_UNBATCH = _RUNNER_MODULE.unbatch  # type: ignore[union-attr]
-_BUFFER_MODULE = inspect.getmodule(InfiniteLookbackBuffer)
-_RLLIB_BATCH = _BUFFER_MODULE.batch  # type: ignore[union-attr]
+    return rllib_unbatch(batched)
 
 
 class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is generic
     """What RLlib wraps every vector env in (gymnasium's DictInfoToList: one info dict per sub-env), for our
     vector env: it hands over its sub-envs' info dicts as they are, the very dicts DictInfoToList would rebuild
     from its info columns (same keys, order and values), without building the columns. The runner's own wrapper
-    becomes one (`install`): a second wrapper around the env would close it when the first is collected."""
+    is replaced by one (`around`); the runner keeps the replaced one, whose collection would close the env."""
 
     @staticmethod
-    def install(wrapper: Any) -> None:
-        """Switch RLlib's DictInfoToList around a MorphologyVectorEnv to this class (any other env: left as it is)."""
+    def around(wrapper: Any) -> Any:
+        """RLlib's DictInfoToList around a MorphologyVectorEnv replaced by one of these (any other env: as it is)."""
         inner = getattr(wrapper, "env", None)
-        if type(wrapper) is DictInfoToList and type(inner) is MorphologyVectorEnv:
-            inner.info_lists = True
-            wrapper.__class__ = InfoLists
+        if type(wrapper) is not DictInfoToList or type(inner) is not MorphologyVectorEnv:
+            return wrapper
+        inner.info_lists = True
+        return InfoLists(inner)
 
     def step(self, actions: Any) -> Any:
         return self.env.step(actions)
@@ -239,11 +204,11 @@ class InfoLists(DictInfoToList):  # type: ignore[misc]  # gymnasium's wrapper is
         return self.env.reset(seed=seed, options=options)
 
 
-class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's bases are untyped
-    """RLlib's SingleAgentEnvRunner, sampling the same episodes faster: its `unbatch` is `split_by_env` for the
-    duration of a `_sample` call, and torch runs on one thread for it (`threads`); per-env episode callbacks that
-    no callback overrides are not made, and our vector env's infos reach it without a round trip through columns
-    (`InfoLists`)."""
+class LeanEnvRunner(rllib_compat.runner_mixin(split_by_env)):  # type: ignore[misc]  # RLlib's bases are untyped
+    """RLlib's SingleAgentEnvRunner, sampling the same episodes faster: each step's batch is split by env with
+    `split_by_env` (`rllib_compat.treeless_sample`), torch runs on one thread while it samples (`threads`),
+    per-env step callbacks that no callback overrides are not made, and our vector env's infos reach it without
+    a round trip through columns (`InfoLists`)."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         super().__init__(*args, **kwargs)
@@ -252,35 +217,13 @@ class LeanEnvRunner(SingleAgentEnvRunner):  # type: ignore[misc]  # RLlib's base
 
     def make_env(self) -> None:
         super().make_env()
-        InfoLists.install(self.env)
+        wrapper: Any = getattr(self, "env")  # noqa: B009  # RLlib's attribute, untyped
+        self._rllib_wrapper = wrapper  # kept: collecting it would close the env it wraps
+        self.env = InfoLists.around(wrapper)
 
-    def _sample(self, **kwargs: Any) -> Any:
-        _RUNNER_MODULE.unbatch = split_by_env  # type: ignore[union-attr]
-        _BUFFER_MODULE.batch = stack_items  # type: ignore[union-attr]
-        try:
-            with one_torch_thread():
-                return super()._sample(**kwargs)
-        finally:
-            _RUNNER_MODULE.unbatch = _RLLIB_UNBATCH  # type: ignore[union-attr]
-            _BUFFER_MODULE.batch = _RLLIB_BATCH  # type: ignore[union-attr]
-
-    _step_callbacks: bool | None = None
-
-    def _make_on_episode_callback(self, which: str, idx: int, episodes: list[Any]) -> None:
-        if which == "on_episode_step":
-            if self._step_callbacks is None:
-                self._step_callbacks = self._overridden(which)
-            if not self._step_callbacks:
-                return
-        super()._make_on_episode_callback(which, idx, episodes)
-
-    def _overridden(self, which: str) -> bool:
-        """Whether a callback object overrides RLlib's no-op `which`, or a callback function is set for it."""
-        base = getattr(RLlibCallback, which)
-        objects = self._callbacks or []
-        return bool(getattr(self.config, f"callbacks_{which}", None)) or any(
-            getattr(type(c), which, base) is not base for c in objects
-        )
+    def sample(self, **kwargs: Any) -> Any:
+        with one_torch_thread():
+            return super().sample(**kwargs)
 
 
 LEAN_SAMPLING = {

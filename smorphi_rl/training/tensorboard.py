@@ -17,6 +17,8 @@ from ray.tune.logger.tensorboardx import VALID_SUMMARY_TYPES, TBXLoggerCallback
 from ray.tune.result import TIME_TOTAL_S, TIMESTEPS_TOTAL
 from ray.tune.utils import flatten_dict
 
+from smorphi_rl import rllib_compat
+
 NOT_LOGGED = ("config", "pid", "timestamp", TIME_TOTAL_S, TRAINING_ITERATION)
 """Result keys Tune's logger leaves out of TensorBoard (as it does)."""
 PREFIX = "ray/tune/"
@@ -46,12 +48,11 @@ class TensorBoardLogger(TBXLoggerCallback):  # type: ignore[misc]  # Tune's clas
         from tensorboardX.proto.summary_pb2 import Summary
         from tensorboardX.summary import scalar
 
-        if trial not in self._trial_writer:
-            self.log_trial_start(trial)
+        writer = rllib_compat.tune_trial_writer(self, trial)
         scalars, rest = split_scalars(result)
-        writer = self._trial_writer[trial]
         if scalars:
             values = [value for tag, x in scalars.items() for value in scalar(tag, x).value]
-            writer._get_file_writer().add_summary(Summary(value=values), step_of(result))
+            rllib_compat.summary_file_writer(writer).add_summary(Summary(value=values), step_of(result))
         super().log_trial_result(iteration, trial, rest)  # anything else, then Tune's flush
-        self._trial_result[trial] = scalars | self._trial_result[trial]
+        last = rllib_compat.tune_last_scalars(self, trial)  # the hyperparameters' metrics at the trial's end
+        last.update(scalars | dict(last))

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from smorphi_rl.env_config import EnvConfig
@@ -62,83 +61,43 @@ def test_value_normalisation_brackets_random_returns():
 
 
 def test_each_algorithm_trains_with_our_learner():
-    """IMPALA and APPO standardise their v-trace advantages; PPO's critic gets its own lambda when asked."""
+    """IMPALA and APPO standardise their v-trace advantages; every learner takes the fused optimiser step."""
     from smorphi_rl.training.config import algorithm_config
-    from smorphi_rl.training.learners import NormalisedAPPOLearner, NormalisedIMPALALearner, TwoLambdaPPOLearner
+    from smorphi_rl.training.learners import CompactPPOLearner, NormalisedAPPOLearner, NormalisedIMPALALearner
 
     assert algorithm_config(TrainConfig(algo="impala")).learner_class is NormalisedIMPALALearner
     assert algorithm_config(TrainConfig(algo="appo")).learner_class is NormalisedAPPOLearner
-    ppo = algorithm_config(TrainConfig(algo="ppo", overrides={"value_lambda": 1.0}))
-    assert ppo.learner_class is TwoLambdaPPOLearner and ppo.learner_config_dict == {"value_lambda": 1.0}
-    assert "value_lambda" not in algorithm_config(TrainConfig(algo="ppo")).learner_config_dict
+    assert algorithm_config(TrainConfig(algo="ppo")).learner_class is CompactPPOLearner
 
 
-@pytest.mark.parametrize("value", [-0.1, 1.5, "high"])
-def test_value_lambda_must_be_a_fraction_and_is_ppo_only(value):
-    with pytest.raises(TrainConfigError, match="value_lambda"):
-        TrainConfig(overrides={"value_lambda": value})
-    with pytest.raises(TrainConfigError, match="ppo only"):
-        TrainConfig(algo="impala", overrides={"value_lambda": 0.9})
-
-
-def test_two_lambda_gae_gives_the_critic_targets_of_its_own_lambda(monkeypatch):
-    """Advantages come from PPO's lambda, the value targets from value_lambda, both from one critic pass."""
-    import inspect
-
-    import torch
-    from ray.rllib.connectors.learner import GeneralAdvantageEstimation
-    from ray.rllib.evaluation.postprocessing import Postprocessing
-
-    from smorphi_rl.training.learners import TwoLambdaGAE
-
-    module = inspect.getmodule(GeneralAdvantageEstimation)
-    values, rewards = np.array([1.0, 2.0, 0.5, 0.0]), np.array([1.0, -1.0, 2.0, 0.0])
-    done = np.array([0.0, 0.0, 1.0, 0.0])
-    kwargs = {"values": values, "rewards": rewards, "terminateds": done, "truncateds": np.zeros(4), "gamma": 0.9}
-
-    def rllib_call(self, **_):  # what RLlib's __call__ does with the function it looks up in its module
-        targets = module.compute_value_targets(**kwargs, lambda_=self.lambda_)
-        return {"default_policy": {Postprocessing.ADVANTAGES: torch.as_tensor(targets - values),
-                                   Postprocessing.VALUE_TARGETS: torch.as_tensor(targets)}}  # fmt: skip
-
-    monkeypatch.setattr(GeneralAdvantageEstimation, "__call__", rllib_call)
-    out = TwoLambdaGAE(gamma=0.9, lambda_=0.0, value_lambda=1.0)(rl_module=None, episodes=[], batch={})
-    one_step = module.compute_value_targets(**kwargs, lambda_=0.0)
-    monte_carlo = module.compute_value_targets(**kwargs, lambda_=1.0)
-    assert not np.allclose(one_step, monte_carlo)
-    column = out["default_policy"]
-    np.testing.assert_allclose(column[Postprocessing.ADVANTAGES].numpy(), one_step - values, rtol=1e-6)
-    np.testing.assert_allclose(column[Postprocessing.VALUE_TARGETS].numpy(), monte_carlo, rtol=1e-6)
-    assert module.compute_value_targets.__name__ == "compute_value_targets"  # restored after the call
-
-
-def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread():
+def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread(monkeypatch):
     import torch
 
-    from smorphi_rl.training.learners import _normalising
+    from smorphi_rl.training import learners
 
     def vtrace(**_):
         return torch.arange(6.0), torch.tensor([1.0, 5.0, 9.0, 2.0, 7.0, 100.0])
 
-    targets, advantages = _normalising(vtrace)()
+    monkeypatch.setattr(learners, "vtrace_torch", vtrace)
+    targets, advantages = learners.normalised_vtrace()
     assert torch.equal(targets, torch.arange(6.0))  # value targets untouched
     assert abs(float(advantages.mean())) < 1e-6 and abs(float(advantages.std()) - 1) < 1e-5
 
 
-def test_ppo_learner_ends_its_pipeline_with_two_lambda_gae_then_compact_maps():
+def test_ppo_learner_ends_its_pipeline_with_rllibs_gae_then_compact_maps():
+    from smorphi_rl import rllib_compat
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.config import algorithm_config
-    from smorphi_rl.training.learners import CompactMaps, TwoLambdaGAE
+    from smorphi_rl.training.learners import CompactMaps
 
     env = MorphologyEnv()
     spaces = {"__env__": (env.observation_space, env.action_space)}
     spaces["default_policy"] = spaces["__env__"]
-    learner = algorithm_config(TrainConfig(overrides={"value_lambda": 0.97})).build_learner(spaces=spaces)
+    learner = algorithm_config(TrainConfig()).build_learner(spaces=spaces)
     learner.build()
-    pieces = learner._learner_connector.connectors
-    assert isinstance(pieces[-2], TwoLambdaGAE) and pieces[-2].value_lambda == 0.97
+    pieces = rllib_compat.learner_pipeline(learner).connectors
+    assert type(pieces[-2]).__name__ == "GeneralAdvantageEstimation"
     assert isinstance(pieces[-1], CompactMaps)
-    assert sum(type(p).__name__.endswith("GeneralAdvantageEstimation") for p in pieces) == 0
 
 
 def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():

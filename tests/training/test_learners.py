@@ -78,3 +78,98 @@ def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it
         with pytest.raises(LearnerThreadError, match="ValueError: a broken loss"):
             learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)), timesteps=timesteps)
         runner.stop()
+
+
+def test_normalised_vtrace_is_rllibs_with_the_advantages_standardised():
+    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
+
+    from smorphi_rl.training.learners import normalised_vtrace
+
+    g = torch.Generator().manual_seed(0)
+    t, b = 7, 5  # time-major: 7 steps of 5 trajectories
+    inputs = {
+        "target_action_log_probs": -torch.rand(t, b, generator=g),
+        "behaviour_action_log_probs": -torch.rand(t, b, generator=g),
+        "discounts": torch.full((t, b), 0.99),
+        "rewards": torch.randn(t, b, generator=g) * 30 + 5,
+        "values": torch.randn(t, b, generator=g) * 10,
+        "bootstrap_values": torch.randn(b, generator=g),
+    }
+    targets, advantages = vtrace_torch(**inputs)
+    ours_targets, ours_advantages = normalised_vtrace(**inputs)
+    assert torch.equal(ours_targets, targets)  # the critic's targets as RLlib computes them
+    expected = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
+    assert torch.allclose(ours_advantages, expected, atol=1e-6)
+    assert abs(float(advantages.std()) - 1) > 0.5  # RLlib's own are not standardised: the wrap does something
+
+
+def _ppo_learner(learner_class=None):
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.training.config import TrainConfig, algorithm_config
+
+    env = MorphologyEnv()
+    spaces = {"__env__": (env.observation_space, env.action_space)}
+    spaces["default_policy"] = spaces["__env__"]
+    config = algorithm_config(TrainConfig(timesteps=10_000))
+    if learner_class is not None:
+        config.training(learner_class=learner_class)
+    learner = config.build_learner(spaces=spaces)
+    learner.build()
+    return learner
+
+
+def test_the_fused_optimiser_step_is_rllibs_step_and_schedule():
+    """Clipping per tensor, Adam and the learning-rate schedule, step for step, against RLlib's own learner."""
+    from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
+    from ray.rllib.utils.metrics import NUM_ENV_STEPS_SAMPLED_LIFETIME
+
+    ours, theirs = _ppo_learner(), _ppo_learner(PPOTorchLearner)
+    assert type(theirs) is PPOTorchLearner and type(ours) is not PPOTorchLearner
+    theirs.module.set_state(ours.module.get_state())
+    ours_params = list(ours.module["default_policy"].parameters())
+    theirs_params = list(theirs.module["default_policy"].parameters())
+    g = torch.Generator().manual_seed(1)
+    start = [p.detach().clone() for p in ours_params]
+    for step, timestep in enumerate((0, 4_000, 9_000)):
+        noise = [torch.randn(p.shape, generator=g) * (50.0 if i % 3 == 0 else 0.1) for i, p in enumerate(ours_params)]
+        for learner, params in ((ours, ours_params), (theirs, theirs_params)):
+            grads = {learner.get_param_ref(p): n.clone() for p, n in zip(params, noise, strict=True)}
+            learner.apply_gradients(learner.postprocess_gradients(grads))
+            learner.after_gradient_based_update(timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: timestep})
+        for a, b in zip(ours_params, theirs_params, strict=True):
+            assert torch.allclose(a, b, rtol=1e-5, atol=1e-7), step
+        lrs = [opt.param_groups[0]["lr"] for lr_learner in (ours, theirs)
+               for _, opt in lr_learner.get_optimizers_for_module("default_policy")]  # fmt: skip
+        assert abs(float(lrs[0]) - float(lrs[1])) < 1e-9, (step, lrs)
+    assert float(lrs[0]) < 1e-3  # the schedule moved the rate down from its start
+    assert any(not torch.equal(a, b) for a, b in zip(start, ours_params, strict=True))  # the steps moved the weights
+
+
+@pytest.mark.parametrize("algo", ["impala", "appo"])
+def test_one_update_of_the_async_learners_moves_the_weights(algo):
+    """IMPALA and APPO learn in their learner's thread: one update's batch changes the module's weights."""
+    import time
+
+    from ray.rllib.core.learner.training_data import TrainingData
+    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
+
+    from smorphi_rl import cluster
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+
+    register_env()
+    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
+    config = algorithm_config(cfg)
+    with cluster.ray_session(None):  # the learner thread puts its state in Ray's object store
+        runner = SingleAgentEnvRunner(config=config)
+        learner = config.build_learner(env=runner.env)
+        learner.build()
+        before = [p.detach().clone() for p in learner.module["default_policy"].parameters()]
+        learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)),
+                       timesteps={"num_env_steps_sampled_lifetime": 400})  # fmt: skip
+        deadline = time.monotonic() + 60
+        params = list(learner.module["default_policy"].parameters())
+        while all(torch.equal(a, b) for a, b in zip(before, params, strict=True)) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        runner.stop()
+    assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))

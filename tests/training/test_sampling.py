@@ -22,7 +22,6 @@ from smorphi_rl.training.sampling import (
     StackObservations,
     sample_hinges,
     split_by_env,
-    stack_items,
 )
 from smorphi_rl.training.topk import EPISODE_BEST_KEY
 
@@ -92,36 +91,6 @@ def test_split_by_env_is_rllibs_unbatch():
         _assert_same(split_by_env(batched), unbatch(batched))
     nested = {"a": {"b": np.arange(2)}}
     _assert_same(split_by_env(nested), unbatch(nested))
-
-
-def test_stack_items_is_rllibs_batch():
-    from ray.rllib.utils.spaces.space_utils import batch
-
-    row = {"map": np.arange(8, dtype=np.uint8).reshape(2, 4), "angles": np.ones(3, dtype=np.float32)}
-    cases = [
-        [row, {k: v + 1 for k, v in row.items()}],
-        [np.arange(3), np.arange(3, 6)],
-        [np.zeros(2, dtype=np.float32), np.ones(2)],  # RLlib casts into the first item's dtype
-        [np.zeros(2), np.ones(2, dtype=np.float32)],
-        [np.zeros(2), np.ones(3)],  # shapes differ: RLlib's error
-        [1.5, 2.5],
-        [row, {"map": row["map"]}],  # keys differ
-        [{"a": {"b": np.arange(2)}}, {"a": {"b": np.arange(2)}}],  # nested
-    ]
-    for items in cases:
-        try:
-            expected = batch(items)
-        except ValueError:
-            expected = ValueError
-        got: Any
-        try:
-            got = stack_items(items)
-        except ValueError:
-            got = ValueError
-        if expected is ValueError or got is ValueError:
-            assert got is expected
-        else:
-            _assert_same(got, expected)
 
 
 def test_equal_hinges_draw_as_rllibs_multicategorical():

@@ -1,0 +1,149 @@
+"""The adapter's private names still exist with the shape it relies on, and each of its overrides takes effect:
+these fail first when Ray, RLlib, Tune, tensorboardX, torch or numpy change underneath."""
+
+from __future__ import annotations
+
+import inspect
+import subprocess
+
+import pytest
+import torch
+
+from smorphi_rl import rllib_compat
+from smorphi_rl.rllib_compat import LibraryChanged, with_globals
+
+
+def _library_function(x):
+    return len(x)
+
+
+def test_with_globals_resolves_the_names_to_ours_and_leaves_the_original_alone():
+    copy = with_globals(_library_function, len=lambda x: -1)
+    assert copy([1, 2]) == -1
+    assert _library_function([1, 2]) == 2 and globals().get("len") is None  # nothing assigned anywhere
+    with pytest.raises(LibraryChanged, match="no longer calls sorted"):
+        with_globals(_library_function, sorted=sorted)
+
+
+def test_the_runners_private_loop_is_what_the_adapter_takes_it_for():
+    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
+
+    loop = SingleAgentEnvRunner._sample
+    assert "unbatch" in loop.__code__.co_names and "_make_on_episode_callback" in loop.__code__.co_names
+    assert list(inspect.signature(loop).parameters) == [
+        "self", "num_timesteps", "num_episodes", "explore", "random_actions", "force_reset",
+    ]  # fmt: skip
+    callback = SingleAgentEnvRunner._make_on_episode_callback
+    assert list(inspect.signature(callback).parameters) == ["self", "which", "idx", "episodes"]
+
+
+def _runner(unbatch, **callbacks):
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.callbacks import MorphologyCallbacks
+    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+
+    register_env()
+    cfg = TrainConfig(env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=4)
+    config = algorithm_config(cfg, MorphologyCallbacks).callbacks(**callbacks)
+    return rllib_compat.runner_mixin(unbatch)(config=config)
+
+
+def test_the_runner_splits_each_step_with_ours_and_skips_step_callbacks_only_when_none_is_set():
+    from ray.rllib.utils.spaces.space_utils import unbatch
+
+    calls = []
+
+    def counting(batched):
+        calls.append(1)
+        return unbatch(batched)
+
+    steps: list[int] = []
+    for on_step in (None, lambda **kwargs: steps.append(1)):
+        runner = _runner(counting, **({"on_episode_step": on_step} if on_step else {}))
+        assert isinstance(runner._callbacks, list)  # what the skip reads
+        calls.clear()
+        runner.sample(num_timesteps=4 * 40)
+        runner.stop()
+        assert len(calls) >= 2 * 40  # observations and actions, every step
+        assert (len(steps) > 4 * 30) == (on_step is not None)  # made for every env and step, or not at all
+
+
+def test_the_learner_internals_the_adapter_reaches_are_there():
+    from ray.rllib.algorithms.impala import impala_learner
+    from ray.rllib.core.learner.learner import Learner
+
+    thread_init = inspect.signature(impala_learner._LearnerThread.__init__).parameters
+    assert "update_method" in thread_init
+    assert "_update_method" in inspect.getsource(impala_learner._LearnerThread)
+    assert "self._learner_thread" in inspect.getsource(impala_learner.IMPALALearner.build)
+    assert "self._learner_connector = self.config.build_learner_connector(" in inspect.getsource(Learner.build)
+
+
+def test_the_normalised_losses_are_rllibs_own_with_the_normalising_vtrace():
+    from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
+    from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
+
+    from smorphi_rl.training.learners import NormalisedAPPOLearner, NormalisedIMPALALearner, normalised_vtrace
+
+    for ours, theirs in ((NormalisedIMPALALearner, IMPALATorchLearner), (NormalisedAPPOLearner, APPOTorchLearner)):
+        loss = ours.compute_loss_for_module
+        assert loss.__code__ is theirs.compute_loss_for_module.__code__  # RLlib's loss, op for op
+        assert loss.__globals__["vtrace_torch"] is normalised_vtrace
+        assert theirs.compute_loss_for_module.__globals__["vtrace_torch"] is not normalised_vtrace  # RLlib's intact
+
+
+def test_torchs_fused_norms_scaling_and_version_counter():
+    tensors = [torch.tensor([3.0, 4.0]), torch.tensor([1.0])]
+    assert torch.equal(rllib_compat.tensor_norms(tensors), torch.tensor([5.0, 1.0]))
+    before = rllib_compat.tensor_version(tensors[0])
+    rllib_compat.scale_each_(tensors, torch.tensor([2.0, 0.5]))
+    assert torch.equal(tensors[0], torch.tensor([6.0, 8.0])) and torch.equal(tensors[1], torch.tensor([0.5]))
+    assert rllib_compat.tensor_version(tensors[0]) > before  # an in-place step bumps it
+
+
+def test_rays_console_popen_is_swapped_only_inside_the_block_and_detaches():
+    from ray._private import services
+
+    original = services.ConsolePopen
+    assert issubclass(original, subprocess.Popen)
+    assert "ConsolePopen" in inspect.getsource(services.start_ray_process)
+    with rllib_compat.daemons_in_their_own_session():
+        child = services.ConsolePopen(["sleep", "0"])
+        child.wait()
+        assert child.args == ["sleep", "0"]
+        assert services.ConsolePopen is not original
+    assert services.ConsolePopen is original
+
+
+def test_tunes_tensorboard_writers_are_where_the_adapter_reads_them(tmp_path):
+    from ray.tune.logger.tensorboardx import TBXLoggerCallback
+
+    class Trial:
+        local_path = str(tmp_path)
+
+        def init_local_path(self):
+            pass
+
+    callback, trial = TBXLoggerCallback(), Trial()
+    writer = rllib_compat.tune_trial_writer(callback, trial)
+    assert rllib_compat.tune_trial_writer(callback, trial) is writer  # opened once
+    assert rllib_compat.tune_last_scalars(callback, trial) == {}
+    assert hasattr(rllib_compat.summary_file_writer(writer), "add_summary")
+    writer.close()
+
+
+def test_numpys_unpickling_helpers_are_the_ones_its_pickles_name():
+    import pickle
+    import pickletools
+
+    import numpy as np
+
+    helpers = rllib_compat.numpy_unpickle_helpers()
+    data = pickle.dumps((np.arange(3), np.random.default_rng(0), np.random.SeedSequence(1)), protocol=2)
+    named = set()
+    for op, arg, _ in pickletools.genops(data):
+        if op.name == "GLOBAL":
+            module, name = arg.split(" ")
+            named.add((module, name))
+    private = {pair for pair in named if pair[1].startswith("_")}
+    assert private and private <= set(helpers)
