@@ -14,12 +14,10 @@ from collections.abc import Sequence
 
 import numpy as np
 
+from smorphi_rl.env import EXTRA_KEYS, MAP_LEVELS
 from smorphi_rl.errors import SmorphiError
 
-MAP_LEVELS = 255.0
 POLICY = "_pi."
-EXTRA_KEYS = ("metrics", "scale")
-"""As `training/module.py`: the observation's entries the MLP reads as they are, in this order."""
 POOL = 4
 
 

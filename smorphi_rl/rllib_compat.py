@@ -19,9 +19,12 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any
 
+from smorphi_rl.errors import SmorphiError
 
-class LibraryChanged(RuntimeError):
-    """A private name this module relies on is gone or has changed: the installed library is not the tested one."""
+
+class LibraryChanged(SmorphiError):
+    """A private name this module relies on is gone or has changed: the installed library is not the tested one
+    (the CLI prints it in one line)."""
 
 
 def with_globals(function: Callable[..., Any], **names: Any) -> Callable[..., Any]:
@@ -33,13 +36,27 @@ def with_globals(function: Callable[..., Any], **names: Any) -> Callable[..., An
     code = function.__code__
     missing = sorted(set(names) - set(code.co_names))
     if missing:
-        raise LibraryChanged(f"{function.__qualname__} no longer calls {', '.join(missing)}")
+        raise LibraryChanged(
+            f"{function.__module__}.{function.__qualname__} no longer calls {', '.join(missing)}: this Ray is not "
+            "the one smorphi-rl's RLlib layer is tested with (training/versions.py)"
+        )
     copy = types.FunctionType(code, {**function.__globals__, **names}, function.__name__, None, function.__closure__)
     copy.__defaults__ = function.__defaults__
     copy.__kwdefaults__ = function.__kwdefaults__
     copy.__qualname__ = function.__qualname__
     copy.__doc__ = function.__doc__
     return copy
+
+
+def _private(owner: Any, name: str) -> Any:
+    """`owner.name`, or LibraryChanged naming it when the library no longer has it."""
+    try:
+        return getattr(owner, name)
+    except AttributeError:
+        raise LibraryChanged(
+            f"{type(owner).__module__}.{type(owner).__qualname__} has no {name} any more: this library is not the "
+            "one smorphi-rl is tested with (training/versions.py)"
+        ) from None
 
 
 # -- RLlib's env runner (ray.rllib.env.single_agent_env_runner, 2.60) ---------------------------------------
@@ -88,15 +105,15 @@ def learner_pipeline(learner: Any) -> Any:
     """A built learner's connector pipeline (None when aggregator actors run it). RLlib's own learners extend it in
     `build()` through this private attribute; the config's public `learner_connector` puts custom pieces first,
     and ours (`CompactMaps`) must come after RLlib's."""
-    return learner._learner_connector
+    return _private(learner, "_learner_connector")
 
 
 def guard_learner_thread(learner: Any, guard: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
     """Wrap the update that IMPALA's and APPO's learner thread runs (`Learner.update`, held by the thread) in
     `guard`. In RLlib an exception there ends the thread without a word and the trial then waits forever on its
     queue; the thread is private and takes no callback."""
-    thread = learner._learner_thread
-    thread._update_method = guard(thread._update_method)
+    thread = _private(learner, "_learner_thread")
+    thread._update_method = guard(_private(thread, "_update_method"))
 
 
 def tensor_norms(tensors: list[Any]) -> Any:
@@ -148,21 +165,22 @@ def daemons_in_their_own_session() -> Iterator[None]:
 def tune_trial_writer(callback: Any, trial: Any) -> Any:
     """The tensorboardX SummaryWriter Tune's `TBXLoggerCallback` keeps for `trial` (opened by its public
     `log_trial_start` if none is yet); Tune keeps the writers private."""
-    if trial not in callback._trial_writer:
+    writers = _private(callback, "_trial_writer")
+    if trial not in writers:
         callback.log_trial_start(trial)
-    return callback._trial_writer[trial]
+    return writers[trial]
 
 
 def tune_last_scalars(callback: Any, trial: Any) -> dict[str, Any]:
     """The scalars of `trial`'s last result that `TBXLoggerCallback` writes as hyperparameter metrics at its end
     (a private dict; ours are written apart, so they are added to it)."""
-    last: dict[str, Any] = callback._trial_result[trial]
+    last: dict[str, Any] = _private(callback, "_trial_result")[trial]
     return last
 
 
 def summary_file_writer(writer: Any) -> Any:
     """tensorboardX's file writer behind a SummaryWriter: the only way to add one Summary holding many values."""
-    return writer._get_file_writer()
+    return _private(writer, "_get_file_writer")()
 
 
 # -- numpy's pickling helpers -----------------------------------------------------------------------------

@@ -25,6 +25,14 @@ def test_with_globals_resolves_the_names_to_ours_and_leaves_the_original_alone()
         with_globals(_library_function, sorted=sorted)
 
 
+def test_a_private_name_gone_is_one_line_naming_it():
+    from smorphi_rl.errors import SmorphiError
+
+    assert issubclass(LibraryChanged, SmorphiError)  # the CLI prints it in one line
+    with pytest.raises(LibraryChanged, match="has no _learner_connector any more"):
+        rllib_compat.learner_pipeline(object())
+
+
 def test_the_runners_private_loop_is_what_the_adapter_takes_it_for():
     from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 

@@ -5,7 +5,8 @@ RLlib's `TorchMultiCategorical` builds one torch Categorical per hinge and takes
 and KL divergences hinge by hinge, then stacks and sums them: about 9 % of PPO's learner time here went to
 these small calls and their backward passes. `HingeCategorical` does the same arithmetic, element for element,
 on the logits viewed as (..., hinges, size), so every figure (and gradient) is the one RLlib's computes
-(a test checks them bit for bit); sampling and anything else goes through RLlib's per-hinge categoricals.
+(a test checks them bit for bit); sampling and anything else goes through RLlib's per-hinge categoricals,
+built with it (one distribution a minibatch in the learner; the env runners sample without one).
 """
 
 from __future__ import annotations
@@ -21,15 +22,13 @@ class HingeCategorical(TorchMultiCategorical):  # type: ignore[misc]  # RLlib's 
 
     def __init__(self, categoricals: list[TorchCategorical] | None = None, *, logits: torch.Tensor | None = None,
                  input_lens: list[int] | None = None) -> None:  # fmt: skip
-        self._raw, self._lens = logits, input_lens
         self._normalised: torch.Tensor | None = None
         self._probs: torch.Tensor | None = None
-        self._categoricals: list[TorchCategorical] = []
         if logits is not None and input_lens is not None:
             size = input_lens[0]
             hinges = logits.reshape(*logits.shape[:-1], len(input_lens), size)
             self._normalised = hinges - hinges.logsumexp(dim=-1, keepdim=True)  # as torch's Categorical does
-            categoricals = []  # made on demand (`_cats`)
+            categoricals = [TorchCategorical(logits=part) for part in torch.split(logits, input_lens, dim=-1)]
         super().__init__(categoricals=categoricals or [])
 
     @classmethod
@@ -39,17 +38,6 @@ class HingeCategorical(TorchMultiCategorical):  # type: ignore[misc]  # RLlib's 
         if len(set(input_lens)) != 1 or sum(input_lens) != logits.shape[-1]:
             return super().from_logits(logits, input_lens, temperatures or [], **kwargs)
         return cls(logits=logits, input_lens=input_lens)
-
-    @property  # type: ignore[override]
-    def _cats(self) -> list[TorchCategorical]:
-        """RLlib's per-hinge categoricals (for sampling and anything not done at once), built when first asked."""
-        if not self._categoricals and self._raw is not None and self._lens is not None:
-            self._categoricals = [TorchCategorical(logits=part) for part in torch.split(self._raw, self._lens, dim=-1)]
-        return self._categoricals
-
-    @_cats.setter
-    def _cats(self, categoricals: list[TorchCategorical]) -> None:  # RLlib's __init__ sets them
-        self._categoricals = categoricals
 
     def _hinge_probs(self) -> torch.Tensor:
         """Each hinge's probabilities (torch's Categorical: the softmax of its normalised logits), kept."""

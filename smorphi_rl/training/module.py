@@ -27,6 +27,7 @@ from ray.rllib.core.rl_module.torch import TorchRLModule
 from torch import nn
 
 from smorphi_rl import rllib_compat
+from smorphi_rl.env import EXTRA_KEYS, MAP_LEVELS
 from smorphi_rl.training.distribution import HingeCategorical
 from smorphi_rl.training.presets import ANGLE_FREQUENCIES
 
@@ -40,12 +41,9 @@ MAP_FEATURES = 64
 # 5-13 of the 20 protocol starts within 1 % of the optimum); smooth in the angles it learns one flow towards the
 # best region (README, Learning). IMPALA did worse without them and keeps them. A checkpoint whose model_config
 # lacks the key was written with 8 (the layout before the key existed).
-MAP_LEVELS = 255.0
-"""The env's map channels are uint8 fractions times 255."""
+
 MAP_KEY = "map"
 """The observation's map entry."""
-EXTRA_KEYS = ("metrics", "scale")
-"""The observation's entries the MLP reads as they are, in this order (`scale`: the env's floor layout only)."""
 WORD = torch.int64
 
 
