@@ -105,13 +105,22 @@ def ray_session(address: str | None) -> Iterator[None]:
             ray.init(address=address, **kwargs)
     except (ConnectionError, RuntimeError, ValueError) as exc:
         where = "a local Ray" if address is None else f"the Ray cluster at {address}"
-        message = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-        raise ClusterError(f"cannot start or reach {where}: {message}") from None
+        raise ClusterError(f"cannot start or reach {where}: {ray_error_line(exc)}") from None
     interrupts.install()  # Ray's core just replaced our SIGTERM handler with one that only prints and dies
     try:
         yield
     finally:
         ray.shutdown()
+
+
+def ray_error_line(exc: BaseException) -> str:
+    """Ray's error in one line: its first line, or all of a version mismatch's (which names both versions)."""
+    lines = [line.strip() for line in str(exc).strip().splitlines() if line.strip()]
+    if not lines:
+        return type(exc).__name__
+    if lines[0].startswith("Version mismatch"):
+        return " ".join(lines).replace(" Ray:", " Ray").replace(" Python:", " Python")
+    return lines[0]
 
 
 def local_cpus() -> int:

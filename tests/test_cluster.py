@@ -4,6 +4,7 @@ any work, when there is none or it does not answer."""
 from __future__ import annotations
 
 import pytest
+import ray
 
 from smorphi_rl import cluster
 from smorphi_rl.cluster import ClusterError, check_reachable
@@ -39,3 +40,17 @@ def test_train_with_auto_and_no_cluster_writes_nothing(no_ray_here, tmp_path, ca
     assert main(["train", "--address", "auto", "--log-dir", str(tmp_path / "logs")]) == 1
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--address auto: no Ray cluster" in err[0] and not (tmp_path / "logs").exists()
+
+
+def test_a_version_mismatch_with_a_cluster_is_one_line_naming_both_versions():
+    from ray._private.utils import check_version_info
+
+    from smorphi_rl.cluster import ray_error_line
+
+    metadata = {"ray_version": "2.50.0", "python_version": "3.11.0"}
+    with pytest.raises(RuntimeError) as exc:  # Ray's own check, with the message Ray prints
+        check_version_info(metadata, "127.0.0.1")
+    line = ray_error_line(exc.value)
+    assert "\n" not in line and line.startswith("Version mismatch")
+    assert "Ray 2.50.0" in line and f"Ray {ray.__version__}" in line
+    assert ray_error_line(RuntimeError("first\nsecond")) == "first" and ray_error_line(RuntimeError()) == "RuntimeError"
