@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.env_config import EnvConfig, ObservationLayout
+from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
@@ -60,7 +60,10 @@ def load_designer(path: Path) -> Designer:
     raw = policy.env_config
     if not raw:
         raise SmorphiError(f"{path}: the policy carries no env configuration")
-    env_config = EnvConfig.from_dict(raw)
+    try:
+        env_config = EnvConfig.from_dict(raw)
+    except EnvConfigError as exc:
+        raise SmorphiError(f"{path}: the policy's {exc}") from None
     frequencies = int(policy.model_config.get("policy_angle_frequencies", 8))
     net = NumpyPolicy(policy.weights, policy.action_nvec, frequencies, policy.observation_shapes)
     return Designer(policy, net, env_config)

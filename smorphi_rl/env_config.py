@@ -137,17 +137,17 @@ class EnvConfig:
         if self.observation not in LAYOUTS:
             raise EnvConfigError(f"env_config 'observation': unknown layout '{self.observation}' (choose from "
                                  f"{', '.join(LAYOUTS)})")  # fmt: skip
-        lattice = round(180 / self.angle_step_deg) if self.angle_step_deg > 0 else 0
+        step = self.angle_step_deg
+        if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
+            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
+        lattice = round(180 / step)  # the moves are checked against the step: a bad step is named first
         if not (
             1 <= len(self.moves) <= MAX_MOVE_SIZES
-            and all(1 <= m <= max(lattice, 1) for m in self.moves)
+            and all(1 <= m <= lattice for m in self.moves)
             and list(self.moves) == sorted(set(self.moves))
         ):
             raise EnvConfigError(f"env_config 'moves' must be 1 to {MAX_MOVE_SIZES} increasing step sizes in "
                                  f"[1, {lattice}] lattice steps, got {list(self.moves)}")  # fmt: skip
-        step = self.angle_step_deg
-        if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
-            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
         if not 1 <= self.max_steps <= MAX_EPISODE_STEPS:
             raise EnvConfigError(f"env_config 'max_steps' must be in 1..{MAX_EPISODE_STEPS:,}, got {self.max_steps}")
         if self.obs_size < 4:

@@ -119,8 +119,11 @@ def read_policy(path: str | Path) -> PolicyFile:
 def _check_meta(meta: Any, where: Path) -> None:
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         raise PolicyFileError(f"{where}: not a {FORMAT} description")
-    if meta.get("version") != VERSION:
-        raise PolicyFileError(f"{where}: version {meta.get('version')!r}; this smorphi-rl reads version {VERSION}")
+    version = meta.get("version")
+    if type(version) is not int:
+        raise PolicyFileError(f"{where}: 'version' must be the number {VERSION}, got {version!r}")
+    if version != VERSION:
+        raise PolicyFileError(f"{where}: version {version}; this smorphi-rl reads version {VERSION}")
     obs, nvec, model = meta.get("observation"), meta.get("action_nvec"), meta.get("model_config")
     shapes_ok = isinstance(obs, dict) and all(
         isinstance(s, list) and all(isinstance(d, int) and 0 < d < 4096 for d in s) for s in obs.values()

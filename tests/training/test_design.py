@@ -116,6 +116,18 @@ def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
     assert code == 1 and "holds no smorphi-rl policy" in err
 
 
+def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_problem(policy, capsys, tmp_path):
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    meta = json.loads((policy / "policy.json").read_text())
+    meta["model_config"]["env_config"]["angle_step_deg"] = 0  # its moves, in lattice steps, are fine at 1 degree
+    (bad / "policy.json").write_text(json.dumps(meta))
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
+    assert code == 1 and err.count("\n") == 1
+    assert f"{bad}: the policy's env_config 'angle_step_deg' must divide 180, got 0" in err
+
+
 def test_the_shipped_designer_is_small_plain_and_designs(capsys):
     from smorphi_rl.policy_file import SHIPPED_DESIGNER, read_policy
 
