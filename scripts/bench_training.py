@@ -40,7 +40,13 @@ from _memory import PeakMemory
 from smorphi_rl import cluster
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.quiet import quiet
-from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
+from smorphi_rl.training.config import (
+    TrainConfig,
+    algorithm_config,
+    recording_settings,
+    register_env,
+    standalone_algorithm,
+)
 from smorphi_rl.training.run import train
 
 TARGET_PPO_RATE = 2000.0
@@ -80,8 +86,7 @@ def sampling_rate(cfg: TrainConfig, steps: int = 20_000) -> float:
     """Env steps/s of the algorithm's env runners sampling with a fresh policy (no learning)."""
     with cluster.ray_session(None):
         register_env()
-        algo = algorithm_config(cfg).build_algo()
-        try:
+        with standalone_algorithm(algorithm_config(cfg)) as algo:
             if cfg.env_runners == 0:
                 algo.env_runner.sample(num_timesteps=2000)
                 t0 = time.perf_counter()
@@ -93,8 +98,6 @@ def sampling_rate(cfg: TrainConfig, steps: int = 20_000) -> float:
             t0 = time.perf_counter()
             runners.foreach_env_runner(lambda r: r.sample(num_timesteps=per), local_env_runner=False)
             return per * cfg.env_runners / (time.perf_counter() - t0)
-        finally:
-            algo.stop()
 
 
 def learner_seconds(run_dir: Path) -> float:
@@ -214,14 +217,11 @@ def recording_cost(cfg: TrainConfig, steps: int = 20_000, rounds: int = 2) -> No
         for _ in range(rounds):
             for record in (False, True):
                 rec = recording_settings(replace(cfg, record_every=1), Path(tmp), "bench") if record else None
-                algo = algorithm_config(cfg, recording=rec).build_algo()
-                try:
+                with standalone_algorithm(algorithm_config(cfg, recording=rec)) as algo:
                     algo.env_runner.sample(num_timesteps=2000)
                     t0 = time.perf_counter()
                     algo.env_runner.sample(num_timesteps=steps)
                     rates[record].append(steps / (time.perf_counter() - t0))
-                finally:
-                    algo.stop()
         files = episode_files(Path(tmp) / "episodes")
         size = sum(f.stat().st_size for f in files) / max(1, len(files))
     off, on = float(np.median(rates[False])), float(np.median(rates[True]))

@@ -48,6 +48,8 @@ SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
 IMAGE_SUFFIXES = (".pgm", ".png")
+READ_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif")
+"""The image files a map YAML may name (what map_saver writes and what nav2's image loader is used with)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -191,7 +193,7 @@ def cells_from_image(
 def load_map(yaml_path: str | Path) -> Map:
     """Load a ROS map_server / nav2 map: YAML with `image` (relative to it), `resolution`, ..."""
     path = Path(yaml_path)
-    if path.suffix.lower() in (*IMAGE_SUFFIXES, ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif"):
+    if path.suffix.lower() in READ_IMAGE_SUFFIXES:
         beside = path.with_suffix(".yaml")
         hint = f" (is {beside} its YAML?)" if beside.is_file() else ""
         raise MapError(f"{path} is an image: give the map_server YAML that names it{hint}")
@@ -215,6 +217,9 @@ def load_map(yaml_path: str | Path) -> Map:
     image = _require(meta, "image", path)
     if not isinstance(image, str) or not image:
         raise MapError(f"{path}: 'image' must be a file name, got {image!r}")
+    if Path(image).suffix.lower() not in READ_IMAGE_SUFFIXES:
+        raise MapError(f"{path}: 'image' {image!r} is not an image file name (give one ending in "
+                       f"{', '.join(READ_IMAGE_SUFFIXES)})")  # fmt: skip
     resolution = _number(meta, "resolution", path)
     if not MIN_RESOLUTION_M <= resolution <= MAX_RESOLUTION_M:
         raise MapError(f"{path}: 'resolution' must be {MIN_RESOLUTION_M:g}-{MAX_RESOLUTION_M:g} m a cell, got "

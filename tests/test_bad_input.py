@@ -117,6 +117,20 @@ def test_an_image_too_large_is_refused_before_it_is_decoded(tmp_path, capsys):
         assert code == 1 and "at most 25,000,000 pixels" in one_line(err)
 
 
+def test_files_are_read_only_under_the_names_of_their_kind(tmp_path, capsys):
+    """A map image must be named as an image and a recording as one, whatever their bytes hold."""
+    import shutil
+
+    shutil.copy(Path(MAP_1).with_suffix(".pgm"), tmp_path / "map.txt")
+    (tmp_path / "m.yaml").write_text(Path(MAP_1).read_text().replace("image: map-1.pgm", "image: map.txt"))
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "'image' 'map.txt' is not an image file name" in one_line(err)
+    (tmp_path / "episode.txt").write_bytes(b"\x89MCAP0\r\n" + bytes(64))
+    code, _, err = run(capsys, "replay", str(tmp_path / "episode.txt"))
+    assert code == 1 and "not a recording's name" in one_line(err)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.txt", "m.yaml", "map.txt"]
+
+
 @pytest.mark.parametrize("origin", ["[.nan, 0, 0]", "[.inf, 0, 0]"])
 def test_a_map_origin_must_be_finite(tmp_path, capsys, origin):
     text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")

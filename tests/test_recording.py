@@ -210,18 +210,21 @@ def test_recording_config_is_validated():
 def test_two_env_runners_with_several_envs_each_write_distinct_valid_files(tmp_path):
     from smorphi_rl import cluster
     from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training.config import TrainConfig, algorithm_config, recording_settings, register_env
+    from smorphi_rl.training.config import (
+        TrainConfig,
+        algorithm_config,
+        recording_settings,
+        register_env,
+        standalone_algorithm,
+    )
 
     cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1], "max_steps": 20}), record_every=2,
                       num_env_runners=2, envs_per_runner=3)  # fmt: skip
     with cluster.ray_session(None):
         register_env()
         config = algorithm_config(cfg, recording=recording_settings(cfg, tmp_path, "vector"))
-        algo = config.build_algo()
-        try:
+        with standalone_algorithm(config) as algo:  # stopping closes every env: episodes in progress finish
             algo.train()
-        finally:
-            algo.stop()  # closes every env: episodes in progress are finished, nothing left as .part
     files = episode_files(tmp_path / "episodes")
     assert files and not [f for f in files if f.name.endswith(PART_SUFFIX)]
     instances = {(f.name.split("-")[1], f.name.split("-")[2]) for f in files}

@@ -92,6 +92,9 @@ def read_episode(path: str | Path) -> Episode:
     from mcap.stream_reader import StreamReader
 
     file = Path(path)
+    if not file.name.endswith((SUFFIX, PART_SUFFIX)) and not file.is_dir():
+        raise RecordingError(f"{path}: not a recording's name (smorphi-rl records NAME{SUFFIX}, NAME{PART_SUFFIX} "
+                             "while it is written)")  # fmt: skip
     try:
         with file.open("rb") as fh:
             if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:

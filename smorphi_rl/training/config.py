@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -289,6 +291,28 @@ def register_env() -> None:
     from smorphi_rl.vector_env import make_env
 
     tune_register(TUNE_ENV_NAME, make_env)
+
+
+@contextmanager
+def standalone_algorithm(config: Any) -> Iterator[Any]:
+    """An Algorithm built outside Tune (the benchmarks, tests), stopped on leaving. RLlib makes it an empty log
+    folder under ~/ray_results and Ray names no other place outside Tune; that folder is removed again, and
+    ~/ray_results with it if this made it and it is empty."""
+    from ray.train.constants import DEFAULT_STORAGE_PATH
+
+    results = Path(DEFAULT_STORAGE_PATH)
+    made = not results.exists()
+    algo = config.build_algo()
+    try:
+        yield algo
+    finally:
+        logdir = Path(algo.logdir)
+        algo.stop()
+        for folder in (logdir, results) if made else (logdir,):
+            try:
+                folder.rmdir()  # only when empty: nothing anybody wrote is removed
+            except OSError:
+                break
 
 
 def policy_layout(pretrained: str | None, frequencies: int) -> int:

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env, standalone_algorithm
 
 pytestmark = pytest.mark.slow
 
@@ -21,20 +21,16 @@ def two_iterations(seed: int) -> tuple[dict[str, np.ndarray], dict[str, np.ndarr
     cfg = TrainConfig(env=EnvConfig.from_dict({"max_steps": 10}), seed=seed, envs_per_runner=4, eval_every=0,
                       overrides={"train_batch_size": 160, "minibatch_size": 80, "num_epochs": 2})  # fmt: skip
     assert cfg.env_runners == 2  # the default layout
-    with cluster.ray_session(None):
-        algo = algorithm_config(cfg).build_algo()
-        try:
+    with cluster.ray_session(None), standalone_algorithm(algorithm_config(cfg)) as algo:
 
-            def weights() -> dict[str, np.ndarray]:
-                state = algo.learner_group.get_state(components="learner/rl_module")["learner"]["rl_module"]
-                return {k: np.array(v) for k, v in state["default_policy"].items()}
+        def weights() -> dict[str, np.ndarray]:
+            state = algo.learner_group.get_state(components="learner/rl_module")["learner"]["rl_module"]
+            return {k: np.array(v) for k, v in state["default_policy"].items()}
 
-            start = weights()
-            algo.train()
-            algo.train()
-            return start, weights()
-        finally:
-            algo.stop()
+        start = weights()
+        algo.train()
+        algo.train()
+        return start, weights()
 
 
 def test_one_seed_trains_to_the_same_weights_and_the_steps_move_them():
