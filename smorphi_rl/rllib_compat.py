@@ -93,7 +93,8 @@ def runner_mixin(unbatch: Callable[[Any], list[Any]]) -> type:
                     )
                 if not self._step_callbacks:
                     return
-            super()._make_on_episode_callback(which, idx, episodes)
+            SingleAgentEnvRunner._make_on_episode_callback(self, which, idx, episodes)  # no super(): Ray ships
+            # this class's methods to remote runners by value, where a zero-argument super() names another class
 
     return RunnerInternals
 

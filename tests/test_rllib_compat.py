@@ -76,6 +76,22 @@ def test_the_runner_splits_each_step_with_ours_and_skips_step_callbacks_only_whe
         assert (len(steps) > 4 * 30) == (on_step is not None)  # made for every env and step, or not at all
 
 
+def test_the_runners_methods_work_when_shipped_by_value_as_ray_ships_them_to_remote_runners():
+    import cloudpickle
+
+    from smorphi_rl.training.sampling import LeanEnvRunner, split_by_env
+
+    runner = _runner(split_by_env)
+    shipped = {name: cloudpickle.loads(cloudpickle.dumps(getattr(LeanEnvRunner, name)))
+               for name in ("_sample", "_make_on_episode_callback")}  # fmt: skip
+    try:
+        episodes = shipped["_sample"](runner, num_timesteps=40, explore=True)
+        shipped["_make_on_episode_callback"](runner, "on_episode_created", 0, episodes)
+    finally:
+        runner.stop()
+    assert episodes
+
+
 def test_the_learner_internals_the_adapter_reaches_are_there():
     from ray.rllib.algorithms.impala import impala_learner
     from ray.rllib.core.learner.learner import Learner
