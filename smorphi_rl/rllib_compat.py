@@ -144,8 +144,11 @@ def tensor_version(tensor: Any) -> int:
 def daemons_in_their_own_session() -> Iterator[None]:
     """Start a local Ray's daemons (GCS, raylet and the workers they spawn) in a session of their own.
 
-    Ray starts them through `ray._private.services.ConsolePopen` and offers no setting for their process group;
-    this is the one assignment into another package's module (for the length of `ray.init`, undone after)."""
+    `timeout` and batch schedulers send SIGTERM to the whole process group; Ray's daemons would die at once and
+    the driver could no longer stop its trials and write their summary. In their own session they get no group
+    signal; they still die with the driver (Ray's kill-on-parent-death fate sharing). Ray starts them through
+    `ray._private.services.ConsolePopen` and offers no setting for their session: this is the one assignment
+    into another package's module (for the length of `ray.init`, undone after)."""
     from ray._private import services
 
     original = services.ConsolePopen
@@ -192,14 +195,12 @@ def numpy_unpickle_helpers() -> dict[tuple[str, str], Any]:
     loader's exact allowlist (numpy 1.x spells the array helpers `numpy.core`, 2.x `numpy._core`)."""
     import numpy as np
     from numpy.random import _pickle as random_pickle
-
-    core = getattr(np, "_core", None) or np.core
     from numpy.random import bit_generator
 
+    core = getattr(np, "_core", None) or np.core
+    seed_sequence = "__pyx_unpickle_SeedSequence"  # a Cython helper: spelled as a string
     helpers: dict[tuple[str, str], Any] = {
-        ("numpy.random.bit_generator", "__pyx_unpickle_SeedSequence"): getattr(
-            bit_generator, "__pyx_unpickle_SeedSequence"
-        ),
+        ("numpy.random.bit_generator", seed_sequence): getattr(bit_generator, seed_sequence),
         ("numpy.random._pickle", "__generator_ctor"): random_pickle.__generator_ctor,
         ("numpy.random._pickle", "__bit_generator_ctor"): random_pickle.__bit_generator_ctor,
     }

@@ -97,11 +97,13 @@ class FusedStep:
 
     def configure_optimizers_for_module(self, module_id: Any, config: Any = None) -> None:
         params = self.get_parameters(self.module[module_id])  # type: ignore[attr-defined]
-        rate = Scheduler(fixed_value_or_schedule=config.lr, framework="torch")  # RLlib's schedule of the rate
+        # The rate is a float set here and moved by us: the foreach Adam on CPU takes no tensor rate, which
+        # RLlib's own scheduling sets. RLlib's Scheduler computes it, as RLlib's scheduling would.
+        rate = Scheduler(fixed_value_or_schedule=config.lr, framework="torch")
         optimizer = torch.optim.Adam(params, lr=float(rate.get_current_value()), foreach=True)
-        self.register_optimizer(  # type: ignore[attr-defined]  # the rate: a float, set here (the foreach
-            module_id=module_id, optimizer=optimizer, params=params, lr_or_lr_schedule=None,  # Adam on CPU
-        )  # fmt: skip  # takes no tensor rate, which RLlib's own scheduling would set)
+        self.register_optimizer(  # type: ignore[attr-defined]
+            module_id=module_id, optimizer=optimizer, params=params, lr_or_lr_schedule=None
+        )
         if rate.use_schedule:
             self._rates = [*getattr(self, "_rates", []), (optimizer, rate)]
 
