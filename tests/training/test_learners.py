@@ -77,6 +77,7 @@ def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it
         assert learner._learner_thread.is_alive()  # still taking batches off its queue: nothing blocks
         with pytest.raises(LearnerThreadError, match="ValueError: a broken loss"):
             learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)), timesteps=timesteps)
+        learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
         runner.stop()
 
 
@@ -171,5 +172,6 @@ def test_one_update_of_the_async_learners_moves_the_weights(algo):
         params = list(learner.module["default_policy"].parameters())
         while all(torch.equal(a, b) for a, b in zip(before, params, strict=True)) and time.monotonic() < deadline:
             time.sleep(0.05)
+        learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
         runner.stop()
     assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))
