@@ -47,6 +47,9 @@ def crop_to_known(grid_map: Map, margin_m: float = 0.0) -> Map:
     (clipped to the map); the origin moves so every kept cell stays where it was in the world."""
     if not margin_m >= 0:
         raise MapError(f"the crop margin must be >= 0 m, got {margin_m}")
+    side = max(grid_map.width, grid_map.height) * grid_map.resolution_m
+    if margin_m > side:
+        raise MapError(f"the crop margin {margin_m:g} m is beyond the map's own {side:g} m: it would crop nothing")
     rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
     pad = int(np.ceil(margin_m / grid_map.resolution_m - 1e-9))
     r0, r1 = max(int(rows.min()) - pad, 0), min(int(rows.max()) + 1 + pad, grid_map.height)

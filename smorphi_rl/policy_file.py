@@ -130,8 +130,8 @@ def _check_meta(meta: Any, where: Path) -> None:
     )
     if not shapes_ok or not isinstance(obs, dict) or "map" not in obs or "angles" not in obs:
         raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")
-    if not (isinstance(nvec, list) and len(nvec) == 3 and all(isinstance(n, int) and n % 2 == 1 for n in nvec)):
-        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd move counts")
+    if not (isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and n >= 1 and n % 2 == 1 for n in nvec)):
+        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts, got {nvec!r}")
     if not isinstance(model, dict) or not isinstance(model.get("env_config", {}), dict):
         raise PolicyFileError(f"{where}: 'model_config' must be a table holding 'env_config'")
     for key in ("value_offset", "value_scale"):

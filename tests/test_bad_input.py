@@ -432,3 +432,18 @@ def test_an_exact_front_whose_step_was_edited_is_refused(tmp_path, capsys):
     code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "e"), "--exhaustive",
                        str(tmp_path / "e"), "--log-dir", str(tmp_path))  # fmt: skip
     assert code == 1 and "whose step 7 does not divide 180" in one_line(err)
+
+
+def test_a_sweep_whose_trials_need_more_cpus_than_there_are_is_refused_before_ray(tmp_path, capsys):
+    sweep = tmp_path / "wide.yaml"
+    sweep.write_text(f"name: wide\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\n"
+                     "env_runners: 1000\n")  # fmt: skip
+    code, _, err = run(capsys, "sweep", str(sweep), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "1000 env runner(s) need 501 CPUs" in one_line(err)
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_crop_margin_beyond_the_map_is_refused(tmp_path, capsys):
+    code, _, err = run(capsys, "maps", "crop", MAP_1, "--margin", "1e20", "--out", str(tmp_path / "c.yaml"))
+    assert code == 1 and "beyond the map's own" in one_line(err)
+    assert not list(tmp_path.iterdir())

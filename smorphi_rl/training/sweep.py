@@ -161,6 +161,10 @@ def run_sweep(
     for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
         MorphologyEnv(sweep.base_config(sweep.algorithms[0], maps, 0, {}).env.to_dict())
     cluster.check_reachable(address)
+    layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
+    widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
+    if address is None:
+        cluster.check_capacity(widest.cpus, widest.env_runners, address)
     exp = prepare_experiment(sweep, log_dir, resume)
     out = out or sys.stderr
     optima: dict[str, Optimum] = {}
@@ -169,6 +173,8 @@ def run_sweep(
     quiet()
     progress = _SweepProgress(sweep, sweep.num_grid_trials, out)
     with cluster.ray_session(address):
+        if address is not None:
+            cluster.check_capacity(widest.cpus, widest.env_runners, address)
         from ray import tune
 
         from smorphi_rl.training.tensorboard import TensorBoardLogger

@@ -102,7 +102,8 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
     (lambda m: m | {"format": "other"}, "not a smorphi-rl policy description"),
     (lambda m: m | {"version": 2}, "this smorphi-rl reads version 1"),
     (lambda m: m | {"version": "1"}, "'version' must be the number 1, got '1'"),
-    (lambda m: m | {"action_nvec": [7, 7]}, "three odd move counts"),
+    (lambda m: m | {"action_nvec": [7, 7]}, "three odd, positive move counts"),
+    (lambda m: m | {"action_nvec": [-3, 5, 5]}, r"three odd, positive move counts, got \[-3, 5, 5\]"),
     (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
 ])  # fmt: skip
 def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
