@@ -78,8 +78,10 @@ def _init(map_path: str, planning: Planning, parent: int, step: float, weights: 
     if _lattice is None or len(_lattice) != (round(180 / step) + 1) ** 3:  # a spawned worker builds its own
         _lattice = lattice_thetas(step)
     die_with_parent(parent)
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the workers,
-    signal.signal(signal.SIGTERM, signal.SIG_DFL)  # with SIGTERM, which must end a worker wherever it is
+    # Ctrl-C and SIGTERM are the parent's to handle, also when sent to the whole process group (a terminal,
+    # `timeout`, a scheduler): it stops its loop and kills the workers (SIGKILL); they die with it all the same
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     _worker = planning.evaluator(load_map(map_path), cache=False)
     _bound = _worker.prune_bound(weights)
 
@@ -191,7 +193,10 @@ class _Workers:
             for conn in ready:
                 try:
                     answer: tuple[Any, ...] = conn.recv()
-                except EOFError:
+                except (EOFError, OSError):  # its end of the pipe closed or reset: the worker is gone
+                    if stop.is_set():
+                        raise KeyboardInterrupt from None
+                    alive[conn].join(timeout=1.0)
                     raise SmorphiError(f"a search worker died (exit code {alive[conn].exitcode})") from None
                 if answer[0] == "error":
                     raise SmorphiError(f"a search worker failed: {answer[1]}")

@@ -151,8 +151,10 @@ def _running(pid: int) -> bool:
         return False
 
 
-@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
-def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_path, signame):
+@pytest.mark.parametrize(("signame", "group"), [("SIGINT", False), ("SIGTERM", False), ("SIGTERM", True)])
+def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_path, signame, group):
+    """Sent to the search, or (as `timeout` and schedulers do) to its whole process group, workers included."""
+    import os
     import signal
     import subprocess
     import sys
@@ -160,7 +162,7 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
 
     argv = [sys.executable, "-m", "smorphi_rl.cli", "search", "exhaustive", "--map", MAP_1, "--log-dir",
             str(tmp_path), "--name", "ex"]  # fmt: skip
-    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=group)
     listing = ["ps", "-o", "pid=", "--ppid", str(proc.pid)]
     deadline = time.monotonic() + 60
     while (
@@ -170,7 +172,10 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
     workers = [int(p) for p in subprocess.run(listing, capture_output=True, text=True).stdout.split()]
     time.sleep(1.0)
     t0 = time.monotonic()
-    proc.send_signal(getattr(signal, signame))
+    if group:
+        os.killpg(proc.pid, getattr(signal, signame))
+    else:
+        proc.send_signal(getattr(signal, signame))
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 130 and time.monotonic() - t0 < 5, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "smorphi-rl: interrupted"
