@@ -447,3 +447,27 @@ def test_a_crop_margin_beyond_the_map_is_refused(tmp_path, capsys):
     code, _, err = run(capsys, "maps", "crop", MAP_1, "--margin", "1e20", "--out", str(tmp_path / "c.yaml"))
     assert code == 1 and "beyond the map's own" in one_line(err)
     assert not list(tmp_path.iterdir())
+
+
+def test_an_angles_file_that_never_ends_is_refused_before_reading(tmp_path, capsys):
+    import os
+
+    fifo = tmp_path / "fifo"
+    os.mkfifo(fifo)  # nobody writes to it: reading would block for ever
+    for path in ("/dev/zero", str(fifo), str(tmp_path)):
+        code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", path)
+        assert code == 1 and "not a regular file" in one_line(err)
+
+
+def test_a_start_tile_beyond_the_map_is_one_line(capsys):
+    code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles", "95", "59", "103",
+                       "--start", "tile:9999999999999999999,0")  # fmt: skip
+    assert code == 1 and "tile indices outside the map" in one_line(err)
+
+
+def test_a_map_coarser_than_a_block_is_written_with_a_warning_naming_the_fix(tmp_path, capsys):
+    code, _, err = run(capsys, "maps", "resample", MAP_1, "--resolution", "0.2", "--out", str(tmp_path / "r.yaml"))
+    assert code == 0 and "block is smaller than one cell" in one_line(err) and "--block-side" in err
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "r.yaml"), "--angles", "95", "59", "103",
+                       "--block-side", "0.2")  # fmt: skip
+    assert code == 0, err

@@ -6,6 +6,7 @@ import argparse
 import csv
 import json
 import math
+import stat
 import sys
 import warnings
 from collections.abc import Sequence
@@ -48,10 +49,26 @@ def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
     return (t1, t2, t3)
 
 
+MAX_ANGLES_FILE_BYTES = 100_000_000
+"""The largest angles file `evaluate --angles-file` reads."""
+
+
 def read_angles_file(path: Path) -> np.ndarray:
     """(N, 3) angles from a CSV file of three columns with an optional header row.
 
-    numpy reads well-formed files fast; anything it refuses is re-read row by row to name the line."""
+    numpy reads well-formed files fast; anything it refuses is re-read row by row to name the line. Only a
+    regular file of at most MAX_ANGLES_FILE_BYTES is read (a device or a pipe would never end)."""
+    try:
+        info = path.stat()
+    except FileNotFoundError:
+        raise SmorphiError(f"angles file not found: {path}") from None
+    except OSError as exc:
+        raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
+    if not stat.S_ISREG(info.st_mode):
+        raise SmorphiError(f"{path}: not a regular file (give a CSV file of three angle columns)")
+    if info.st_size > MAX_ANGLES_FILE_BYTES:
+        raise SmorphiError(f"{path}: {info.st_size:,} bytes; an angles file is at most {MAX_ANGLES_FILE_BYTES:,} "
+                           "(about 4 million rows)")  # fmt: skip
     try:
         with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
             first = fh.readline()
@@ -128,6 +145,9 @@ def parse_start(text: str | None, grid_map: Map) -> Start:
             raise SmorphiError(f"--start {text!r}: tile indices must be integers") from None
         if a < 0 or b < 0:
             raise SmorphiError(f"--start {text!r}: tile indices count from 0")
+        if max(a, b) >= grid_map.height * grid_map.width:  # beyond any tile grid (and any int64 the planner takes)
+            raise SmorphiError(f"--start {text!r}: tile indices outside the map ({grid_map.width} x "
+                               f"{grid_map.height} cells)")  # fmt: skip
         return Start.tile(a, b)
     x, y = (number(p, "--start coordinate") for p in parts)
     return Start.point(grid_map, x, y)

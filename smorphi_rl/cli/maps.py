@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +102,7 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    warn_coarser_than_a_block(args.resolution)
     return 0
 
 
@@ -165,6 +167,18 @@ def cmd_maps_resample(args: argparse.Namespace) -> int:
     return _write_prepared(args, lambda source: resample(source, args.resolution))
 
 
+def warn_coarser_than_a_block(resolution_m: float) -> None:
+    """A warning line when a map's cells are larger than Smorphi's block: every planning command refuses it then
+    (a footprint under one cell has no tiles), unless a larger block side is given."""
+    from smorphi_rl.env_config import EnvConfig
+
+    block = EnvConfig().block_side_m
+    if resolution_m > block:
+        print(f"warning: at {resolution_m:g} m a cell, Smorphi's {block:g} m block is smaller than one cell: "
+              f"planning commands refuse this map (a resolution of at most {block:g} m, or `evaluate --block-side` "
+              f"of at least {resolution_m:g}, plans on it)", file=sys.stderr)  # fmt: skip
+
+
 def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
     """Read the map, transform it, drop small islands, write it (never over the input or an existing map
     without --force) and print both maps' sizes."""
@@ -196,6 +210,7 @@ def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
     print(f"{'read':<8} {args.map}: {size(source)}")
     print(f"{'wrote':<8} {out}: {size(grid_map)}")
     print(f"{'islands':<8} {islands.count} dropped ({islands.area_m2:.2f} m^2 of free floor marked unknown)")
+    warn_coarser_than_a_block(grid_map.resolution_m)
     return 0
 
 
