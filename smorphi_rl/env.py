@@ -157,9 +157,9 @@ def map_r1_stats(grid_map: Map, weights: Weights, planning: Planning, samples: i
 
 
 SCALE_KEY = "scale"
+"""The `floor` layout's entry for the floor's scale and clearance against the block."""
 EXTRA_KEYS = ("metrics", SCALE_KEY)
 """The observation's entries a policy reads as they are (beside the map and the angles), in this order."""
-"""The `floor` layout's entry for the floor's scale and clearance against the block."""
 CLEARANCE_BLOCKS = (0.5, 1.0, 2.0, 4.0)
 """`scale`: the shares of free cells at least this many block sides from anything not free."""
 FLOOR_CACHE_SIZE = 256
