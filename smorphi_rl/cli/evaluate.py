@@ -81,9 +81,7 @@ def read_angles_file(path: Path) -> np.ndarray:
             return values  # anything else is re-read row by row below, to name the file and line
     except (ValueError, UnicodeDecodeError):
         pass
-    except FileNotFoundError:
-        raise SmorphiError(f"angles file not found: {path}") from None
-    except OSError as exc:
+    except OSError as exc:  # a missing file is named by the stat above
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
     return _read_angles_rows(path)
 

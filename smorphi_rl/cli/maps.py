@@ -172,7 +172,7 @@ def warn_coarser_than_a_block(resolution_m: float) -> None:
     (a footprint under one cell has no tiles), unless a larger block side is given."""
     from smorphi_rl.env_config import EnvConfig
 
-    block = EnvConfig().block_side_m
+    block = EnvConfig.block_side_m  # the default block
     if resolution_m > block:
         print(f"warning: at {resolution_m:g} m a cell, Smorphi's {block:g} m block is smaller than one cell: "
               f"planning commands refuse this map (a resolution of at most {block:g} m, or `evaluate --block-side` "
