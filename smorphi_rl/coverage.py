@@ -15,7 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.maps import Cell, Map
+from smorphi_rl.maps import Cell, Map, free_prefix_sum
 
 
 class Planner(enum.Enum):
@@ -96,8 +96,7 @@ class PreparedMap:
 
     def __post_init__(self) -> None:
         free = self.grid_map.cells == Cell.FREE
-        prefix = np.zeros((free.shape[0] + 1, free.shape[1] + 1), dtype=np.int32)
-        prefix[1:, 1:] = free.astype(np.int32).cumsum(axis=0).cumsum(axis=1)
+        prefix = free_prefix_sum(self.grid_map)
         padded = np.ones((free.shape[0] + self.pad_cells, free.shape[1] + self.pad_cells), dtype=np.uint8)
         padded[: free.shape[0], : free.shape[1]] = ~free
         object.__setattr__(self, "free_prefix", prefix)

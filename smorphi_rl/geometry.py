@@ -186,6 +186,12 @@ def footprint_matrix(
     return trim(grid)
 
 
+def cells_along(length_m: float, resolution_m: float) -> int:
+    """How many cells of F an axis-aligned side of `length_m` spans (section 2: cell centres inside, tolerance
+    included): the O's and the I's F are full rectangles of these sides."""
+    return math.floor((length_m + POINT_TOLERANCE_M) / resolution_m - 0.5) + 1
+
+
 def trim(grid: np.ndarray) -> np.ndarray:
     """Crop a boolean grid to the bounding box of its true cells."""
     rows, cols = np.flatnonzero(grid.any(axis=1)), np.flatnonzero(grid.any(axis=0))

@@ -379,9 +379,50 @@ def generate_map(
     return Map(cells, resolution_m, name=name)
 
 
-def check_fits(grid_map: Map, block_side_m: float) -> float:
+def holds_free_rect(free_prefix: np.ndarray, rows: int, cols: int) -> bool:
+    """True when some `rows` x `cols` rectangle of cells is wholly free (`free_prefix`: the 2-D prefix sum of the
+    free cells with a zero first row and column)."""
+    p = free_prefix
+    if rows > p.shape[0] - 1 or cols > p.shape[1] - 1:
+        return False
+    sums = p[rows:, cols:] - p[:-rows, cols:] - p[rows:, :-cols] + p[:-rows, :-cols]
+    return bool((sums == rows * cols).any())
+
+
+def free_prefix_sum(grid_map: Map) -> np.ndarray:
+    """The 2-D prefix sum of the free cells, with a zero first row and column (int32)."""
+    free = grid_map.cells == Cell.FREE
+    prefix = np.zeros((free.shape[0] + 1, free.shape[1] + 1), dtype=np.int32)
+    prefix[1:, 1:] = free.astype(np.int32).cumsum(axis=0).cumsum(axis=1)
+    return prefix
+
+
+def check_robot_fits(grid_map: Map, block_side_m: float, whole_footprint: bool) -> None:
+    """Refuse a floor smaller than the robot (docs/spec/fbcpp.md section 3), where every score means nothing
+    (under the paper's P_c one free cell among obstacles scores 100 %): its free cells must be at least as many as
+    the cells of Smorphi's smallest footprint matrix, the O (2 x 2 blocks) or the I (1 x 4), and with
+    `whole_footprint` (the fit planner, which places F only on free cells) one of them must lie wholly on free
+    cells somewhere."""
+    from smorphi_rl.geometry import cells_along
+
+    o, i1, i4 = (cells_along(n * block_side_m, grid_map.resolution_m) for n in (2, 1, 4))
+    smallest = f"the O, {o} x {o} cells" if o * o <= i1 * i4 else f"the I, {i1} x {i4} cells"
+    if grid_map.counts[Cell.FREE] < min(o * o, i1 * i4):
+        raise MapError(f"map {grid_map.name}: its {grid_map.counts[Cell.FREE]} free cells are fewer than the robot's "
+                       f"smallest footprint ({smallest}): the floor is smaller than the robot")  # fmt: skip
+    if not whole_footprint:
+        return
+    prefix = free_prefix_sum(grid_map)
+    if any(holds_free_rect(prefix, rows, cols) for rows, cols in ((o, o), (i1, i4), (i4, i1))):
+        return
+    raise MapError(f"map {grid_map.name}: the robot fits nowhere on its free cells (neither Smorphi's O, {o} x {o} "
+                   f"cells, nor its I, {i1} x {i4} either way, lies wholly on free cells), as the fit planner "
+                   "needs")  # fmt: skip
+
+
+def check_fits(grid_map: Map, block_side_m: float, whole_footprint: bool = False) -> float:
     """The block side, checked against the map's cells (`geometry.check_block_side`) and its size: a map narrower
-    than one block holds no robot."""
+    than one block, or whose free floor is smaller than the robot (`check_robot_fits`), holds no robot."""
     from smorphi_rl.geometry import check_block_side
 
     side = check_block_side(block_side_m, grid_map.resolution_m)
@@ -390,4 +431,5 @@ def check_fits(grid_map: Map, block_side_m: float) -> float:
         size = f"{w} x {h} cells of {grid_map.resolution_m:g} m"
         raise MapError(f"map {grid_map.name} ({size}) is narrower than one block ({side:g} m): the robot does not "
                        "fit on it")  # fmt: skip
+    check_robot_fits(grid_map, side, whole_footprint)
     return side

@@ -120,7 +120,7 @@ class Evaluator:
         planner: Planner = Planner.PAPER,
         cache_limit: int | None = None,
     ) -> None:
-        self.block_side_m = check_fits(grid_map, block_side_m)
+        self.block_side_m = check_fits(grid_map, block_side_m, whole_footprint=planner is Planner.FIT)
         self.start = start
         self.use_cache = cache
         self.planner = planner

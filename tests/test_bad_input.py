@@ -471,3 +471,48 @@ def test_a_map_coarser_than_a_block_is_written_with_a_warning_naming_the_fix(tmp
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "r.yaml"), "--angles", "95", "59", "103",
                        "--block-side", "0.2")  # fmt: skip
     assert code == 0, err
+
+
+def _pgm_map(tmp_path: Path, name: str, free: np.ndarray) -> str:
+    """A map YAML at 0.1 m whose free cells are `free` (True), the rest occupied."""
+    h, w = free.shape
+    pixels = np.where(free[::-1], 254, 0).astype(np.uint8)  # the image's top row is the map's highest y
+    (tmp_path / f"{name}.pgm").write_bytes(f"P5 {w} {h} 255\n".encode() + pixels.tobytes())
+    (tmp_path / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+                                           "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    return str(tmp_path / f"{name}.yaml")
+
+
+@pytest.mark.parametrize("free_cells", [[(25, 25)], [(25, 25), (25, 26), (26, 25), (26, 26)]])
+def test_a_floor_smaller_than_the_robot_is_refused_where_shapes_are_planned(tmp_path, capsys, free_cells):
+    free = np.zeros((50, 50), dtype=bool)
+    for cell in free_cells:
+        free[cell] = True
+    map_yaml = _pgm_map(tmp_path, "speck", free)
+    for argv in (
+        ["search", "random", "--samples", "5", "--log-dir", str(tmp_path / "logs")],
+        ["train", "--log-dir", str(tmp_path / "logs")],
+        ["design"],
+        ["evaluate", "--angles", "1", "2", "3"],
+    ):
+        code, _, err = run(capsys, *argv, "--map", map_yaml)
+        assert code == 1 and "fewer than the robot's smallest footprint (the O, 3 x 3 cells)" in one_line(err), err
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_floor_that_holds_neither_the_o_nor_the_i_is_refused_by_the_fit_planner(tmp_path, capsys):
+    """The paper's planner lets the robot stand over obstacles (its golden corridor is one cell wide); the fit
+    planner places F only on free cells, so it needs somewhere the O or the I fits."""
+    free = np.zeros((50, 50), dtype=bool)
+    free[10:12, 10:40] = True  # a strip of 2 x 30 cells cut every 6 cells: no I (2 x 7), no O (3 x 3)
+    free[10:12, 16:40:6] = False
+    map_yaml = _pgm_map(tmp_path, "strip", free)
+    for argv in (
+        ["search", "random", "--samples", "5", "--log-dir", str(tmp_path / "logs")],
+        ["evaluate", "--angles", "0", "180", "0"],
+    ):
+        code, _, err = run(capsys, *argv, "--planner", "fit", "--map", map_yaml)
+        assert code == 1 and "O, 3 x 3 cells, nor its I, 2 x 7 either way" in one_line(err), err
+    assert not (tmp_path / "logs").exists()
+    code, out, _ = run(capsys, "evaluate", "--angles", "0", "0", "0", "--map", map_yaml)  # the paper planner plans it
+    assert code == 0 and "P_c" in out

@@ -65,13 +65,11 @@ def test_evaluate_json_path_lets_anyone_check_the_plan(capsys, planner):
 
 
 def test_a_shape_that_fits_nowhere_is_one_line(capsys, tmp_path):
-    from conftest import CORRIDOR
-
     from smorphi_rl.maps import Map, save_map
 
-    corridor = save_map(Map.from_text(CORRIDOR, 0.1, name="corridor"), tmp_path / "corridor.yaml")
-    code, out, err = run(capsys, "evaluate", "--map", str(corridor), "--angles", "0", "180", "0", "--planner", "fit")
-    assert code != 0 and out == "" and "fits nowhere on map corridor" in err and len(err.splitlines()) == 1
+    box = save_map(Map.from_text("#####\n#...#\n#...#\n#...#\n#####", 0.1, name="box"), tmp_path / "box.yaml")
+    code, out, err = run(capsys, "evaluate", "--map", str(box), "--angles", "0", "0", "0", "--planner", "fit")
+    assert code != 0 and out == "" and "(2 x 7 cells) fits nowhere on map box" in err and len(err.splitlines()) == 1
 
 
 def test_evaluate_path_needs_json_and_one_shape(capsys):

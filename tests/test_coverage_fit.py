@@ -139,9 +139,19 @@ def test_on_a_real_floor_the_robot_never_stands_over_anything_but_free_cells(the
     assert (-1, -1) in paper_under or any(grid_map.cells[c] != Cell.FREE for c in paper_under)
 
 
-def test_a_corridor_narrower_than_every_footprint_covers_nothing(corridor):
-    batch = Evaluator(corridor, planner=Planner.FIT).evaluate_many(np.array(GOLDEN_THETAS, dtype=float))
-    assert batch.feasible.all() and not batch.P_c.any() and not batch.P_len.any() and not batch.coverable_pct.any()
+def test_a_corridor_narrower_than_every_footprint_is_refused(corridor):
+    """docs/spec/fbcpp.md section 3: the fit planner needs somewhere the O or the I lies wholly on free cells."""
+    from smorphi_rl.errors import MapError
+
+    with pytest.raises(MapError, match="the robot fits nowhere on its free cells"):
+        Evaluator(corridor, planner=Planner.FIT)
+
+
+def test_a_shape_that_fits_nowhere_covers_nothing():
+    """A floor holding the O (3 x 3 cells) but no I (2 x 7): every I-like shape covers nothing."""
+    room = Map.from_text("#####\n#...#\n#...#\n#...#\n#####", 0.1, name="box")
+    batch = Evaluator(room, planner=Planner.FIT).evaluate_many(np.array([(0, 0, 0), (0, 180, 0)], dtype=float))
+    assert batch.feasible.all() and list(batch.P_c) == [0.0, 100.0] and not batch.P_len.any()
 
 
 def test_a_tile_start_is_refused_by_the_fit_planner(room12):

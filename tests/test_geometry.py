@@ -14,6 +14,7 @@ from smorphi_rl.errors import MorphologyError
 from smorphi_rl.geometry import (
     Morphology,
     all_corners,
+    cells_along,
     footprint_matrix,
     footprint_size,
     format_footprint,
@@ -166,3 +167,12 @@ def test_morphology_rejects_bad_angles(bad):
 def test_morphology_needs_three_angles():
     with pytest.raises(MorphologyError, match="3 hinge angles"):
         Morphology.of((1, 2))
+
+
+@pytest.mark.parametrize("resolution", [0.01, 0.03, 0.05, 0.07, 0.085, 0.1, 0.13, 0.17])
+def test_the_o_and_the_i_rasterise_to_full_rectangles_of_cells_along_their_sides(resolution):
+    """`cells_along` is what the robot-fits check (maps.check_robot_fits) assumes of F (section 2)."""
+    o, i1, i4 = (cells_along(n * S, resolution) for n in (2, 1, 4))
+    for angles, shape in (((0, 180, 0), (o, o)), ((0, 0, 0), (i1, i4)), ((180, 180, 180), (i4, i1))):
+        f = footprint_matrix(Morphology(*angles), resolution)
+        assert f.shape == shape and f.all()

@@ -10,7 +10,7 @@ import yaml
 from PIL import Image
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.maps import Cell, Map, generate_map, load_map, save_map
+from smorphi_rl.maps import Cell, Map, check_fits, generate_map, load_map, save_map
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 
@@ -170,3 +170,28 @@ def test_two_generates_into_one_folder_at_once_write_it_once(tmp_path):
         loser = next(err for code, err in results if code == 1)
         assert "exists" in loser and "pass --force" in loser and loser.count("\n") == 1
         assert len(list(out.glob("*.yaml"))) == 4 and all(p.stat().st_size > 0 for p in out.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("rows", "cols", "fits"),
+    [(3, 3, True), (2, 7, True), (7, 2, True), (2, 6, False), (6, 2, False), (2, 5, False)],
+)
+def test_a_floor_must_hold_the_robot_as_an_o_or_an_i(rows, cols, fits):
+    cells = np.full((12, 12), Cell.OCCUPIED, dtype=np.uint8)
+    cells[2 : 2 + rows, 3 : 3 + cols] = Cell.FREE
+    grid_map = Map(cells, 0.1, name="room")
+    assert check_fits(grid_map, 0.17) == 0.17  # the paper planner: 9 free cells or more, the O's
+    if fits:
+        assert check_fits(grid_map, 0.17, whole_footprint=True) == 0.17
+    else:
+        with pytest.raises(MapError, match="the robot fits nowhere on its free cells"):
+            check_fits(grid_map, 0.17, whole_footprint=True)
+
+
+def test_a_floor_must_hold_as_many_free_cells_as_the_robots_smallest_footprint():
+    cells = np.full((12, 12), Cell.OCCUPIED, dtype=np.uint8)
+    cells[0, :8] = Cell.FREE  # 8 cells against the O's 3 x 3
+    with pytest.raises(MapError, match=r"its 8 free cells are fewer than the robot's smallest footprint \(the O"):
+        check_fits(Map(cells.copy(), 0.1, name="room"), 0.17)
+    cells[5, 5] = Cell.FREE
+    assert check_fits(Map(cells, 0.1, name="room"), 0.17) == 0.17

@@ -177,7 +177,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     grid_map = load_map(args.map)
     from smorphi_rl.maps import check_fits
 
-    check_fits(grid_map, args.block_side)  # a map narrower than one block holds no robot
+    check_fits(grid_map, args.block_side, whole_footprint=args.planner == Planner.FIT.value)  # it holds a robot
     if thetas is not None:
         from smorphi_rl.planning import Evaluator
 

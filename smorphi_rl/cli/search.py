@@ -90,9 +90,10 @@ def cmd_search(args: argparse.Namespace) -> int:
     w = weights(args)
     grid_map = load_map(args.map)
     planning = planning_of(args, grid_map)  # a bad map or start fails here, before anything is written
+    from smorphi_rl.coverage import Planner
     from smorphi_rl.maps import check_fits
 
-    check_fits(grid_map, planning.block_side_m)
+    check_fits(grid_map, planning.block_side_m, whole_footprint=planning.planner is Planner.FIT)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     address = getattr(args, "address", None)
     cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options, address=address)
