@@ -110,7 +110,7 @@ def test_the_normalised_losses_are_rllibs_own_with_the_normalising_vtrace():
     from smorphi_rl.training.learners import NormalisedAPPOLearner, NormalisedIMPALALearner, normalised_vtrace
 
     for ours, theirs in ((NormalisedIMPALALearner, IMPALATorchLearner), (NormalisedAPPOLearner, APPOTorchLearner)):
-        loss = ours.compute_loss_for_module
+        loss = ours.compute_loss_for_module.__wrapped__  # inside the wrap that sets v-trace's lambda
         assert loss.__code__ is theirs.compute_loss_for_module.__code__  # RLlib's loss, op for op
         assert loss.__globals__["vtrace_torch"] is normalised_vtrace
         assert theirs.compute_loss_for_module.__globals__["vtrace_torch"] is not normalised_vtrace  # RLlib's intact

@@ -23,7 +23,6 @@ from smorphi_rl.training.presets import (
     DEFAULT_TIMESTEPS,
     ENVS_PER_RUNNER,
     LAYOUT,
-    PPO_ONLY,
     PRESETS,
     Preset,
 )
@@ -193,8 +192,6 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
     for name, value in overrides.items():
         if name not in known:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
-        if name in PPO_ONLY and algo != "ppo":
-            raise TrainConfigError(f"hyperparameter '{name}' applies to ppo only, not {algo}")
         integer = name in ("train_batch_size", "num_epochs", "minibatch_size", "policy_angle_frequencies")
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
         if not ok or (name in FRACTIONS and not 0 <= value <= 1):
@@ -339,7 +336,7 @@ def algorithm_config(
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
     from smorphi_rl.training.callbacks import MorphologyCallbacks
-    from smorphi_rl.training.learners import LEARNERS
+    from smorphi_rl.training.learners import LEARNERS, TRACE_LAMBDA_KEY
     from smorphi_rl.training.module import MorphologyModule
     from smorphi_rl.training.sampling import LEAN_SAMPLING
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
@@ -364,8 +361,9 @@ def algorithm_config(
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
-    else:
-        training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size}
+    else:  # v-trace's lambda reaches the learner through RLlib's public learner_config_dict (learners.py)
+        training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size,
+                     "learner_config_dict": {TRACE_LAMBDA_KEY: hp.lambda_}}  # fmt: skip
     config = (
         config_cls()
         .environment(

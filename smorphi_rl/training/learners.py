@@ -5,7 +5,8 @@ step scales with the return's units and the critic's error, and on this env they
 learning. These learners standardise v-trace's `pg_advantages` (zero mean, unit spread over the batch)
 and leave the value targets alone. RLlib computes both inside `compute_loss_for_module` with no hook
 between them, so the loss is RLlib's own with `vtrace_torch` resolved to a normalising one
-(`rllib_compat.with_globals`: a copy of the method; RLlib's module is left as it is).
+(`rllib_compat.with_globals`: a copy of the method; RLlib's module is left as it is). That v-trace also takes
+the IMPALA paper's lambda (`vtrace_lambda`), which RLlib's lacks, from the config's `learner_config_dict`.
 
 Every learner ends its connector pipeline with `CompactMaps`, which hands the module the batch's maps as
 numbers in the module's table of distinct maps (or, when they are mostly distinct, as int64 words): RLlib's
@@ -22,13 +23,13 @@ with its cause instead of freezing it.
 
 from __future__ import annotations
 
+import contextvars
 from collections.abc import Callable
 from typing import Any
 
 import torch
 from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
 from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
-from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
 from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
 from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
@@ -40,13 +41,57 @@ from smorphi_rl import rllib_compat
 from smorphi_rl.training.module import MAP_KEY, pack_maps
 
 ADVANTAGE_EPS = 1e-8
+TRACE_LAMBDA_KEY = "vtrace_lambda"
+"""The key of v-trace's lambda in the AlgorithmConfig's public `learner_config_dict` (config.py sets it)."""
+_TRACE_LAMBDA: contextvars.ContextVar[float] = contextvars.ContextVar("vtrace_lambda", default=1.0)
+"""The lambda of the loss being computed in this thread (set around RLlib's loss by the learners below)."""
+
+
+def vtrace_lambda(*, lambda_: float = 1.0, **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
+    """V-trace with the IMPALA paper's lambda (Espeholt et al. 2018, remark 1): traces cut by
+    `c_s = lambda min(1, rho_s)`, as GAE's lambda cuts returns. At lambda 1 it is RLlib's `vtrace_torch`; at 0 the
+    targets are one-step TD (both by test). RLlib's has no lambda: its advantages ride on every later random move of the
+    episode, the noise that kept PPO at GAE lambda 0.95 from settling (presets.py)."""
+    rhos = torch.exp(kwargs["target_action_log_probs"] - kwargs["behaviour_action_log_probs"])
+    discounts, rewards, values = kwargs["discounts"], kwargs["rewards"], kwargs["values"]
+    bootstrap = kwargs["bootstrap_values"]
+    clip_rho, clip_pg = kwargs.get("clip_rho_threshold", 1.0), kwargs.get("clip_pg_rho_threshold", 1.0)
+    clipped_rhos = rhos if clip_rho is None else torch.clamp(rhos, max=clip_rho)
+    cs = lambda_ * torch.clamp(rhos, max=1.0)
+    next_values = torch.cat([values[1:], bootstrap.unsqueeze(0)], dim=0)
+    deltas = clipped_rhos * (rewards + discounts * next_values - values)
+    acc = torch.zeros_like(bootstrap)
+    corrections = []
+    for t in reversed(range(len(discounts))):
+        acc = deltas[t] + discounts[t] * cs[t] * acc
+        corrections.append(acc)
+    vs = torch.stack(corrections[::-1]) + values
+    next_vs = torch.cat([vs[1:], bootstrap.unsqueeze(0)], dim=0)
+    pg_rhos = rhos if clip_pg is None else torch.clamp(rhos, max=clip_pg)
+    return vs.detach(), (pg_rhos * (rewards + discounts * next_vs - values)).detach()
 
 
 def normalised_vtrace(**kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
-    """RLlib's `vtrace_torch` whose policy-gradient advantages come back standardised over the batch."""
-    targets, advantages = vtrace_torch(**kwargs)
+    """V-trace (`vtrace_lambda`, at the lambda of the loss being computed) whose policy-gradient advantages come
+    back standardised over the batch."""
+    targets, advantages = vtrace_lambda(lambda_=_TRACE_LAMBDA.get(), **kwargs)
     centred = advantages - advantages.mean()
     return targets, centred / (centred.std() + ADVANTAGE_EPS)
+
+
+def with_trace_lambda(loss: Callable[..., Any]) -> Callable[..., Any]:
+    """RLlib's loss method `loss` (a copy calling `normalised_vtrace`) run at the lambda its config names."""
+
+    def compute_loss_for_module(self: Any, *, module_id: Any, config: Any, batch: Any, fwd_out: Any) -> Any:
+        token = _TRACE_LAMBDA.set(float((config.learner_config_dict or {}).get(TRACE_LAMBDA_KEY, 1.0)))
+        try:
+            return loss(self, module_id=module_id, config=config, batch=batch, fwd_out=fwd_out)
+        finally:
+            _TRACE_LAMBDA.reset(token)
+
+    compute_loss_for_module.__doc__ = loss.__doc__
+    compute_loss_for_module.__wrapped__ = loss  # type: ignore[attr-defined]  # functools' convention
+    return compute_loss_for_module
 
 
 class CompactMaps(ConnectorV2):
@@ -190,8 +235,8 @@ class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearne
         super().build()
         _end_with_compact_maps(self)
 
-    compute_loss_for_module = rllib_compat.with_globals(
-        IMPALATorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace
+    compute_loss_for_module = with_trace_lambda(
+        rllib_compat.with_globals(IMPALATorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace)
     )
 
 
@@ -202,8 +247,8 @@ class NormalisedAPPOLearner(GuardedLearnerThread, FusedStep, APPOTorchLearner): 
         super().build()
         _end_with_compact_maps(self)
 
-    compute_loss_for_module = rllib_compat.with_globals(
-        APPOTorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace
+    compute_loss_for_module = with_trace_lambda(
+        rllib_compat.with_globals(APPOTorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace)
     )
 
 

@@ -5,8 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 ALGORITHMS = ("ppo", "impala", "appo")
-PPO_ONLY = ("lambda_",)
-"""Hyperparameters only PPO uses (IMPALA and APPO use v-trace instead of GAE)."""
 
 ANGLE_FREQUENCIES = 8
 """Fourier frequencies of the angles the critic sees, and the policy unless its preset says otherwise
@@ -23,7 +21,8 @@ class Preset:
     vf_loss_coeff: float
     grad_clip: float
     train_batch_size: int
-    lambda_: float = 0.95  # PPO only (IMPALA/APPO use v-trace)
+    lambda_: float = 0.95
+    """PPO: GAE's lambda; IMPALA and APPO: v-trace's (traces cut by lambda, `learners.vtrace_lambda`)."""
     lr_final: float | None = None
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
     policy_angle_frequencies: int = ANGLE_FREQUENCIES
@@ -44,11 +43,11 @@ LAYOUT = ("rollout_fragment_length", "min_time_s_per_iteration", "env_runners")
 
 
 _A3C_PAPER = Preset(  # Table 1, A3C column (served by IMPALA/APPO)
-    lr=7e-4, gamma=0.99, entropy_coeff=0.01, vf_loss_coeff=0.5, grad_clip=0.5, train_batch_size=32,
+    lr=7e-4, gamma=0.99, entropy_coeff=0.01, vf_loss_coeff=0.5, grad_clip=0.5, train_batch_size=32, lambda_=1.0,
     rollout_fragment_length=32, min_time_s_per_iteration=2.0,
 )  # fmt: skip
 _ASYNC_FAST = Preset(
-    lr=1e-3, lr_final=5e-5, gamma=0.995, entropy_coeff=0.01, vf_loss_coeff=0.5, grad_clip=40.0,
+    lr=1e-3, lr_final=5e-5, gamma=0.995, entropy_coeff=0.01, vf_loss_coeff=0.5, grad_clip=40.0, lambda_=1.0,
     train_batch_size=500, num_epochs=2, minibatch_size=250, rollout_fragment_length=50, min_time_s_per_iteration=2.0,
 )  # fmt: skip
 """IMPALA/APPO, fast: the learner sees each sampled batch (32 envs x 50 steps) twice in minibatches of 250, about

@@ -78,10 +78,20 @@ def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread(monkeypat
     def vtrace(**_):
         return torch.arange(6.0), torch.tensor([1.0, 5.0, 9.0, 2.0, 7.0, 100.0])
 
-    monkeypatch.setattr(learners, "vtrace_torch", vtrace)
+    monkeypatch.setattr(learners, "vtrace_lambda", vtrace)
     targets, advantages = learners.normalised_vtrace()
     assert torch.equal(targets, torch.arange(6.0))  # value targets untouched
     assert abs(float(advantages.mean())) < 1e-6 and abs(float(advantages.std()) - 1) < 1e-5
+
+
+@pytest.mark.parametrize(("algo", "preset", "lam"), [("impala", "fast", 1.0), ("appo", "paper", 1.0)])
+def test_the_async_learners_get_vtraces_lambda_through_the_learner_config_dict(algo, preset, lam):
+    from smorphi_rl.training.config import algorithm_config
+    from smorphi_rl.training.learners import TRACE_LAMBDA_KEY
+
+    assert algorithm_config(TrainConfig(algo=algo, preset=preset)).learner_config_dict[TRACE_LAMBDA_KEY] == lam
+    tuned = TrainConfig(algo=algo, preset=preset, overrides={"lambda_": 0.25})
+    assert algorithm_config(tuned).learner_config_dict[TRACE_LAMBDA_KEY] == 0.25
 
 
 def test_ppo_learner_ends_its_pipeline_with_rllibs_gae_then_compact_maps():

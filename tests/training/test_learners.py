@@ -81,14 +81,11 @@ def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it
         runner.stop()
 
 
-def test_normalised_vtrace_is_rllibs_with_the_advantages_standardised():
-    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
-
-    from smorphi_rl.training.learners import normalised_vtrace
-
-    g = torch.Generator().manual_seed(0)
-    t, b = 7, 5  # time-major: 7 steps of 5 trajectories
-    inputs = {
+def _vtrace_inputs(seed: int = 0) -> dict[str, torch.Tensor]:
+    """Time-major v-trace inputs: 7 steps of 5 trajectories."""
+    g = torch.Generator().manual_seed(seed)
+    t, b = 7, 5
+    return {
         "target_action_log_probs": -torch.rand(t, b, generator=g),
         "behaviour_action_log_probs": -torch.rand(t, b, generator=g),
         "discounts": torch.full((t, b), 0.99),
@@ -96,12 +93,50 @@ def test_normalised_vtrace_is_rllibs_with_the_advantages_standardised():
         "values": torch.randn(t, b, generator=g) * 10,
         "bootstrap_values": torch.randn(b, generator=g),
     }
+
+
+def test_normalised_vtrace_is_rllibs_with_the_advantages_standardised():
+    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
+
+    from smorphi_rl.training.learners import normalised_vtrace
+
+    inputs = _vtrace_inputs()
     targets, advantages = vtrace_torch(**inputs)
-    ours_targets, ours_advantages = normalised_vtrace(**inputs)
-    assert torch.equal(ours_targets, targets)  # the critic's targets as RLlib computes them
+    ours_targets, ours_advantages = normalised_vtrace(**inputs)  # at the default lambda, 1
+    assert torch.allclose(ours_targets, targets, atol=1e-5)  # the critic's targets as RLlib computes them
     expected = (advantages - advantages.mean()) / (advantages.std() + 1e-8)
     assert torch.allclose(ours_advantages, expected, atol=1e-6)
     assert abs(float(advantages.std()) - 1) > 0.5  # RLlib's own are not standardised: the wrap does something
+
+
+def test_vtrace_lambda_is_rllibs_at_1_and_one_step_td_at_0():
+    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
+
+    from smorphi_rl.training.learners import vtrace_lambda
+
+    inputs = _vtrace_inputs()
+    for ours, theirs in zip(vtrace_lambda(lambda_=1.0, **inputs), vtrace_torch(**inputs), strict=True):
+        assert torch.allclose(ours, theirs, atol=1e-5)
+    targets, _ = vtrace_lambda(lambda_=0.0, **inputs)
+    v, r, d = inputs["values"], inputs["rewards"], inputs["discounts"]
+    rhos = torch.exp(inputs["target_action_log_probs"] - inputs["behaviour_action_log_probs"]).clamp(max=1.0)
+    next_v = torch.cat([v[1:], inputs["bootstrap_values"].unsqueeze(0)])
+    assert torch.allclose(targets, v + rhos * (r + d * next_v - v), atol=1e-5)
+    half, _ = vtrace_lambda(lambda_=0.5, **inputs)
+    assert not torch.allclose(half, targets) and not torch.allclose(half, vtrace_torch(**inputs)[0])
+
+
+def test_the_async_losses_run_at_the_lambda_their_config_names():
+    from types import SimpleNamespace
+
+    from smorphi_rl.training import learners
+
+    seen = []
+    wrapped = learners.with_trace_lambda(lambda self, **kw: seen.append(learners._TRACE_LAMBDA.get()))
+    config = SimpleNamespace(learner_config_dict={learners.TRACE_LAMBDA_KEY: 0.3})
+    wrapped(None, module_id="m", config=config, batch={}, fwd_out={})
+    wrapped(None, module_id="m", config=SimpleNamespace(learner_config_dict={}), batch={}, fwd_out={})
+    assert seen == [0.3, 1.0] and learners._TRACE_LAMBDA.get() == 1.0  # set for the loss only
 
 
 def _ppo_learner(learner_class=None):

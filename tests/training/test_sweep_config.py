@@ -95,8 +95,8 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (base("search: {momentum: 0.9}\n"), "key 'search.momentum': unknown hyperparameter 'momentum'"),
         (base("search: {gamma: {grid: [0.9, 1.5]}}\n"), "key 'search.gamma': hyperparameter 'gamma' must be"),
         (
-            f"algorithms: [ppo, impala]\nmaps: [{MAP_1}]\nseeds: [0]\nsearch: {{lambda: {{grid: [0.9, 1.0]}}}}\n",
-            "key 'search.lambda_': hyperparameter 'lambda_' applies to ppo only, not impala",
+            f"algorithms: [ppo, impala]\nmaps: [{MAP_1}]\nseeds: [0]\nsearch: {{lambda: {{grid: [0.9, 1.5]}}}}\n",
+            "key 'search.lambda_': hyperparameter 'lambda_' must be a number in [0, 1], got 1.5",
         ),
         (base("checkpoint: {every: 0}\n"), "key 'checkpoint.every': input should be greater than or equal to 1, got 0"),
         (base("checkpoint: {often: 1}\n"), "key 'checkpoint.often': unknown key (known: every, keep)"),
