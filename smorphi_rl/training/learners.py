@@ -25,11 +25,13 @@ from __future__ import annotations
 
 import contextvars
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import torch
 from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
 from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
+from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import make_time_major
 from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
 from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
@@ -43,21 +45,42 @@ from smorphi_rl.training.module import MAP_KEY, pack_maps
 ADVANTAGE_EPS = 1e-8
 TRACE_LAMBDA_KEY = "vtrace_lambda"
 """The key of v-trace's lambda in the AlgorithmConfig's public `learner_config_dict` (config.py sets it)."""
-_TRACE_LAMBDA: contextvars.ContextVar[float] = contextvars.ContextVar("vtrace_lambda", default=1.0)
-"""The lambda of the loss being computed in this thread (set around RLlib's loss by the learners below)."""
 
 
-def vtrace_lambda(*, lambda_: float = 1.0, **kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
+@dataclass(frozen=True)
+class TraceSettings:
+    """What the v-trace of the loss being computed in this thread needs beyond RLlib's arguments."""
+
+    lambda_: float = 1.0
+    mask: torch.Tensor | None = None
+    """Time-major, 1.0 on the steps the loss learns from; None: every step."""
+
+
+_TRACE: contextvars.ContextVar[TraceSettings | None] = contextvars.ContextVar("vtrace", default=None)
+"""Set around RLlib's loss by `with_trace_settings` (None: RLlib's v-trace settings, lambda 1 and no mask)."""
+
+
+def vtrace_lambda(
+    *, lambda_: float = 1.0, mask: torch.Tensor | None = None, **kwargs: Any
+) -> tuple[torch.Tensor, torch.Tensor]:
     """V-trace with the IMPALA paper's lambda (Espeholt et al. 2018, remark 1): traces cut by
-    `c_s = lambda min(1, rho_s)`, as GAE's lambda cuts returns. At lambda 1 it is RLlib's `vtrace_torch`; at 0 the
-    targets are one-step TD (both by test). RLlib's has no lambda: its advantages ride on every later random move of the
-    episode, the noise that kept PPO at GAE lambda 0.95 from settling (presets.py)."""
+    `c_s = lambda min(1, rho_s)`, as GAE's lambda cuts returns. At lambda 1 and no mask it is RLlib's
+    `vtrace_torch`; at 0 the targets are one-step TD (both by test). RLlib's has no lambda: its advantages ride on
+    every later random move of the episode, the noise that kept PPO at GAE lambda 0.95 from settling (presets.py).
+
+    `mask` (time-major, 0 on the steps the loss ignores): those steps add no TD error and cut the trace, so the
+    step before them is bootstrapped from their value. RLlib's has no mask and gives the extra timestep it adds
+    after every episode chunk (to hold the bootstrap value) a TD error of `-rho V`: the bootstrap of every chunk
+    that does not end a row is wiped (the last real step's target becomes its reward alone)."""
     rhos = torch.exp(kwargs["target_action_log_probs"] - kwargs["behaviour_action_log_probs"])
     discounts, rewards, values = kwargs["discounts"], kwargs["rewards"], kwargs["values"]
     bootstrap = kwargs["bootstrap_values"]
     clip_rho, clip_pg = kwargs.get("clip_rho_threshold", 1.0), kwargs.get("clip_pg_rho_threshold", 1.0)
     clipped_rhos = rhos if clip_rho is None else torch.clamp(rhos, max=clip_rho)
     cs = lambda_ * torch.clamp(rhos, max=1.0)
+    pg_rhos = rhos if clip_pg is None else torch.clamp(rhos, max=clip_pg)
+    if mask is not None:
+        clipped_rhos, cs, pg_rhos = clipped_rhos * mask, cs * mask, pg_rhos * mask
     next_values = torch.cat([values[1:], bootstrap.unsqueeze(0)], dim=0)
     deltas = clipped_rhos * (rewards + discounts * next_values - values)
     acc = torch.zeros_like(bootstrap)
@@ -67,27 +90,50 @@ def vtrace_lambda(*, lambda_: float = 1.0, **kwargs: Any) -> tuple[torch.Tensor,
         corrections.append(acc)
     vs = torch.stack(corrections[::-1]) + values
     next_vs = torch.cat([vs[1:], bootstrap.unsqueeze(0)], dim=0)
-    pg_rhos = rhos if clip_pg is None else torch.clamp(rhos, max=clip_pg)
     return vs.detach(), (pg_rhos * (rewards + discounts * next_vs - values)).detach()
 
 
 def normalised_vtrace(**kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
-    """V-trace (`vtrace_lambda`, at the lambda of the loss being computed) whose policy-gradient advantages come
-    back standardised over the batch."""
-    targets, advantages = vtrace_lambda(lambda_=_TRACE_LAMBDA.get(), **kwargs)
-    centred = advantages - advantages.mean()
-    return targets, centred / (centred.std() + ADVANTAGE_EPS)
+    """V-trace (`vtrace_lambda`, with the settings of the loss being computed) whose policy-gradient advantages
+    come back standardised over the steps the loss learns from (the others stay 0)."""
+    trace = _TRACE.get() or TraceSettings()
+    targets, advantages = vtrace_lambda(lambda_=trace.lambda_, mask=trace.mask, **kwargs)
+    if trace.mask is None:
+        centred = advantages - advantages.mean()
+        return targets, centred / (centred.std() + ADVANTAGE_EPS)
+    kept = trace.mask > 0
+    mean, std = advantages[kept].mean(), advantages[kept].std()
+    return targets, torch.where(kept, (advantages - mean) / (std + ADVANTAGE_EPS), torch.zeros_like(advantages))
 
 
-def with_trace_lambda(loss: Callable[..., Any]) -> Callable[..., Any]:
-    """RLlib's loss method `loss` (a copy calling `normalised_vtrace`) run at the lambda its config names."""
+def learnable_steps(loss_mask: torch.Tensor) -> torch.Tensor:
+    """The loss mask of a (mini)batch less the steps after its last masked-out one: RLlib ends every episode
+    chunk with a masked extra timestep holding the bootstrap value, so steps after the last one belong to a
+    chunk cut by the minibatch, whose last step RLlib would bootstrap from the minibatch's first state (another
+    env's). A batch without any masked step is left as it is."""
+    masked = torch.nonzero(~loss_mask.bool())
+    if len(masked) == 0:
+        return loss_mask
+    kept = loss_mask.clone()
+    kept[int(masked[-1]) + 1 :] = False
+    return kept
+
+
+def with_trace_settings(loss: Callable[..., Any]) -> Callable[..., Any]:
+    """RLlib's loss method `loss` (a copy calling `normalised_vtrace`) on the batch's learnable steps
+    (`learnable_steps`), at the lambda its config names."""
 
     def compute_loss_for_module(self: Any, *, module_id: Any, config: Any, batch: Any, fwd_out: Any) -> Any:
-        token = _TRACE_LAMBDA.set(float((config.learner_config_dict or {}).get(TRACE_LAMBDA_KEY, 1.0)))
+        lambda_ = float((config.learner_config_dict or {}).get(TRACE_LAMBDA_KEY, 1.0))
+        mask = learnable_steps(batch[Columns.LOSS_MASK])
+        batch = {**batch, Columns.LOSS_MASK: mask}
+        time_major = make_time_major(mask.float(), trajectory_len=config.get_rollout_fragment_length(),
+                                     recurrent_seq_len=batch.get("seq_lens"))  # fmt: skip
+        token = _TRACE.set(TraceSettings(lambda_, time_major))
         try:
             return loss(self, module_id=module_id, config=config, batch=batch, fwd_out=fwd_out)
         finally:
-            _TRACE_LAMBDA.reset(token)
+            _TRACE.reset(token)
 
     compute_loss_for_module.__doc__ = loss.__doc__
     compute_loss_for_module.__wrapped__ = loss  # type: ignore[attr-defined]  # functools' convention
@@ -235,7 +281,7 @@ class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearne
         super().build()
         _end_with_compact_maps(self)
 
-    compute_loss_for_module = with_trace_lambda(
+    compute_loss_for_module = with_trace_settings(
         rllib_compat.with_globals(IMPALATorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace)
     )
 
@@ -247,7 +293,7 @@ class NormalisedAPPOLearner(GuardedLearnerThread, FusedStep, APPOTorchLearner): 
         super().build()
         _end_with_compact_maps(self)
 
-    compute_loss_for_module = with_trace_lambda(
+    compute_loss_for_module = with_trace_settings(
         rllib_compat.with_globals(APPOTorchLearner.compute_loss_for_module, vtrace_torch=normalised_vtrace)
     )
 

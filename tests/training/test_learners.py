@@ -126,17 +126,64 @@ def test_vtrace_lambda_is_rllibs_at_1_and_one_step_td_at_0():
     assert not torch.allclose(half, targets) and not torch.allclose(half, vtrace_torch(**inputs)[0])
 
 
-def test_the_async_losses_run_at_the_lambda_their_config_names():
+def test_the_async_losses_run_at_the_lambda_their_config_names_on_the_learnable_steps():
     from types import SimpleNamespace
+
+    from ray.rllib.core.columns import Columns
 
     from smorphi_rl.training import learners
 
     seen = []
-    wrapped = learners.with_trace_lambda(lambda self, **kw: seen.append(learners._TRACE_LAMBDA.get()))
-    config = SimpleNamespace(learner_config_dict={learners.TRACE_LAMBDA_KEY: 0.3})
-    wrapped(None, module_id="m", config=config, batch={}, fwd_out={})
-    wrapped(None, module_id="m", config=SimpleNamespace(learner_config_dict={}), batch={}, fwd_out={})
-    assert seen == [0.3, 1.0] and learners._TRACE_LAMBDA.get() == 1.0  # set for the loss only
+
+    def loss(self, *, batch, **kw):
+        seen.append((learners._TRACE.get(), batch[Columns.LOSS_MASK]))
+
+    wrapped = learners.with_trace_settings(loss)
+    mask = torch.tensor([True, True, False, True, True, False, True])  # two chunks end in extra steps, one is cut
+    for settings in ({learners.TRACE_LAMBDA_KEY: 0.3}, {}):
+        config = SimpleNamespace(learner_config_dict=settings, get_rollout_fragment_length=lambda: 2)
+        wrapped(None, module_id="m", config=config, batch={Columns.LOSS_MASK: mask}, fwd_out={})
+    assert [trace.lambda_ for trace, _ in seen] == [0.3, 1.0] and learners._TRACE.get() is None  # for the loss only
+    assert seen[0][1].tolist() == [True, True, False, True, True, False, False]  # the cut chunk's step is dropped
+    assert seen[0][0].mask.tolist() == [[1.0, 0.0, 1.0, 0.0], [1.0, 1.0, 0.0, 0.0]]  # time-major, padded
+
+
+def test_vtrace_bootstraps_each_chunk_from_its_extra_step_where_rllibs_wipes_it():
+    """RLlib adds one masked step after every episode chunk to hold the bootstrap value; unmasked, its TD error
+    -rho V cancels that bootstrap. With the mask, the last real step's one-step target is r + gamma V(extra)."""
+    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import vtrace_torch
+
+    from smorphi_rl.training.learners import vtrace_lambda
+
+    # one row of 4 steps: 2 real steps of chunk A, A's extra step (masked), 1 real step of chunk B
+    inputs = {
+        "target_action_log_probs": torch.zeros(4, 1),
+        "behaviour_action_log_probs": torch.zeros(4, 1),
+        "discounts": torch.tensor([[0.9], [0.9], [0.0], [0.9]]),  # RLlib: gamma x loss mask
+        "rewards": torch.tensor([[1.0], [1.0], [0.0], [1.0]]),
+        "values": torch.tensor([[5.0], [6.0], [40.0], [7.0]]),
+        "bootstrap_values": torch.tensor([8.0]),
+    }
+    mask = torch.tensor([[1.0], [1.0], [0.0], [1.0]])
+    theirs, _ = vtrace_torch(**inputs)
+    assert float(theirs[1, 0]) == pytest.approx(1.0)  # the bootstrap 0.9 x 40 is gone
+    ours, _ = vtrace_lambda(lambda_=0.0, mask=mask, **inputs)
+    assert float(ours[1, 0]) == pytest.approx(1.0 + 0.9 * 40.0) and float(ours[2, 0]) == 40.0
+
+
+def test_normalised_advantages_are_standardised_over_the_learnable_steps_only():
+    from smorphi_rl.training import learners
+
+    inputs = _vtrace_inputs()
+    mask = torch.ones(7, 5)
+    mask[3, :] = 0.0
+    token = learners._TRACE.set(learners.TraceSettings(0.5, mask))
+    try:
+        _, advantages = learners.normalised_vtrace(**inputs)
+    finally:
+        learners._TRACE.reset(token)
+    kept = advantages[mask > 0]
+    assert abs(float(kept.mean())) < 1e-5 and abs(float(kept.std()) - 1) < 1e-4 and not advantages[3].any()
 
 
 def _ppo_learner(learner_class=None):
