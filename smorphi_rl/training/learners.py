@@ -98,10 +98,7 @@ def normalised_vtrace(**kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
     come back standardised over the steps the loss learns from (the others stay 0)."""
     trace = _TRACE.get() or TraceSettings()
     targets, advantages = vtrace_lambda(lambda_=trace.lambda_, mask=trace.mask, **kwargs)
-    if trace.mask is None:
-        centred = advantages - advantages.mean()
-        return targets, centred / (centred.std() + ADVANTAGE_EPS)
-    kept = trace.mask > 0
+    kept = torch.ones_like(advantages, dtype=torch.bool) if trace.mask is None else trace.mask > 0
     mean, std = advantages[kept].mean(), advantages[kept].std()
     return targets, torch.where(kept, (advantages - mean) / (std + ADVANTAGE_EPS), torch.zeros_like(advantages))
 
