@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -53,6 +54,17 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 def strict_yaml(text: str) -> Any:
     """A YAML document read strictly (no aliases, no duplicate keys); yaml.YAMLError otherwise."""
     return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
+
+
+def check_not_special(path: Path, what: str, error: type[SmorphiError] = InputError) -> None:
+    """Refuse, before it is opened, an input that is a FIFO, a socket or a device: reading one blocks or never
+    ends. A missing file or a folder is left to the reader, which names it."""
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return
+    if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+        raise error(f"{what} {path} is not a regular file (a FIFO, socket or device is never read)")
 
 
 def check_image_size(path: Path) -> None:
@@ -127,6 +139,7 @@ def read_json_object(path: Path, what: str) -> dict[str, Any]:
     """A JSON file that must hold an object (a run's summary or configuration), or one line naming it."""
     import json
 
+    check_not_special(path, what)
     try:
         doc = json.loads(path.read_text()) if path.stat().st_size <= MAX_YAML_BYTES * 16 else None
     except (OSError, UnicodeDecodeError, ValueError) as exc:

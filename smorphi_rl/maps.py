@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import enum
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -132,10 +133,51 @@ def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = 
     return float(value)
 
 
+_PGM_FIELD = re.compile(rb"(?:\s|#[^\n]*\n)*(\d+)")
+"""One header field of a binary PGM (whitespace and comments before it)."""
+
+
+def _pgm_samples(data: bytes) -> tuple[int, np.ndarray] | None:
+    """(maxval, samples) of a PGM file's bytes; None when it is not a PGM or its header is malformed (Pillow
+    names that)."""
+    if data[:2] == b"P2":
+        try:
+            numbers = [int(t) for t in re.sub(rb"#[^\n]*", b" ", data[2:]).split()]
+        except ValueError:
+            return None
+        return (numbers[2], np.asarray(numbers[3:])) if len(numbers) > 3 else None
+    if data[:2] != b"P5":
+        return None
+    fields, pos = [], 2
+    for _ in range(3):  # width, height, maxval
+        match = _PGM_FIELD.match(data, pos)
+        if match is None:
+            return None
+        fields.append(int(match.group(1)))
+        pos = match.end() + 1  # one whitespace byte, then the raster
+    width, height, maxval = fields
+    dtype = np.dtype(">u2") if maxval > 255 else np.dtype(np.uint8)
+    if len(data) - pos < width * height * dtype.itemsize:
+        return None
+    return maxval, np.frombuffer(data, dtype=dtype, count=width * height, offset=pos)
+
+
+def _check_pgm_samples(path: Path) -> None:
+    """Refuse a PGM holding a sample above its declared maxval: a corrupt file that Pillow reads without a word
+    (samples of 254 under maxval 100 came out as free floor)."""
+    with path.open("rb") as fh:
+        read = _pgm_samples(fh.read())
+    if read is not None and read[1].size and int(read[1].max()) > read[0]:
+        raise MapError(f"{path}: a sample of {int(read[1].max())} above the PGM's maxval {read[0]} (a corrupt "
+                       "image)")  # fmt: skip
+
+
 def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
     """(mean colour per pixel, alpha or None, maximum value) of a PGM or PNG image."""
     from PIL import Image, UnidentifiedImageError
 
+    if path.suffix.lower() == ".pgm" and path.is_file():
+        _check_pgm_samples(path)
     try:
         with Image.open(path) as opened:
             opened.load()
@@ -197,8 +239,9 @@ def load_map(yaml_path: str | Path) -> Map:
         beside = path.with_suffix(".yaml")
         hint = f" (is {beside} its YAML?)" if beside.is_file() else ""
         raise MapError(f"{path} is an image: give the map_server YAML that names it{hint}")
-    from smorphi_rl.inputs import MAX_YAML_BYTES, check_image_size, strict_yaml
+    from smorphi_rl.inputs import MAX_YAML_BYTES, check_image_size, check_not_special, strict_yaml
 
+    check_not_special(path, "map YAML", MapError)
     try:
         if path.stat().st_size > MAX_YAML_BYTES:
             raise MapError(f"{path}: {path.stat().st_size:,} bytes; a map YAML is at most {MAX_YAML_BYTES:,}")
@@ -245,6 +288,7 @@ def load_map(yaml_path: str | Path) -> Map:
     free_thresh = _number(meta, "free_thresh", path, 0.25)
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
         raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
+    check_not_special(path.parent / image, "map image", MapError)
     check_image_size(path.parent / image)  # a declared size too large for memory fails before decoding
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)

@@ -516,3 +516,39 @@ def test_a_floor_that_holds_neither_the_o_nor_the_i_is_refused_by_the_fit_planne
     assert not (tmp_path / "logs").exists()
     code, out, _ = run(capsys, "evaluate", "--angles", "0", "0", "0", "--map", map_yaml)  # the paper planner plans it
     assert code == 0 and "P_c" in out
+
+
+def test_inputs_that_never_end_are_refused_before_reading(tmp_path, capsys):
+    """A FIFO nobody writes to (or a device) as a map YAML, a map image, a sweep file or a recording: reading it
+    would block for ever."""
+    import os
+
+    fifo, recording = tmp_path / "fifo.pgm", tmp_path / "r.mcap"
+    os.mkfifo(fifo)
+    os.mkfifo(recording)
+    (tmp_path / "m.yaml").write_text("image: fifo.pgm\nresolution: 0.1\n")
+    cases = [
+        (["evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3"], "map image"),
+        (["evaluate", "--map", str(fifo), "--angles", "1", "2", "3"], "is an image"),  # named by its suffix first
+        (["evaluate", "--map", "/dev/zero", "--angles", "1", "2", "3"], "map YAML /dev/zero is not a regular file"),
+        (["sweep", "/dev/zero", "--log-dir", str(tmp_path / "logs")], "sweep file /dev/zero is not a regular file"),
+        (["replay", str(recording)], "recording " + str(recording) + " is not a regular file"),
+    ]
+    for argv, message in cases:
+        code, _, err = run(capsys, *argv)
+        assert code != 0 and message in one_line(err), (argv, err)
+    assert not (tmp_path / "logs").exists()
+
+
+def test_a_pgm_sample_above_its_maxval_is_refused(tmp_path, capsys):
+    """Pillow reads such a file without a word: 254 under maxval 100 came out as free floor."""
+    for name, header, body in (("p5", b"P5\n# a comment\n50 50\n100\n", bytes([254]) * 2500),
+                               ("p2", b"P2\n2 2\n100\n0 200\n100 100\n", b"")):  # fmt: skip
+        (tmp_path / f"{name}.pgm").write_bytes(header + body)
+        (tmp_path / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.1\n")
+        code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / f"{name}.yaml"), "--angles", "1", "2", "3")
+        assert code == 1 and "above the PGM's maxval 100 (a corrupt image)" in one_line(err), err
+    (tmp_path / "ok.pgm").write_bytes(b"P5 50 50 100\n" + bytes([100]) * 2500)  # maxval 100 within range: a map
+    (tmp_path / "ok.yaml").write_text("image: ok.pgm\nresolution: 0.1\nfree_thresh: 0.196\n")
+    code, out, err = run(capsys, "evaluate", "--map", str(tmp_path / "ok.yaml"), "--angles", "95", "59", "103")
+    assert code == 0 and "free 100.0 %" in out, err

@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.inputs import check_not_special
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.recording.messages import (
     MCAP_MAGIC,
@@ -95,6 +96,7 @@ def read_episode(path: str | Path) -> Episode:
     if not file.name.endswith((SUFFIX, PART_SUFFIX)) and not file.is_dir():
         raise RecordingError(f"{path}: not a recording's name (smorphi-rl records NAME{SUFFIX}, NAME{PART_SUFFIX} "
                              "while it is written)")  # fmt: skip
+    check_not_special(file, "recording", RecordingError)
     try:
         with file.open("rb") as fh:
             if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:

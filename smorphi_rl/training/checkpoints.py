@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import check_not_special
 from smorphi_rl.policy_file import PolicyFile, PolicyFileError, is_policy_dir, read_policy
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
@@ -148,6 +149,7 @@ def check_metadata(meta: Path, state_file: str) -> None:
     loader reads only those; a file that says otherwise was not written by RLlib for us)."""
     if not meta.exists():
         return
+    check_not_special(meta, "checkpoint metadata", CheckpointError)
     try:
         doc = json.loads(meta.read_text()) if meta.stat().st_size < 1 << 16 else None
     except (OSError, ValueError, UnicodeDecodeError):

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, strict_yaml
+from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, strict_yaml
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -176,6 +176,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
     """Read and validate a sweep file; SweepConfigError names the file and the key."""
     file = Path(path)
     where = str(path)
+    check_not_special(file, "sweep file", SweepConfigError)
     try:
         size = file.stat().st_size
         if size > MAX_YAML_BYTES:
