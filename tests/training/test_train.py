@@ -217,8 +217,8 @@ def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
     run_dir, _ = ppo_run
     exported = export_policy(find_checkpoint(run_dir), tmp_path / "exported", {})
     val = str(ROOT / "maps" / "val-1.yaml")
-    proc = cli("transfer", "--pretrained", str(exported), "--maps", val, "--timesteps", "2000", "--name", "job",
-               cwd=tmp_path)  # fmt: skip
+    proc = cli("transfer", "--pretrained", str(exported), "--maps", val, "--timesteps", "2000", "--seeds", "0",
+               "--name", "job", cwd=tmp_path)  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     rows = list(csv.DictReader((tmp_path / "logs" / "job" / "transfer.csv").open()))
     assert [(r["map"], r["mode"]) for r in rows] == [("val-1", "fine-tune"), ("val-1", "scratch")]
