@@ -142,7 +142,7 @@ def read_json_object(path: Path, what: str) -> dict[str, Any]:
     check_not_special(path, what)
     try:
         doc = json.loads(path.read_text()) if path.stat().st_size <= MAX_YAML_BYTES * 16 else None
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: nested far too deep
         raise InputError(f"{path}: not a readable {what} ({type(exc).__name__})") from None
     if not isinstance(doc, dict):
         raise InputError(f"{path}: not a {what} (expected a JSON object)")

@@ -226,14 +226,27 @@ def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, arg
     (lambda run: _rewrite(run, P_c=np.full(50, np.nan)), "not finite numbers"),
     (lambda run: _rewrite(run, P_len=np.zeros(7)), "mismatched shapes"),
     (lambda run: _rewrite(run, thetas=np.full((50, 3), 200.0)), "out of range"),
+    (lambda run: _rewrite(run, thetas=np.zeros((0, 3)), P_c=np.zeros(0), P_len=np.zeros(0), feasible=np.zeros(0)),
+     "no shapes"),
+    (lambda run: (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000), "RecursionError"),
+    (lambda run: _resummarise(run, evaluations=10**400), "out of range"),
 ])  # fmt: skip
 def test_compare_refuses_damaged_search_results(tmp_path, capsys, damage, message):
     log = tmp_path / "logs"
     assert run(capsys, "search", "random", "--map", MAP_1, "--samples", "50", "--log-dir", str(log))[0] == 0
     (result,) = log.glob("*/results.npz")
     damage(result.parent)
-    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(result.parent), "--log-dir", str(log))
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(result.parent), "--log-dir", str(log),
+                       "--name", "cmp")  # fmt: skip
     assert code == 1 and message in one_line(err)
+    assert not (log / "cmp").exists()  # refused before its folder was made
+
+
+def _resummarise(run_dir: Path, **fields) -> None:
+    import json
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    (run_dir / "summary.json").write_text(json.dumps(summary | fields))
 
 
 def _rewrite(run_dir: Path, **arrays) -> None:
@@ -441,6 +454,13 @@ def test_a_sweep_whose_trials_need_more_cpus_than_there_are_is_refused_before_ra
     code, _, err = run(capsys, "sweep", str(sweep), "--log-dir", str(tmp_path / "logs"))
     assert code == 1 and "1000 env runner(s) need 501 CPUs" in one_line(err)
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_crop_that_holds_no_robot_is_refused(tmp_path, capsys):
+    code, _, err = run(capsys, "maps", "crop", MAP_1, "--rect", "1", "1", "1.05", "1.05", "--out",
+                       str(tmp_path / "c.yaml"))  # fmt: skip
+    assert code == 1 and "nothing written, the crop holds no robot of 0.17 m blocks" in one_line(err)
+    assert not list(tmp_path.iterdir())
 
 
 def test_a_crop_margin_beyond_the_map_is_refused(tmp_path, capsys):

@@ -149,13 +149,24 @@ def _generate_floors(args: argparse.Namespace) -> int:
 
 def cmd_maps_crop(args: argparse.Namespace) -> int:
     """Cut a map to its known area (or a rectangle) into a new map_server YAML."""
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.errors import MapError
+    from smorphi_rl.maps import check_fits
     from smorphi_rl.maptools import crop_to_known, crop_to_rect
 
     if args.rect is not None and args.margin != CROP_MARGIN_M:
         raise SmorphiError("--margin: applies to a crop to the known area; --rect gives the rectangle itself")
 
     def crop(source: Map) -> Map:
-        return crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+        cropped = crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+        block = EnvConfig.block_side_m
+        if source.resolution_m <= block:  # a crop no robot fits on is refused (a coarse map: resample's warning)
+            try:
+                check_fits(cropped, block)
+            except MapError as exc:
+                raise MapError(f"maps crop: nothing written, the crop holds no robot of {block:g} m blocks ({exc})") \
+                    from None  # fmt: skip
+        return cropped
 
     return _write_prepared(args, crop)
 

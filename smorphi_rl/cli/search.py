@@ -195,7 +195,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         start_of_run,
         write_report,
     )
-    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
 
@@ -242,15 +242,19 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
-    if exact is None:
-        exact = run_exhaustive(
-            str(args.map),
-            args.step,
-            planning,
-            progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
-        )
-    exact_score, methods = score_methods(exact, runs, on_map)
-    files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
+    try:
+        if exact is None:
+            exact = run_exhaustive(
+                str(args.map),
+                args.step,
+                planning,
+                progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
+            )
+        exact_score, methods = score_methods(exact, runs, on_map)
+        files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
+    except BaseException:
+        discard_run_dir(run_dir)  # no report: the name stays free
+        raise
     print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0

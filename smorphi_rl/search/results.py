@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import io
 import json
+import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -18,6 +19,8 @@ from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 
 RESULTS_FILE = "results.npz"
+MAX_EVALUATIONS = 2**53
+"""More planner evaluations than any search records (a float holds every count up to it exactly)."""
 
 
 @dataclass(frozen=True)
@@ -123,12 +126,17 @@ def load(run_dir: str | Path) -> SearchResult:
     for key, kind in fields.items():
         if not isinstance(summary.get(key), kind) or isinstance(summary.get(key), bool):
             raise bad(f"summary '{key}' is {summary.get(key)!r}")
+    if not 0 <= summary["evaluations"] <= MAX_EVALUATIONS or not 0 <= summary["wall_s"] < math.inf:
+        shown = ", ".join(f"'{k}' {str(summary[k])[:16]}" for k in ("evaluations", "wall_s"))
+        raise bad(f"summary {shown}: out of range")
     if not isinstance(summary.get("params", {}), dict):
         raise bad("summary 'params' is not a table")
     thetas, p_c, p_len, feasible = (np.asarray(arrays[k]) for k in ("thetas", "P_c", "P_len", "feasible"))
     n = thetas.shape[0] if thetas.ndim == 2 else -1
     if thetas.ndim != 2 or thetas.shape[1] != 3 or any(a.shape != (n,) for a in (p_c, p_len, feasible)):
         raise bad("arrays of mismatched shapes")
+    if n == 0:
+        raise bad("no shapes")
     numeric = all(a.dtype.kind in "biuf" for a in (thetas, p_c, p_len, feasible))
     if not numeric or not (np.isfinite(thetas).all() and np.isfinite(p_c).all() and np.isfinite(p_len).all()):
         raise bad("values that are not finite numbers")
