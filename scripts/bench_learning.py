@@ -10,7 +10,7 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala] [--rewards paper peak] [--seeds 0 1 2] [--timesteps 200000] [--no-ideal]
+        [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000] [--no-ideal]
         [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
@@ -74,8 +74,9 @@ def main() -> None:
     parser.add_argument(
         "--maps", nargs="+", default=[str(ROOT / "maps" / "map-1.yaml"), str(ROOT / "maps" / "map-2.yaml")]
     )
-    parser.add_argument("--algos", nargs="+", default=["ppo", "impala"])
-    parser.add_argument("--rewards", nargs="+", default=["paper", "peak"])
+    parser.add_argument("--algos", nargs="+", default=["ppo", "impala", "appo"])
+    parser.add_argument("--rewards", nargs="+", default=["peak"], help="reward modes (default: train's; the "
+                        "paper's R1 + R2 settles no policy, docs/decisions.md)")  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
