@@ -56,6 +56,8 @@ class EnvConfigError(SmorphiError):
     """An `env_config` key that is unknown or has a bad value."""
 
 
+MAX_OBS_SIZE = 512
+"""The map picture is at most 512 x 512 (the default 64): larger ones are a typo, and 10^7 asked for 728 TiB."""
 MAX_EPISODE_STEPS = 100_000
 """An episode is at most this many steps (the paper's are 200): longer ones are a typo, and one roll-out of them
 would run for minutes."""
@@ -150,8 +152,8 @@ class EnvConfig:
                                  f"[1, {lattice}] lattice steps, got {list(self.moves)}")  # fmt: skip
         if not 1 <= self.max_steps <= MAX_EPISODE_STEPS:
             raise EnvConfigError(f"env_config 'max_steps' must be in 1..{MAX_EPISODE_STEPS:,}, got {self.max_steps}")
-        if self.obs_size < 4:
-            raise EnvConfigError(f"env_config 'obs_size' must be >= 4, got {self.obs_size}")
+        if not 4 <= self.obs_size <= MAX_OBS_SIZE:
+            raise EnvConfigError(f"env_config 'obs_size' must be in 4..{MAX_OBS_SIZE}, got {self.obs_size}")
         if self.coverage_threshold is not None and not 0 < self.coverage_threshold <= 100:
             raise EnvConfigError(f"env_config 'coverage_threshold' must be in (0, 100], got {self.coverage_threshold}")
         if self.block_side_m <= 0:

@@ -102,8 +102,8 @@ def read_policy(path: str | Path) -> PolicyFile:
             raise PolicyFileError(f"{file}: {file.stat().st_size:,} bytes, more than a policy holds ({limit:,})")
     try:
         meta = json.loads(meta_file.read_text())
-    except (OSError, UnicodeDecodeError, ValueError) as exc:
-        raise PolicyFileError(f"{meta_file}: not readable JSON ({exc})") from None
+    except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: nested far too deep
+        raise PolicyFileError(f"{meta_file}: not readable JSON ({type(exc).__name__})") from None
     _check_meta(meta, meta_file)
     try:
         with np.load(weights_file, allow_pickle=False) as npz:
@@ -138,3 +138,8 @@ def _check_meta(meta: Any, where: Path) -> None:
         value = model.get(key, 0.0)
         if not isinstance(value, int | float) or not math.isfinite(value):
             raise PolicyFileError(f"{where}: model_config '{key}' must be a finite number")
+    from smorphi_rl.training.presets import ALGORITHMS
+
+    if model.get("algorithm", ALGORITHMS[0]) not in ALGORITHMS:
+        raise PolicyFileError(f"{where}: model_config 'algorithm' must be one of {', '.join(ALGORITHMS)}, got "
+                              f"{str(model.get('algorithm'))[:40]!r}")  # fmt: skip

@@ -152,7 +152,7 @@ def check_metadata(meta: Path, state_file: str) -> None:
     check_not_special(meta, "checkpoint metadata", CheckpointError)
     try:
         doc = json.loads(meta.read_text()) if meta.stat().st_size < 1 << 16 else None
-    except (OSError, ValueError, UnicodeDecodeError):
+    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
         doc = None
     want = {"class_and_ctor_args_file": CTOR_FILE, "state_file": state_file}
     if not isinstance(doc, dict):

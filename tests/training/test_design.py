@@ -126,6 +126,10 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
     assert code == 1 and err.count("\n") == 1
     assert f"{bad}: the policy's env_config 'angle_step_deg' must divide 180, got 0" in err
+    meta["model_config"]["env_config"] |= {"angle_step_deg": 1, "obs_size": 10**7}  # asked 728 TiB of pictures
+    (bad / "policy.json").write_text(json.dumps(meta))
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
+    assert code == 1 and err.count("\n") == 1 and "'obs_size' must be in 4..512, got 10000000" in err
 
 
 def test_the_shipped_designer_is_small_plain_and_designs(capsys):

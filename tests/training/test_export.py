@@ -105,6 +105,8 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
     (lambda m: m | {"action_nvec": [7, 7]}, "three odd, positive move counts"),
     (lambda m: m | {"action_nvec": [-3, 5, 5]}, r"three odd, positive move counts, got \[-3, 5, 5\]"),
     (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
+    (lambda m: m | {"model_config": m["model_config"] | {"algorithm": "__import__('os')"}},
+     "'algorithm' must be one of ppo, impala, appo"),
 ])  # fmt: skip
 def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
     _, _, out = exported
@@ -113,6 +115,16 @@ def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
     (bad / "weights.npz").write_bytes((out / "weights.npz").read_bytes())
     (bad / "policy.json").write_text(json.dumps(edit(json.loads((out / "policy.json").read_text()))))
     with pytest.raises(PolicyFileError, match=message):
+        read_policy(bad)
+
+
+def test_a_description_nested_past_pythons_limit_is_refused(exported, tmp_path):
+    _, _, out = exported
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "weights.npz").write_bytes((out / "weights.npz").read_bytes())
+    (bad / "policy.json").write_text("[" * 100_000 + "]" * 100_000)
+    with pytest.raises(PolicyFileError, match=r"not readable JSON \(RecursionError\)"):
         read_policy(bad)
 
 
