@@ -71,12 +71,12 @@ def main() -> None:
             pretrained = Path(args.pretrained)
             print(f"reusing the pretrained run {pretrained}")
         else:
-            pre = train(TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seeds[0]), name="pretrain",
-                        log_dir=root, out=quiet)  # fmt: skip
+            pre_cfg = TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seeds[0], record_every=0)
+            pre = train(pre_cfg, name="pretrain", log_dir=root, out=quiet)
             pretrained = pre.run_dir
             print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
         held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)
-        job = TransferJob(pretrained, tuple(held_out), tuple(args.seeds), args.steps)
+        job = TransferJob(pretrained, tuple(held_out), tuple(args.seeds), args.steps, record_every=0)
         job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=quiet)
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
