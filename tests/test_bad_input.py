@@ -209,6 +209,7 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     (["search", "hillclimb", "--budget", "1000000000000"], "at most 50,000,000"),
     (["search", "exhaustive", "--step", "0.25"], "would score 374,805,361 shapes"),
     (["evaluate-policy", "--checkpoint", ".", "--episodes", str(10**20)], "--episodes must be in 1..10,000"),
+    (["evaluate-policy", "--checkpoint", ".", "--seed", "4294967294", "--episodes", "3"], "passes 2^32-1"),
     (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),
     (["train", "--envs-per-runner", "1000000"], "envs_per_runner must be at most 1,024"),
     (["train", "--timesteps", str(10**14)], "at most 1,000,000,000"),

@@ -10,7 +10,7 @@ from typing import Any
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, rel, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import output_file, resolved
+from smorphi_rl.inputs import MAX_SEED, output_file, resolved
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 
@@ -171,6 +171,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     """Roll a trained policy out greedily; report where it settles and the best shape it visited."""
     if not 1 <= args.episodes <= MAX_EPISODES:
         raise SmorphiError(f"--episodes must be in 1..{MAX_EPISODES:,}, got {args.episodes}")
+    if args.seed + args.episodes - 1 > MAX_SEED:
+        raise SmorphiError(f"--seed {args.seed} with --episodes {args.episodes} passes 2^32-1, the largest episode "
+                           "seed")  # fmt: skip
     if args.starts is not None and not 1 <= args.starts <= MAX_EPISODES:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     if args.starts is not None and args.episodes != 1:
