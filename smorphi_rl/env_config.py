@@ -132,8 +132,8 @@ class EnvConfig:
             raise EnvConfigError(f"env_config 'w1' must be in (0, {top}] and 'w2' in [0, {top}] (R1 rewards "
                                  f"coverage and charges the path), got w1 {self.w1:g}, w2 {self.w2:g}")  # fmt: skip
         for name in ("step_cost", "move_cost"):
-            if getattr(self, name) < 0:
-                raise EnvConfigError(f"env_config '{name}' must be >= 0, got {getattr(self, name)}")
+            if not 0 <= getattr(self, name) <= MAX_WEIGHT:
+                raise EnvConfigError(f"env_config '{name}' must be in [0, {MAX_WEIGHT:g}], got {getattr(self, name)}")
         if not self.maps:
             raise EnvConfigError("env_config 'maps': give at least one map")
         if self.observation not in LAYOUTS:

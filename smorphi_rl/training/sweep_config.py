@@ -213,6 +213,10 @@ def load_sweep(path: str | Path) -> SweepConfig:
         if a not in ALGORITHMS:
             raise fail("algorithms", f"unknown algorithm '{a}' (choose from {', '.join(ALGORITHMS)})")
     map_sets = tuple(_map_set(item, f"maps[{i}]", file, fail) for i, item in enumerate(doc.maps))
+    for key, items in (("algorithms", doc.algorithms), ("seeds", doc.seeds), ("maps", map_sets)):
+        twice = next((i for i, v in enumerate(items) if v in items[:i]), None)
+        if twice is not None:
+            raise fail(f"{key}[{twice}]", f"{items[twice]!r} is given twice: its trials would run twice")
     if doc.preset not in PRESETS:
         raise fail("preset", f"unknown preset {doc.preset!r} (choose from {', '.join(PRESETS)})")
     unknown_stop = sorted(k for k in doc.stop if k not in STOP_METRICS)

@@ -99,7 +99,11 @@ def run_transfer(
     checkpoint = find_checkpoint(job.pretrained)
     env = EnvConfig.from_dict(dict(load_module(checkpoint).model_config.get("env_config") or {}))
     configs = []
+    trained_on = {Path(m).resolve() for m in env.map_files}
     for path in job.maps:  # every map and the checkpoint are checked before the first run starts
+        if Path(path).resolve() in trained_on:
+            raise TrainConfigError(f"--maps {path} is one the pretrained policy was trained on: transfer measures "
+                                   "maps it has not seen")  # fmt: skip
         cfg = job.train_config(replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps))
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)

@@ -227,6 +227,17 @@ def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
     assert (tmp_path / "logs" / "job" / "transfer_curves.png").is_file() and "warning" not in proc.stdout
 
 
+def test_transfer_refuses_a_map_the_policy_was_trained_on(ppo_run, tmp_path):
+    from smorphi_rl.training.config import TrainConfigError
+    from smorphi_rl.training.transfer import TransferJob, run_transfer
+
+    run_dir, _ = ppo_run
+    job = TransferJob(run_dir, (str(ROOT / "maps" / "val-1.yaml"), MAP_1), seeds=(0,), timesteps=2000)
+    with pytest.raises(TrainConfigError, match="map-1.yaml is one the pretrained policy was trained on"):
+        run_transfer(job, name="same", log_dir=tmp_path)
+    assert not (tmp_path / "same").exists()
+
+
 def test_pretrained_checkpoint_must_fit_the_env(ppo_run, tmp_path):
     from smorphi_rl.training.checkpoints import CheckpointError
 
