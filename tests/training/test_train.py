@@ -233,7 +233,7 @@ def test_transfer_refuses_a_map_the_policy_was_trained_on(ppo_run, tmp_path):
 
     run_dir, _ = ppo_run
     job = TransferJob(run_dir, (str(ROOT / "maps" / "val-1.yaml"), MAP_1), seeds=(0,), timesteps=2000)
-    with pytest.raises(TrainConfigError, match="map-1.yaml is one the pretrained policy was trained on"):
+    with pytest.raises(TrainConfigError, match=r"map-1\.yaml is one the pretrained policy was trained on"):
         run_transfer(job, name="same", log_dir=tmp_path)
     assert not (tmp_path / "same").exists()
 
