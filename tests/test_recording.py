@@ -253,3 +253,40 @@ def test_a_recording_whose_steps_lack_fields_is_one_line(tmp_path, capsys):
     code = main(["replay", str(path)])
     err = capsys.readouterr().err
     assert code == 1 and "step message 0 lacks" in err and err.count("\n") == 1
+
+
+def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
+    """A copy of a real recording with every message on `topic` changed by `edit` (a dict in, a dict out)."""
+    with source.open("rb") as fh, target.open("wb") as out:
+        reader, writer = make_reader(fh), Writer(out)
+        writer.start()
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            if channel.id not in channels:
+                sid = writer.register_schema(schema.name, schema.encoding, schema.data) if schema else 0
+                channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid)
+            data = message.data
+            if channel.topic == topic:
+                data = json.dumps(edit(json.loads(data))).encode()
+            writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        writer.finish()
+    return target
+
+
+@pytest.mark.parametrize(("topic", "edit", "message"), [
+    ("/smorphi/step", lambda m: m | {"theta": "abc"}, "step message 0 is damaged (theta abc is not three hinge"),
+    ("/smorphi/step", lambda m: m | {"theta": [1e30, 5, 5]}, "is not three hinge angles in [0, 180]"),
+    ("/smorphi/step", lambda m: m | {"R1": float("nan")}, "R1 nan is not a finite number"),
+    ("/map", lambda m: m | {"data": "!!!notbase64"}, "the map message is damaged"),
+    ("/map", lambda m: m | {"column_count": 10**9, "row_stride": 10**9}, "the map message is damaged"),
+    ("/morphology", lambda m: m | {"entities": [{"id": "robot"}]}, "scene message 0 is damaged"),
+])  # fmt: skip
+def test_a_recording_whose_messages_are_damaged_is_one_line(tmp_path, capsys, topic, edit, message):
+    env = recorded_env(tmp_path, max_steps=5)
+    play(env, 0, np.random.default_rng(0))
+    (source,) = episode_files(tmp_path / "episodes")
+    bad = _tampered(source, tmp_path / "bad.mcap", topic, edit)
+    code = main(["replay", str(bad), "--png", str(tmp_path / "r.png")])
+    err = capsys.readouterr().err
+    assert code == 1 and message in err and err.count("\n") == 1 and "Traceback" not in err, err
+    assert not (tmp_path / "r.png").exists()

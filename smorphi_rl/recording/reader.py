@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.recording.messages import (
@@ -47,22 +48,34 @@ class Episode:
         return max(self.steps, key=lambda s: s["R1"], default=None)
 
     def grid_cells(self) -> np.ndarray | None:
-        """The recorded map as Cell values, row 0 at the lowest y."""
+        """The recorded map as Cell values, row 0 at the lowest y; a damaged map message is named."""
         if self.grid is None:
             return None
-        raw = np.frombuffer(base64.b64decode(self.grid["data"]), dtype=np.uint8)
+        try:
+            raw = np.frombuffer(base64.b64decode(self.grid["data"], validate=True), dtype=np.uint8)
+            columns = self.grid["column_count"]
+            if type(columns) is not int or columns < 1 or raw.size == 0 or raw.size % columns:
+                raise ValueError(f"{raw.size} cells in rows of {columns!r}")
+        except (KeyError, TypeError, ValueError) as exc:  # binascii.Error is a ValueError
+            raise RecordingError(f"{self.path}: the map message is damaged ({type(exc).__name__}: "
+                                 f"{str(exc)[:80]})") from None  # fmt: skip
         cells = np.full(raw.shape, Cell.UNKNOWN, dtype=np.uint8)
         for cell, value in OCCUPANCY.items():
             cells[raw == value] = cell
-        return cells.reshape(-1, self.grid["column_count"])
+        return cells.reshape(-1, columns)
 
     def grid_map(self) -> Map:
         """The recorded map as a Map (for drawing the episode); an error when its message was not recovered."""
         cells = self.grid_cells()
         if cells is None or self.grid is None:
             raise RecordingError(f"{self.path}: the map message was not recovered; nothing to draw on")
-        pos = self.grid["pose"]["position"]
-        return Map(cells, float(self.grid["cell_size"]["x"]), (pos["x"], pos["y"], 0.0), self.steps[0]["map"])
+        try:
+            pos = self.grid["pose"]["position"]
+            origin = (float(pos["x"]), float(pos["y"]), 0.0)
+            return Map(cells, float(self.grid["cell_size"]["x"]), origin, self.steps[0]["map"])
+        except (KeyError, TypeError, ValueError, SmorphiError) as exc:
+            raise RecordingError(f"{self.path}: the map message is damaged ({type(exc).__name__}: "
+                                 f"{str(exc)[:80]})") from None  # fmt: skip
 
     def changed_steps(self, max_frames: int) -> list[int]:
         """Indices of the steps where the shape changed (and the first), thinned evenly to at most `max_frames`."""
@@ -72,15 +85,24 @@ class Episode:
         return changed
 
     def frame(self, index: int) -> dict[str, Any]:
-        """Step `index` as plain values for a figure: blocks (x, y, yaw rad, side) and the path as (N, 2) metres."""
-        entities = {e["id"]: e for e in self.scenes[index]["entities"]}
-        blocks = []
-        for cube in entities["robot"]["cubes"]:
-            q = cube["pose"]["orientation"]
-            pos = cube["pose"]["position"]
-            blocks.append((pos["x"], pos["y"], 2 * math.atan2(q["z"], q["w"]), cube["size"]["x"]))
-        pts = [[p["x"], p["y"]] for line in entities["coverage_path"]["lines"] for p in line["points"]]
-        return {"blocks": blocks, "path": np.asarray(pts, dtype=float).reshape(-1, 2), "step": self.steps[index]}
+        """Step `index` as plain values for a figure: blocks (x, y, yaw rad, side) and the path as (N, 2) metres;
+        a damaged scene message is named."""
+        try:
+            entities = {e["id"]: e for e in self.scenes[index]["entities"]}
+            blocks = []
+            for cube in entities["robot"]["cubes"]:
+                q = cube["pose"]["orientation"]
+                pos = cube["pose"]["position"]
+                block = (float(pos["x"]), float(pos["y"]), 2 * math.atan2(q["z"], q["w"]), float(cube["size"]["x"]))
+                if not all(math.isfinite(v) for v in block):
+                    raise ValueError(f"a block at {block}")
+                blocks.append(block)
+            pts = [[p["x"], p["y"]] for line in entities["coverage_path"]["lines"] for p in line["points"]]
+            path = np.asarray(pts, dtype=float).reshape(-1, 2)
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise RecordingError(f"{self.path}: scene message {index} is damaged ({type(exc).__name__}: "
+                                 f"{str(exc)[:80]})") from None  # fmt: skip
+        return {"blocks": blocks, "path": path, "step": self.steps[index]}
 
     @property
     def episode_return(self) -> float:
@@ -134,10 +156,37 @@ def read_episode(path: str | Path) -> Episode:
         missing = [k for k in required if k not in st] if isinstance(st, dict) else required
         if missing:
             raise RecordingError(f"{path}: step message {i} lacks {', '.join(missing[:3])} (not a smorphi-rl step)")
+        problem = _step_problem(st)
+        if problem:
+            raise RecordingError(f"{path}: step message {i} is damaged ({problem})")
     scenes = by_topic[TOPIC_SCENE][: len(steps)]
     steps = steps[: len(scenes)] if len(scenes) < len(steps) else steps
     grid = by_topic[TOPIC_MAP][0] if by_topic[TOPIC_MAP] else None
-    return Episode(file, meta, steps, scenes, grid, [m["message"] for m in by_topic[TOPIC_LOG]], not complete)
+    return Episode(file, meta, steps, scenes, grid, [str(m.get("message", "")) for m in by_topic[TOPIC_LOG] if isinstance(m, dict)], not complete)
+
+
+def _number(value: Any) -> bool:
+    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _step_problem(st: dict[str, Any]) -> str | None:
+    """What is wrong with a step message's values (types and ranges `replay` relies on), or None."""
+    theta = st["theta"]
+    if not (isinstance(theta, list) and len(theta) == 3 and all(_number(t) and 0 <= t <= 180 for t in theta)):
+        return f"theta {str(theta)[:40]} is not three hinge angles in [0, 180]"
+    for key in ("R1", "P_c", "coverage_free_pct"):
+        if not _number(st[key]):
+            return f"{key} {str(st[key])[:20]} is not a finite number"
+    if not 0 <= st["P_c"] <= 100 or not 0 <= st["coverage_free_pct"] <= 100:
+        return "a coverage outside [0, 100] %"
+    for key in ("reward", "R2"):
+        if st[key] is not None and not _number(st[key]):
+            return f"{key} {str(st[key])[:20]} is not a finite number"
+    if type(st["P_len"]) is not int or st["P_len"] < 0 or type(st["step"]) is not int or st["step"] < 0:
+        return "P_len or step is not a whole number >= 0"
+    if not isinstance(st["map"], str) or not isinstance(st["feasible"], bool):
+        return "map is not a name or feasible is not true or false"
+    return None
 
 
 def episode_files(directory: str | Path) -> list[Path]:
