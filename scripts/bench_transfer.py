@@ -2,11 +2,12 @@
 fine-tune from it and train from scratch with the same budget, over several seeds.
 
 Held-out maps: the shipped `val-1..3` and the first `--floors` generated held-out floors of
-`maps/designer/held-out` no larger than the shipped maps' scale (seeds training never draws). Prints, per
+`maps/designer/held-out` of at most 6,000 cells, 2.4 shipped maps (seeds training never draws). Prints, per
 map, env steps to convergence (the README's definition, `smorphi_rl/training/convergence.py`) fine-tuned
 and from scratch, mean over seeds with a 95 % bootstrap interval, and their ratio with its interval; the
 scratch runs are the yardstick measured in the same run. Target (issue 32): fine-tuning converges in at
-most one fifth of the scratch run's env steps on at least 4 of 6 maps. Figures are printed whatever they are.
+most one fifth of the scratch run's env steps on at least two thirds of the maps (4 of the default 6). Figures
+are printed whatever they are.
 
     .venv/bin/python scripts/bench_transfer.py [--pretrain-steps 200000] [--steps 200000] [--seeds 0 1 2]
         [--floors 3] [--pretrained RUN] [--keep DIR] [--write-docs]
@@ -15,6 +16,7 @@ most one fifth of the scratch run's env steps on at least 4 of 6 maps. Figures a
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import tempfile
 import time
@@ -33,7 +35,8 @@ from smorphi_rl.training.transfer import TransferJob, TransferRun, converged_ste
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 HELD_OUT = MAPS / "designer" / "held-out"
 TARGET_RATIO = 5.0
-TARGET_MAPS = 4
+TARGET_SHARE = 4 / 6
+"""Issue 32: the speed-up on at least 4 of 6 held-out maps."""
 MAX_FLOOR_CELLS = 6_000
 """Generated floors up to about twice a shipped map's cells (50 x 50), so a run costs what a shipped map's does."""
 
@@ -41,6 +44,8 @@ MAX_FLOOR_CELLS = 6_000
 def held_out_floors(count: int) -> list[str]:
     """The first `count` generated held-out floors (by seed) with at most MAX_FLOOR_CELLS cells."""
     small = [p for p in sorted(HELD_OUT.glob("*.yaml")) if load_map(p).cells.size <= MAX_FLOOR_CELLS]
+    if len(small) < count:
+        print(f"only {len(small)} held-out floors have at most {MAX_FLOOR_CELLS:,} cells; using them all")
     return [str(p) for p in small[:count]]
 
 
@@ -97,7 +102,8 @@ def main() -> None:
               f"{_steps(scratch)}: {verdict}; pretrained policy in every runner: "
               f"{all(r.pretrained_in_runners for r in tuned)}")  # fmt: skip
     maps = len(dict.fromkeys(r.map_name for r in runs))
-    print(f"fine-tuning {TARGET_RATIO:g}x faster on {meets} of {maps} maps (target: {TARGET_MAPS} of 6); "
+    target = math.ceil(TARGET_SHARE * maps)
+    print(f"fine-tuning {TARGET_RATIO:g}x faster on {meets} of {maps} maps (target: {target} of {maps}); "
           f"{len(runs)} runs of {args.steps:,} env steps, seeds {' '.join(map(str, args.seeds))}; "
           f"total {(time.perf_counter() - t0) / 60:.1f} min; runs under {root}")  # fmt: skip
 

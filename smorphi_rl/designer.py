@@ -7,7 +7,6 @@ area's sides, the resolution against the block) and refuses others in one line.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -16,6 +15,7 @@ import numpy as np
 
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
 from smorphi_rl.policy_file import PolicyFile, read_policy
@@ -72,10 +72,7 @@ def load_designer(path: Path) -> Designer:
 def accepts(designer: Designer, grid_map: Map) -> None:
     """Refuse, naming the limit, a floor the designer's observation cannot represent."""
     given = designer.policy.meta.get("accepts") or {}
-    if not isinstance(given, dict) or not all(
-        k in ACCEPTS and isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-        for k, v in given.items()
-    ):
+    if not isinstance(given, dict) or not all(k in ACCEPTS and is_finite_number(v) and v > 0 for k, v in given.items()):
         raise SmorphiError(f"{designer.path}: its policy.json's 'accepts' must map {', '.join(ACCEPTS)} to positive "
                            "numbers")  # fmt: skip
     limits = {**ACCEPTS, **given}

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Any
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, Cell, Map
 from smorphi_rl.score import PATH_TERMS, Weights, effective_w2
 
@@ -255,6 +256,6 @@ def _coerce(name: str, value: Any) -> Any:
 
 
 def _real(value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    if not is_finite_number(value):
         raise TypeError
     return float(value)

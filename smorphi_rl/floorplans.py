@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.inputs import MAX_SEED
+from smorphi_rl.inputs import MAX_SEED, is_finite_number
 from smorphi_rl.maps import Cell, Map
 
 HELD_OUT_SEED = 1_000_000
@@ -62,7 +62,7 @@ class FloorRange:
 
     def __post_init__(self) -> None:
         values = (self.min_side_m, self.max_side_m, self.min_resolution_m, self.max_resolution_m)
-        if not all(isinstance(v, int | float) and math.isfinite(v) and v > 0 for v in values):
+        if not all(is_finite_number(v) and v > 0 for v in values):
             raise MapError(f"floor sizes and resolutions must be positive numbers, got {values}")
         if not (self.min_side_m <= self.max_side_m and self.min_resolution_m <= self.max_resolution_m):
             raise MapError("need min_side_m <= max_side_m and min_resolution_m <= max_resolution_m")

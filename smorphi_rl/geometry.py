@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from smorphi_rl.errors import MorphologyError
+from smorphi_rl.inputs import is_finite_number
 
 DEFAULT_BLOCK_SIDE_M = 0.17
 """Side of one Smorphi block, the commercial module (docs/spec/fbcpp.md section 1)."""
@@ -212,7 +213,7 @@ MAX_BLOCK_CELLS = 400
 def check_block_side(block_side_m: float, resolution_m: float) -> float:
     """The block side, if a block spans at least one and at most MAX_BLOCK_CELLS cells of the map;
     MorphologyError naming both otherwise (a footprint under one cell has no tiles to plan on)."""
-    if isinstance(block_side_m, bool) or not isinstance(block_side_m, int | float) or not math.isfinite(block_side_m):
+    if not is_finite_number(block_side_m):
         raise MorphologyError(f"block side must be a finite number of metres, got {block_side_m!r}")
     if block_side_m <= 0:
         raise MorphologyError(f"block side must be > 0 m, got {block_side_m:g}")

@@ -56,6 +56,17 @@ def strict_yaml(text: str) -> Any:
     return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
 
 
+def is_finite_number(value: Any) -> bool:
+    """A real number (not a bool) that is finite as a float: an integer too large for one (JSON and YAML read 10^400
+    as an int) is not, where `math.isfinite` would raise OverflowError."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
+
+
 def check_not_special(path: Path, what: str, error: type[SmorphiError] = InputError) -> None:
     """Refuse, before it is opened, an input that is a FIFO, a socket or a device: reading one blocks or never
     ends. A missing file or a folder is left to the reader, which names it."""

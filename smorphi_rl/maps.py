@@ -18,6 +18,7 @@ import numpy as np
 import yaml
 
 from smorphi_rl.errors import MapError
+from smorphi_rl.inputs import is_finite_number
 
 SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
 """The default map of every command and of the env: map-1, shipped beside the package."""
@@ -64,7 +65,7 @@ class Map:
     counts: dict[Cell, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if not (isinstance(self.resolution_m, int | float) and math.isfinite(self.resolution_m)):
+        if not is_finite_number(self.resolution_m):
             raise MapError(f"map {self.name}: resolution {self.resolution_m!r} is not a number")
         if self.resolution_m <= 0:
             raise MapError(f"map {self.name}: resolution must be > 0, got {self.resolution_m}")
@@ -128,8 +129,8 @@ def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = 
     if isinstance(value, str):  # YAML 1.1 reads 1e-9 (no dot) as a string; a number is a number
         with contextlib.suppress(ValueError):
             value = float(value)
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
-        raise MapError(f"{path}: '{key}' must be a number, got {value!r}")
+    if not is_finite_number(value):
+        raise MapError(f"{path}: '{key}' must be a number, got {str(value)[:40]}")
     return float(value)
 
 
@@ -274,8 +275,8 @@ def load_map(yaml_path: str | Path) -> Map:
         or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in origin)
     ):
         raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
-    if not all(math.isfinite(v) for v in origin):
-        raise MapError(f"{path}: 'origin' must be three finite numbers, got {origin!r}")
+    if not all(is_finite_number(v) for v in origin):
+        raise MapError(f"{path}: 'origin' must be three finite numbers, got {str(origin)[:80]}")
     mode_name = meta.get("mode", MapMode.TRINARY.value)
     try:
         mode = MapMode(mode_name)

@@ -10,7 +10,6 @@ where it came from (the command that trained it, its held-out figures). No Ray a
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import is_finite_number
 
 POLICY_JSON = "policy.json"
 WEIGHTS_NPZ = "weights.npz"
@@ -136,7 +136,7 @@ def _check_meta(meta: Any, where: Path) -> None:
         raise PolicyFileError(f"{where}: 'model_config' must be a table holding 'env_config'")
     for key in ("value_offset", "value_scale"):
         value = model.get(key, 0.0)
-        if not isinstance(value, int | float) or not math.isfinite(value):
+        if not is_finite_number(value):
             raise PolicyFileError(f"{where}: model_config '{key}' must be a finite number")
     from smorphi_rl.training.presets import ALGORITHMS
 

@@ -573,3 +573,31 @@ def test_a_pgm_sample_above_its_maxval_is_refused(tmp_path, capsys):
     (tmp_path / "ok.yaml").write_text("image: ok.pgm\nresolution: 0.1\nfree_thresh: 0.196\n")
     code, out, err = run(capsys, "evaluate", "--map", str(tmp_path / "ok.yaml"), "--angles", "95", "59", "103")
     assert code == 0 and "free 100.0 %" in out, err
+
+
+def test_an_error_naming_a_path_with_a_newline_stays_one_line(capsys):
+    code, _, err = run(capsys, "evaluate", "--map", "/no/such\nmap.yaml", "--angles", "1", "2", "3")
+    assert code == 1 and "map file not found: /no/such\\nmap.yaml" in one_line(err)
+
+
+def test_numbers_too_large_for_a_float_are_one_line(tmp_path, capsys):
+    """YAML and JSON read 10^400 as an integer, which `math.isfinite` cannot take."""
+    image = Path(MAP_1).with_suffix(".pgm")
+    (tmp_path / "m.yaml").write_text(f"image: {image}\nresolution: 0.1\norigin: [{10**400}, 0, 0]\n")
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "'origin' must be three finite numbers" in one_line(err)
+    (tmp_path / "r.yaml").write_text(f"image: {image}\nresolution: {10**400}\n")
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "r.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "'resolution' must be a number" in one_line(err)
+
+
+def test_a_crop_whose_islands_dropped_leave_no_robot_is_refused(tmp_path, capsys):
+    free = np.zeros((50, 50), dtype=bool)
+    for r in range(5, 45, 4):
+        for c in range(5, 45, 4):
+            free[r : r + 2, c : c + 2] = True  # 100 islands of 2 x 2 cells: 400 free cells, no island holds the O
+    map_yaml = _pgm_map(tmp_path, "specks", free)
+    argv = ["maps", "crop", map_yaml, "--out", str(tmp_path / "out" / "c.yaml"), "--min-island", "1"]
+    code, _, err = run(capsys, *argv)
+    assert code == 1 and "nothing written, the crop holds no robot" in one_line(err)
+    assert not (tmp_path / "out").exists()

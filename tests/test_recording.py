@@ -280,6 +280,8 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
     ("/map", lambda m: m | {"data": "!!!notbase64"}, "the map message is damaged"),
     ("/map", lambda m: m | {"column_count": 10**9, "row_stride": 10**9}, "the map message is damaged"),
     ("/morphology", lambda m: m | {"entities": [{"id": "robot"}]}, "scene message 0 is damaged"),
+    ("/smorphi/step", lambda m: m | {"action": 5}, "action 5 is not three moves in 0..2"),
+    ("/smorphi/step", lambda m: m | {"R1": 10**400}, "is not a finite number"),
 ])  # fmt: skip
 def test_a_recording_whose_messages_are_damaged_is_one_line(tmp_path, capsys, topic, edit, message):
     env = recorded_env(tmp_path, max_steps=5)

@@ -150,7 +150,7 @@ def _generate_floors(args: argparse.Namespace) -> int:
 def cmd_maps_crop(args: argparse.Namespace) -> int:
     """Cut a map to its known area (or a rectangle) into a new map_server YAML."""
     from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.errors import MapError
+    from smorphi_rl.errors import MapError, SmorphiError
     from smorphi_rl.maps import check_fits
     from smorphi_rl.maptools import crop_to_known, crop_to_rect
 
@@ -158,17 +158,18 @@ def cmd_maps_crop(args: argparse.Namespace) -> int:
         raise SmorphiError("--margin: applies to a crop to the known area; --rect gives the rectangle itself")
 
     def crop(source: Map) -> Map:
-        cropped = crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+        return crop_to_known(source, args.margin) if args.rect is None else crop_to_rect(source, *args.rect)
+
+    def holds_robot(source: Map, cropped: Map) -> None:
         block = EnvConfig.block_side_m
         if source.resolution_m <= block:  # a crop no robot fits on is refused (a coarse map: resample's warning)
             try:
                 check_fits(cropped, block)
-            except MapError as exc:
+            except SmorphiError as exc:
                 raise MapError(f"maps crop: nothing written, the crop holds no robot of {block:g} m blocks ({exc})") \
                     from None  # fmt: skip
-        return cropped
 
-    return _write_prepared(args, crop)
+    return _write_prepared(args, crop, holds_robot)
 
 
 def cmd_maps_resample(args: argparse.Namespace) -> int:
@@ -190,9 +191,9 @@ def warn_coarser_than_a_block(resolution_m: float) -> None:
               f"of at least {resolution_m:g}, plans on it)", file=sys.stderr)  # fmt: skip
 
 
-def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
-    """Read the map, transform it, drop small islands, write it (never over the input or an existing map
-    without --force) and print both maps' sizes."""
+def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None) -> int:
+    """Read the map, transform it, drop small islands, `check(source, result)` it, write it (never over the input
+    or an existing map without --force) and print both maps' sizes."""
     from smorphi_rl.maps import save_map
     from smorphi_rl.maptools import drop_islands
 
@@ -208,6 +209,8 @@ def _write_prepared(args: argparse.Namespace, transform: Any) -> int:
         raise SmorphiError(f"{taken} exists; pass --force to overwrite it")
     source = load_map(args.map)
     grid_map, islands = drop_islands(transform(source), args.min_island)
+    if check is not None:
+        check(source, grid_map)
     from smorphi_rl.rundir import claimed_files
 
     with claimed_files([out], args.force):

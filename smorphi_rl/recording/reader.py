@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import check_not_special
+from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.recording.messages import (
     MCAP_MAGIC,
@@ -161,29 +161,39 @@ def read_episode(path: str | Path) -> Episode:
             raise RecordingError(f"{path}: step message {i} is damaged ({problem})")
     scenes = by_topic[TOPIC_SCENE][: len(steps)]
     steps = steps[: len(scenes)] if len(scenes) < len(steps) else steps
+    if not steps:
+        raise RecordingError(f"{path}: no scene message could be recovered (the robot's pose of each step)")
     grid = by_topic[TOPIC_MAP][0] if by_topic[TOPIC_MAP] else None
-    return Episode(file, meta, steps, scenes, grid, [str(m.get("message", "")) for m in by_topic[TOPIC_LOG] if isinstance(m, dict)], not complete)
-
-
-def _number(value: Any) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+    return Episode(
+        file,
+        meta,
+        steps,
+        scenes,
+        grid,
+        [str(m.get("message", "")) for m in by_topic[TOPIC_LOG] if isinstance(m, dict)],
+        not complete,
+    )
 
 
 def _step_problem(st: dict[str, Any]) -> str | None:
     """What is wrong with a step message's values (types and ranges `replay` relies on), or None."""
     theta = st["theta"]
-    if not (isinstance(theta, list) and len(theta) == 3 and all(_number(t) and 0 <= t <= 180 for t in theta)):
+    if not (isinstance(theta, list) and len(theta) == 3 and all(is_finite_number(t) and 0 <= t <= 180 for t in theta)):
         return f"theta {str(theta)[:40]} is not three hinge angles in [0, 180]"
     for key in ("R1", "P_c", "coverage_free_pct"):
-        if not _number(st[key]):
+        if not is_finite_number(st[key]):
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if not 0 <= st["P_c"] <= 100 or not 0 <= st["coverage_free_pct"] <= 100:
         return "a coverage outside [0, 100] %"
     for key in ("reward", "R2"):
-        if st[key] is not None and not _number(st[key]):
+        if st[key] is not None and not is_finite_number(st[key]):
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if type(st["P_len"]) is not int or st["P_len"] < 0 or type(st["step"]) is not int or st["step"] < 0:
         return "P_len or step is not a whole number >= 0"
+    action = st["action"]
+    if action is not None and not (isinstance(action, list) and len(action) == 3
+                                   and all(type(a) is int and 0 <= a <= 2 for a in action)):  # fmt: skip
+        return f"action {str(action)[:20]} is not three moves in 0..2"
     if not isinstance(st["map"], str) or not isinstance(st["feasible"], bool):
         return "map is not a name or feasible is not true or false"
     return None

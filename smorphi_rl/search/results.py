@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,6 +20,8 @@ from smorphi_rl.search.pareto import pareto_front
 RESULTS_FILE = "results.npz"
 MAX_EVALUATIONS = 2**53
 """More planner evaluations than any search records (a float holds every count up to it exactly)."""
+MAX_WALL_S = 1e9
+"""A search's recorded wall time is at most this (31 years)."""
 
 
 @dataclass(frozen=True)
@@ -107,7 +108,7 @@ def _npz(arrays: dict[str, np.ndarray]) -> bytes:
 def load(run_dir: str | Path) -> SearchResult:
     """A search run written by `save` (for `compare`), checked: a summary of the right types, arrays of one length
     with finite angles in [0, 180], coverage in [0, 100] and non-negative path lengths."""
-    from smorphi_rl.inputs import read_json_object
+    from smorphi_rl.inputs import is_finite_number, read_json_object
 
     root = Path(run_dir)
 
@@ -126,7 +127,9 @@ def load(run_dir: str | Path) -> SearchResult:
     for key, kind in fields.items():
         if not isinstance(summary.get(key), kind) or isinstance(summary.get(key), bool):
             raise bad(f"summary '{key}' is {summary.get(key)!r}")
-    if not 0 <= summary["evaluations"] <= MAX_EVALUATIONS or not 0 <= summary["wall_s"] < math.inf:
+    if not 0 <= summary["evaluations"] <= MAX_EVALUATIONS or not (
+        is_finite_number(summary["wall_s"]) and 0 <= summary["wall_s"] <= MAX_WALL_S
+    ):
         shown = ", ".join(f"'{k}' {str(summary[k])[:16]}" for k in ("evaluations", "wall_s"))
         raise bad(f"summary {shown}: out of range")
     if not isinstance(summary.get("params", {}), dict):

@@ -18,7 +18,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, strict_yaml
+from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, is_finite_number, strict_yaml
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -213,10 +213,14 @@ def load_sweep(path: str | Path) -> SweepConfig:
         if a not in ALGORITHMS:
             raise fail("algorithms", f"unknown algorithm '{a}' (choose from {', '.join(ALGORITHMS)})")
     map_sets = tuple(_map_set(item, f"maps[{i}]", file, fail) for i, item in enumerate(doc.maps))
-    for key, items in (("algorithms", doc.algorithms), ("seeds", doc.seeds), ("maps", map_sets)):
+    sets = [tuple(sorted(s)) for s in map_sets]  # one set of maps in another order trains the same policies
+    for key, items, given in (("algorithms", doc.algorithms, doc.algorithms), ("seeds", doc.seeds, doc.seeds),
+                              ("maps", sets, doc.maps)):  # fmt: skip
         twice = next((i for i, v in enumerate(items) if v in items[:i]), None)
         if twice is not None:
-            raise fail(f"{key}[{twice}]", f"{items[twice]!r} is given twice: its trials would run twice")
+            shown = repr(given[twice])
+            shown = shown if len(shown) <= 80 else shown[:77] + "..."
+            raise fail(f"{key}[{twice}]", f"{shown} is given twice: its trials would run twice")
     if doc.preset not in PRESETS:
         raise fail("preset", f"unknown preset {doc.preset!r} (choose from {', '.join(PRESETS)})")
     unknown_stop = sorted(k for k in doc.stop if k not in STOP_METRICS)
@@ -310,22 +314,18 @@ def _resolve(entry: str, file: Path, key: str, fail: Any) -> str:
 
 
 def _space(value: Any, key: str, fail: Any) -> Space:
-    if _is_number(value):
+    if is_finite_number(value):
         return Space("constant", (value,))
     if not isinstance(value, dict) or len(value) != 1 or next(iter(value)) not in SPACE_KINDS:
         raise fail(key, f"expected a number or one of {{{' | '.join(SPACE_KINDS)}: ...}}, got {value!r}")
     ((kind, args),) = value.items()
-    if not isinstance(args, list) or not args or not all(_is_number(a) for a in args):
+    if not isinstance(args, list) or not args or not all(is_finite_number(a) for a in args):
         raise fail(key, f"{kind} takes a list of numbers, got {args!r}")
     if kind in ("uniform", "loguniform"):
         if len(args) != 2 or not args[0] < args[1] or (kind == "loguniform" and args[0] <= 0):
             raise fail(key, f"{kind} takes [low, high] with low < high{' and low > 0' if kind == 'loguniform' else ''}")
         args = [float(a) for a in args]
     return Space(kind, tuple(args))
-
-
-def _is_number(value: Any) -> bool:
-    return not isinstance(value, bool) and isinstance(value, int | float) and math.isfinite(value)
 
 
 def _name(value: Any, fail: Any) -> str:

@@ -91,6 +91,7 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [1, 1]\n", "key 'seeds[1]': 1 is given twice"),
         (f"algorithms: [ppo, ppo]\nmaps: [{MAP_1}]\nseeds: [1]\n", "key 'algorithms[1]': 'ppo' is given twice"),
         (f"algorithms: [ppo]\nmaps: [{MAP_1}, {MAP_1}]\nseeds: [1]\n", "key 'maps[1]': "),
+        (f"algorithms: [ppo]\nmaps: [[{MAP_1}, {MAP_2}], [{MAP_2}, {MAP_1}]]\nseeds: [1]\n", "key 'maps[1]': "),
         (base("env: {move_cost: 1.0e+300}\n"), "key 'env': env_config 'move_cost' must be in [0, 1e+06]"),
         (base("env: {max_step: 10}\n"), "key 'env': env_config: unknown key 'max_step'"),
         (base("search: {lr: {uniform: [0.1, 0.01]}}\n"), "key 'search.lr': uniform takes [low, high] with low < high"),
