@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import signal
 import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 
@@ -25,3 +27,20 @@ def install() -> None:
     """Route SIGTERM to the current SIGINT behaviour (only the main thread may set handlers)."""
     if threading.current_thread() is threading.main_thread():
         signal.signal(signal.SIGTERM, _sigterm_as_sigint)
+
+
+@contextmanager
+def stop_requests() -> Iterator[threading.Event]:
+    """While a long computation runs, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread
+    happens to be (a KeyboardInterrupt raised as a compiled kernel returns crashed the process); the computation
+    checks the event between chunks and stops there. Outside the main thread, nothing is changed."""
+    stop = threading.Event()
+    if threading.current_thread() is not threading.main_thread():
+        yield stop
+        return
+    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield stop
+    finally:
+        for sig, handler in handlers.items():
+            signal.signal(sig, handler)

@@ -24,6 +24,7 @@ import numpy as np
 
 from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.score import Weights
@@ -97,24 +98,6 @@ def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: floa
             conn.send(run_task(_worker, _lattice, _bound, task))
     except Exception as exc:  # said by the parent in one line, not as a worker's traceback
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
-
-
-@contextmanager
-def _stop_requests() -> Iterator[threading.Event]:
-    """While the workers run, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread happens
-    to be; the search's loop checks it every 0.1 s and stops there. Outside the main thread, nothing is changed."""
-    stop = threading.Event()
-    if threading.current_thread() is not threading.main_thread():
-        yield stop
-        return
-    import signal
-
-    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
-    try:
-        yield stop
-    finally:
-        for sig, handler in handlers.items():
-            signal.signal(sig, handler)
 
 
 CHUNK_SECONDS = 1.0
@@ -306,7 +289,7 @@ def run_exhaustive(
     per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels, before any worker forks
     pools = (_local_pool(str(map_path), planning, step, best_for, workers, thetas) if address is None
              else _ray_pool(grid_map, planning, step, best_for, workers, address))  # fmt: skip
-    with pools as (pool, n_workers), _stop_requests() as stop:
+    with pools as (pool, n_workers), stop_requests() as stop:
         t0 = time.perf_counter()  # start-up (workers, their kernels) is not timed
         rows, inverse, reps, state = _two_passes(pool, thetas, n_workers, per_chunk, best_for is not None, stop,
                                                  progress)  # fmt: skip

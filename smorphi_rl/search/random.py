@@ -7,10 +7,14 @@ import time
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import load_map
 from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.search.on_ray import evaluator_for
 from smorphi_rl.search.results import SearchResult
+
+CHUNK = 50_000
+"""Shapes scored at a time (about half a second): Ctrl-C and SIGTERM stop a search between chunks."""
 
 
 def run_random(
@@ -23,11 +27,15 @@ def run_random(
     grid_map = load_map(map_path)
     thetas = np.random.default_rng(seed).integers(0, 181, size=(samples, 3)).astype(np.float64)
     params: dict[str, object] = {"samples": samples, "seed": seed, "planner": planning.planner.value}
-    with evaluator_for(grid_map, planning, address) as evaluator:
+    with evaluator_for(grid_map, planning, address) as evaluator, stop_requests() as stop:
         t0 = time.perf_counter()
-        batch = evaluator.evaluate_many(thetas)
+        parts = []
+        for lo in range(0, samples, CHUNK):  # a stop request is honoured between chunks, never inside a kernel
+            parts.append(evaluator.evaluate_many(thetas[lo : lo + CHUNK]))
+            if stop.is_set():
+                raise KeyboardInterrupt
         wall = time.perf_counter() - t0
+    p_c, p_len, feasible = (np.concatenate([getattr(b, k) for b in parts]) for k in ("P_c", "P_len", "feasible"))
     if address is not None:
         params["address"] = address
-    return SearchResult("random", grid_map.name, thetas, batch.P_c, batch.P_len, batch.feasible, samples, wall,
-                        params)  # fmt: skip
+    return SearchResult("random", grid_map.name, thetas, p_c, p_len, feasible, samples, wall, params)
