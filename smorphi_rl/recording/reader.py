@@ -47,6 +47,10 @@ class Episode:
         """The step with the highest R1 (the first, on ties)."""
         return max(self.steps, key=lambda s: s["R1"], default=None)
 
+    def _damaged(self, what: str, exc: Exception) -> RecordingError:
+        """One line naming the damaged message and what reading it raised."""
+        return RecordingError(f"{self.path}: {what} is damaged ({type(exc).__name__}: {str(exc)[:80]})")
+
     def grid_cells(self) -> np.ndarray | None:
         """The recorded map as Cell values, row 0 at the lowest y; a damaged map message is named."""
         if self.grid is None:
@@ -57,8 +61,7 @@ class Episode:
             if type(columns) is not int or columns < 1 or raw.size == 0 or raw.size % columns:
                 raise ValueError(f"{raw.size} cells in rows of {columns!r}")
         except (KeyError, TypeError, ValueError) as exc:  # binascii.Error is a ValueError
-            raise RecordingError(f"{self.path}: the map message is damaged ({type(exc).__name__}: "
-                                 f"{str(exc)[:80]})") from None  # fmt: skip
+            raise self._damaged("the map message", exc) from None
         cells = np.full(raw.shape, Cell.UNKNOWN, dtype=np.uint8)
         for cell, value in OCCUPANCY.items():
             cells[raw == value] = cell
@@ -74,8 +77,7 @@ class Episode:
             origin = (float(pos["x"]), float(pos["y"]), 0.0)
             return Map(cells, float(self.grid["cell_size"]["x"]), origin, self.steps[0]["map"])
         except (KeyError, TypeError, ValueError, SmorphiError) as exc:
-            raise RecordingError(f"{self.path}: the map message is damaged ({type(exc).__name__}: "
-                                 f"{str(exc)[:80]})") from None  # fmt: skip
+            raise self._damaged("the map message", exc) from None
 
     def changed_steps(self, max_frames: int) -> list[int]:
         """Indices of the steps where the shape changed (and the first), thinned evenly to at most `max_frames`."""
@@ -100,8 +102,7 @@ class Episode:
             pts = [[p["x"], p["y"]] for line in entities["coverage_path"]["lines"] for p in line["points"]]
             path = np.asarray(pts, dtype=float).reshape(-1, 2)
         except (KeyError, TypeError, ValueError, IndexError) as exc:
-            raise RecordingError(f"{self.path}: scene message {index} is damaged ({type(exc).__name__}: "
-                                 f"{str(exc)[:80]})") from None  # fmt: skip
+            raise self._damaged(f"scene message {index}", exc) from None
         return {"blocks": blocks, "path": path, "step": self.steps[index]}
 
     @property
