@@ -1,8 +1,10 @@
 """`smorphi-rl sweep`: a validated sweep file run as one Ray Tune experiment, resumable after an interruption.
 
-Each trial is the project's one trainable (`trial.run_trial`, which `train` runs too) on its (algorithm,
-maps, seed, hyperparameters); it checkpoints through Tune, so `Tuner.restore` picks every unfinished
-trial up from its last checkpoint.
+Each trial is the project's one trainable (`trial.run_trial`, which `train` runs too) on one of the sweep's
+trials (`SweepConfig.trials`: index, algorithm, maps, seed, hyperparameters), in a folder named by its index.
+`--resume` never calls `Tuner.restore` (whose pickles hold code): it runs a fresh experiment of the trials that
+did not finish, each in its own folder again, continuing from our state file of its last checkpoint
+(`resume.py`); a finished trial is never touched.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
+from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_spec
 from smorphi_rl.training.run import TrainingError, fmt_duration, training_optima, trial_callbacks
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
@@ -53,12 +56,42 @@ class SweepSummary:
     files: dict[str, Path]
 
 
-def sweep_trainable(config: dict[str, Any], sweep: SweepConfig, optima: dict[str, Optimum]) -> None:
-    """One trial of the sweep: its grid point's TrainConfig, run by the project's one trainable with the callbacks
-    `train` builds (the evaluation protocol against `optima`, fine-tuning from the sweep's checkpoint)."""
+def sweep_trainable(
+    config: dict[str, Any], sweep: SweepConfig, optima: dict[str, Optimum], resume_points: dict[int, Path]
+) -> None:
+    """One trial of the sweep: its TrainConfig, run by the project's one trainable with the callbacks `train`
+    builds (the evaluation protocol against `optima`, fine-tuning from the sweep's checkpoint), continuing from
+    its entry in `resume_points` if it has one."""
     cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
     base = None if cfg.pretrained is None else fine_tune_from(cfg.pretrained, cfg.env.to_dict())[1]
-    run_trial(cfg, trial_callbacks(cfg, optima, base))
+    run_trial(cfg, trial_callbacks(cfg, optima, base), resume_from=resume_points.get(int(config["index"])),
+              stop=sweep.stop, resumable=True)  # fmt: skip
+
+
+def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[int, Path]]:
+    """(the trials left to run, the checkpoint each started one continues from) of experiment `exp`. The state
+    files are read back safely here, before Ray starts, so a damaged or crafted one is refused in one line and
+    nothing is moved; then each started trial's checkpoints and results are set aside (`resume.set_aside`)."""
+    started: dict[int, tuple[Path, Path | None]] = {}
+    done: set[int] = set()
+    for d in sorted(p for p in exp.iterdir() if p.is_dir()):
+        spec = trial_spec(d)
+        if spec is None:
+            continue
+        index = spec["index"]
+        if not 0 <= index < len(trials) or {k: spec.get(k) for k in trials[index]} != trials[index]:
+            raise RunDirError(f"{d}: not a trial of this sweep (its params.json names another); resume only "
+                              "sweeps you ran, or start this one under another `name`")  # fmt: skip
+        if finished(d):
+            done.add(index)
+        else:
+            started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
+    points: dict[int, Path] = {}
+    for index, (d, point) in started.items():
+        aside = set_aside(d)
+        if point is not None:
+            points[index] = aside / point.name if aside is not None and point.parent == d else point
+    return [t for t in trials if t["index"] not in done], points
 
 
 class _SweepProgress:
@@ -166,12 +199,44 @@ def run_sweep(
     if address is None:
         cluster.check_capacity(widest.cpus, widest.env_runners, address)
     exp = prepare_experiment(sweep, log_dir, resume)
+    trials = sweep.trials()
+    pending, points = plan_resume(exp, trials) if resume else (trials, {})
     out = out or sys.stderr
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum, before Ray starts (cached after the first)
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     quiet()
-    progress = _SweepProgress(sweep, sweep.num_grid_trials, out)
+    progress = _SweepProgress(sweep, len(trials), out)
+    progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}
+    t0 = time.monotonic()
+    results, failed = (None, None)
+    if pending:
+        results, failed = _fit(sweep, exp, address, widest, optima, pending, points, progress)
+    wall = time.monotonic() - t0
+    progress.finish()
+    if failed and (failed.disk_full or results is None):
+        raise TrainingError(failed.line)  # no tables either
+    rows = read_sweep(exp)
+    files = write_sweep_outputs(exp, rows)
+    if failed:
+        raise TrainingError(f"{failed.line}; tables of the finished trials under {exp}")
+    finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
+    return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files)
+
+
+def _fit(
+    sweep: SweepConfig, exp: Path, address: str | None, widest: Any, optima: dict[str, Optimum],
+    pending: list[dict[str, Any]], points: dict[int, Path], progress: _SweepProgress,
+) -> tuple[Any, Any]:  # fmt: skip
+    """The Tune experiment of the `pending` trials (Tune's results and how it failed, `failures.fit`); `widest`:
+    the trial config asking for the most CPUs."""
+    by_index = {t["index"]: t for t in pending}
+
+    def field_of(name: str) -> Any:
+        from ray import tune
+
+        return tune.sample_from(lambda config: by_index[config["index"]][name])
+
     with cluster.ray_session(address):
         if address is not None:
             cluster.check_capacity(widest.cpus, widest.env_runners, address)
@@ -182,48 +247,34 @@ def run_sweep(
         def trial_resources(config: dict[str, Any]) -> Any:
             return resources(sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}))
 
-        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep, optima=optima),
-                                        trial_resources)  # fmt: skip
+        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep, optima=optima,
+                                                             resume_points=points), trial_resources)  # fmt: skip
         run_config = tune.RunConfig(
             name=sweep.name,
             storage_path=str(exp.parent),
-            stop=sweep.stop or None,
             checkpoint_config=tune.CheckpointConfig(num_to_keep=sweep.checkpoint_keep or None),
             callbacks=[_tune_callback(progress), TensorBoardLogger()],
             verbose=0,
         )
-        t0 = time.monotonic()
-        if resume and tune.Tuner.can_restore(str(exp)):
-            tuner = tune.Tuner.restore(str(exp), trainable=trainable, resume_unfinished=True, resume_errored=True)
-        else:
-            tuner = tune.Tuner(
-                trainable,
-                param_space={
-                    "algo": tune.grid_search(list(sweep.algorithms)),
-                    "maps": tune.grid_search([list(m) for m in sweep.map_sets]),
-                    "seed": tune.grid_search(list(sweep.seeds)),
-                    "hp": {k: s.to_tune() for k, s in sweep.search.items()},
-                },
-                tune_config=tune.TuneConfig(num_samples=sweep.num_samples, trial_dirname_creator=_trial_dirname),
-                run_config=run_config,
-            )
-        results, failed = fit(tuner, exp, "the sweep")
-        wall = time.monotonic() - t0
-        progress.finish()
-    if failed and (failed.disk_full or results is None):
-        raise TrainingError(failed.line)  # no tables either
-    rows = read_sweep(exp)
-    files = write_sweep_outputs(exp, rows)
-    if failed:
-        raise TrainingError(f"{failed.line}; tables of the finished trials under {exp}")
-    trials = [results[i] for i in range(len(results))]
-    finished = sum(1 for r in trials if r.metrics and r.metrics.get("done"))
-    return SweepSummary(exp, rows, len(trials), wall, finished < len(trials), files)
+        param_space = {"index": tune.grid_search(sorted(by_index)), **{k: field_of(k) for k in _TRIAL_FIELDS}}
+
+        def dirname(trial: Any) -> str:
+            return trial_dirname(by_index[trial.config["index"]])
+
+        tuner = tune.Tuner(trainable, param_space=param_space, run_config=run_config,
+                           tune_config=tune.TuneConfig(trial_dirname_creator=dirname))  # fmt: skip
+        return fit(tuner, exp, "the sweep")
 
 
-def _trial_dirname(trial: Any) -> str:
-    maps = "+".join(map_label(m) for m in trial.config["maps"])
-    return f"{trial.config['algo']}-{maps}-seed{trial.config['seed']}-{trial.trial_id}"
+_TRIAL_FIELDS = ("algo", "maps", "seed", "hp")
+"""A trial's fields besides its index (`SweepConfig.trials`), as Tune's params.json records them."""
+
+
+def trial_dirname(trial: dict[str, Any]) -> str:
+    """A trial's folder, from its fields and sweep index (the same folder when a resumed sweep runs it again;
+    Tune's own config still holds placeholders for the fields when it names the folder)."""
+    maps = "+".join(map_label(m) for m in trial["maps"])
+    return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
 
 
 def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:

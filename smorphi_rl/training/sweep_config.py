@@ -7,11 +7,13 @@ names the file and the key.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any
 
+import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
@@ -107,17 +109,16 @@ class Space:
     kind: str
     values: tuple[Any, ...]
 
-    def to_tune(self) -> Any:
-        """The Ray Tune search-space object (imported here only, when the sweep runs)."""
-        from ray import tune
-
+    def draw(self, rng: np.random.Generator) -> Any:
+        """One value of a constant, choice, uniform or loguniform space (a grid is expanded by `trials`)."""
         if self.kind == "constant":
             return self.values[0]
-        if self.kind == "grid":
-            return tune.grid_search(list(self.values))
         if self.kind == "choice":
-            return tune.choice(list(self.values))
-        return getattr(tune, self.kind)(*self.values)
+            return self.values[int(rng.integers(len(self.values)))]
+        lo, hi = self.values
+        if self.kind == "uniform":
+            return float(rng.uniform(lo, hi))
+        return float(math.exp(rng.uniform(math.log(lo), math.log(hi))))
 
     def examples(self) -> list[Any]:
         """Values to validate against the algorithms (ranges: both ends)."""
@@ -154,6 +155,21 @@ class SweepConfig:
         grid = math.prod(len(s.values) for s in self.search.values() if s.kind == "grid")
         return len(self.algorithms) * len(self.map_sets) * len(self.seeds) * grid * self.num_samples
 
+    def trials(self) -> list[dict[str, Any]]:
+        """Every trial of the sweep, in order: {index, algo, maps, seed, hp}, the random parts drawn here from
+        `SAMPLE_SEED` (not by Tune), so a resumed sweep finds the same trials under the same indices."""
+        names = sorted(self.search)
+        grids = [self.search[k].values if self.search[k].kind == "grid" else (None,) for k in names]
+        out: list[dict[str, Any]] = []
+        for algo, maps, seed, point in itertools.product(self.algorithms, self.map_sets, self.seeds,
+                                                         itertools.product(*grids)):  # fmt: skip
+            for _ in range(self.num_samples):
+                rng = np.random.default_rng([SAMPLE_SEED, len(out)])
+                hp = {k: v if self.search[k].kind == "grid" else self.search[k].draw(rng)
+                      for k, v in zip(names, point, strict=True)}  # fmt: skip
+                out.append({"index": len(out), "algo": algo, "maps": list(maps), "seed": seed, "hp": hp})
+        return out
+
     def base_config(self, algo: str, maps: tuple[str, ...], seed: int, overrides: dict[str, Any]) -> TrainConfig:
         """The TrainConfig of one trial."""
         env = EnvConfig.from_dict({**self.env, "maps": list(maps)})
@@ -166,6 +182,8 @@ class SweepConfig:
                            num_env_runners=self.env_runners, envs_per_runner=self.envs_per_runner)  # fmt: skip
 
 
+SAMPLE_SEED = 20_240_917
+"""Seeds the draws of a sweep's random search parts (each trial its own stream, by index)."""
 STOP_METRICS = (keys.TIME_TOTAL, keys.ITERATION, keys.STEPS, keys.TIMESTEPS_TOTAL)
 """Stop criteria a sweep may give (Ray Tune ignores an unknown metric silently: a typo would never stop)."""
 MAX_TRIALS = 10_000

@@ -48,11 +48,24 @@ class TrialRow:
     """The last evaluation's share of starts settled within 1 % of the optimum."""
 
 
-def result_rows(result_json: Path) -> list[dict[str, Any]]:
-    """A trial's result.json rows, one per iteration in order: an iteration re-run after a restore
-    keeps its last row, and a line cut short by a kill is skipped."""
+RESULTS = "result.json"
+SET_ASIDE = "before-resume"
+"""A resumed trial's earlier results and checkpoints are in `<trial>/before-resume-N/` (`resume.py`)."""
+
+
+def result_files(trial_dir: Path) -> list[Path]:
+    """A trial's result.json files, oldest first: those set aside by each resume, then its own."""
+    aside = sorted(trial_dir.glob(f"{SET_ASIDE}-*/{RESULTS}"), key=lambda p: int(p.parent.name.rsplit("-", 1)[1]))
+    own = trial_dir / RESULTS
+    return [*aside, own] if own.is_file() else aside
+
+
+def result_rows(*result_json: Path) -> list[dict[str, Any]]:
+    """The rows of a trial's result.json files (oldest first), one per iteration in order: an iteration re-run
+    after a resume keeps its last row, and a line cut short by a kill is skipped."""
     by_iter: dict[int, dict[str, Any]] = {}
-    for line in result_json.read_text().splitlines():
+    lines = [line for path in result_json for line in path.read_text().splitlines()]
+    for line in lines:
         try:
             row = json.loads(line)
         except json.JSONDecodeError:
@@ -95,11 +108,11 @@ def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
 
 def read_trial(trial_dir: Path) -> TrialRow | None:
     """The row of one trial folder; None before its first result."""
-    params, results = trial_dir / "params.json", trial_dir / "result.json"
-    if not params.is_file() or not results.is_file():
+    params, results = trial_dir / "params.json", result_files(trial_dir)
+    if not params.is_file() or not results:
         return None
     spec = json.loads(params.read_text())
-    rows = result_rows(results)
+    rows = result_rows(*results)
     if not rows:
         return None
     top = TopMorphologies()

@@ -1,14 +1,16 @@
 """The one Ray Tune trainable of the project: `train` runs it as a one-trial experiment, `sweep` as many.
 
-A trial builds the RLlib algorithm for its TrainConfig, restores Tune's checkpoint when the
-experiment is resumed, trains to the budget, and reports every iteration (checkpointing every
-`checkpoint_every` iterations and at the end). It asks for 1 CPU plus 0.5 per env runner, so Tune
-queues trials to fit the machine or the cluster.
+A trial builds the RLlib algorithm for its TrainConfig, continues from our own state file when a sweep
+is resumed (`resume.py`: nothing unpickled but numbers and arrays), trains to the budget or the sweep's
+stop criteria, and reports every iteration (checkpointing every `checkpoint_every` iterations and at
+the end). It asks for 1 CPU plus 0.5 per env runner, so Tune queues trials to fit the machine or the
+cluster.
 """
 
 from __future__ import annotations
 
 import tempfile
+import time
 from pathlib import Path
 from typing import Any
 
@@ -21,6 +23,7 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
+from smorphi_rl.training.resume import ELAPSED, STATE_KEYS, load_state, save_state
 from smorphi_rl.training.runners import push_module_to_runners, reseed_runners
 
 
@@ -32,11 +35,23 @@ def resources(cfg: TrainConfig) -> Any:
     return tune.PlacementGroupFactory(bundles)
 
 
-def run_trial(cfg: TrainConfig, callbacks: type | None = None, recording_dir: Path | None = None) -> None:
-    """Inside a Tune trial: build the algorithm, restore Tune's checkpoint if resuming, train to the budget.
+def stop_reached(stop: dict[str, float], iteration: int, steps: int, elapsed_s: float) -> bool:
+    """Whether any of a sweep's stop criteria (`sweep_config.STOP_METRICS`: threshold) is met; the trial checks
+    them itself, counted across resumes (Tune's own counters start again in a resumed trial)."""
+    now = {keys.ITERATION: iteration, keys.TIME_TOTAL: elapsed_s, keys.STEPS: steps, keys.TIMESTEPS_TOTAL: steps}
+    return any(now[k] >= v for k, v in stop.items())
+
+
+def run_trial(
+    cfg: TrainConfig, callbacks: type | None = None, recording_dir: Path | None = None,
+    resume_from: Path | None = None, stop: dict[str, float] | None = None, resumable: bool = False,
+) -> None:  # fmt: skip
+    """Inside a Tune trial: build the algorithm, continue from `resume_from`'s state (a resumed sweep), train to
+    the budget or `stop` (`stop_reached`).
 
     `callbacks`: the RLlib callbacks class (evaluation, fine-tuning), default ours; `recording_dir`: where the
-    MCAP episodes go (default the trial's folder), when `cfg.record_every` is set."""
+    MCAP episodes go (default the trial's folder), when `cfg.record_every` is set; `resumable`: every checkpoint
+    also holds our state file, for `sweep --resume`."""
     from ray import tune
     from ray.tune.result import AUTO_RESULT_KEYS
 
@@ -46,22 +61,29 @@ def run_trial(cfg: TrainConfig, callbacks: type | None = None, recording_dir: Pa
     config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, run_dir.name))
     # The trial's own storage: an Algorithm built without one makes itself a folder under ~/ray_results
     algo = config.algo_class(config=config, storage=tune.get_context().get_storage())
+    elapsed = 0.0
     try:
-        resume = tune.get_checkpoint()
-        if resume is not None:
-            with resume.as_directory() as path:
-                algo.restore_from_path(path)
+        if resume_from is not None:
+            state = load_state(resume_from)
+            algo.set_state({k: state[k] for k in STATE_KEYS})
+            elapsed = state[ELAPSED]
             push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
             reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
         while True:
+            t0 = time.monotonic()
             result = algo.train()
+            elapsed += time.monotonic() - t0
             steps = int(result.get(keys.STEPS) or 0)
-            done = steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
+            done = (steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
+                    or stop_reached(stop or {}, algo.iteration, steps, elapsed))  # fmt: skip
             metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
             metrics[keys.ALGO_ITERATION] = algo.iteration
+            metrics[keys.TRIAL_DONE] = done
             if done or algo.iteration % cfg.checkpoint_every == 0:
                 with tempfile.TemporaryDirectory() as path:
                     algo.save_to_path(path)
+                    if resumable:
+                        save_state(algo, Path(path), elapsed)
                     tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
             else:
                 tune.report(metrics)

@@ -1,9 +1,12 @@
-"""A real sweep through the public command: 2 trials x 10 iterations, interrupted with Ctrl-C, then resumed."""
+"""A real sweep through the public command: 2 trials x 10 iterations, interrupted with Ctrl-C, then resumed; every
+pickle Tune and RLlib left in the folder holds a payload by then, and none of them runs."""
 
 from __future__ import annotations
 
 import csv
 import json
+import pickle
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -13,6 +16,7 @@ from conftest import printed_command
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
+from smorphi_rl.training.sweep_report import result_files
 
 ROOT = Path(__file__).resolve().parents[2]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")
@@ -35,7 +39,32 @@ pytestmark = pytest.mark.slow
 
 
 def results(trial: Path) -> list[dict]:
-    return [json.loads(line) for line in (trial / "result.json").read_text().splitlines()]
+    """Every row the trial logged, oldest first (a resume sets the earlier ones aside, `result_files`)."""
+    return [json.loads(line) for path in result_files(trial) for line in path.read_text().splitlines()]
+
+
+class Payload:
+    """A pickle that, when loaded, writes `marker` (what a crafted file would do instead)."""
+
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (exec, (f"open({str(self.marker)!r}, 'w').write('ran')",))
+
+
+def plant(exp: Path, marker: Path, names: set[str]) -> list[Path]:
+    """Overwrite every pickle under `exp` whose name is in `names` (all but ours when empty) with a payload, but
+    those of a trial that finished (the test reads its checkpoint afterwards)."""
+    done = {d for d in exp.iterdir() if (d / "result.json").is_file() and results(d)[-1]["smorphi_done"]}
+    planted = []
+    for path in exp.rglob("*.pkl"):
+        if done & set(path.parents):
+            continue
+        if (path.name in names) if names else path.name != "smorphi_state.pkl":
+            path.write_bytes(pickle.dumps(Payload(marker)))
+            planted.append(path)
+    return planted
 
 
 def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
@@ -54,13 +83,27 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     assert again.returncode == 1 and "add --resume" in again.stderr and "Traceback" not in again.stderr
     assert results(first) == before
 
+    marker = tmp_path / "payload-ran"
+    crafted = tmp_path / "crafted"  # a copy whose state file is crafted: refused before Ray starts, nothing moved
+    shutil.copytree(tmp_path / "logs", crafted)
+    assert plant(crafted, marker, {"smorphi_state.pkl"})
+    listing = sorted(crafted.rglob("*"))
+    refused = cli("sweep", str(config), "--resume", "--log-dir", str(crafted), cwd=tmp_path)
+    assert refused.returncode == 1 and "Traceback" not in refused.stderr, refused.stderr[-3000:]
+    assert len(refused.stderr.strip().splitlines()) == 1 and "smorphi_state.pkl: refused" in refused.stderr
+    assert not marker.exists() and sorted(crafted.rglob("*")) == listing
+
+    planted = plant(exp, marker, set())  # Tune's tuner.pkl and params.pkl, RLlib's state files
+    assert {"tuner.pkl", "params.pkl", "algorithm_state.pkl", "class_and_ctor_args.pkl"} <= {p.name for p in planted}
     resumed = subprocess.run(printed_command(err), capture_output=True, text=True, cwd=tmp_path, env=ray_env(),
                              timeout=400)  # the interrupt's hint, run exactly as printed  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert not marker.exists()  # nothing but our state file was unpickled
     assert "ran 2 of 2 trials" in resumed.stdout and "table: logs/tiny/sweep.md" in resumed.stdout
 
     after = results(first)
     assert after[: len(before)] == before  # what was logged before the interruption is kept as it was
+    assert list((first / "before-resume-1").glob("checkpoint_*"))  # and its checkpoints, set aside
     trials = sorted(p for p in exp.iterdir() if (p / "result.json").is_file())
     assert len(trials) == 2
     for trial in trials:

@@ -1,0 +1,140 @@
+"""Resuming a sweep from our own files: the trial list is fixed in advance, stop criteria count across resumes,
+a finished trial is never touched, and a state file that names anything but numbers and arrays is refused."""
+
+from __future__ import annotations
+
+import json
+import pickle
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from smorphi_rl.rundir import RunDirError
+from smorphi_rl.training import result_keys as keys
+from smorphi_rl.training.checkpoints import MODULE_SUBDIR, CheckpointError
+from smorphi_rl.training.resume import STATE_FILE, finished, load_state, resume_point, set_aside
+from smorphi_rl.training.sweep import plan_resume, trial_dirname
+from smorphi_rl.training.sweep_config import STOP_METRICS, load_sweep
+from smorphi_rl.training.sweep_report import result_files, result_rows
+from smorphi_rl.training.trial import stop_reached
+
+ROOT = Path(__file__).resolve().parents[2]
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+SWEEP = f"""algorithms: [ppo, appo]
+maps: [{MAP_1}]
+seeds: [0, 1]
+num_samples: 2
+search:
+  lr: {{loguniform: [0.0001, 0.01]}}
+  entropy_coeff: {{grid: [0.0, 0.01]}}
+  gamma: {{choice: [0.99, 0.995]}}
+"""
+
+
+@pytest.fixture
+def sweep(tmp_path):
+    path = tmp_path / "s.yaml"
+    path.write_text(SWEEP)
+    return load_sweep(path)
+
+
+def test_trials_are_the_grid_with_random_parts_drawn_reproducibly(sweep):
+    trials = sweep.trials()
+    assert len(trials) == sweep.num_grid_trials == 2 * 2 * 2 * 2
+    assert [t["index"] for t in trials] == list(range(16))
+    assert trials == load_sweep(sweep.path).trials()  # a resumed sweep finds the same trials
+    lrs = [t["hp"]["lr"] for t in trials]
+    assert all(1e-4 <= lr <= 1e-2 for lr in lrs) and len(set(lrs)) == 16  # each trial its own stream
+    assert {t["hp"]["entropy_coeff"] for t in trials} == {0.0, 0.01} and {t["hp"]["gamma"] for t in trials} <= {
+        0.99, 0.995}  # fmt: skip
+    assert json.loads(json.dumps(trials)) == trials  # what params.json records compares equal
+
+
+def test_every_stop_metric_stops_a_trial():
+    for metric in STOP_METRICS:
+        assert stop_reached({metric: 5}, iteration=5, steps=5, elapsed_s=5.0)
+        assert not stop_reached({metric: 6}, iteration=5, steps=5, elapsed_s=5.0)
+    assert not stop_reached({}, iteration=10**6, steps=10**9, elapsed_s=1e6)
+
+
+def write_trial(exp: Path, trial: dict, rows: list[dict], checkpoints: dict[str, object] | None = None) -> Path:
+    """A trial folder as Tune and `run_trial` leave it: params.json, result.json and checkpoints with our state."""
+    d = exp / trial_dirname(trial)
+    d.mkdir(parents=True)
+    (d / "params.json").write_text(json.dumps(trial))
+    (d / "result.json").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    for name, state in (checkpoints or {}).items():
+        c = d / name
+        (c / MODULE_SUBDIR).mkdir(parents=True)
+        (c / STATE_FILE).write_bytes(pickle.dumps(state))
+    return d
+
+
+def state(iteration: int) -> dict:
+    return {"learner_group": {"w": np.zeros(3, np.float32)}, "metrics_logger": {}, "training_iteration": iteration,
+            "smorphi_time_total_s": 1.5}  # fmt: skip
+
+
+def row(iteration: int, done: bool = False) -> dict:
+    return {keys.ALGO_ITERATION: iteration, keys.TRIAL_DONE: done}
+
+
+def test_resume_skips_finished_trials_and_continues_started_ones(sweep, tmp_path):
+    trials = sweep.trials()
+    exp = tmp_path / "exp"
+    done = write_trial(exp, trials[0], [row(1), row(2, done=True)], {"checkpoint_000000": state(2)})
+    started = write_trial(exp, trials[1], [row(1), row(2), row(3)],
+                          {"checkpoint_000000": state(2), "checkpoint_000001": state(4)})  # fmt: skip
+    done_before = sorted(done.rglob("*"))
+    pending, points = plan_resume(exp, trials)
+    assert [t["index"] for t in pending] == list(range(1, 16))  # the never-started ones too
+    assert sorted(done.rglob("*")) == done_before and finished(done) and not finished(started)
+    # iteration 4's checkpoint has no row (the interrupt landed between them): iteration 2's is the point
+    assert points == {1: started / "before-resume-1" / "checkpoint_000000"}
+    assert not list(started.glob("checkpoint_*")) and not (started / "result.json").exists()
+    assert result_files(started) == [started / "before-resume-1" / "result.json"]
+    (started / "result.json").write_text(json.dumps(row(3)) + "\n" + json.dumps(row(4, done=True)) + "\n")
+    assert [r[keys.ALGO_ITERATION] for r in result_rows(*result_files(started))] == [1, 2, 3, 4]
+    assert finished(started)
+    assert set_aside(started) is not None and result_files(started)[-1].parent.name == "before-resume-2"
+
+
+def test_resume_refuses_a_trial_of_another_sweep_and_moves_nothing(sweep, tmp_path):
+    trials = sweep.trials()
+    exp = tmp_path / "exp"
+    other = dict(trials[1], hp={**trials[1]["hp"], "lr": 0.5})
+    d = write_trial(exp, other, [row(1)], {"checkpoint_000000": state(1)})
+    with pytest.raises(RunDirError, match="not a trial of this sweep"):
+        plan_resume(exp, trials)
+    assert (d / "checkpoint_000000").is_dir()
+
+
+class Payload:
+    def __init__(self, marker: Path) -> None:
+        self.marker = marker
+
+    def __reduce__(self):
+        return (exec, (f"open({str(self.marker)!r}, 'w').write('ran')",))
+
+
+def test_a_crafted_state_file_is_refused_before_anything_moves(sweep, tmp_path):
+    trials = sweep.trials()
+    marker = tmp_path / "ran"
+    d = write_trial(tmp_path / "exp", trials[0], [row(1)], {"checkpoint_000000": Payload(marker)})
+    with pytest.raises(CheckpointError, match=f"{STATE_FILE}: refused, it names builtins.exec"):
+        plan_resume(tmp_path / "exp", trials)
+    assert not marker.exists() and (d / "checkpoint_000000").is_dir() and (d / "result.json").is_file()
+
+
+@pytest.mark.parametrize("bad", [[1, 2], {**state(1), "extra": 1}, {**state(1), "training_iteration": 0},
+                                 {**state(1), "learner_group": [1]}])  # fmt: skip
+def test_a_state_file_of_another_shape_is_refused(tmp_path, bad):
+    (tmp_path / STATE_FILE).write_bytes(pickle.dumps(bad))
+    with pytest.raises(CheckpointError, match=STATE_FILE):
+        load_state(tmp_path)
+
+
+def test_a_trial_without_a_state_file_starts_afresh(sweep, tmp_path):
+    d = write_trial(tmp_path, sweep.trials()[0], [row(1)])
+    assert resume_point(d) is None
