@@ -58,6 +58,9 @@ def plant(exp: Path, marker: Path, names: set[str]) -> list[Path]:
     those of a trial that finished (the test reads its checkpoint afterwards)."""
     done = {d for d in exp.iterdir() if (d / "result.json").is_file() and results(d)[-1]["smorphi_done"]}
     planted = []
+    if not names:  # an error record Tune would read back if it were there
+        for trial in {p.parent for p in exp.glob("*/params.json")} - done:
+            (trial / "error.pkl").touch()
     for path in exp.rglob("*.pkl"):
         if done & set(path.parents):
             continue
@@ -94,7 +97,8 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     assert not marker.exists() and sorted(crafted.rglob("*")) == listing
 
     planted = plant(exp, marker, set())  # Tune's tuner.pkl and params.pkl, RLlib's state files
-    assert {"tuner.pkl", "params.pkl", "algorithm_state.pkl", "class_and_ctor_args.pkl"} <= {p.name for p in planted}
+    assert {"tuner.pkl", "params.pkl", "error.pkl", "algorithm_state.pkl", "class_and_ctor_args.pkl"} <= {
+        p.name for p in planted}  # fmt: skip
     resumed = subprocess.run(printed_command(err), capture_output=True, text=True, cwd=tmp_path, env=ray_env(),
                              timeout=400)  # the interrupt's hint, run exactly as printed  # fmt: skip
     assert resumed.returncode == 0, resumed.stderr[-3000:]
