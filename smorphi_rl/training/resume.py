@@ -29,6 +29,8 @@ STATE_FILE = "smorphi_state.pkl"
 STATE_KEYS = ("learner_group", "metrics_logger", "training_iteration")
 """RLlib's names (COMPONENT_LEARNER_GROUP, COMPONENT_METRICS_LOGGER, TRAINING_ITERATION) of the parts kept; the
 env runners' state is left out (our connectors hold none) and rebuilt from the config."""
+LEFT_OUT = ("env_runner", "eval_env_runner")
+"""RLlib's names (COMPONENT_ENV_RUNNER, COMPONENT_EVAL_ENV_RUNNER) of the parts not kept."""
 ELAPSED = "smorphi_time_total_s"
 """Training seconds before this checkpoint (a sweep's `time_total_s` stop counts across resumes)."""
 
@@ -46,7 +48,7 @@ def _plain(obj: Any) -> Any:
 
 def save_state(algo: Any, folder: Path, elapsed_s: float) -> None:
     """Write the algorithm's resumable state (module docstring) into checkpoint `folder`."""
-    state = algo.get_state(not_components=["env_runner", "eval_env_runner"])
+    state = algo.get_state(not_components=list(LEFT_OUT))
     kept = {k: _plain(state[k]) for k in STATE_KEYS}
     kept[ELAPSED] = float(elapsed_s)
     with (folder / STATE_FILE).open("wb") as fh:
