@@ -22,7 +22,7 @@ import numpy as np
 
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import CheckpointError, checkpoints_under, safe_unpickle
-from smorphi_rl.training.sweep_report import SET_ASIDE, result_files, result_rows
+from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows
 
 STATE_FILE = "smorphi_state.pkl"
 """Our resumable state in a checkpoint folder (numbers and arrays: `SafeUnpickler` reads it)."""
@@ -55,17 +55,62 @@ def save_state(algo: Any, folder: Path, elapsed_s: float) -> None:
         pickle.dump(kept, fh, protocol=pickle.HIGHEST_PROTOCOL)
 
 
-def load_state(checkpoint: Path) -> dict[str, Any]:
-    """The resumable state of `checkpoint`, read by `SafeUnpickler` and checked for its parts; CheckpointError
-    otherwise."""
-    state = safe_unpickle(checkpoint / STATE_FILE)
-    if not isinstance(state, dict) or set(state) != {*STATE_KEYS, ELAPSED}:
-        raise CheckpointError(f"{checkpoint / STATE_FILE}: not the state a smorphi-rl sweep writes")
+MAX_ITERATION = 10**9
+"""More training iterations than any run of ours (a day at 10,000 a second)."""
+
+
+def _numbers_only(obj: Any) -> bool:
+    """Whether `obj` is a tree of dicts, lists and tuples whose leaves are numbers, strings, None or numeric
+    arrays: what RLlib's state of our algorithm is made of."""
+    if isinstance(obj, dict):
+        return all(isinstance(k, str | int) and _numbers_only(v) for k, v in obj.items())
+    if isinstance(obj, list | tuple):
+        return all(_numbers_only(v) for v in obj)
+    if isinstance(obj, np.ndarray):
+        return obj.dtype.kind in "biuf"
+    return obj is None or isinstance(obj, bool | int | float | str)
+
+
+def _shape_problem(state: dict[str, Any]) -> str | None:
+    """What in `state` is not of the shape `save_state` writes (None: nothing)."""
     it, elapsed = state["training_iteration"], state[ELAPSED]
-    if not (isinstance(it, int) and it >= 1 and isinstance(elapsed, float) and 0 <= elapsed < 1e9):
-        raise CheckpointError(f"{checkpoint / STATE_FILE}: its iteration or elapsed time is out of range")
-    if not all(isinstance(state[k], dict) for k in ("learner_group", "metrics_logger")):
-        raise CheckpointError(f"{checkpoint / STATE_FILE}: not the state a smorphi-rl sweep writes")
+    if isinstance(it, bool) or not isinstance(it, int) or not 1 <= it <= MAX_ITERATION:
+        return f"its iteration {it!r} is not a whole number in 1..{MAX_ITERATION:,}"
+    if not isinstance(elapsed, float) or not 0 <= elapsed < 1e9:
+        return f"its elapsed time {elapsed!r} is out of range"
+    learner = state["learner_group"].get("learner") if isinstance(state["learner_group"], dict) else None
+    if not isinstance(learner, dict) or not all(isinstance(learner.get(k), dict) for k in ("rl_module", "optimizer")):
+        return "its learner state is not a learner's (module weights and optimiser)"
+    weights = learner["rl_module"].get("default_policy")
+    if (
+        not isinstance(weights, dict)
+        or not weights
+        or not all(
+            isinstance(v, np.ndarray) and v.dtype.kind == "f" and np.all(np.isfinite(v)) for v in weights.values()
+        )
+    ):
+        return "its module weights are not a table of finite float arrays"
+    stats = state["metrics_logger"].get("stats") if isinstance(state["metrics_logger"], dict) else None
+    if not isinstance(stats, dict) or not all(isinstance(v, dict) for v in stats.values()):
+        return "its metrics are not RLlib's"
+    if not _numbers_only(state):
+        return "it holds something other than numbers, strings and numeric arrays"
+    return None
+
+
+def load_state(checkpoint: Path) -> dict[str, Any]:
+    """The resumable state of `checkpoint`, read by `SafeUnpickler` and checked for the shape `save_state`
+    writes; CheckpointError otherwise."""
+    path = checkpoint / STATE_FILE
+    state = safe_unpickle(path)
+    if not isinstance(state, dict) or set(state) != {*STATE_KEYS, ELAPSED}:
+        raise CheckpointError(f"{path}: not the state a smorphi-rl sweep writes")
+    try:
+        problem = _shape_problem(state)
+    except RecursionError:
+        problem = "it is nested too deeply"
+    if problem is not None:
+        raise CheckpointError(f"{path}: {problem}; not the state a smorphi-rl sweep writes")
     return state
 
 
@@ -76,7 +121,8 @@ def resume_point(trial_dir: Path) -> Path | None:
     files = result_files(trial_dir)
     logged = max((int(r.get(keys.ALGO_ITERATION) or 0) for r in result_rows(*files)), default=0) if files else 0
     for checkpoint in reversed(checkpoints_under(trial_dir)):
-        if (checkpoint / STATE_FILE).is_file() and load_state(checkpoint)["training_iteration"] <= logged:
+        here = checkpoint / STATE_FILE
+        if (here.exists() or here.is_symlink()) and load_state(checkpoint)["training_iteration"] <= logged:
             return checkpoint
     return None
 
@@ -93,7 +139,7 @@ def set_aside(trial_dir: Path) -> Path | None:
     own += [trial_dir / name for name in SET_ASIDE_FILES if (trial_dir / name).is_file()]
     if not own:
         return None
-    n = 1 + sum(1 for p in trial_dir.glob(f"{SET_ASIDE}-*") if p.is_dir())
+    n = 1 + max((aside_number(p) or 0 for p in trial_dir.glob(f"{SET_ASIDE}-*")), default=0)
     aside = trial_dir / f"{SET_ASIDE}-{n}"
     aside.mkdir()
     for p in own:

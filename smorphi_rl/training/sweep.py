@@ -19,6 +19,7 @@ from typing import Any
 import yaml
 
 from smorphi_rl import cluster
+from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
@@ -77,18 +78,27 @@ def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
     for d in sorted(p for p in exp.iterdir() if p.is_dir()):
         spec = trial_spec(d)
         if spec is None:
+            if (d / "params.json").exists() or (d / "params.json").is_symlink():
+                raise RunDirError(f"{d}: its params.json is not a sweep trial's record; resume only sweeps you "
+                                  "ran, or start this one under another `name`")  # fmt: skip
             continue
         index = spec["index"]
-        if not 0 <= index < len(trials) or {k: spec.get(k) for k in trials[index]} != trials[index]:
+        ours = 0 <= index < len(trials) and {k: spec.get(k) for k in trials[index]} == trials[index]
+        if not ours or d.name != trial_dirname(trials[index]):
             raise RunDirError(f"{d}: not a trial of this sweep (its params.json names another); resume only "
                               "sweeps you ran, or start this one under another `name`")  # fmt: skip
+        if index in done or index in started:
+            raise RunDirError(f"{d}: trial {index} has another folder too; resume only sweeps you ran")
         if finished(d):
             done.add(index)
         else:
             started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
     points: dict[int, Path] = {}
     for index, (d, point) in started.items():
-        aside = set_aside(d)
+        try:
+            aside = set_aside(d)
+        except OSError as exc:
+            raise RunDirError(f"{d}: its checkpoints cannot be set aside ({exc.strerror or exc})") from None
         if point is not None:
             points[index] = aside / point.name if aside is not None and point.parent == d else point
     return [t for t in trials if t["index"] not in done], points
@@ -170,9 +180,16 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
         shutil.copyfile(sweep.path, exp / SWEEP_COPY)
         return exp
     copy = exp / SWEEP_COPY
-    if not copy.is_file():
+    if copy.is_symlink() or not copy.is_file():
         raise RunDirError(f"nothing to resume: {exp} holds no sweep started by smorphi-rl")
-    if yaml.safe_load(copy.read_text()) != yaml.safe_load(sweep.path.read_text()):  # comments may differ
+    try:
+        if copy.stat().st_size > MAX_YAML_BYTES:
+            raise ValueError("too large")
+        kept = strict_yaml(copy.read_text())
+    except (OSError, ValueError, yaml.YAMLError, RecursionError):  # UnicodeDecodeError is a ValueError
+        raise RunDirError(f"{copy}: not the sweep file smorphi-rl copied there (unreadable); resume only sweeps "
+                          "you ran") from None  # fmt: skip
+    if kept != strict_yaml(sweep.path.read_text()):  # comments may differ
         raise RunDirError(f"{sweep.path} has changed since {exp} started: restore it from {copy} to resume, or "
                           "give the changed sweep another `name`")  # fmt: skip
     return exp

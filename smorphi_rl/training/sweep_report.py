@@ -53,24 +53,34 @@ SET_ASIDE = "before-resume"
 """A resumed trial's earlier results and checkpoints are in `<trial>/before-resume-N/` (`resume.py`)."""
 
 
+def aside_number(folder: Path) -> int | None:
+    """N of a `before-resume-N` folder (None for any other name)."""
+    head, _, n = folder.name.rpartition("-")
+    return int(n) if head == SET_ASIDE and n.isdigit() and n.isascii() else None
+
+
 def result_files(trial_dir: Path) -> list[Path]:
     """A trial's result.json files, oldest first: those set aside by each resume, then its own."""
-    aside = sorted(trial_dir.glob(f"{SET_ASIDE}-*/{RESULTS}"), key=lambda p: int(p.parent.name.rsplit("-", 1)[1]))
+    found = trial_dir.glob(f"{SET_ASIDE}-*/{RESULTS}")
+    numbered = sorted((n, p) for p in found if p.is_file() and (n := aside_number(p.parent)) is not None)
     own = trial_dir / RESULTS
-    return [*aside, own] if own.is_file() else aside
+    older = [p for _, p in numbered]
+    return [*older, own] if own.is_file() else older
 
 
 def result_rows(*result_json: Path) -> list[dict[str, Any]]:
     """The rows of a trial's result.json files (oldest first), one per iteration in order: an iteration re-run
-    after a resume keeps its last row, and a line cut short by a kill is skipped."""
+    after a resume keeps its last row; a line cut short by a kill, or that is no result row, is skipped."""
     by_iter: dict[int, dict[str, Any]] = {}
-    lines = [line for path in result_json for line in path.read_text().splitlines()]
+    lines = [line for path in result_json for line in path.read_text(errors="replace").splitlines()]
     for line in lines:
         try:
             row = json.loads(line)
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, RecursionError):
             continue
-        by_iter[int(row.get(keys.ALGO_ITERATION, row.get(keys.ITERATION, 0)))] = row
+        iteration = row.get(keys.ALGO_ITERATION, row.get(keys.ITERATION, 0)) if isinstance(row, dict) else None
+        if isinstance(iteration, int) and not isinstance(iteration, bool) and 0 <= iteration <= 10**9:
+            by_iter[iteration] = row  # any other line is not a result row of ours
     return [by_iter[i] for i in sorted(by_iter)]
 
 

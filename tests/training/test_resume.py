@@ -72,8 +72,11 @@ def write_trial(exp: Path, trial: dict, rows: list[dict], checkpoints: dict[str,
 
 
 def state(iteration: int) -> dict:
-    return {"learner_group": {"w": np.zeros(3, np.float32)}, "metrics_logger": {}, "training_iteration": iteration,
-            "smorphi_time_total_s": 1.5}  # fmt: skip
+    """The shape `save_state` writes (RLlib's learner group and metrics), with one weight."""
+    learner = {"rl_module": {"default_policy": {"w": np.zeros(3, np.float32)}}, "optimizer": {"adam": {"lr": 1e-3}},
+               "metrics_logger": {"stats": {}}, "weights_seq_no": 3}  # fmt: skip
+    return {"learner_group": {"learner": learner}, "metrics_logger": {"stats": {"x": {"stats_cls_identifier": "ema"}}},
+            "training_iteration": iteration, "smorphi_time_total_s": 1.5}  # fmt: skip
 
 
 def row(iteration: int, done: bool = False) -> dict:
@@ -138,3 +141,75 @@ def test_a_state_file_of_another_shape_is_refused(tmp_path, bad):
 def test_a_trial_without_a_state_file_starts_afresh(sweep, tmp_path):
     d = write_trial(tmp_path, sweep.trials()[0], [row(1)])
     assert resume_point(d) is None
+
+
+def test_result_lines_that_are_no_rows_of_ours_are_skipped(tmp_path):
+    path = tmp_path / "result.json"
+    path.write_text("\n".join([json.dumps(row(1)), "garbage", "{not json", "[1, 2, 3]", '"str"',
+                               json.dumps({keys.ALGO_ITERATION: "2"}), "[" * 20000 + "]" * 20000,
+                               json.dumps(row(2))]) + "\n")  # fmt: skip
+    assert [r[keys.ALGO_ITERATION] for r in result_rows(path)] == [1, 2]
+
+
+@pytest.mark.parametrize("damage", ["same index twice", "folder of another trial", "params not json"])
+def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_path, damage):
+    trials = sweep.trials()
+    exp = tmp_path / "exp"
+    write_trial(exp, trials[0], [row(1)], {"checkpoint_000000": state(1)})
+    second = write_trial(exp, trials[1], [row(1)], {"checkpoint_000000": state(1)})
+    if damage == "same index twice":
+        (exp / "extra").mkdir()
+        (exp / "extra" / "params.json").write_text(json.dumps(trials[1]))
+    elif damage == "folder of another trial":
+        (second / "params.json").write_text(json.dumps(trials[0]))
+    else:
+        (second / "params.json").write_text("{not json")
+    listing = sorted(exp.rglob("*"))
+    with pytest.raises(RunDirError, match="resume only sweeps you ran"):
+        plan_resume(exp, trials)
+    assert sorted(exp.rglob("*")) == listing
+
+
+@pytest.mark.parametrize("bad", ["fifo", "dir", {**state(1), "training_iteration": 10**30},
+                                 {**state(1), "training_iteration": True},
+                                 {**state(1), "learner_group": {"learner": "hello"}},
+                                 {**state(1), "learner_group": {"learner": {"rl_module": {"default_policy": {
+                                     "w": [1, 2, "x"]}}, "optimizer": {}}}},
+                                 {**state(1), "metrics_logger": {"stats": {"x": {
+                                     "v": np.array(["a"], dtype=object)}}}}],
+                         ids=["fifo", "dir", "huge-iteration", "bool-iteration", "learner-str", "weights-list",
+                              "object-array"])  # fmt: skip
+def test_a_damaged_state_file_is_refused_before_anything_moves(sweep, tmp_path, bad):
+    import os
+
+    exp = tmp_path / "exp"
+    d = write_trial(exp, sweep.trials()[0], [row(1)], {"checkpoint_000000": state(1)})
+    target = d / "checkpoint_000000" / STATE_FILE
+    target.unlink()
+    if bad == "fifo":
+        os.mkfifo(target)
+    elif bad == "dir":
+        target.mkdir()
+    else:
+        target.write_bytes(pickle.dumps(bad))
+    listing = sorted(exp.rglob("*"))
+    with pytest.raises(CheckpointError, match=STATE_FILE):
+        plan_resume(exp, sweep.trials())
+    assert sorted(exp.rglob("*")) == listing
+
+
+def test_set_aside_numbers_after_the_highest_folder(sweep, tmp_path):
+    d = write_trial(tmp_path, sweep.trials()[0], [row(1)], {"checkpoint_000000": state(1)})
+    (d / "before-resume-2").mkdir()
+    assert set_aside(d) == d / "before-resume-3"
+
+
+@pytest.mark.parametrize("copy", [b"[" * 20000 + b"]" * 20000, b"\xff\xfe", b"a: *x"])
+def test_a_damaged_copy_of_the_sweep_file_is_one_line(sweep, tmp_path, copy):
+    from smorphi_rl.training.sweep import SWEEP_COPY, prepare_experiment
+
+    exp = tmp_path / "logs" / sweep.name
+    exp.mkdir(parents=True)
+    (exp / SWEEP_COPY).write_bytes(copy)
+    with pytest.raises(RunDirError, match="not the sweep file smorphi-rl copied there"):
+        prepare_experiment(sweep, tmp_path / "logs", resume=True)
