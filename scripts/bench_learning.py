@@ -11,7 +11,7 @@ lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
         [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000] [--no-ideal]
-        [--out NAME]
+        [--set NAME=VALUE ...] [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
 curves (learning_curves.png) under logs/NAME (default logs/bench-learning-<time>).
@@ -80,12 +80,15 @@ def main() -> None:
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
     parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
+    parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
+                        help="hyperparameters that replace the preset's (Preset field names), for every algorithm")  # fmt: skip
     parser.add_argument("--out", default=None, metavar="NAME", help="results go to logs/NAME")
     args = parser.parse_args()
     try:
         out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
     except RunDirError as exc:
         raise SystemExit(f"bench_learning.py: {exc}") from None
+    overrides = parse_overrides(args.set)
     starts = eval_starts()
     rows: list[Row] = []
     t_all = time.monotonic()
@@ -99,7 +102,8 @@ def main() -> None:
         for algo in args.algos:
             for reward in args.rewards:
                 for seed in args.seeds:
-                    rows.append(train_and_evaluate(algo, reward, seed, map_path, args.timesteps, optimum, starts, out))
+                    rows.append(train_and_evaluate(algo, reward, seed, map_path, args.timesteps, optimum, starts, out,
+                                                   overrides))  # fmt: skip
                     r = rows[-1]
                     print(f"  {r.method} seed {seed}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, "
                           f"settled R1 {r.settled_R1:.2f}, {r.evaluations:.0f} evaluations a start, {r.wall_s:.0f} s",
@@ -117,10 +121,22 @@ def main() -> None:
     report(rows, out, args, time.monotonic() - t_all)
 
 
+def parse_overrides(pairs: list[str]) -> dict[str, float]:
+    """NAME=VALUE pairs as numbers (integers where they read as one)."""
+    overrides: dict[str, float] = {}
+    for pair in pairs:
+        name, _, value = pair.partition("=")
+        try:
+            overrides[name] = int(value) if value.lstrip("-").isdigit() else float(value)
+        except ValueError:
+            raise SystemExit(f"bench_learning.py: --set {pair!r}: expected NAME=NUMBER") from None
+    return overrides
+
+
 def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timesteps: int, optimum: Optimum,
-                       starts: np.ndarray, out: Path) -> Row:  # fmt: skip
+                       starts: np.ndarray, out: Path, overrides: dict[str, float]) -> Row:  # fmt: skip
     cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [map_path], "reward": reward}), timesteps=timesteps,
-                      seed=seed, record_every=0, checkpoint_every=1000)  # fmt: skip
+                      seed=seed, record_every=0, checkpoint_every=1000, overrides=overrides)  # fmt: skip
     name = f"{algo}-{reward}-{Path(map_path).stem}-seed{seed}"
     with open(os.devnull, "w") as devnull:
         summary = train(cfg, name=name, log_dir=out / "runs", out=devnull)
@@ -175,8 +191,10 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
         for r in rows:
             writer.writerow([r.map, r.method, r.seed, f"{r.median_gap:.4f}", f"{r.within:.3f}", f"{r.evaluations:.1f}",
                              f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}"])  # fmt: skip
+    changed = f" Hyperparameters changed from the presets: {' '.join(args.set)}." if args.set else ""
     lines = [f"Greedy settled gap to the exact optimum, {len(args.seeds)} seeds ({', '.join(map(str, args.seeds))}), "
-             f"{args.timesteps:,} env steps per run, 20 fixed starts; mean over seeds [95 % bootstrap interval].", "",
+             f"{args.timesteps:,} env steps per run, 20 fixed starts; mean over seeds [95 % bootstrap interval]."
+             + changed, "",
              "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start |",
              "|---|---|---:|---:|---:|---:|"]  # fmt: skip
     for map_name, method in dict.fromkeys((r.map, r.method) for r in rows):

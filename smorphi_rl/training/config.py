@@ -182,8 +182,10 @@ class TrainConfig:
         return out
 
 
-FRACTIONS = ("gamma", "lambda_")
+FRACTIONS = ("gamma", "lambda_", "clip_param")
 """Hyperparameters that must lie in [0, 1]."""
+USED_BY = {"clip_param": ("ppo", "appo"), "target_update_freq": ("appo",)}
+"""Hyperparameters only some algorithms have (the others take every Preset field)."""
 
 
 def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
@@ -192,6 +194,8 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
     for name, value in overrides.items():
         if name not in known:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
+        if algo not in USED_BY.get(name, (algo,)):
+            raise TrainConfigError(f"hyperparameter '{name}' is {' and '.join(USED_BY[name])}'s; {algo} has none")
         integer = name in ("train_batch_size", "num_epochs", "minibatch_size", "policy_angle_frequencies")
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
         if not ok or (name in FRACTIONS and not 0 <= value <= 1):
@@ -361,9 +365,14 @@ def algorithm_config(
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
+        if hp.clip_param is not None:
+            training["clip_param"] = hp.clip_param
     else:  # v-trace's lambda reaches the learner through RLlib's public learner_config_dict (learners.py)
         training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size,
                      "learner_config_dict": {TRACE_LAMBDA_KEY: hp.lambda_}}  # fmt: skip
+        if cfg.algo == "appo":
+            training |= {"clip_param": hp.clip_param} if hp.clip_param is not None else {}
+            training |= {"target_network_update_freq": hp.target_update_freq} if hp.target_update_freq else {}
     config = (
         config_cls()
         .environment(

@@ -30,6 +30,11 @@ class Preset:
     num_epochs: int = 1
     minibatch_size: int | None = None
     """IMPALA/APPO: a multiple of `rollout_fragment_length` (RLlib's rule); None: the whole batch."""
+    clip_param: float | None = None
+    """PPO and APPO: the surrogate's clip on the probability ratio; None: RLlib's (PPO 0.3, APPO 0.4)."""
+    target_update_freq: float | None = None
+    """APPO: how often its target policy (the ratio's reference) is refreshed, in RLlib's unit (circular-buffer
+    batches x passes x batch size of trained steps); None: RLlib's 2."""
     rollout_fragment_length: int | str = "auto"
     min_time_s_per_iteration: float = 0.0
     env_runners: int = 2

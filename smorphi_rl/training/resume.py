@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import CheckpointError, checkpoints_under, safe_unpickle
 from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows
@@ -51,8 +52,7 @@ def save_state(algo: Any, folder: Path, elapsed_s: float) -> None:
     state = algo.get_state(not_components=list(LEFT_OUT))
     kept = {k: _plain(state[k]) for k in STATE_KEYS}
     kept[ELAPSED] = float(elapsed_s)
-    with (folder / STATE_FILE).open("wb") as fh:
-        pickle.dump(kept, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    write_atomic(folder / STATE_FILE, pickle.dumps(kept, protocol=pickle.HIGHEST_PROTOCOL))
 
 
 MAX_ITERATION = 10**9

@@ -9,7 +9,6 @@ did not finish, each in its own folder again, continuing from our state file of 
 
 from __future__ import annotations
 
-import shutil
 import sys
 import time
 from dataclasses import dataclass
@@ -23,7 +22,7 @@ from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir, write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
@@ -177,7 +176,7 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
                 raise RunDirError(f"experiment folder {exp} already exists: give the sweep file another `name`, or "
                                   "add --resume to continue it") from None  # fmt: skip
             raise
-        shutil.copyfile(sweep.path, exp / SWEEP_COPY)
+        write_atomic(exp / SWEEP_COPY, sweep.path.read_bytes())
         return exp
     copy = exp / SWEEP_COPY
     if copy.is_symlink() or not copy.is_file():
