@@ -67,6 +67,31 @@ def is_finite_number(value: Any) -> bool:
         return False
 
 
+MAX_TREE_NODES = 100_000
+"""More values than any configuration of ours holds (a policy's model_config has a few dozen)."""
+
+
+def is_plain_tree(value: Any, max_nodes: int = MAX_TREE_NODES) -> bool:
+    """Whether `value` is JSON-like data (dicts with string keys, lists, tuples, strings, finite numbers, bools,
+    None) of at most `max_nodes` values. Walked without recursion and counted, so a cycle or a 'billion laughs'
+    of shared references ends the walk at the limit instead of hanging it."""
+    stack, seen = [value], 0
+    while stack:
+        item = stack.pop()
+        seen += 1
+        if seen > max_nodes:
+            return False
+        if isinstance(item, dict):
+            if not all(isinstance(k, str) for k in item):
+                return False
+            stack.extend(item.values())
+        elif isinstance(item, list | tuple):
+            stack.extend(item)
+        elif not (item is None or isinstance(item, str | bool) or is_finite_number(item)):
+            return False
+    return True
+
+
 def check_not_special(path: Path, what: str, error: type[SmorphiError] = InputError) -> None:
     """Refuse, before it is opened, an input that is a FIFO, a socket or a device: reading one blocks or never
     ends. A missing file or a folder is left to the reader, which names it."""

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import is_finite_number
+from smorphi_rl.inputs import is_finite_number, is_plain_tree
 
 POLICY_JSON = "policy.json"
 WEIGHTS_NPZ = "weights.npz"
@@ -71,14 +71,15 @@ def write_policy(
 
     from smorphi_rl.rundir import write_atomic
 
-    out_dir.mkdir(parents=True, exist_ok=True)
     buffer = io.BytesIO()
     arrays: dict[str, Any] = {k: np.asarray(v, dtype=np.float32) for k, v in weights.items()}
     np.savez_compressed(buffer, **arrays)  # float arrays: nothing is pickled
-    write_atomic(out_dir / WEIGHTS_NPZ, buffer.getvalue())
     meta = {"format": FORMAT, "version": VERSION, "observation": {k: list(v) for k, v in observation.items()},
             "action_nvec": [int(n) for n in action_nvec], "model_config": model_config, **about}  # fmt: skip
-    write_atomic(out_dir / POLICY_JSON, (json.dumps(meta, indent=2, default=_plain) + "\n").encode())
+    text = json.dumps(meta, indent=2, default=_plain) + "\n"  # both made before either is written
+    out_dir.mkdir(parents=True, exist_ok=True)
+    write_atomic(out_dir / WEIGHTS_NPZ, buffer.getvalue())
+    write_atomic(out_dir / POLICY_JSON, text.encode())
     return out_dir
 
 
@@ -132,8 +133,8 @@ def _check_meta(meta: Any, where: Path) -> None:
         raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")
     if not (isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and n >= 1 and n % 2 == 1 for n in nvec)):
         raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts, got {nvec!r}")
-    if not isinstance(model, dict) or not isinstance(model.get("env_config", {}), dict):
-        raise PolicyFileError(f"{where}: 'model_config' must be a table holding 'env_config'")
+    if not isinstance(model, dict) or not isinstance(model.get("env_config", {}), dict) or not is_plain_tree(model):
+        raise PolicyFileError(f"{where}: 'model_config' must be a table of plain values holding 'env_config'")
     for key in ("value_offset", "value_scale"):
         value = model.get(key, 0.0)
         if not is_finite_number(value):

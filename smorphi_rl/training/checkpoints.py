@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import check_not_special
+from smorphi_rl.inputs import MAX_TREE_NODES, check_not_special, is_plain_tree
 from smorphi_rl.policy_file import PolicyFile, PolicyFileError, is_policy_dir, read_policy
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
@@ -178,6 +178,10 @@ def read_module_files(checkpoint: Path) -> tuple[dict[str, Any], dict[str, np.nd
         isinstance(k, str) and isinstance(v, np.ndarray) and v.dtype.kind == "f" for k, v in state.items()
     ):
         raise CheckpointError(f"{folder / STATE_FILE}: not a table of float weights by parameter name")
+    broken = next((k for k, v in state.items() if not np.isfinite(v).all()), None)
+    if broken is not None:
+        raise CheckpointError(f"{folder / STATE_FILE}: weight {broken} holds NaN or infinite values (a diverged or "
+                              "damaged policy)")  # fmt: skip
     return args[1], state
 
 
@@ -190,8 +194,9 @@ def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict
         raise CheckpointError(f"{where}: its observation space is not the env's (a Dict of Boxes)")
     if not isinstance(act, gym.spaces.MultiDiscrete):
         raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
-    if not isinstance(model, dict) or not all(isinstance(k, str) for k in model):
-        raise CheckpointError(f"{where}: its model configuration is not a table")
+    if not isinstance(model, dict) or not is_plain_tree(model):
+        raise CheckpointError(f"{where}: its model configuration is not a table of plain values (strings, finite "
+                              f"numbers, lists; at most {MAX_TREE_NODES:,})")  # fmt: skip
     return obs, act, model
 
 

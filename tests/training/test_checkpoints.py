@@ -174,3 +174,50 @@ def test_damaged_state_files_say_so_in_one_line(genuine, tmp_path, data):
     checkpoint = plant(genuine, tmp_path, "module_state.pkl", data)
     with pytest.raises(CheckpointError, match=r"not a readable checkpoint file|not a table of float weights"):
         load_module(checkpoint)
+
+
+def test_non_finite_weights_are_refused(genuine, tmp_path, capsys):
+    """A diverged or damaged policy (NaN or infinite weights) is named, not rolled out or exported as a shape."""
+    state = dict(safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl"))
+    name = next(k for k in sorted(state) if state[k].size)
+    state[name] = np.full_like(state[name], np.nan)
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", pickle.dumps(state))
+    for argv in (["evaluate-policy", "--checkpoint", str(checkpoint), "--episodes", "1"],
+                 ["export-policy", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "out")]):  # fmt: skip
+        code, err = run(capsys, *argv)
+        assert code == 1 and len(err.strip().splitlines()) == 1 and f"weight {name} holds NaN" in err
+    assert not (tmp_path / "out").exists()
+
+
+def _ctor_with_model_config(genuine: Path, model_config: object) -> bytes:
+    ctor = pickle.loads((genuine / MODULE_SUBDIR / "class_and_ctor_args.pkl").read_bytes())  # our own test file
+    kwargs = dict(ctor["ctor_args_and_kwargs"][1]) | {"model_config": model_config}
+    return pickle.dumps(ctor | {"ctor_args_and_kwargs": ((), kwargs)})
+
+
+def _laughs(levels: int) -> list:
+    """A list of 2^levels leaves in a few hundred bytes of pickle (each level holds the one below twice)."""
+    item: list = []
+    for _ in range(levels):
+        item = [item, item]
+    return item
+
+
+def _cycle() -> list:
+    item: list = []
+    item.append(item)
+    return item
+
+
+@pytest.mark.parametrize("extra", [_laughs(40), _cycle(), {1: 2}, np.zeros(3), float("nan")],
+                         ids=["shared references", "a cycle", "a non-string key", "an array", "NaN"])  # fmt: skip
+def test_a_model_config_that_is_not_plain_data_is_refused(genuine, tmp_path, capsys, extra):
+    """A model configuration whose pickle expands to 2^40 values, refers to itself or holds other than plain values
+    is refused in one line by every reader: it once hung export-policy in json.dumps and left a half export."""
+    model_config = {"value_offset": 0.0, "value_scale": 1.0, "env_config": {}, "extra": extra}
+    checkpoint = plant(genuine, tmp_path, "class_and_ctor_args.pkl", _ctor_with_model_config(genuine, model_config))
+    for argv in (["evaluate-policy", "--checkpoint", str(checkpoint), "--episodes", "1"],
+                 ["export-policy", "--checkpoint", str(checkpoint), "--out", str(tmp_path / "out")]):  # fmt: skip
+        code, err = run(capsys, *argv)
+        assert code == 1 and len(err.strip().splitlines()) == 1 and "not a table of plain values" in err
+    assert not (tmp_path / "out").exists()
