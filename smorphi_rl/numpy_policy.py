@@ -19,6 +19,7 @@ from smorphi_rl.errors import SmorphiError
 
 POLICY = "_pi."
 POOL = 4
+MISFIT = "the policy's layers do not fit its observation and action sizes, or each other"
 
 
 class NumpyPolicy:
@@ -36,12 +37,14 @@ class NumpyPolicy:
         self.nvec = [int(n) for n in nvec]
         self.freqs = (np.arange(1, frequencies + 1, dtype=np.float32) * np.float32(math.pi)).astype(np.float32)
         self.extras = tuple(k for k in EXTRA_KEYS if k in observation)
+        if not self._chained():  # first: the sizes below read each layer's dimensions
+            raise SmorphiError(MISFIT)
         width = sum(int(np.prod(observation[k])) for k in self.extras) + 3 * (1 + 2 * frequencies) + self.fc[0].shape[0]
         channels = tuple(observation.get("map", ()))[:1]
         fits_map = self.conv[0][0].ndim == 4 and tuple(self.conv[0][0].shape[1:]) == (*channels, 3, 3)
-        if (self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec) or not self._chained()
+        if (self.mlp[0][0].shape[1] != width or self.head[0].shape[0] != sum(self.nvec)
                 or not fits_map or min(self.nvec, default=0) < 1):  # fmt: skip
-            raise SmorphiError("the policy's layers do not fit its observation and action sizes, or each other")
+            raise SmorphiError(MISFIT)
         self._kept: tuple[np.ndarray, np.ndarray] | None = None
 
     def _chained(self) -> bool:

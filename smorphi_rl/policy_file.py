@@ -106,6 +106,7 @@ def read_policy(path: str | Path) -> PolicyFile:
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: nested far too deep
         raise PolicyFileError(f"{meta_file}: not readable JSON ({type(exc).__name__})") from None
     _check_meta(meta, meta_file)
+    _check_inflated_size(weights_file)
     try:
         with np.load(weights_file, allow_pickle=False) as npz:
             weights = {name: npz[name] for name in npz.files}
@@ -115,6 +116,21 @@ def read_policy(path: str | Path) -> PolicyFile:
         if value.dtype != np.float32 or not np.isfinite(value).all():
             raise PolicyFileError(f"{weights_file}: weight {name} is not finite float32")
     return PolicyFile(folder, meta, weights)
+
+
+def _check_inflated_size(weights_file: Path) -> None:
+    """Refuse an archive whose entries declare more than MAX_WEIGHTS_BYTES unpacked, before any is inflated (a few
+    MB of deflated zeros can declare gigabytes; zipfile never inflates past what an entry declares)."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(weights_file) as archive:
+            declared = sum(info.file_size for info in archive.infolist())
+    except (OSError, zipfile.BadZipFile, ValueError) as exc:
+        raise PolicyFileError(f"{weights_file}: not readable weights ({type(exc).__name__}: {exc})") from None
+    if declared > MAX_WEIGHTS_BYTES:
+        raise PolicyFileError(f"{weights_file}: its arrays unpack to {declared:,} bytes, more than a policy holds "
+                              f"({MAX_WEIGHTS_BYTES:,})")  # fmt: skip
 
 
 def _check_meta(meta: Any, where: Path) -> None:

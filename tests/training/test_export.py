@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -142,3 +143,32 @@ def test_export_policy_writes_a_folder_once(exported, tmp_path, capsys):
     capsys.readouterr()
     assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "p")]) == 1
     assert "is a folder that holds files already" in capsys.readouterr().err
+
+
+def _with_weights(out, folder, arrays: dict[str, np.ndarray]):
+    folder.mkdir()
+    (folder / "policy.json").write_text((out / "policy.json").read_text())
+    np.savez_compressed(folder / "weights.npz", **arrays)
+    return folder
+
+
+def test_weights_that_unpack_to_more_than_a_policy_are_refused_before_unpacking(exported, tmp_path):
+    """A few hundred KB of deflated zeros declaring 512 MB: refused from the archive's directory, never inflated."""
+    _, _, out = exported
+    bad = _with_weights(out, tmp_path / "bad", {"x": np.zeros(128 << 20, dtype=np.float32)})
+    assert (bad / "weights.npz").stat().st_size < 2 << 20
+    with pytest.raises(PolicyFileError, match=r"unpack to 536,871,\d+ bytes, more than a policy holds"):
+        read_policy(bad)
+
+
+def test_flattened_weights_are_refused_in_one_line_by_design(exported, tmp_path, capsys):
+    """Every weight flattened to one dimension under its own name: `design` names the misfit (it was an IndexError)."""
+    from smorphi_rl.cli import main
+
+    _, _, out = exported
+    flat = {k: v.reshape(-1) for k, v in read_policy(out).weights.items()}
+    bad = _with_weights(out, tmp_path / "flat", flat)
+    val_1 = str(Path(__file__).resolve().parents[2] / "maps" / "val-1.yaml")
+    code = main(["design", "--map", val_1, "--policy", str(bad), "--budget", "20"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and "layers do not fit" in err[0]
