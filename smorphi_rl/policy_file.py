@@ -143,7 +143,7 @@ def _check_meta(meta: Any, where: Path) -> None:
         raise PolicyFileError(f"{where}: version {version}; this smorphi-rl reads version {VERSION}")
     obs, nvec, model = meta.get("observation"), meta.get("action_nvec"), meta.get("model_config")
     shapes_ok = isinstance(obs, dict) and all(
-        isinstance(s, list) and all(isinstance(d, int) and 0 < d < 4096 for d in s) for s in obs.values()
+        isinstance(s, list) and all(type(d) is int and 0 < d < 4096 for d in s) for s in obs.values()
     )
     if not shapes_ok or not isinstance(obs, dict) or "map" not in obs or "angles" not in obs:
         raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")

@@ -106,6 +106,7 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
     (lambda m: m | {"action_nvec": [7, 7]}, "three odd, positive move counts"),
     (lambda m: m | {"action_nvec": [-3, 5, 5]}, r"three odd, positive move counts, got \[-3, 5, 5\]"),
     (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
+    (lambda m: m | {"observation": m["observation"] | {"angles": [True]}}, "the map's and the angles' shapes"),
     (lambda m: m | {"model_config": m["model_config"] | {"algorithm": "__import__('os')"}},
      "'algorithm' must be one of ppo, impala, appo"),
 ])  # fmt: skip
