@@ -51,6 +51,8 @@ class ObservationLayout(str, Enum):
 LAYOUTS = tuple(m.value for m in ObservationLayout)
 MAX_MOVE_SIZES = 4
 """At most this many step sizes per hinge (an action picks one of 2 K + 1 moves per hinge)."""
+MIN_ANGLE_STEP = 0.1
+"""Finer than a hobby servo resolves; the lattice is then 1,801^3 = 5.8 billion shapes."""
 
 
 class EnvConfigError(SmorphiError):
@@ -141,8 +143,9 @@ class EnvConfig:
             raise EnvConfigError(f"env_config 'observation': unknown layout '{self.observation}' (choose from "
                                  f"{', '.join(LAYOUTS)})")  # fmt: skip
         step = self.angle_step_deg
-        if not (0 < step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
-            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180, got {step}")
+        if not (MIN_ANGLE_STEP <= step <= 180 and math.isclose(180 / step, round(180 / step), abs_tol=1e-9)):
+            raise EnvConfigError(f"env_config 'angle_step_deg' must divide 180 and be at least {MIN_ANGLE_STEP}, got "
+                                 f"{step}")  # fmt: skip
         lattice = round(180 / step)  # the moves are checked against the step: a bad step is named first
         if not (
             1 <= len(self.moves) <= MAX_MOVE_SIZES

@@ -10,14 +10,16 @@ where it came from (the command that trained it, its held-out figures). No Ray a
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from smorphi_rl.env_config import MAX_MOVE_SIZES
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import is_finite_number, is_plain_tree
+from smorphi_rl.inputs import MAX_TREE_NODES, is_finite_number, is_plain_tree
 
 POLICY_JSON = "policy.json"
 WEIGHTS_NPZ = "weights.npz"
@@ -113,8 +115,11 @@ def read_policy(path: str | Path) -> PolicyFile:
     except Exception as exc:  # a damaged or foreign archive, or one that holds objects
         raise PolicyFileError(f"{weights_file}: not readable weights ({type(exc).__name__}: {exc})") from None
     for name, value in weights.items():
-        if value.dtype != np.float32 or not np.isfinite(value).all():
-            raise PolicyFileError(f"{weights_file}: weight {name} is not finite float32")
+        if value.dtype != np.float32:
+            raise PolicyFileError(f"{weights_file}: weight {name} is not float32")
+    problem = weights_problem(weights)
+    if problem:
+        raise PolicyFileError(f"{weights_file}: {problem}")
     return PolicyFile(folder, meta, weights)
 
 
@@ -147,16 +152,66 @@ def _check_meta(meta: Any, where: Path) -> None:
     )
     if not shapes_ok or not isinstance(obs, dict) or "map" not in obs or "angles" not in obs:
         raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")
-    if not (isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and n >= 1 and n % 2 == 1 for n in nvec)):
-        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts, got {nvec!r}")
-    if not isinstance(model, dict) or not isinstance(model.get("env_config", {}), dict) or not is_plain_tree(model):
-        raise PolicyFileError(f"{where}: 'model_config' must be a table of plain values holding 'env_config'")
-    for key in ("value_offset", "value_scale"):
-        value = model.get(key, 0.0)
-        if not is_finite_number(value):
-            raise PolicyFileError(f"{where}: model_config '{key}' must be a finite number")
+    most = 2 * MAX_MOVE_SIZES + 1
+    if not (
+        isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and 1 <= n <= most and n % 2 for n in nvec)
+    ):
+        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts (at most {most}), got "
+                              f"{str(nvec)[:60]}")  # fmt: skip
+    if obs_size(obs) > MAX_OBSERVATION_VALUES:
+        raise PolicyFileError(f"{where}: 'observation' holds {obs_size(obs):,} values, more than any env's "
+                              f"({MAX_OBSERVATION_VALUES:,})")  # fmt: skip
+    problem = model_config_problem(model)
+    if problem or not isinstance(model, dict):
+        raise PolicyFileError(f"{where}: {problem}")
+    if not isinstance(model.get("env_config", {}), dict):
+        raise PolicyFileError(f"{where}: 'model_config' must be a table holding 'env_config'")
+
+
+MAX_OBSERVATION_VALUES = 4 * 512 * 512 + 4096
+"""An env's observation: a map picture of at most 4 channels of 512 x 512 (obs_size's limit) and small vectors."""
+MAX_FREQUENCIES = 64
+"""Fourier frequencies of the angles a policy may see (the presets use 0 or 8)."""
+MAX_WEIGHT = 1e6
+"""A trained policy's weights are at most a few tens (the shipped designer's: 25); beyond this a forward pass
+overflows float32."""
+
+
+def obs_size(observation: dict[str, list[int]]) -> int:
+    """Values in an observation of these shapes."""
+    return sum(math.prod(shape) for shape in observation.values())
+
+
+def model_config_problem(model: Any) -> str | None:
+    """What is wrong with a policy's model configuration (a checkpoint's or a policy file's), or None: plain data
+    (bounded, so a crafted pickle of shared references or a cycle cannot blow it up), finite value scaling, a
+    known algorithm, a bounded number of angle frequencies."""
     from smorphi_rl.training.presets import ALGORITHMS
 
+    if not isinstance(model, dict) or not is_plain_tree(model):
+        return f"'model_config' is not a table of plain values (strings, finite numbers, lists; at most " \
+               f"{MAX_TREE_NODES:,})"  # fmt: skip
+    for key in ("value_offset", "value_scale"):
+        if not is_finite_number(model.get(key, 0.0)):
+            return f"model_config '{key}' must be a finite number"
     if model.get("algorithm", ALGORITHMS[0]) not in ALGORITHMS:
-        raise PolicyFileError(f"{where}: model_config 'algorithm' must be one of {', '.join(ALGORITHMS)}, got "
-                              f"{str(model.get('algorithm'))[:40]!r}")  # fmt: skip
+        return (
+            f"model_config 'algorithm' must be one of {', '.join(ALGORITHMS)}, got {str(model.get('algorithm'))[:40]!r}"
+        )
+    frequencies = model.get("policy_angle_frequencies", 0)
+    if type(frequencies) is not int or not 0 <= frequencies <= MAX_FREQUENCIES:
+        got = str(frequencies)[:40]
+        return f"model_config 'policy_angle_frequencies' must be an integer in 0..{MAX_FREQUENCIES}, got {got}"
+    return None
+
+
+def weights_problem(weights: dict[str, np.ndarray]) -> str | None:
+    """What is wrong with a policy's weights, or None: each finite and at most MAX_WEIGHT in size."""
+    for name, value in weights.items():
+        if not np.isfinite(value).all():
+            return f"weight {name} holds NaN or infinite values (a diverged or damaged policy)"
+        if value.size and float(np.abs(value).max()) > MAX_WEIGHT:
+            return (
+                f"weight {name} holds values beyond {MAX_WEIGHT:g} (no trained policy's are; a forward pass overflows)"
+            )
+    return None

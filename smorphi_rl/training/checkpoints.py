@@ -21,8 +21,17 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_TREE_NODES, check_not_special, is_plain_tree
-from smorphi_rl.policy_file import PolicyFile, PolicyFileError, is_policy_dir, read_policy
+from smorphi_rl.inputs import check_not_special
+from smorphi_rl.policy_file import (
+    MAX_OBSERVATION_VALUES,
+    PolicyFile,
+    PolicyFileError,
+    is_policy_dir,
+    model_config_problem,
+    obs_size,
+    read_policy,
+    weights_problem,
+)
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
 """Where a (new API stack) Algorithm checkpoint keeps the RLModule's state."""
@@ -178,10 +187,9 @@ def read_module_files(checkpoint: Path) -> tuple[dict[str, Any], dict[str, np.nd
         isinstance(k, str) and isinstance(v, np.ndarray) and v.dtype.kind == "f" for k, v in state.items()
     ):
         raise CheckpointError(f"{folder / STATE_FILE}: not a table of float weights by parameter name")
-    broken = next((k for k, v in state.items() if not np.isfinite(v).all()), None)
-    if broken is not None:
-        raise CheckpointError(f"{folder / STATE_FILE}: weight {broken} holds NaN or infinite values (a diverged or "
-                              "damaged policy)")  # fmt: skip
+    problem = weights_problem(state)
+    if problem:
+        raise CheckpointError(f"{folder / STATE_FILE}: {problem}")
     return args[1], state
 
 
@@ -194,9 +202,13 @@ def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict
         raise CheckpointError(f"{where}: its observation space is not the env's (a Dict of Boxes)")
     if not isinstance(act, gym.spaces.MultiDiscrete):
         raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
-    if not isinstance(model, dict) or not is_plain_tree(model):
-        raise CheckpointError(f"{where}: its model configuration is not a table of plain values (strings, finite "
-                              f"numbers, lists; at most {MAX_TREE_NODES:,})")  # fmt: skip
+    shapes = {k: list(s.shape or ()) for k, s in obs.spaces.items()}
+    if obs_size(shapes) > MAX_OBSERVATION_VALUES:
+        raise CheckpointError(f"{where}: its observation holds {obs_size(shapes):,} values, more than any env's "
+                              f"({MAX_OBSERVATION_VALUES:,})")  # fmt: skip
+    problem = model_config_problem(model)
+    if problem or not isinstance(model, dict):
+        raise CheckpointError(f"{where}: {problem}")
     return obs, act, model
 
 

@@ -284,6 +284,12 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
     return progress, wall
 
 
+def reported_any(run_dir: Path, algo: str) -> bool:
+    """Whether a trial of the run reported a result: a run that failed or stopped before its first iteration
+    (its trial folder made, its result file empty) holds nothing worth keeping."""
+    return any(f.is_file() and f.stat().st_size > 0 for f in run_dir.glob(f"{algo}-*/result.json"))
+
+
 def train(
     cfg: TrainConfig,
     name: str | None = None,
@@ -313,7 +319,7 @@ def train(
                                                             indent=2))  # fmt: skip
             progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
     except BaseException:
-        if not any(p.name.startswith(f"{cfg.algo}-") for p in run_dir.iterdir()):
+        if not reported_any(run_dir, cfg.algo):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
         raise
     files = write_outputs(run_dir, cfg, progress, optima)

@@ -125,7 +125,11 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
     (bad / "policy.json").write_text(json.dumps(meta))
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
     assert code == 1 and err.count("\n") == 1
-    assert f"{bad}: the policy's env_config 'angle_step_deg' must divide 180, got 0" in err
+    assert f"{bad}: the policy's env_config 'angle_step_deg' must divide 180 and be at least 0.1, got 0" in err
+    meta["model_config"]["env_config"]["angle_step_deg"] = 1e-300  # 180 / 1e-300 is a whole number of steps
+    (bad / "policy.json").write_text(json.dumps(meta))
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
+    assert code == 1 and err.count("\n") == 1 and "be at least 0.1, got 1e-300" in err
     meta["model_config"]["env_config"] |= {"angle_step_deg": 1, "obs_size": 10**7}  # asked 728 TiB of pictures
     (bad / "policy.json").write_text(json.dumps(meta))
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))

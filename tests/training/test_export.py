@@ -104,9 +104,13 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
     (lambda m: m | {"version": 2}, "this smorphi-rl reads version 1"),
     (lambda m: m | {"version": "1"}, "'version' must be the number 1, got '1'"),
     (lambda m: m | {"action_nvec": [7, 7]}, "three odd, positive move counts"),
-    (lambda m: m | {"action_nvec": [-3, 5, 5]}, r"three odd, positive move counts, got \[-3, 5, 5\]"),
+    (lambda m: m | {"action_nvec": [-3, 5, 5]}, r"three odd, positive move counts \(at most 9\), got \[-3, 5, 5\]"),
     (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
     (lambda m: m | {"observation": m["observation"] | {"angles": [True]}}, "the map's and the angles' shapes"),
+    (lambda m: m | {"observation": m["observation"] | {"map": [4095, 4095, 4095]}},
+     r"'observation' holds 68,\d+,\d+,\d+ values, more than any env's \(1,052,672\)"),
+    (lambda m: m | {"model_config": m["model_config"] | {"policy_angle_frequencies": 10**9}},
+     r"'policy_angle_frequencies' must be an integer in 0..64, got 1000000000"),
     (lambda m: m | {"model_config": m["model_config"] | {"algorithm": "__import__('os')"}},
      "'algorithm' must be one of ppo, impala, appo"),
 ])  # fmt: skip
@@ -173,3 +177,12 @@ def test_flattened_weights_are_refused_in_one_line_by_design(exported, tmp_path,
     code = main(["design", "--map", val_1, "--policy", str(bad), "--budget", "20"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 1 and len(err) == 1 and "layers do not fit" in err[0]
+
+
+def test_weights_too_large_for_float32_arithmetic_are_refused(exported, tmp_path):
+    """Finite weights of 3e38 overflowed the forward pass and `design` printed a shape from it."""
+    _, _, out = exported
+    huge = {k: np.full_like(v, 3e38) for k, v in read_policy(out).weights.items()}
+    bad = _with_weights(out, tmp_path / "huge", huge)
+    with pytest.raises(PolicyFileError, match=r"holds values beyond 1e\+06"):
+        read_policy(bad)

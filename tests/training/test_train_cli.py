@@ -130,3 +130,17 @@ def test_a_sweep_map_that_cannot_be_read_is_refused_before_ray(capsys, tmp_path)
     config.write_text(f"algorithms: [ppo]\nmaps: [{tmp_path / 'm.yaml'}]\nseeds: [0]\n")
     code, err = run(capsys, "sweep", str(config), "--log-dir", str(tmp_path / "logs"))
     assert code == 1 and "has no free cell" in err and not (tmp_path / "logs").exists()
+
+
+def test_a_run_whose_trial_reported_nothing_counts_as_never_started(tmp_path):
+    """A trial folder with an empty result file (the first iteration failed) leaves nothing worth keeping; one
+    reported row is a run whose folder stays."""
+    from smorphi_rl.training.run import reported_any
+
+    trial = tmp_path / "ppo-map-1_00000"
+    trial.mkdir()
+    assert not reported_any(tmp_path, "ppo")
+    (trial / "result.json").write_text("")
+    assert not reported_any(tmp_path, "ppo")
+    (trial / "result.json").write_text('{"training_iteration": 1}\n')
+    assert reported_any(tmp_path, "ppo") and not reported_any(tmp_path, "appo")
