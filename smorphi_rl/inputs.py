@@ -27,15 +27,28 @@ class InputError(SmorphiError):
     """An input that cannot be used."""
 
 
+MAX_YAML_DEPTH = 64
+"""Nesting of a map YAML or a sweep file (ours need 4 levels)."""
+
+
 class _StrictLoader(yaml.SafeLoader):
-    """YAML's safe loader that refuses aliases (a few lines of them expand to billions of nodes) and a key given
-    twice in one mapping (the second would silently win)."""
+    """YAML's safe loader that refuses aliases (a few lines of them expand to billions of nodes), a key given
+    twice in one mapping (the second would silently win) and nesting past MAX_YAML_DEPTH (a RecursionError)."""
+
+    depth = 0
 
     def compose_node(self, parent: Any, index: Any) -> Any:
         if self.check_event(yaml.events.AliasEvent):
             event = self.peek_event()
             raise yaml.composer.ComposerError(None, None, "aliases (*name) are not allowed", event.start_mark)
-        return super().compose_node(parent, index)  # type: ignore[no-untyped-call]
+        if self.depth >= MAX_YAML_DEPTH:  # before Python's recursion limit (about 330 levels of the composer)
+            mark = self.peek_event().start_mark
+            raise yaml.composer.ComposerError(None, None, f"nested more than {MAX_YAML_DEPTH} levels deep", mark)
+        self.depth += 1
+        try:
+            return super().compose_node(parent, index)  # type: ignore[no-untyped-call]
+        finally:
+            self.depth -= 1
 
 
 def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool = False) -> dict[Any, Any]:
@@ -52,7 +65,8 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 
 
 def strict_yaml(text: str) -> Any:
-    """A YAML document read strictly (no aliases, no duplicate keys); yaml.YAMLError otherwise."""
+    """A YAML document read strictly (no aliases, no duplicate keys, at most MAX_YAML_DEPTH levels); yaml.YAMLError
+    otherwise."""
     return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
 
 

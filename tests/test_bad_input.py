@@ -98,6 +98,18 @@ def test_yaml_aliases_are_refused_in_a_map_and_a_sweep_file(tmp_path, capsys):
     assert code == 1 and "not valid YAML" in one_line(err) and not (tmp_path / "logs").exists()
 
 
+@pytest.mark.parametrize("nested", ["[" * 20_000 + "]" * 20_000, "{a: " * 5_000 + "1" + "}" * 5_000])
+def test_yaml_nested_past_the_limit_is_refused_in_a_map_and_a_sweep_file(tmp_path, capsys, nested):
+    """Deep nesting was a RecursionError traceback of thousands of lines."""
+    (tmp_path / "m.yaml").write_text(Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
+                                     + f"extra: {nested}\n")  # fmt: skip
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "nested more than 64 levels deep" in one_line(err)
+    (tmp_path / "s.yaml").write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\nenv: {nested}\n")
+    code, _, err = run(capsys, "sweep", str(tmp_path / "s.yaml"), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "nested more than 64 levels deep" in one_line(err) and not (tmp_path / "logs").exists()
+
+
 def test_a_duplicate_key_in_a_map_yaml_is_refused(tmp_path, capsys):
     text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
     (tmp_path / "m.yaml").write_text(text + "resolution: 0.2\n")
