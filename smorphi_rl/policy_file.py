@@ -158,10 +158,7 @@ def _check_meta(meta: Any, where: Path) -> None:
     ):
         raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts (at most {most}), got "
                               f"{str(nvec)[:60]}")  # fmt: skip
-    if obs_size(obs) > MAX_OBSERVATION_VALUES:
-        raise PolicyFileError(f"{where}: 'observation' holds {obs_size(obs):,} values, more than any env's "
-                              f"({MAX_OBSERVATION_VALUES:,})")  # fmt: skip
-    problem = model_config_problem(model)
+    problem = policy_problem(obs, model)
     if problem or not isinstance(model, dict):
         raise PolicyFileError(f"{where}: {problem}")
     if not isinstance(model.get("env_config", {}), dict):
@@ -180,6 +177,16 @@ overflows float32."""
 def obs_size(observation: dict[str, list[int]]) -> int:
     """Values in an observation of these shapes."""
     return sum(math.prod(shape) for shape in observation.values())
+
+
+def policy_problem(observation: dict[str, list[int]], model: Any) -> str | None:
+    """What is wrong with a policy's observation shapes and model configuration (`model_config_problem`), or None;
+    checked for checkpoints and policy files alike before a module is built."""
+    if obs_size(observation) > MAX_OBSERVATION_VALUES:
+        return (
+            f"its observation holds {obs_size(observation):,} values, more than any env's ({MAX_OBSERVATION_VALUES:,})"
+        )
+    return model_config_problem(model)
 
 
 def model_config_problem(model: Any) -> str | None:

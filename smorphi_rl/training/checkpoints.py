@@ -23,12 +23,10 @@ import numpy as np
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special
 from smorphi_rl.policy_file import (
-    MAX_OBSERVATION_VALUES,
     PolicyFile,
     PolicyFileError,
     is_policy_dir,
-    model_config_problem,
-    obs_size,
+    policy_problem,
     read_policy,
     weights_problem,
 )
@@ -202,11 +200,7 @@ def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict
         raise CheckpointError(f"{where}: its observation space is not the env's (a Dict of Boxes)")
     if not isinstance(act, gym.spaces.MultiDiscrete):
         raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
-    shapes = {k: list(s.shape or ()) for k, s in obs.spaces.items()}
-    if obs_size(shapes) > MAX_OBSERVATION_VALUES:
-        raise CheckpointError(f"{where}: its observation holds {obs_size(shapes):,} values, more than any env's "
-                              f"({MAX_OBSERVATION_VALUES:,})")  # fmt: skip
-    problem = model_config_problem(model)
+    problem = policy_problem({k: list(s.shape or ()) for k, s in obs.spaces.items()}, model)
     if problem or not isinstance(model, dict):
         raise CheckpointError(f"{where}: {problem}")
     return obs, act, model

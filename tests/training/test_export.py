@@ -108,7 +108,7 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
     (lambda m: m | {"observation": {"map": [2, 64, 64]}}, "the map's and the angles' shapes"),
     (lambda m: m | {"observation": m["observation"] | {"angles": [True]}}, "the map's and the angles' shapes"),
     (lambda m: m | {"observation": m["observation"] | {"map": [4095, 4095, 4095]}},
-     r"'observation' holds 68,\d+,\d+,\d+ values, more than any env's \(1,052,672\)"),
+     r"its observation holds 68,\d+,\d+,\d+ values, more than any env's \(1,052,672\)"),
     (lambda m: m | {"model_config": m["model_config"] | {"policy_angle_frequencies": 10**9}},
      r"'policy_angle_frequencies' must be an integer in 0..64, got 1000000000"),
     (lambda m: m | {"model_config": m["model_config"] | {"algorithm": "__import__('os')"}},
