@@ -392,12 +392,13 @@ def generate_map(
         raise MapError("need 0 < min obstacle size <= max obstacle size")
     if not all(math.isfinite(v) for v in (width_m, height_m, resolution_m)):
         raise MapError("map width, height and resolution must be finite numbers")
-    h, w = round(height_m / resolution_m), round(width_m / resolution_m)
+    rows, cols = height_m / resolution_m, width_m / resolution_m  # floats: 1e308 / 0.05 is inf, not an integer
+    if rows * cols > MAX_GENERATED_CELLS:
+        raise MapError(f"a {width_m:g} x {height_m:g} m map at {resolution_m:g} m is {cols:,.0f} x {rows:,.0f} cells; "
+                       f"generate at most {MAX_GENERATED_CELLS:,} cells (a coarser --resolution)")  # fmt: skip
+    h, w = round(rows), round(cols)
     if h < 2 or w < 2:
         raise MapError("the map must be at least 2 x 2 cells")
-    if h * w > MAX_GENERATED_CELLS:
-        raise MapError(f"a {width_m:g} x {height_m:g} m map at {resolution_m:g} m is {w:,} x {h:,} cells; "
-                       f"generate at most {MAX_GENERATED_CELLS:,} cells (a coarser --resolution)")  # fmt: skip
     lo = max(1, round(min_obstacle_m / resolution_m))
     hi = max(lo, min(round(max_obstacle_m / resolution_m), h - 1, w - 1))
     occupied = np.zeros((h, w), dtype=bool)

@@ -59,8 +59,9 @@ def test_a_resolution_yaml_reads_as_text_is_still_a_number(tmp_path, capsys):
     assert code == 1 and "'resolution' must be 0.001-10 m a cell, got 1e-09" in one_line(err)  # read as a number
 
 
-def test_a_generated_map_too_large_is_refused(tmp_path, capsys):
-    code, _, err = run(capsys, "maps", "generate", "--out", str(tmp_path / "big.yaml"), "--width-m", "100000")
+@pytest.mark.parametrize("width", ["100000", "1e308"])  # 1e308 / 0.1 m overflowed to an OverflowError
+def test_a_generated_map_too_large_is_refused(tmp_path, capsys, width):
+    code, _, err = run(capsys, "maps", "generate", "--out", str(tmp_path / "big.yaml"), "--width-m", width)
     assert code == 1 and "generate at most" in one_line(err) and not list(tmp_path.iterdir())
 
 
