@@ -98,11 +98,11 @@ class Map:
 
     def cell_of(self, x_m: float, y_m: float) -> tuple[int, int]:
         """(row, col) of the cell holding a point in the map frame (yaw ignored, as nav2 does)."""
-        col = math.floor((x_m - self.origin[0]) / self.resolution_m)
-        row = math.floor((y_m - self.origin[1]) / self.resolution_m)
+        col = (x_m - self.origin[0]) / self.resolution_m  # compared as floats: 1e308 m is inf cells, no integer
+        row = (y_m - self.origin[1]) / self.resolution_m
         if not (0 <= row < self.height and 0 <= col < self.width):
             raise MapError(f"map {self.name}: point ({x_m}, {y_m}) m lies outside the map")
-        return row, col
+        return math.floor(row), math.floor(col)
 
     @classmethod
     def from_text(cls, text: str, resolution_m: float, name: str = "map") -> Map:

@@ -165,6 +165,16 @@ def test_nan_and_infinity_are_usage_errors(capsys, argv):
     assert code == 2 and "expected a finite number" in one_line(err)
 
 
+@pytest.mark.parametrize("argv", [
+    ["evaluate", "--map", MAP_1, "--angles", "1", "2", "3", "--start", "xy:1e308,1e308"],
+    ["search", "random", "--map", MAP_1, "--samples", "5", "--start-xy", "1e308", "1e308"],
+])  # fmt: skip
+def test_a_start_point_too_far_for_an_integer_cell_is_outside_the_map(capsys, tmp_path, argv):
+    """1e308 m is an infinite number of cells: it was an OverflowError traceback, -100 m a clean refusal."""
+    code, _, err = run(capsys, *argv, *(["--log-dir", str(tmp_path)] if argv[0] == "search" else []))
+    assert code == 1 and "lies outside the map" in one_line(err) and not list(tmp_path.iterdir())
+
+
 @pytest.mark.parametrize("argv", [["train", "--seed", "4294967296"], ["search", "random", "--seed", str(2**64)]])
 def test_seeds_beyond_2_32_are_refused(capsys, tmp_path, argv):
     code, _, err = run(capsys, *argv, "--log-dir", str(tmp_path))
