@@ -10,7 +10,8 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000] [--no-ideal]
+        [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000]
+        [--async-timesteps 400000] [--no-ideal]
         [--set NAME=VALUE ...] [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
@@ -78,10 +79,12 @@ def main() -> None:
     parser.add_argument("--rewards", nargs="+", default=["peak"], help="reward modes (default: train's; the "
                         "paper's R1 + R2 settles no policy, docs/decisions.md)")  # fmt: skip
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
-    parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS)
+    parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="PPO's budget (the main job's)")
+    parser.add_argument("--async-timesteps", type=int, default=2 * DEFAULT_TIMESTEPS,
+                        help="IMPALA's and APPO's budget (the target: at most twice PPO's env steps)")  # fmt: skip
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
-                        help="hyperparameters that replace the preset's (Preset field names), for every algorithm")  # fmt: skip
+                        help="hyperparameters replacing the presets' (Preset field names)")  # fmt: skip
     parser.add_argument("--out", default=None, metavar="NAME", help="results go to logs/NAME")
     args = parser.parse_args()
     try:
@@ -102,7 +105,8 @@ def main() -> None:
         for algo in args.algos:
             for reward in args.rewards:
                 for seed in args.seeds:
-                    rows.append(train_and_evaluate(algo, reward, seed, map_path, args.timesteps, optimum, starts, out,
+                    budget = args.timesteps if algo == "ppo" else args.async_timesteps
+                    rows.append(train_and_evaluate(algo, reward, seed, map_path, budget, optimum, starts, out,
                                                    overrides))  # fmt: skip
                     r = rows[-1]
                     print(f"  {r.method} seed {seed}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, "
@@ -193,7 +197,8 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
                              f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}"])  # fmt: skip
     changed = f" Hyperparameters changed from the presets: {' '.join(args.set)}." if args.set else ""
     lines = [f"Greedy settled gap to the exact optimum, {len(args.seeds)} seeds ({', '.join(map(str, args.seeds))}), "
-             f"{args.timesteps:,} env steps per run, 20 fixed starts; mean over seeds [95 % bootstrap interval]."
+             f"{args.timesteps:,} env steps per PPO run and {args.async_timesteps:,} per IMPALA or APPO run, 20 fixed "
+             "starts; mean over seeds [95 % bootstrap interval]."
              + changed, "",
              "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start |",
              "|---|---|---:|---:|---:|---:|"]  # fmt: skip
