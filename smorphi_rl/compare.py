@@ -96,8 +96,9 @@ def start_from(raw: Any) -> tuple[float, float] | None:
     return (float(raw[0]), float(raw[1])) if ok else None
 
 
-def points_of_run(run_dir: Path, map_name: str) -> Points:
-    """What a training run directory or a search run directory found on `map_name`."""
+def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -> Points:
+    """What a training run directory or a search run directory found on `map_name`; `methods`: the search methods
+    the folder was given as (a `search nsga2` run given as random search is refused), empty for any."""
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")
     if (run_dir / FOUND_CSV).is_file():
@@ -134,6 +135,11 @@ def points_of_run(run_dir: Path, map_name: str) -> Points:
             f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"
         )
     result = load(run_dir)
+    if methods and result.method not in methods:
+        from smorphi_rl.search.config import LOCAL_METHODS  # loads the planner: only where a search run is read
+
+        raise SmorphiError(f"{run_dir}: a `search {result.method}` run, given as {' or '.join(methods)} (pass it "
+                           f"with --{'local' if result.method in LOCAL_METHODS else result.method})")  # fmt: skip
     if result.map_name != map_name:
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
     ok = result.feasible

@@ -61,6 +61,8 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
         (["--random", "/no/such/run"], "/no/such/run: not a run folder"),
         (["--random", "{logs}"], "holds no results"),
         (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
+        (["--random", "{logs}/nsga2-map-1-seed0"], "a `search nsga2` run, given as random (pass it with --nsga2)"),
+        (["--local", "{logs}/random-map-1-seed0"], "given as hillclimb or anneal (pass it with --random)"),
     ],
 )
 def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):

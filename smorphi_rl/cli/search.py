@@ -196,6 +196,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         write_report,
     )
     from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
+    from smorphi_rl.search.config import LOCAL_METHODS
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
 
@@ -238,7 +239,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
             fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
             raise SmorphiError(f"{where}: its shapes were planned from {said}, the exact front here from "
                                f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
-    runs = [points_of_run(d, grid_map.name) for d in dirs]  # every input checked before any work
+    given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
+             **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
+    runs = [points_of_run(d, grid_map.name, given.get(str(d), ())) for d in dirs]  # all checked before any work
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))

@@ -22,6 +22,8 @@ MAX_EVALUATIONS = 2**53
 """More planner evaluations than any search records (a float holds every count up to it exactly)."""
 MAX_WALL_S = 1e9
 """A search's recorded wall time is at most this (31 years)."""
+MAX_P_LEN = 250_000_000
+"""More tile moves than a coverage path of the largest map we read (25 M pixels) takes ten times over."""
 
 
 @dataclass(frozen=True)
@@ -143,8 +145,15 @@ def load(run_dir: str | Path) -> SearchResult:
     numeric = all(a.dtype.kind in "biuf" for a in (thetas, p_c, p_len, feasible))
     if not numeric or not (np.isfinite(thetas).all() and np.isfinite(p_c).all() and np.isfinite(p_len).all()):
         raise bad("values that are not finite numbers")
-    if (thetas < 0).any() or (thetas > 180).any() or (p_c < 0).any() or (p_c > 100).any() or (p_len < 0).any():
-        raise bad("angles, coverage or path lengths out of range")
+    if (
+        (thetas < 0).any()
+        or (thetas > 180).any()
+        or (p_c < 0).any()
+        or (p_c > 100).any()
+        or (p_len < 0).any()
+        or (p_len > MAX_P_LEN).any()
+    ):
+        raise bad(f"angles, coverage or path lengths out of range (path lengths 0..{MAX_P_LEN:,} tile moves)")
     params = summary.get("params", {})
     if summary["method"] == "exhaustive":
         from smorphi_rl.search.exhaustive import check_step  # exhaustive imports this module
