@@ -250,7 +250,7 @@ def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, arg
     (lambda run: _rewrite(run, P_c=np.full(50, np.nan)), "not finite numbers"),
     (lambda run: _rewrite(run, P_len=np.zeros(7)), "mismatched shapes"),
     (lambda run: _rewrite(run, thetas=np.full((50, 3), 200.0)), "out of range"),
-    (lambda run: _rewrite(run, P_len=np.full(50, 2**31 - 1)), r"out of range \(path lengths 0..250,000,000"),
+    (lambda run: _rewrite(run, P_len=np.full(50, 2**31 - 1)), "out of range (path lengths 0..250,000,000"),
     (lambda run: _rewrite(run, thetas=np.zeros((0, 3)), P_c=np.zeros(0), P_len=np.zeros(0), feasible=np.zeros(0)),
      "no shapes"),
     (lambda run: (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000), "RecursionError"),
