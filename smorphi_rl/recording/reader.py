@@ -11,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.env_config import MAX_EPISODE_STEPS
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import Cell, Map
@@ -160,6 +161,9 @@ def read_episode(path: str | Path) -> Episode:
         problem = _step_problem(st)
         if problem:
             raise RecordingError(f"{path}: step message {i} is damaged ({problem})")
+        if i and st["step"] <= steps[i - 1]["step"]:  # an episode's steps are numbered 0, 1, 2, ... as they ran
+            raise RecordingError(f"{path}: step message {i} is damaged (step {st['step']} does not follow step "
+                                 f"{steps[i - 1]['step']})")  # fmt: skip
     scenes = by_topic[TOPIC_SCENE][: len(steps)]
     steps = steps[: len(scenes)] if len(scenes) < len(steps) else steps
     if not steps:
@@ -191,6 +195,8 @@ def _step_problem(st: dict[str, Any]) -> str | None:
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if type(st["P_len"]) is not int or st["P_len"] < 0 or type(st["step"]) is not int or st["step"] < 0:
         return "P_len or step is not a whole number >= 0"
+    if st["step"] > MAX_EPISODE_STEPS:
+        return f"step {str(st['step'])[:24]} beyond any episode's {MAX_EPISODE_STEPS:,}"
     action = st["action"]
     if action is not None and not (isinstance(action, list) and len(action) == 3
                                    and all(type(a) is int and 0 <= a <= 2 for a in action)):  # fmt: skip
