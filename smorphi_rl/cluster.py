@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import os
+import signal
 import socket
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -95,18 +96,28 @@ def ray_session(address: str | None) -> Iterator[None]:
     }
     if address is None:
         kwargs["num_cpus"] = local_cpus()
-    try:
-        if address is None:
-            from smorphi_rl import rllib_compat
+    # Ctrl-C during ray.init could vanish inside Ray's start-up (the run then trained its whole budget), and Ray's
+    # init replaces the SIGTERM handler with exit(15): both are only noted while Ray starts, and acted on after.
+    with interrupts.stop_requests() as stop:
+        try:
+            if address is None:
+                from smorphi_rl import rllib_compat
 
-            with rllib_compat.daemons_in_their_own_session():
+                with rllib_compat.daemons_in_their_own_session():
+                    ray.init(address=address, **kwargs)
+            else:
                 ray.init(address=address, **kwargs)
-        else:
-            ray.init(address=address, **kwargs)
-    except (ConnectionError, RuntimeError, ValueError) as exc:
-        where = "a local Ray" if address is None else f"the Ray cluster at {address}"
-        raise ClusterError(f"cannot start or reach {where}: {ray_error_line(exc)}") from None
-    interrupts.install()  # Ray's core just replaced our SIGTERM handler with one that only prints and dies
+        except (ConnectionError, RuntimeError, ValueError) as exc:
+            where = "a local Ray" if address is None else f"the Ray cluster at {address}"
+            raise ClusterError(f"cannot start or reach {where}: {ray_error_line(exc)}") from None
+        except SystemExit as exc:
+            if exc.code != signal.SIGTERM:
+                raise
+            stop.set()  # SIGTERM reached Ray's own start-up handler
+    interrupts.install()  # Ray's init replaced our SIGTERM handler with its exit(15)
+    if stop.is_set():
+        ray.shutdown()
+        raise KeyboardInterrupt
     try:
         yield
     finally:

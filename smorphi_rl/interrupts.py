@@ -24,8 +24,12 @@ def _sigterm_as_sigint(signum: int, frame: Any) -> None:
 
 
 def install() -> None:
-    """Route SIGTERM to the current SIGINT behaviour (only the main thread may set handlers)."""
+    """Route SIGTERM to the current SIGINT behaviour, and honour SIGINT in a command a script started in the
+    background (its shell set SIGINT to be ignored; Ray Tune's handler honours it once training runs, so it is
+    honoured throughout). Only the main thread may set handlers."""
     if threading.current_thread() is threading.main_thread():
+        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
         signal.signal(signal.SIGTERM, _sigterm_as_sigint)
 
 

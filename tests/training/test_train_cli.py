@@ -144,3 +144,62 @@ def test_a_run_whose_trial_reported_nothing_counts_as_never_started(tmp_path):
     assert not reported_any(tmp_path, "ppo")
     (trial / "result.json").write_text('{"training_iteration": 1}\n')
     assert reported_any(tmp_path, "ppo") and not reported_any(tmp_path, "appo")
+
+
+def _ray_daemon_of(pid: int) -> bool:
+    """Whether `pid` has started Ray's GCS server (from /proc): ray.init is under way."""
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            parent = int(stat.read_text().rsplit(")", 1)[1].split()[1])
+            if parent == pid and b"gcs_server" in (stat.parent / "cmdline").read_bytes():
+                return True
+        except (OSError, IndexError, ValueError):
+            continue
+    return False
+
+
+@pytest.fixture(scope="module")
+def cached_optimum(tmp_path_factory):
+    """A log folder whose cache already holds map-1's optimum, so `train` starts Ray right after saying so."""
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.protocol import exact_optimum
+
+    logs = tmp_path_factory.mktemp("cached") / "logs"
+    env = EnvConfig.from_dict({"maps": [MAP_1]})
+    exact_optimum(MAP_1, env.weights_on(load_map(MAP_1)), env.planning, logs / ".cache")
+    return logs
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
+    """While Ray started, SIGINT to a run a script had started in the background was ignored (the run trained its
+    whole budget, exit 0) and SIGTERM reached Ray's own start-up handler (exit 15, nothing said): both now stop it,
+    exit 130, one line, no folder."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from cli_runs import ray_env
+
+    logs, name = cached_optimum, f"cut-{signame}"
+    argv = ["train", "--timesteps", "4000", "--eval-every", "0", "--select-starts", "0", "--record-every", "0",
+            "--env-runners", "0", "--envs-per-runner", "4", "--name", name, "--log-dir", str(logs)]  # fmt: skip
+
+    def as_a_background_job() -> None:  # a script's `smorphi-rl train &`: its shell ignores SIGINT for it
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=ray_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, preexec_fn=as_a_background_job)  # fmt: skip
+    assert proc.stderr is not None
+    first = proc.stderr.readline()  # the optimum line, from the cache: Ray starts next and takes seconds
+    deadline = time.monotonic() + 120
+    while not _ray_daemon_of(proc.pid) and time.monotonic() < deadline:  # inside ray.init
+        time.sleep(0.05)
+    time.sleep(0.3)
+    proc.send_signal(getattr(signal, signame))
+    _, err = proc.communicate(timeout=180)
+    assert "exact optimum" in first and proc.returncode == 130, (first, err)
+    assert err.strip().splitlines()[-1] == "smorphi-rl: interrupted" and "Traceback" not in err
+    assert not (logs / name).exists()
