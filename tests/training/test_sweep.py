@@ -55,8 +55,11 @@ class Payload:
 
 def plant(exp: Path, marker: Path, names: set[str]) -> list[Path]:
     """Overwrite every pickle under `exp` whose name is in `names` (all but ours when empty) with a payload, but
-    those of a trial that finished (the test reads its checkpoint afterwards)."""
-    done = {d for d in exp.iterdir() if (d / "result.json").is_file() and results(d)[-1]["smorphi_done"]}
+    those of a trial that finished (the test reads its checkpoint afterwards; a trial the interrupt caught before
+    its first row has an empty result file)."""
+    done = {
+        d for d in exp.iterdir() if (d / "result.json").is_file() and results(d)[-1:] and results(d)[-1]["smorphi_done"]
+    }
     planted = []
     if not names:  # an error record Tune would read back if it were there
         for trial in {p.parent for p in exp.glob("*/params.json")} - done:
