@@ -96,6 +96,15 @@ def start_from(raw: Any) -> tuple[float, float] | None:
     return (float(raw[0]), float(raw[1])) if ok else None
 
 
+def feasible_of(result: SearchResult, run_dir: Path) -> np.ndarray:
+    """The mask of a search result's feasible shapes; refused when it has none (nothing to put on a front)."""
+    if not result.feasible.any():
+        raise SmorphiError(
+            f"{run_dir}: holds no feasible shape among its {len(result.feasible):,} (nothing to compare)"
+        )
+    return result.feasible
+
+
 def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -> Points:
     """What a training run directory or a search run directory found on `map_name`; `methods`: the search methods
     the folder was given as (a `search nsga2` run given as random search is refused), empty for any."""
@@ -142,7 +151,7 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -
                            f"with --{'local' if result.method in LOCAL_METHODS else result.method})")  # fmt: skip
     if result.map_name != map_name:
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
-    ok = result.feasible
+    ok = feasible_of(result, run_dir)
     return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
             result.P_c[ok], result.P_len[ok], result.params.get("settled_R1"))  # fmt: skip
 

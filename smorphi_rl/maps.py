@@ -50,6 +50,8 @@ SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
 IMAGE_SUFFIXES = (".pgm", ".png")
+MAX_ORIGIN_M = 1_000_000.0
+"""A map frame's origin lies within 1,000 km of its zero (ROS maps: metres to a few km)."""
 READ_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".jpg", ".jpeg", ".bmp", ".tif", ".tiff", ".gif")
 """The image files a map YAML may name (what map_saver writes and what nav2's image loader is used with)."""
 
@@ -277,6 +279,9 @@ def load_map(yaml_path: str | Path) -> Map:
         raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
     if not all(is_finite_number(v) for v in origin):
         raise MapError(f"{path}: 'origin' must be three finite numbers, got {str(origin)[:80]}")
+    if max(abs(origin[0]), abs(origin[1])) > MAX_ORIGIN_M:  # a robot's map, not a planet's: no plot or plan is sane
+        raise MapError(f"{path}: 'origin' x and y must lie within {MAX_ORIGIN_M:,.0f} m of the map frame's zero, got "
+                       f"{str(origin)[:80]}")  # fmt: skip
     mode_name = meta.get("mode", MapMode.TRINARY.value)
     try:
         mode = MapMode(mode_name)

@@ -144,13 +144,18 @@ def test_files_are_read_only_under_the_names_of_their_kind(tmp_path, capsys):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["episode.txt", "m.yaml", "map.txt"]
 
 
-@pytest.mark.parametrize("origin", ["[.nan, 0, 0]", "[.inf, 0, 0]"])
-def test_a_map_origin_must_be_finite(tmp_path, capsys, origin):
+@pytest.mark.parametrize(("origin", "message"), [
+    ("[.nan, 0, 0]", "three finite numbers"),
+    ("[.inf, 0, 0]", "three finite numbers"),
+    ("[18446744073709551616, 0, 0]", "x and y must lie within 1,000,000 m"),  # plots and plans degenerated
+    ("[0, -1.0e+17, 0]", "x and y must lie within 1,000,000 m"),
+])  # fmt: skip
+def test_a_map_origin_must_be_finite_and_near(tmp_path, capsys, origin, message):
     text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
     text = "\n".join(line for line in text.splitlines() if not line.startswith("origin"))
     (tmp_path / "m.yaml").write_text(text + f"\norigin: {origin}\n")
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
-    assert code == 1 and "three finite numbers" in one_line(err)
+    assert code == 1 and message in one_line(err)
 
 
 @pytest.mark.parametrize("argv", [
@@ -251,6 +256,7 @@ def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, arg
     (lambda run: _rewrite(run, P_len=np.zeros(7)), "mismatched shapes"),
     (lambda run: _rewrite(run, thetas=np.full((50, 3), 200.0)), "out of range"),
     (lambda run: _rewrite(run, P_len=np.full(50, 2**31 - 1)), "out of range (path lengths 0..250,000,000"),
+    (lambda run: _rewrite(run, feasible=np.zeros(50, dtype=bool)), "holds no feasible shape among its 50"),
     (lambda run: _rewrite(run, thetas=np.zeros((0, 3)), P_c=np.zeros(0), P_len=np.zeros(0), feasible=np.zeros(0)),
      "no shapes"),
     (lambda run: (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000), "RecursionError"),

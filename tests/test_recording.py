@@ -283,6 +283,7 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
     ("/smorphi/step", lambda m: m | {"action": 5}, "action 5 is not three moves in 0..2"),
     ("/smorphi/step", lambda m: m | {"R1": 10**400}, "is not a finite number"),
     ("/smorphi/step", lambda m: m | {"step": 10**30}, "beyond any episode's 100,000"),
+    ("/smorphi/step", lambda m: m | {"P_len": 10**30}, "beyond any coverage path's 250,000,000 tile moves"),
     ("/smorphi/step", lambda m: m | {"step": 0}, "step message 1 is damaged (step 0 does not follow step 0)"),
 ])  # fmt: skip
 def test_a_recording_whose_messages_are_damaged_is_one_line(tmp_path, capsys, topic, edit, message):

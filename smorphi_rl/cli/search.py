@@ -187,6 +187,7 @@ def format_search(
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
+        feasible_of,
         planner_of_run,
         points_of_run,
         report_lines,
@@ -214,6 +215,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     check_step(args.step)
     exact = load(args.exhaustive) if args.exhaustive else None
+    if exact is not None:
+        feasible_of(exact, args.exhaustive)
     if exact is not None and exact.method != "exhaustive":
         raise SmorphiError(f"{args.exhaustive}: a `search {exact.method}` run, not an exact front (give a `search "
                            "exhaustive` run)")  # fmt: skip

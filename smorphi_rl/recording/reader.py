@@ -29,6 +29,7 @@ from smorphi_rl.recording.messages import (
     TOPIC_STEP,
     RecordingError,
 )
+from smorphi_rl.search.results import MAX_P_LEN
 
 
 @dataclass
@@ -195,6 +196,8 @@ def _step_problem(st: dict[str, Any]) -> str | None:
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if type(st["P_len"]) is not int or st["P_len"] < 0 or type(st["step"]) is not int or st["step"] < 0:
         return "P_len or step is not a whole number >= 0"
+    if st["P_len"] > MAX_P_LEN:
+        return f"P_len {str(st['P_len'])[:24]} beyond any coverage path's {MAX_P_LEN:,} tile moves"
     if st["step"] > MAX_EPISODE_STEPS:
         return f"step {str(st['step'])[:24]} beyond any episode's {MAX_EPISODE_STEPS:,}"
     action = st["action"]
