@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
@@ -176,7 +177,10 @@ def optimum_cache(log_dir: str | Path) -> Path:
     """Where every command caches exact optima: $SMORPHI_RL_CACHE_DIR, else LOG_DIR/.cache."""
     import os
 
-    return Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+    try:
+        return Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+    except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder (as rundir.check_run_dir says)
+        raise SmorphiError(f"log directory {log_dir} cannot be used ({exc})") from None
 
 
 def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:

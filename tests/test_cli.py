@@ -240,3 +240,22 @@ def test_evaluate_one_shape_answers_without_the_compiled_kernels(planner):
     record, numba_loaded = proc.stdout.splitlines()
     assert numba_loaded == "False"
     assert json.loads(record)["planner"] == planner
+
+
+def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys):
+    """The entry point imports the CLI (seconds of libraries) inside a guard: a Ctrl-C then is one line, exit 130
+    (it was a traceback through scipy's import)."""
+    import builtins
+
+    from smorphi_rl import entry
+
+    real_import = builtins.__import__
+
+    def interrupted(name, *args, **kwargs):
+        if name == "smorphi_rl.cli":
+            raise KeyboardInterrupt
+        return real_import(name, *args, **kwargs)
+
+    monkeypatch.setattr(builtins, "__import__", interrupted)
+    assert entry.main() == 130
+    assert capsys.readouterr().err == "smorphi-rl: interrupted\n"

@@ -45,12 +45,12 @@ def one_line(message: str) -> str:
 
 def main(argv: Sequence[str] | None = None) -> int:
     interrupts.install()
-    argv = list(sys.argv[1:] if argv is None else argv)
-    known = {c for commands in GROUPS.values() for c in commands}
-    args = build_parser(argv[0] if argv and argv[0] in known else None).parse_args(argv)
-    if getattr(args, "map", "") is None and getattr(args, "map_default", None) is None:
-        args.map = default_map()
     try:
+        argv = list(sys.argv[1:] if argv is None else argv)
+        known = {c for commands in GROUPS.values() for c in commands}
+        args = build_parser(argv[0] if argv and argv[0] in known else None).parse_args(argv)
+        if getattr(args, "map", "") is None and getattr(args, "map_default", None) is None:
+            args.map = default_map()
         return int(args.func(args))
     except SmorphiError as exc:
         print(f"{PROG}: error: {one_line(str(exc))}", file=sys.stderr)

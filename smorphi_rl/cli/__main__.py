@@ -2,6 +2,6 @@
 
 import sys
 
-from smorphi_rl.cli import main
+from smorphi_rl.entry import main
 
 sys.exit(main())

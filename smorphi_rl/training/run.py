@@ -285,9 +285,13 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
 
 
 def reported_any(run_dir: Path, algo: str) -> bool:
-    """Whether a trial of the run reported a result: a run that failed or stopped before its first iteration
-    (its trial folder made, its result file empty) holds nothing worth keeping."""
-    return any(f.is_file() and f.stat().st_size > 0 for f in run_dir.glob(f"{algo}-*/result.json"))
+    """Whether a trial of the run reported a result or wrote a checkpoint: a run that failed or stopped before its
+    first iteration (its trial folder made, its result file empty, no checkpoint) holds nothing worth keeping. On a
+    full disk the result file can stay empty while checkpoints are whole: those are kept."""
+    trials = list(run_dir.glob(f"{algo}-*"))
+    return any(f.is_file() and f.stat().st_size > 0 for t in trials for f in [t / "result.json"]) or any(
+        checkpoints_under(t) for t in trials
+    )
 
 
 def train(
@@ -322,6 +326,9 @@ def train(
         if not reported_any(run_dir, cfg.algo):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
         raise
+    if not reported_any(run_dir, cfg.algo):  # stopped (Ctrl-C, SIGTERM) before its first report: nothing to keep
+        discard_run_dir(run_dir)
+        raise KeyboardInterrupt
     files = write_outputs(run_dir, cfg, progress, optima)
     steps = int(progress.curve["env_steps"][-1]) if progress.curve["env_steps"] else 0
     checkpoints = checkpoints_under(run_dir)

@@ -203,3 +203,29 @@ def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
     assert "exact optimum" in first and proc.returncode == 130, (first, err)
     assert err.strip().splitlines()[-1] == "smorphi-rl: interrupted" and "Traceback" not in err
     assert not (logs / name).exists()
+
+
+def test_a_run_stopped_before_its_first_report_leaves_no_folder(cached_optimum):
+    """Ctrl-C once Tune has made the trial's folder, before its first result: the run said 'checkpoints written
+    so far are kept' and kept a folder of zero iterations; now it is an interrupted start, exit 130, no folder."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from cli_runs import ray_env
+
+    logs, name = cached_optimum, "cut-before-report"
+    argv = ["train", "--timesteps", "20000", "--eval-every", "0", "--select-starts", "0", "--record-every", "0",
+            "--env-runners", "0", "--envs-per-runner", "4", "--name", name, "--log-dir", str(logs)]  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=ray_env(), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)  # fmt: skip
+    deadline = time.monotonic() + 180
+    while not list((logs / name).glob("ppo-*")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    reported = any(f.stat().st_size for f in (logs / name).glob("ppo-*/result.json"))
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=180)
+    assert not reported, "the first iteration finished before the signal"
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "smorphi-rl: interrupted", err
+    assert not (logs / name).exists()

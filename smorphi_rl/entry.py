@@ -1,0 +1,17 @@
+"""The `smorphi-rl` command's entry point: imports the CLI (seconds of numpy, scipy, matplotlib) inside a guard,
+so a Ctrl-C that lands while it loads ends in one line, as one during any command does."""
+
+from __future__ import annotations
+
+import sys
+
+EXIT_INTERRUPTED = 130
+
+
+def main() -> int:
+    try:
+        from smorphi_rl.cli import main as cli_main
+    except KeyboardInterrupt:
+        print("smorphi-rl: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    return cli_main()
