@@ -6,6 +6,7 @@ from __future__ import annotations
 import sys
 
 EXIT_INTERRUPTED = 130
+"""cli.common's: importing it would load the whole CLI, which this module guards."""
 
 
 def main() -> int:

@@ -365,14 +365,13 @@ def algorithm_config(
             "minibatch_size": hp.minibatch_size,
             "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
         }
-        if hp.clip_param is not None:
-            training["clip_param"] = hp.clip_param
     else:  # v-trace's lambda reaches the learner through RLlib's public learner_config_dict (learners.py)
         training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size,
                      "learner_config_dict": {TRACE_LAMBDA_KEY: hp.lambda_}}  # fmt: skip
-        if cfg.algo == "appo":
-            training |= {"clip_param": hp.clip_param} if hp.clip_param is not None else {}
-            training |= {"target_network_update_freq": hp.target_update_freq} if hp.target_update_freq else {}
+    if hp.clip_param is not None:  # PPO's and APPO's only (check_overrides)
+        training["clip_param"] = hp.clip_param
+    if hp.target_update_freq is not None:  # APPO's only
+        training["target_network_update_freq"] = hp.target_update_freq
     config = (
         config_cls()
         .environment(

@@ -289,9 +289,8 @@ def reported_any(run_dir: Path, algo: str) -> bool:
     first iteration (its trial folder made, its result file empty, no checkpoint) holds nothing worth keeping. On a
     full disk the result file can stay empty while checkpoints are whole: those are kept."""
     trials = list(run_dir.glob(f"{algo}-*"))
-    return any(f.is_file() and f.stat().st_size > 0 for t in trials for f in [t / "result.json"]) or any(
-        checkpoints_under(t) for t in trials
-    )
+    rows = any((t / "result.json").is_file() and (t / "result.json").stat().st_size > 0 for t in trials)
+    return rows or any(checkpoints_under(t) for t in trials)
 
 
 def train(
