@@ -18,6 +18,9 @@ PATH_TERMS = ("moves", "per_area")
 REFERENCE_AREA_M2 = 25.0
 """The floor area `per_area` weights are stated for: the shipped maps' 5 m x 5 m."""
 
+MAX_P_LEN = 250_000_000
+"""More tile moves than a coverage path of the largest map we read (25 M pixels) takes ten times over."""
+
 
 def effective_w2(w2: float, path_term: str, free_area_m2: float) -> float:
     """The weight of P_len in effect on a floor of `free_area_m2` free square metres."""

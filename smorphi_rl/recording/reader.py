@@ -29,7 +29,7 @@ from smorphi_rl.recording.messages import (
     TOPIC_STEP,
     RecordingError,
 )
-from smorphi_rl.search.results import MAX_P_LEN
+from smorphi_rl.score import MAX_P_LEN
 
 
 @dataclass

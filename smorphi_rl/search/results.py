@@ -14,7 +14,7 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
-from smorphi_rl.score import Weights
+from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
 
 RESULTS_FILE = "results.npz"
@@ -22,8 +22,6 @@ MAX_EVALUATIONS = 2**53
 """More planner evaluations than any search records (a float holds every count up to it exactly)."""
 MAX_WALL_S = 1e9
 """A search's recorded wall time is at most this (31 years)."""
-MAX_P_LEN = 250_000_000
-"""More tile moves than a coverage path of the largest map we read (25 M pixels) takes ten times over."""
 
 
 @dataclass(frozen=True)
