@@ -229,23 +229,18 @@ def _claims(map_name: str, b: Budget, scores: list[MethodScore], curves: dict[st
 def _transfer_claims(runs: list[Any]) -> list[str]:
     """Table 5's claim per held-out map, over seeds: the speed-up with its interval; runs that never converged
     are named, and a map where no fine-tuned or no scratch run converged gives no ratio."""
-    from smorphi_rl.stats import mean_interval, ratio_interval
-    from smorphi_rl.training.transfer import converged_steps
+    from smorphi_rl.training.transfer import by_map
 
     out = []
     claim = "*A pretrained policy converges about five times faster.*"
-    for map_name in dict.fromkeys(r.map_name for r in runs):
-        tuned_runs = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
-        scratch_runs = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
-        tuned, scratch = converged_steps(tuned_runs), converged_steps(scratch_runs)
-        counts = (f"converged: fine-tuned {len(tuned)} of {len(tuned_runs)}, "
-                  f"scratch {len(scratch)} of {len(scratch_runs)}")  # fmt: skip
-        if not tuned or not scratch:
-            out.append(f"- {map_name}: {claim} Not testable here ({counts}).")
+    for m in by_map(runs):
+        counts = f"converged: fine-tuned {m.counts[0]}, scratch {m.counts[1]}"
+        ratio = m.ratio
+        if not ratio.n:
+            out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue
-        ratio = ratio_interval(scratch, tuned)
         verdict = "**agrees**" if ratio.lo >= 5 else "**does not agree**" if ratio.hi < 5 else "**undecided**"
-        out.append(f"- {map_name}: {claim} Fine-tuned {mean_interval(tuned).text(',.0f')} vs scratch "
-                   f"{mean_interval(scratch).text(',.0f')} env steps to converge, ratio {ratio.text()} "
+        out.append(f"- {m.map_name}: {claim} Fine-tuned {m.tuned_steps.text(',.0f')} vs scratch "
+                   f"{m.scratch_steps.text(',.0f')} env steps to converge (medians), ratio {ratio.text()} "
                    f"({counts}): {verdict}.")  # fmt: skip
     return out

@@ -58,24 +58,27 @@ def _interval(values: Sequence[float], statistic: Any, seed: int) -> Interval:
     return Interval(point, float(res.confidence_interval.low), float(res.confidence_interval.high), int(data.size))
 
 
-def ratio_interval(numerator: Sequence[float], denominator: Sequence[float], seed: int = 0) -> Interval:
-    """mean(numerator) / mean(denominator) of two independent sets of seeds (a Table-5 speed-up), with its 95 %
-    percentile bootstrap interval (each set resampled on its own)."""
+def ratio_interval(
+    numerator: Sequence[float], denominator: Sequence[float], seed: int = 0, statistic: Any = np.mean
+) -> Interval:
+    """statistic(numerator) / statistic(denominator) of two independent sets of seeds (a Table-5 speed-up: the
+    mean by default, `np.median` for medians), with its 95 % percentile bootstrap interval (each set resampled on
+    its own)."""
     from scipy.stats import bootstrap
 
     a = np.asarray([v for v in numerator if math.isfinite(v)], dtype=float)
     b = np.asarray([v for v in denominator if math.isfinite(v)], dtype=float)
-    if a.size == 0 or b.size == 0 or b.mean() == 0:
+    if a.size == 0 or b.size == 0 or statistic(b) == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    ratio = float(a.mean() / b.mean())
+    ratio = float(statistic(a) / statistic(b))
     n = int(min(a.size, b.size))
     if n < 2 or (np.all(a == a[0]) and np.all(b == b[0])):
         return Interval(ratio, ratio, ratio, n)
 
-    def statistic(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-        return np.mean(x, axis=axis) / np.mean(y, axis=axis)
+    def of_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
+        return statistic(x, axis=axis) / statistic(y, axis=axis)
 
-    res = bootstrap((a, b), statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+    res = bootstrap((a, b), of_ratio, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
                     random_state=np.random.default_rng(seed))  # fmt: skip
     return Interval(ratio, float(res.confidence_interval.low), float(res.confidence_interval.high), n)
 

@@ -29,3 +29,13 @@ def test_ratio_interval_brackets_the_ratio_of_means():
     single = ratio_interval([10.0], [5.0])
     assert (single.mean, single.lo, single.hi) == (2.0, 2.0, 2.0)
     assert math.isnan(ratio_interval([], [1.0]).mean)
+
+
+def test_ratio_interval_of_medians():
+    import numpy as np
+
+    from smorphi_rl.stats import ratio_interval
+
+    iv = ratio_interval([10.0, 50.0, 300.0], [10.0, 10.0, 40.0], statistic=np.median)
+    assert iv.mean == 5.0  # medians 50 / 10; the means would give 6.0
+    assert iv.lo <= 5.0 <= iv.hi and iv.n == 3

@@ -15,7 +15,7 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, write_text_atomic
-from smorphi_rl.stats import mean_interval, ratio_interval
+from smorphi_rl.stats import Interval, median_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
 
@@ -154,26 +154,21 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
             writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
                              r.pretrained_in_runners])  # fmt: skip
     lines = [
-        "Over seeds: mean [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
+        "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. Env steps to converge count converged runs only; a run "
-        "that never converged is counted as not converged, not as a number.",
+        "that never converged is counted as not converged, not as a number; the ratio is of the medians.",
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "
         "| Best R1 fine-tuned / scratch |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
-    for map_name in dict.fromkeys(r.map_name for r in runs):
-        tuned = [r for r in runs if r.map_name == map_name and r.mode == "fine-tune"]
-        scratch = [r for r in runs if r.map_name == map_name and r.mode == "scratch"]
-        t_steps, s_steps = converged_steps(tuned), converged_steps(scratch)
-        ratio = ratio_interval(s_steps, t_steps)
-        best = f"{max(r.best_R1 for r in tuned):.2f} / {max(r.best_R1 for r in scratch):.2f}"
+    for m in by_map(runs):
+        best = f"{max(r.best_R1 for r in m.tuned):.2f} / {max(r.best_R1 for r in m.scratch):.2f}"
         lines.append(
-            f"| {map_name} | {mean_interval(t_steps).text(',.0f')} | {len(t_steps)} of {len(tuned)} "
-            f"| {mean_interval(s_steps).text(',.0f')} | {len(s_steps)} of {len(scratch)} | {ratio.text()} "
-            f"| {mean_interval([r.plateau for r in tuned]).text()} "
-            f"| {mean_interval([r.plateau for r in scratch]).text()} | {best} |"
+            f"| {m.map_name} | {m.tuned_steps.text(',.0f')} | {m.counts[0]} | {m.scratch_steps.text(',.0f')} "
+            f"| {m.counts[1]} | {m.ratio.text()} | {median_interval([r.plateau for r in m.tuned]).text()} "
+            f"| {median_interval([r.plateau for r in m.scratch]).text()} | {best} |"
         )
     write_text_atomic(files["md"], "\n".join(lines) + "\n")
     curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
@@ -184,3 +179,47 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
 def converged_steps(runs: list[TransferRun]) -> list[float]:
     """Env steps to convergence of the runs that converged."""
     return [float(r.converged_at) for r in runs if r.converged_at is not None]
+
+
+@dataclass(frozen=True)
+class MapTransfer:
+    """One held-out map's runs over seeds and Table 5's figures: env steps to converge fine-tuned and from scratch
+    (median [95 %] of the runs that converged) and the ratio of the medians, scratch / fine-tuned."""
+
+    map_name: str
+    tuned: list[TransferRun]
+    scratch: list[TransferRun]
+
+    @property
+    def tuned_steps(self) -> Interval:
+        return median_interval(converged_steps(self.tuned))
+
+    @property
+    def scratch_steps(self) -> Interval:
+        return median_interval(converged_steps(self.scratch))
+
+    @property
+    def ratio(self) -> Interval:
+        """NaN unless a run of each mode converged."""
+        import numpy as np
+
+        return ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), statistic=np.median)
+
+    @property
+    def all_converged(self) -> tuple[bool, bool]:
+        """Whether every fine-tuned run, and every scratch run, converged (else the ratio is no measurement)."""
+        return (all(r.converged_at is not None for r in self.tuned),
+                all(r.converged_at is not None for r in self.scratch))  # fmt: skip
+
+    @property
+    def counts(self) -> tuple[str, str]:
+        """ "k of n" converged, fine-tuned and from scratch."""
+        return (f"{len(converged_steps(self.tuned))} of {len(self.tuned)}",
+                f"{len(converged_steps(self.scratch))} of {len(self.scratch)}")  # fmt: skip
+
+
+def by_map(runs: list[TransferRun]) -> list[MapTransfer]:
+    """The runs grouped by held-out map, in the order the job ran them."""
+    names = dict.fromkeys(r.map_name for r in runs)
+    return [MapTransfer(n, *([r for r in runs if r.map_name == n and r.mode == m] for m in ("fine-tune", "scratch")))
+            for n in names]  # fmt: skip

@@ -25,14 +25,14 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
         _run("fine-tune", 2, None, 87.0),
         _run("scratch", 0, 6_000, 87.5),
         _run("scratch", 1, 8_000, 87.9),
-        _run("scratch", 2, 10_000, 88.1),
+        _run("scratch", 2, 16_000, 88.1),  # median 8,000, mean 10,000
     ]
     files = write_transfer_report(tmp_path, runs)
     row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1].startswith("3,000 [") and cells[2] == "2 of 3"  # the run that never settled is not a number
     assert cells[3].startswith("8,000 [") and cells[4] == "3 of 3"
-    assert cells[5].startswith("2.67 [")  # 8,000 / 3,000, with its interval
+    assert cells[5].startswith("2.67 [")  # medians 8,000 / 3,000, with its interval
     assert files["png"].is_file()
 
 
@@ -48,3 +48,14 @@ def test_a_transfer_job_is_checked_when_made():
         TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0, -1))
     with pytest.raises(TrainConfigError, match="unknown algorithm"):
         TransferJob("ckpt", ("maps/val-1.yaml",), algo="a3c")
+
+
+def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
+    from smorphi_rl.reproduce import _transfer_claims
+
+    runs = [_run("fine-tune", s, 10_000, 88.0) for s in range(3)]
+    runs += [_run("scratch", s, at, 88.0) for s, at in enumerate((60_000, 60_000, 200_000))]
+    (line,) = _transfer_claims(runs)
+    assert "ratio 6.00" in line and "**agrees**" in line  # medians 60,000 / 10,000 (the means would give 10.7)
+    (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, 50_000, 88.0)])
+    assert "Not testable here" in none and "fine-tuned 0 of 1" in none
