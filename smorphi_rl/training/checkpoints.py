@@ -269,7 +269,8 @@ def load_module(checkpoint: Path) -> Any:
     return module
 
 
-def load_module_state(checkpoint: Path) -> dict[str, np.ndarray]:
-    """The module weights of a checkpoint (read safely and checked by `load_module`), for fine-tuning."""
+def load_module_state(checkpoint: Path) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The module weights of a checkpoint (read safely and checked by `load_module`) and its model configuration,
+    for fine-tuning."""
     module = load_module(checkpoint)
-    return {k: v.detach().numpy().copy() for k, v in module.state_dict().items()}
+    return {k: v.detach().numpy().copy() for k, v in module.state_dict().items()}, dict(module.model_config or {})

@@ -23,6 +23,8 @@ from smorphi_rl.training.checkpoints import (
 from smorphi_rl.training.runners import POLICY_PREFIX, policy_digest, push_module_to_runners
 
 PRETRAINED_KEY = "smorphi_pretrained_in_runners"
+VALUE_PREFIX = "_vf."
+"""The critic's weights in a module state (`module.MorphologyModule._vf`)."""
 
 
 def _layout(observation_space: Any, action_space: Any) -> dict[str, str]:
@@ -60,6 +62,20 @@ def set_learner_weights(algorithm: Any, state: dict[str, Any]) -> None:
     algorithm.learner_group.set_state({COMPONENT_LEARNER: {COMPONENT_RL_MODULE: {DEFAULT_MODULE_ID: state}}})
 
 
+def critic_renormalised(state: dict[str, Any], trained_with: dict[str, Any], now: dict[str, Any]) -> dict[str, Any]:
+    """`state` with its critic's last layer re-expressed for this run's value normalisation: the critic outputs
+    `value_offset + value_scale * head`, both set from the maps it trains on (`config.value_normalisation`), so
+    the pretrained critic under the new run's offset and scale would predict other values; rescaled, it predicts
+    on every observation what it did when pretrained."""
+    old_offset, old_scale = float(trained_with.get("value_offset", 0.0)), float(trained_with.get("value_scale", 1.0))
+    offset, scale = float(now.get("value_offset", 0.0)), float(now.get("value_scale", 1.0))
+    weight, bias = state[VALUE_PREFIX + "head.weight"], state[VALUE_PREFIX + "head.bias"]
+    return state | {
+        VALUE_PREFIX + "head.weight": weight * (old_scale / scale),
+        VALUE_PREFIX + "head.bias": (bias * old_scale + old_offset - offset) / scale,
+    }
+
+
 def fine_tune_from(pretrained: str | Path, env_config: dict[str, Any]) -> tuple[Path, type[MorphologyCallbacks]]:
     """The checkpoint `pretrained` names (a checkpoint, trial or run directory), checked against the env, and the
     callbacks that start training from it; a bad one fails here, before anything trains."""
@@ -77,7 +93,9 @@ def fine_tune_callbacks(checkpoint: Path, digest: str) -> type[MorphologyCallbac
 
         def on_algorithm_init(self, *, algorithm: Any, **kwargs: Any) -> None:
             super().on_algorithm_init(algorithm=algorithm, **kwargs)
-            set_learner_weights(algorithm, load_module_state(Path(self.pretrained)))
+            state, trained_with = load_module_state(Path(self.pretrained))
+            now = dict(algorithm.config.rl_module_spec.model_config or {})
+            set_learner_weights(algorithm, critic_renormalised(state, trained_with, now))
             digests = push_module_to_runners(algorithm)
             self.in_runners = float(bool(digests) and all(d == self.expected for d in digests))
 
