@@ -184,8 +184,15 @@ class TrainConfig:
 
 FRACTIONS = ("gamma", "lambda_", "clip_param")
 """Hyperparameters that must lie in [0, 1]."""
-USED_BY = {"clip_param": ("ppo", "appo"), "target_update_freq": ("appo",)}
+USED_BY = {
+    "clip_param": ("ppo", "appo"),
+    "target_update_freq": ("appo",),
+    "circular_buffer_batches": ("appo",),
+    "circular_buffer_passes": ("appo",),
+}
 """Hyperparameters only some algorithms have (the others take every Preset field)."""
+AT_LEAST_ONE = ("circular_buffer_batches", "circular_buffer_passes")
+"""Hyperparameters that must be at least 1 (a buffer of no batches trains on nothing)."""
 
 
 def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
@@ -196,11 +203,21 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
         if algo not in USED_BY.get(name, (algo,)):
             raise TrainConfigError(f"hyperparameter '{name}' is {' and '.join(USED_BY[name])}'s; {algo} has none")
-        integer = name in ("train_batch_size", "num_epochs", "minibatch_size", "policy_angle_frequencies")
-        ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= 0
+        integer = name in (
+            "train_batch_size",
+            "num_epochs",
+            "minibatch_size",
+            "policy_angle_frequencies",
+            "circular_buffer_batches",
+            "circular_buffer_passes",
+        )
+        least = 1 if name in AT_LEAST_ONE else 0
+        ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= least
         if not ok or (name in FRACTIONS and not 0 <= value <= 1):
             kind = (
-                "a non-negative integer"
+                "a positive integer"
+                if least
+                else "a non-negative integer"
                 if integer
                 else "a number in [0, 1]"
                 if name in FRACTIONS
@@ -372,6 +389,10 @@ def algorithm_config(
         training["clip_param"] = hp.clip_param
     if hp.target_update_freq is not None:  # APPO's only
         training["target_network_update_freq"] = hp.target_update_freq
+    if hp.circular_buffer_batches is not None:  # APPO's only
+        training["circular_buffer_num_batches"] = hp.circular_buffer_batches
+    if hp.circular_buffer_passes is not None:
+        training["circular_buffer_iterations_per_batch"] = hp.circular_buffer_passes
     config = (
         config_cls()
         .environment(

@@ -35,6 +35,11 @@ class Preset:
     target_update_freq: float | None = None
     """APPO: how often its target policy (the ratio's reference) is refreshed, in RLlib's unit (circular-buffer
     batches x passes x batch size of trained steps); None: RLlib's 2."""
+    circular_buffer_batches: int | None = None
+    """APPO: train batches its learner's circular buffer holds, each trained on at most `circular_buffer_passes`
+    times (RLlib's `circular_buffer_num_batches` and `circular_buffer_iterations_per_batch`); None: RLlib's 8
+    and 2. The learner draws from the buffer at random, so it holds how stale a trained batch can be."""
+    circular_buffer_passes: int | None = None
     rollout_fragment_length: int | str = "auto"
     min_time_s_per_iteration: float = 0.0
     env_runners: int = 2

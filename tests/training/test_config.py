@@ -118,3 +118,17 @@ def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():
     impala = PRESETS["fast"]["impala"]
     assert algorithm_config(TrainConfig(algo="impala")).lr == [[0, impala.lr], [DEFAULT_TIMESTEPS, impala.lr_final]]
     assert algorithm_config(TrainConfig(algo="impala", preset="paper")).lr == 7e-4  # constant: no lr_final
+
+
+def test_appos_circular_buffer_is_a_tunable_hyperparameter_of_appo_alone():
+    from smorphi_rl.training.config import algorithm_config
+
+    tuned = TrainConfig(algo="appo", overrides={"circular_buffer_batches": 1, "circular_buffer_passes": 3})
+    built = algorithm_config(tuned)
+    assert (built.circular_buffer_num_batches, built.circular_buffer_iterations_per_batch) == (1, 3)
+    default = algorithm_config(TrainConfig(algo="appo"))
+    assert (default.circular_buffer_num_batches, default.circular_buffer_iterations_per_batch) == (8, 2)  # RLlib's
+    with pytest.raises(TrainConfigError, match="appo's; ppo has none"):
+        TrainConfig(overrides={"circular_buffer_batches": 1})
+    with pytest.raises(TrainConfigError, match="'circular_buffer_passes' must be a positive integer, got 0"):
+        TrainConfig(algo="appo", overrides={"circular_buffer_passes": 0})
