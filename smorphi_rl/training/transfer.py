@@ -48,7 +48,7 @@ class TransferJob:
     maps: tuple[str, ...]
     """Held-out maps (map_server YAML)."""
     seeds: tuple[int, ...] = (0, 1, 2)
-    """Seeds; each map runs once per seed and mode (three: a speed-up is a ratio of means with an interval)."""
+    """Seeds; each map runs once per seed and mode (three: a speed-up is a ratio of medians with an interval)."""
     timesteps: int = TrainConfig.timesteps
     """Env-step budget of every run."""
     algo: str = TrainConfig.algo
