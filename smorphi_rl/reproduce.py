@@ -236,7 +236,7 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
     for m in by_map(runs):
         counts = f"converged: fine-tuned {m.counts[0]}, scratch {m.counts[1]}"
         ratio = m.ratio
-        if not ratio.n:
+        if not ratio.n:  # a ratio only where every run of both modes converged (MapTransfer.ratio)
             out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue
         verdict = "**agrees**" if ratio.lo >= 5 else "**does not agree**" if ratio.hi < 5 else "**undecided**"

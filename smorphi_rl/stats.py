@@ -1,7 +1,8 @@
 """Figures over seeds with 95 % bootstrap intervals (scipy.stats.bootstrap; no hand-written resampling).
 
 A claim about learning is a statistic per seed (a run's median gap, its share of starts within 1 %),
-summarised over seeds as the mean with a percentile bootstrap interval. With 3-5 seeds such
+summarised over seeds as the mean or the median (transfer's steps to converge) with a percentile bootstrap
+interval. With 3-5 seeds such
 intervals are wide; they say so honestly rather than hide it.
 """
 
@@ -9,7 +10,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -59,7 +60,7 @@ def _interval(values: Sequence[float], statistic: Any, seed: int) -> Interval:
 
 
 def ratio_interval(
-    numerator: Sequence[float], denominator: Sequence[float], seed: int = 0, statistic: Any = np.mean
+    numerator: Sequence[float], denominator: Sequence[float], seed: int = 0, statistic: Callable[..., Any] = np.mean
 ) -> Interval:
     """statistic(numerator) / statistic(denominator) of two independent sets of seeds (a Table-5 speed-up: the
     mean by default, `np.median` for medians), with its 95 % percentile bootstrap interval (each set resampled on

@@ -68,7 +68,7 @@ def critic_renormalised(state: dict[str, Any], trained_with: dict[str, Any], now
     the pretrained critic under the new run's offset and scale would predict other values; rescaled, it predicts
     on every observation what it did when pretrained."""
     old_offset, old_scale = float(trained_with.get("value_offset", 0.0)), float(trained_with.get("value_scale", 1.0))
-    offset, scale = float(now.get("value_offset", 0.0)), float(now.get("value_scale", 1.0))
+    offset, scale = float(now["value_offset"]), float(now["value_scale"])  # every run sets both (config.py)
     weight, bias = state[VALUE_PREFIX + "head.weight"], state[VALUE_PREFIX + "head.bias"]
     return state | {
         VALUE_PREFIX + "head.weight": weight * (old_scale / scale),

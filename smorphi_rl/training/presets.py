@@ -40,6 +40,7 @@ class Preset:
     times (RLlib's `circular_buffer_num_batches` and `circular_buffer_iterations_per_batch`); None: RLlib's 8
     and 2. The learner draws from the buffer at random, so it holds how stale a trained batch can be."""
     circular_buffer_passes: int | None = None
+    """APPO: how often each batch of the circular buffer may be trained on (above); None: RLlib's 2."""
     rollout_fragment_length: int | str = "auto"
     min_time_s_per_iteration: float = 0.0
     env_runners: int = 2

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import math
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -156,7 +157,8 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. Env steps to converge count converged runs only; a run "
-        "that never converged is counted as not converged, not as a number; the ratio is of the medians.",
+        "that never converged is counted as not converged, not as a number; the ratio is of the medians, given only "
+        "where every run of both modes converged.",
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "
@@ -164,7 +166,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for m in by_map(runs):
-        best = f"{max(r.best_R1 for r in m.tuned):.2f} / {max(r.best_R1 for r in m.scratch):.2f}"
+        best = " / ".join(f"{max((r.best_R1 for r in rs), default=math.nan):.2f}" for rs in (m.tuned, m.scratch))
         lines.append(
             f"| {m.map_name} | {m.tuned_steps.text(',.0f')} | {m.counts[0]} | {m.scratch_steps.text(',.0f')} "
             f"| {m.counts[1]} | {m.ratio.text()} | {median_interval([r.plateau for r in m.tuned]).text()} "
@@ -184,7 +186,8 @@ def converged_steps(runs: list[TransferRun]) -> list[float]:
 @dataclass(frozen=True)
 class MapTransfer:
     """One held-out map's runs over seeds and Table 5's figures: env steps to converge fine-tuned and from scratch
-    (median [95 %] of the runs that converged) and the ratio of the medians, scratch / fine-tuned."""
+    (median [95 %] of the runs that converged, beside how many did) and the ratio of the medians, scratch /
+    fine-tuned, where every run converged."""
 
     map_name: str
     tuned: list[TransferRun]
@@ -199,17 +202,20 @@ class MapTransfer:
         return median_interval(converged_steps(self.scratch))
 
     @property
-    def ratio(self) -> Interval:
-        """NaN unless a run of each mode converged."""
-        import numpy as np
-
-        return ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), statistic=np.median)
+    def all_converged(self) -> tuple[bool, bool]:
+        """Whether every fine-tuned run, and every scratch run, converged (a mode with no runs has not)."""
+        return (bool(self.tuned) and all(r.converged_at is not None for r in self.tuned),
+                bool(self.scratch) and all(r.converged_at is not None for r in self.scratch))  # fmt: skip
 
     @property
-    def all_converged(self) -> tuple[bool, bool]:
-        """Whether every fine-tuned run, and every scratch run, converged (else the ratio is no measurement)."""
-        return (all(r.converged_at is not None for r in self.tuned),
-                all(r.converged_at is not None for r in self.scratch))  # fmt: skip
+    def ratio(self) -> Interval:
+        """The ratio of the medians, scratch / fine-tuned, with its interval; NaN (no ratio) unless every run of
+        both modes converged: leaving out a run that never converged would flatter the mode it belongs to."""
+        import numpy as np
+
+        if not all(self.all_converged):
+            return Interval(math.nan, math.nan, math.nan, 0)
+        return ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), statistic=np.median)
 
     @property
     def counts(self) -> tuple[str, str]:

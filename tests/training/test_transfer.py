@@ -32,8 +32,22 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
     cells = [c.strip() for c in row.strip("|").split("|")]
     assert cells[1].startswith("3,000 [") and cells[2] == "2 of 3"  # the run that never settled is not a number
     assert cells[3].startswith("8,000 [") and cells[4] == "3 of 3"
-    assert cells[5].startswith("2.67 [")  # medians 8,000 / 3,000, with its interval
+    assert cells[5] == "-"  # a fine-tuned run never converged: leaving it out would flatter fine-tuning
     assert files["png"].is_file()
+    runs[2] = _run("fine-tune", 2, 30_000, 87.0)  # every run converged: the ratio of the medians, 8,000 / 4,000
+    row = next(line for line in write_transfer_report(tmp_path, runs)["md"].read_text().splitlines()
+               if line.startswith("| val-1"))  # fmt: skip
+    assert [c.strip() for c in row.strip("|").split("|")][5].startswith("2.00 [")
+
+
+def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
+    from smorphi_rl.training.transfer import by_map
+
+    runs = [_run("fine-tune", 0, 2_000, 88.0)]
+    files = write_transfer_report(tmp_path, runs)
+    row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
+    assert row.rstrip().endswith("| 89.00 / nan |")
+    assert by_map(runs)[0].all_converged == (True, False) and by_map(runs)[0].ratio.n == 0
 
 
 def test_a_transfer_job_is_checked_when_made():
