@@ -228,7 +228,7 @@ def _claims(map_name: str, b: Budget, scores: list[MethodScore], curves: dict[st
 
 def _transfer_claims(runs: list[Any]) -> list[str]:
     """Table 5's claim per held-out map, over seeds: the speed-up with its interval; runs that never converged
-    are named, and a map where no fine-tuned or no scratch run converged gives no ratio."""
+    are counted, and a map where any run did not converge gives no ratio."""
     from smorphi_rl.training.transfer import by_map
 
     out = []

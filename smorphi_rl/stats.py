@@ -2,8 +2,7 @@
 
 A claim about learning is a statistic per seed (a run's median gap, its share of starts within 1 %),
 summarised over seeds as the mean or the median (transfer's steps to converge) with a percentile bootstrap
-interval. With 3-5 seeds such
-intervals are wide; they say so honestly rather than hide it.
+interval. With 3-5 seeds such intervals are wide; they say so honestly rather than hide it.
 """
 
 from __future__ import annotations
