@@ -182,16 +182,19 @@ class TrainConfig:
         return out
 
 
-FRACTIONS = ("gamma", "lambda_", "clip_param")
+FRACTIONS = ("gamma", "lambda_", "clip_param", "pg_lambda", "frozen_critic")
 """Hyperparameters that must lie in [0, 1]."""
 USED_BY = {
     "clip_param": ("ppo", "appo"),
+    "pg_lambda": ("impala", "appo"),
     "target_update_freq": ("appo",),
     "circular_buffer_batches": ("appo",),
     "circular_buffer_passes": ("appo",),
+    "learner_queue": ("appo",),
+    "frozen_critic": ("appo",),
 }
 """Hyperparameters only some algorithms have (the others take every Preset field)."""
-AT_LEAST_ONE = ("circular_buffer_batches", "circular_buffer_passes")
+AT_LEAST_ONE = ("circular_buffer_batches", "circular_buffer_passes", "learner_queue")
 """Hyperparameters that must be at least 1 (a buffer of no batches trains on nothing)."""
 
 
@@ -210,6 +213,8 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             "policy_angle_frequencies",
             "circular_buffer_batches",
             "circular_buffer_passes",
+            "learner_queue",
+            "frozen_critic",
         )
         least = 1 if name in AT_LEAST_ONE else 0
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= least
@@ -357,7 +362,7 @@ def algorithm_config(
     from ray.rllib.core.rl_module.rl_module import RLModuleSpec
 
     from smorphi_rl.training.callbacks import MorphologyCallbacks
-    from smorphi_rl.training.learners import LEARNERS, TRACE_LAMBDA_KEY
+    from smorphi_rl.training.learners import FROZEN_CRITIC_KEY, LEARNERS, PG_LAMBDA_KEY, TRACE_LAMBDA_KEY
     from smorphi_rl.training.module import MorphologyModule
     from smorphi_rl.training.sampling import LEAN_SAMPLING
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
@@ -374,17 +379,16 @@ def algorithm_config(
         "grad_clip": hp.grad_clip,
         "grad_clip_by": "norm",  # per tensor: the value net's large gradients never shrink the policy's
         "train_batch_size_per_learner": hp.train_batch_size,
+        "num_epochs": hp.num_epochs,
+        "minibatch_size": hp.minibatch_size,
     }
+    # PPO's lambda is RLlib's; v-trace's two reach our learners through RLlib's public learner_config_dict
+    pg_lambda = 1.0 if hp.pg_lambda is None else hp.pg_lambda
+    trace = {} if cfg.algo == "ppo" else {TRACE_LAMBDA_KEY: hp.lambda_, PG_LAMBDA_KEY: pg_lambda,
+                                          FROZEN_CRITIC_KEY: hp.frozen_critic}  # fmt: skip
     if cfg.algo == "ppo":
-        training |= {
-            "lambda_": hp.lambda_,
-            "num_epochs": hp.num_epochs,
-            "minibatch_size": hp.minibatch_size,
-            "vf_clip_param": math.inf,  # returns are in the thousands; a clip at 10 would freeze the critic
-        }
-    else:  # v-trace's lambda reaches the learner through RLlib's public learner_config_dict (learners.py)
-        training |= {"num_epochs": hp.num_epochs, "minibatch_size": hp.minibatch_size,
-                     "learner_config_dict": {TRACE_LAMBDA_KEY: hp.lambda_}}  # fmt: skip
+        # returns are in the thousands; a value clip at 10 would freeze the critic
+        training |= {"lambda_": hp.lambda_, "vf_clip_param": math.inf}
     if hp.clip_param is not None:  # PPO's and APPO's only (check_overrides)
         training["clip_param"] = hp.clip_param
     if hp.target_update_freq is not None:  # APPO's only
@@ -393,6 +397,8 @@ def algorithm_config(
         training["circular_buffer_num_batches"] = hp.circular_buffer_batches
     if hp.circular_buffer_passes is not None:
         training["circular_buffer_iterations_per_batch"] = hp.circular_buffer_passes
+    if hp.learner_queue is not None:
+        training |= {"use_circular_buffer": False, "simple_queue_size": hp.learner_queue}
     config = (
         config_cls()
         .environment(
@@ -411,7 +417,7 @@ def algorithm_config(
             rollout_fragment_length=hp.rollout_fragment_length,
             **(LEAN_SAMPLING if lean else {}),  # type: ignore[arg-type]  # RLlib types the connector callables loosely
         )
-        .learners(num_learners=0, learner_class=LEARNERS[cfg.algo])  # see learners.py
+        .learners(num_learners=0, learner_class=LEARNERS[cfg.algo], learner_config_dict=trace)  # learners.py
         .training(**training)
         .rl_module(
             rl_module_spec=RLModuleSpec(

@@ -24,6 +24,7 @@ with its cause instead of freezing it.
 from __future__ import annotations
 
 import contextvars
+import copy
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -45,6 +46,10 @@ from smorphi_rl.training.module import MAP_KEY, pack_maps
 ADVANTAGE_EPS = 1e-8
 TRACE_LAMBDA_KEY = "vtrace_lambda"
 """The key of v-trace's lambda in the AlgorithmConfig's public `learner_config_dict` (config.py sets it)."""
+FROZEN_CRITIC_KEY = "vtrace_frozen_critic"
+"""The key that makes APPO's v-trace read the critic as frozen at its target policy's last refresh (`FrozenCritic`)."""
+PG_LAMBDA_KEY = "vtrace_pg_lambda"
+"""The key of the policy-gradient advantage's `pg_lambda` (`vtrace_lambda`) in the same dict."""
 
 
 @dataclass(frozen=True)
@@ -52,8 +57,11 @@ class TraceSettings:
     """What the v-trace of the loss being computed in this thread needs beyond RLlib's arguments."""
 
     lambda_: float = 1.0
+    pg_lambda: float = 1.0
     mask: torch.Tensor | None = None
     """Time-major, 1.0 on the steps the loss learns from; None: every step."""
+    values: torch.Tensor | None = None
+    """Time-major state values v-trace reads in place of RLlib's (the critic being trained); None: RLlib's."""
 
 
 _TRACE: contextvars.ContextVar[TraceSettings | None] = contextvars.ContextVar("vtrace", default=None)
@@ -61,7 +69,7 @@ _TRACE: contextvars.ContextVar[TraceSettings | None] = contextvars.ContextVar("v
 
 
 def vtrace_lambda(
-    *, lambda_: float = 1.0, mask: torch.Tensor | None = None, **kwargs: Any
+    *, lambda_: float = 1.0, pg_lambda: float = 1.0, mask: torch.Tensor | None = None, **kwargs: Any
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """V-trace with the IMPALA paper's lambda (Espeholt et al. 2018, remark 1): traces cut by
     `c_s = lambda min(1, rho_s)`, as GAE's lambda cuts returns. At lambda 1 and no mask it is RLlib's
@@ -71,7 +79,12 @@ def vtrace_lambda(
     `mask` (time-major, 0 on the steps the loss ignores): those steps add no TD error and cut the trace, so the
     step before them is bootstrapped from their value. RLlib's has no mask and gives the extra timestep it adds
     after every episode chunk (to hold the bootstrap value) a TD error of `-rho V`: the bootstrap of every chunk
-    that does not end a row is wiped (the last real step's target becomes its reward alone)."""
+    that does not end a row is wiped (the last real step's target becomes its reward alone).
+
+    `pg_lambda`: how much of the next state's correction `v_(s+1) - V(x_(s+1))` the policy-gradient advantage
+    takes, `A_s = rho_s (r_s + gamma (V(x_(s+1)) + pg_lambda (v_(s+1) - V(x_(s+1)))) - V(x_s))`. At 1 it is
+    IMPALA's (every later step's TD error enters at full weight from the first); at `lambda_` and on-policy
+    it is GAE's advantage at that lambda, PPO's (by test)."""
     rhos = torch.exp(kwargs["target_action_log_probs"] - kwargs["behaviour_action_log_probs"])
     discounts, rewards, values = kwargs["discounts"], kwargs["rewards"], kwargs["values"]
     bootstrap = kwargs["bootstrap_values"]
@@ -90,14 +103,18 @@ def vtrace_lambda(
         corrections.append(acc)
     vs = torch.stack(corrections[::-1]) + values
     next_vs = torch.cat([vs[1:], bootstrap.unsqueeze(0)], dim=0)
-    return vs.detach(), (pg_rhos * (rewards + discounts * next_vs - values)).detach()
+    pg_next = next_values + pg_lambda * (next_vs - next_values)
+    return vs.detach(), (pg_rhos * (rewards + discounts * pg_next - values)).detach()
 
 
 def normalised_vtrace(**kwargs: Any) -> tuple[torch.Tensor, torch.Tensor]:
     """V-trace (`vtrace_lambda`, with the settings of the loss being computed) whose policy-gradient advantages
     come back standardised over the steps the loss learns from (the others stay 0)."""
     trace = _TRACE.get() or TraceSettings()
-    targets, advantages = vtrace_lambda(lambda_=trace.lambda_, mask=trace.mask, **kwargs)
+    if trace.values is not None:  # bootstrapped as RLlib does: from the next row's first value
+        kwargs = {**kwargs, "values": trace.values,
+                  "bootstrap_values": torch.cat([trace.values[0][1:], trace.values[0][0:1]])}  # fmt: skip
+    targets, advantages = vtrace_lambda(lambda_=trace.lambda_, pg_lambda=trace.pg_lambda, mask=trace.mask, **kwargs)
     kept = torch.ones_like(advantages, dtype=torch.bool) if trace.mask is None else trace.mask > 0
     mean, std = advantages[kept].mean(), advantages[kept].std()
     return targets, torch.where(kept, (advantages - mean) / (std + ADVANTAGE_EPS), torch.zeros_like(advantages))
@@ -121,12 +138,18 @@ def with_trace_settings(loss: Callable[..., Any]) -> Callable[..., Any]:
     (`learnable_steps`), at the lambda its config names."""
 
     def compute_loss_for_module(self: Any, *, module_id: Any, config: Any, batch: Any, fwd_out: Any) -> Any:
-        lambda_ = float((config.learner_config_dict or {}).get(TRACE_LAMBDA_KEY, 1.0))
+        settings = config.learner_config_dict or {}
+        lambda_, pg_lambda = float(settings.get(TRACE_LAMBDA_KEY, 1.0)), float(settings.get(PG_LAMBDA_KEY, 1.0))
         mask = learnable_steps(batch[Columns.LOSS_MASK])
         batch = {**batch, Columns.LOSS_MASK: mask}
         time_major = make_time_major(mask.float(), trajectory_len=config.get_rollout_fragment_length(),
                                      recurrent_seq_len=batch.get("seq_lens"))  # fmt: skip
-        token = _TRACE.set(TraceSettings(lambda_, time_major))
+        frozen = getattr(self, "frozen_values", None)
+        values = frozen(module_id, batch) if frozen is not None and settings.get(FROZEN_CRITIC_KEY) else None
+        if values is not None:
+            values = make_time_major(values, trajectory_len=config.get_rollout_fragment_length(),
+                                     recurrent_seq_len=batch.get("seq_lens"))  # fmt: skip
+        token = _TRACE.set(TraceSettings(lambda_, pg_lambda, mask=time_major, values=values))
         try:
             return loss(self, module_id=module_id, config=config, batch=batch, fwd_out=fwd_out)
         finally:
@@ -283,7 +306,38 @@ class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearne
     )
 
 
-class NormalisedAPPOLearner(GuardedLearnerThread, FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
+class FrozenCritic:
+    """An APPO learner mixin: a copy of each module's critic taken whenever APPO refreshes the module's target
+    policy, for v-trace's advantages and value targets (`frozen_values`). PPO computes its advantages and value
+    targets once per batch, before its epochs; RLlib's APPO recomputes them every minibatch with the critic
+    it is training on that very batch, so by the later passes the critic has fit the returns and the
+    standardised advantages are mostly noise. A refresh is seen as a change of the target policy's weights
+    (APPO copies the policy there), so the copy is taken after the update that refreshed them."""
+
+    def frozen_values(self, module_id: Any, batch: dict[str, Any]) -> torch.Tensor | None:
+        module = self.module[module_id].unwrapped()  # type: ignore[attr-defined]  # a mixin of a Learner
+        frozen = getattr(self, "_frozen", {}).get(module_id)
+        if frozen is None or not hasattr(module, "compute_values_with"):
+            return None
+        with torch.no_grad():
+            return module.compute_values_with(frozen[0], batch)
+
+    def after_gradient_based_update(self, *, timesteps: dict[str, Any]) -> None:
+        super().after_gradient_based_update(timesteps=timesteps)  # type: ignore[misc]  # refreshes target nets
+        if not (self.config.learner_config_dict or {}).get(FROZEN_CRITIC_KEY):  # type: ignore[attr-defined]
+            return
+        store = self.__dict__.setdefault("_frozen", {})
+        for module_id, wrapped in self.module.items():  # type: ignore[attr-defined]
+            module = wrapped.unwrapped()
+            if not hasattr(module, "value_net") or not hasattr(module, "get_target_network_pairs"):
+                continue
+            mark = next(iter(module.get_target_network_pairs()[0][1].parameters())).detach()
+            held = store.get(module_id)
+            if held is None or not torch.equal(held[1], mark):  # the target policy was refreshed (or first)
+                store[module_id] = (copy.deepcopy(module.value_net()), mark.clone())
+
+
+class NormalisedAPPOLearner(GuardedLearnerThread, FrozenCritic, FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """APPO with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:

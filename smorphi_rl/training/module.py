@@ -311,7 +311,15 @@ class MorphologyModule(TorchRLModule, ValueFunctionAPI, TargetNetworkAPI):
         return self._forward_inference(batch, **kwargs)
 
     def compute_values(self, batch: dict[str, Any], embeddings: Any = None) -> torch.Tensor:
-        return self._value_offset + self._vf(batch[Columns.OBS]).squeeze(-1) * self._value_scale
+        return self.compute_values_with(self._vf, batch)
+
+    def value_net(self) -> nn.Module:
+        """The critic's net (a learner may keep a frozen copy of it: `learners.FrozenCritic`)."""
+        return self._vf
+
+    def compute_values_with(self, net: nn.Module, batch: dict[str, Any]) -> torch.Tensor:
+        """State values of `batch` by `net` (this module's critic or a copy of it), in return units."""
+        return self._value_offset + net(batch[Columns.OBS]).squeeze(-1) * self._value_scale
 
     # -- TargetNetworkAPI (APPO) -----------------------------------------------------------
     def make_target_networks(self) -> None:

@@ -23,6 +23,9 @@ class Preset:
     train_batch_size: int
     lambda_: float = 0.95
     """PPO: GAE's lambda; IMPALA and APPO: v-trace's (traces cut by lambda, `learners.vtrace_lambda`)."""
+    pg_lambda: float | None = None
+    """IMPALA/APPO: the share of the next state's v-trace correction in the policy-gradient advantage
+    (`learners.vtrace_lambda`); None: 1, IMPALA's; at `lambda_` it is GAE's advantage, PPO's, on-policy."""
     lr_final: float | None = None
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
     policy_angle_frequencies: int = ANGLE_FREQUENCIES
@@ -41,6 +44,14 @@ class Preset:
     and 2. The learner draws from the buffer at random, so it holds how stale a trained batch can be."""
     circular_buffer_passes: int | None = None
     """APPO: how often each batch of the circular buffer may be trained on (above); None: RLlib's 2."""
+    frozen_critic: int = 0
+    """APPO: 1 computes v-trace's advantages and value targets with a copy of the critic taken at each refresh of
+    the target policy (`learners.FrozenCritic`), as PPO computes its GAE once per batch; 0: RLlib's, with the
+    critic being trained on the same minibatch."""
+    learner_queue: int | None = None
+    """APPO: a plain queue of this many train batches in place of the circular buffer, each batch trained once
+    (`num_epochs` passes) and sampling held back while it is full, so the runners wait for the learner as
+    PPO's do (RLlib's `use_circular_buffer` False, `simple_queue_size`); None: the circular buffer."""
     rollout_fragment_length: int | str = "auto"
     min_time_s_per_iteration: float = 0.0
     env_runners: int = 2

@@ -132,3 +132,21 @@ def test_appos_circular_buffer_is_a_tunable_hyperparameter_of_appo_alone():
         TrainConfig(overrides={"circular_buffer_batches": 1})
     with pytest.raises(TrainConfigError, match="'circular_buffer_passes' must be a positive integer, got 0"):
         TrainConfig(algo="appo", overrides={"circular_buffer_passes": 0})
+
+
+def test_appos_learner_queue_replaces_the_circular_buffer_and_pg_lambda_reaches_the_learner():
+    from smorphi_rl.training.config import algorithm_config
+    from smorphi_rl.training.learners import PG_LAMBDA_KEY, TRACE_LAMBDA_KEY
+
+    built = algorithm_config(TrainConfig(algo="appo", overrides={"learner_queue": 2, "pg_lambda": 0.5}))
+    assert (built.use_circular_buffer, built.simple_queue_size) == (False, 2)
+    assert built.learner_config_dict[PG_LAMBDA_KEY] == 0.5 and built.learner_config_dict[TRACE_LAMBDA_KEY] == 1.0
+    default = algorithm_config(TrainConfig(algo="impala"))
+    assert default.learner_config_dict[PG_LAMBDA_KEY] == 1.0  # IMPALA's advantage
+    assert algorithm_config(TrainConfig(algo="appo")).use_circular_buffer  # RLlib's
+    with pytest.raises(TrainConfigError, match="'learner_queue' must be a positive integer, got 0"):
+        TrainConfig(algo="appo", overrides={"learner_queue": 0})
+    with pytest.raises(TrainConfigError, match="'pg_lambda' must be a number in"):
+        TrainConfig(algo="appo", overrides={"pg_lambda": 1.5})
+    with pytest.raises(TrainConfigError, match="impala and appo's; ppo has none"):
+        TrainConfig(overrides={"pg_lambda": 0.5})

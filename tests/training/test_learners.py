@@ -126,6 +126,25 @@ def test_vtrace_lambda_is_rllibs_at_1_and_one_step_td_at_0():
     assert not torch.allclose(half, targets) and not torch.allclose(half, vtrace_torch(**inputs)[0])
 
 
+def test_pg_lambda_at_lambda_gives_gae_on_policy_and_at_1_impalas_advantage():
+    from smorphi_rl.training.learners import vtrace_lambda
+
+    inputs = _vtrace_inputs()
+    inputs["behaviour_action_log_probs"] = inputs["target_action_log_probs"]  # on-policy: every rho is 1
+    values, rewards, discounts = inputs["values"], inputs["rewards"], inputs["discounts"]
+    next_values = torch.cat([values[1:], inputs["bootstrap_values"].unsqueeze(0)])
+    deltas = rewards + discounts * next_values - values
+    gae, acc = torch.zeros_like(values), torch.zeros_like(values[0])
+    for t in reversed(range(len(values))):  # GAE(0.5), as PPO computes it
+        acc = deltas[t] + discounts[t] * 0.5 * acc
+        gae[t] = acc
+    _, advantages = vtrace_lambda(lambda_=0.5, pg_lambda=0.5, **inputs)
+    assert torch.allclose(advantages, gae, atol=1e-4)
+    targets, impala = vtrace_lambda(lambda_=0.5, **inputs)  # pg_lambda 1: the next state's whole v-trace target
+    assert torch.allclose(impala[:-1], rewards[:-1] + discounts[:-1] * targets[1:] - values[:-1], atol=1e-4)
+    assert not torch.allclose(impala, gae, atol=1e-2)
+
+
 def test_the_async_losses_run_at_the_lambda_their_config_names_on_the_learnable_steps():
     from types import SimpleNamespace
 
@@ -140,10 +159,11 @@ def test_the_async_losses_run_at_the_lambda_their_config_names_on_the_learnable_
 
     wrapped = learners.with_trace_settings(loss)
     mask = torch.tensor([True, True, False, True, True, False, True])  # two chunks end in extra steps, one is cut
-    for settings in ({learners.TRACE_LAMBDA_KEY: 0.3}, {}):
+    for settings in ({learners.TRACE_LAMBDA_KEY: 0.3, learners.PG_LAMBDA_KEY: 0.2}, {}):
         config = SimpleNamespace(learner_config_dict=settings, get_rollout_fragment_length=lambda: 2)
         wrapped(None, module_id="m", config=config, batch={Columns.LOSS_MASK: mask}, fwd_out={})
-    assert [trace.lambda_ for trace, _ in seen] == [0.3, 1.0] and learners._TRACE.get() is None  # for the loss only
+    assert [(trace.lambda_, trace.pg_lambda) for trace, _ in seen] == [(0.3, 0.2), (1.0, 1.0)]
+    assert learners._TRACE.get() is None  # for the loss only
     assert seen[0][1].tolist() == [True, True, False, True, True, False, False]  # the cut chunk's step is dropped
     assert seen[0][0].mask.tolist() == [[1.0, 0.0, 1.0, 0.0], [1.0, 1.0, 0.0, 0.0]]  # time-major, padded
 
@@ -177,7 +197,7 @@ def test_normalised_advantages_are_standardised_over_the_learnable_steps_only():
     inputs = _vtrace_inputs()
     mask = torch.ones(7, 5)
     mask[3, :] = 0.0
-    token = learners._TRACE.set(learners.TraceSettings(0.5, mask))
+    token = learners._TRACE.set(learners.TraceSettings(0.5, mask=mask))
     try:
         _, advantages = learners.normalised_vtrace(**inputs)
     finally:
@@ -257,3 +277,57 @@ def test_one_update_of_the_async_learners_moves_the_weights(algo):
         learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
         runner.stop()
     assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))
+
+
+def test_appos_frozen_critic_is_the_critic_at_the_last_target_refresh_and_feeds_vtrace():
+    """`frozen_critic`: v-trace reads the critic as copied when APPO last refreshed its target policy, so a
+    batch's advantages and value targets stay fixed over its passes while the critic trains (PPO's GAE)."""
+    from ray.rllib.core.columns import Columns
+    from ray.rllib.utils.metrics import NUM_ENV_STEPS_SAMPLED_LIFETIME, NUM_ENV_STEPS_TRAINED_LIFETIME
+
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.training import learners
+    from smorphi_rl.training.config import TrainConfig, algorithm_config
+
+    env = MorphologyEnv()
+    spaces = {"__env__": (env.observation_space, env.action_space)}
+    spaces["default_policy"] = spaces["__env__"]
+    plain = algorithm_config(TrainConfig(algo="appo", timesteps=10_000)).build_learner(spaces=spaces)
+    try:  # off by default: nothing is copied
+        plain.after_gradient_based_update(timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: 0})
+        assert not getattr(plain, "_frozen", {})
+    finally:
+        plain.shutdown()
+    config = algorithm_config(TrainConfig(algo="appo", timesteps=10_000, overrides={"frozen_critic": 1}))
+    learner = config.build_learner(spaces=spaces)
+    try:
+        module = learner.module["default_policy"].unwrapped()
+        obs, _ = env.reset(seed=0)
+        batch = {Columns.OBS: {k: torch.as_tensor(v)[None] for k, v in obs.items()}}
+        assert learner.frozen_values("default_policy", batch) is None  # nothing frozen before the first update
+
+        def update(trained: int) -> None:
+            learner.after_gradient_based_update(
+                timesteps={NUM_ENV_STEPS_SAMPLED_LIFETIME: 0, NUM_ENV_STEPS_TRAINED_LIFETIME: trained}
+            )
+
+        update(0)
+        before = module.compute_values(batch).detach()
+        with torch.no_grad():  # both nets learn between refreshes
+            for p in [*module.value_net().parameters(), *module._pi.parameters()]:
+                p.add_(0.05)
+        update(1)  # no refresh of the target policy: the copy stays
+        assert torch.allclose(learner.frozen_values("default_policy", batch), before)
+        assert not torch.allclose(module.compute_values(batch), before)
+        update(10**9)  # APPO refreshes its target policy: the copy follows the critic
+        assert torch.allclose(learner.frozen_values("default_policy", batch), module.compute_values(batch).detach())
+
+        seen = []
+        wrapped = learners.with_trace_settings(lambda self, **kw: seen.append(learners._TRACE.get()))
+        mask = torch.tensor([True])
+        wrapped(learner, module_id="default_policy", config=learner.config,
+                batch={**batch, Columns.LOSS_MASK: mask}, fwd_out={})  # fmt: skip
+        frozen = learner.frozen_values("default_policy", batch)
+        assert seen[0].values is not None and torch.allclose(seen[0].values.flatten()[:1], frozen)  # time-major
+    finally:
+        learner.shutdown()
