@@ -12,7 +12,7 @@ lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
         [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000]
         [--async-timesteps 400000] [--no-ideal]
-        [--set NAME=VALUE ...] [--out NAME]
+        [--set NAME=VALUE ...] [--env-runners N] [--envs-per-runner N] [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
 curves (learning_curves.png) under logs/NAME (default logs/bench-learning-<time>).
@@ -42,7 +42,7 @@ from smorphi_rl.stats import mean_interval
 from smorphi_rl.training.checkpoints import load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.policy import evaluate_policy
-from smorphi_rl.training.presets import DEFAULT_TIMESTEPS, PRESETS
+from smorphi_rl.training.presets import DEFAULT_TIMESTEPS, ENVS_PER_RUNNER, PRESETS
 from smorphi_rl.training.run import train
 from smorphi_rl.training.transfer import summary_curve
 
@@ -85,8 +85,13 @@ def main() -> None:
     parser.add_argument("--no-ideal", action="store_true", help="skip the value-iteration ceiling")
     parser.add_argument("--set", nargs="+", default=[], metavar="NAME=VALUE",
                         help="hyperparameters replacing the presets' (Preset field names)")  # fmt: skip
+    parser.add_argument("--env-runners", type=int, default=None, metavar="N",
+                        help="remote env runners (default: the preset's; 0: in the trial process)")  # fmt: skip
+    parser.add_argument("--envs-per-runner", type=int, default=ENVS_PER_RUNNER, metavar="N")
     parser.add_argument("--out", default=None, metavar="NAME", help="results go to logs/NAME")
     args = parser.parse_args()
+    if (args.env_runners is not None and args.env_runners < 0) or args.envs_per_runner < 1:
+        raise SystemExit("bench_learning.py: --env-runners must be at least 0 and --envs-per-runner at least 1")
     try:
         out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
     except RunDirError as exc:
@@ -106,8 +111,9 @@ def main() -> None:
             for reward in args.rewards:
                 for seed in args.seeds:
                     budget = args.timesteps if algo == "ppo" else args.async_timesteps
+                    layout = (args.env_runners, args.envs_per_runner)
                     rows.append(train_and_evaluate(algo, reward, seed, map_path, budget, optimum, starts, out,
-                                                   overrides))  # fmt: skip
+                                                   overrides, layout))  # fmt: skip
                     r = rows[-1]
                     print(f"  {r.method} seed {seed}: median gap {r.median_gap:.2f}, within 1 % {r.within:.0%}, "
                           f"settled R1 {r.settled_R1:.2f}, {r.evaluations:.0f} evaluations a start, {r.wall_s:.0f} s",
@@ -138,9 +144,11 @@ def parse_overrides(pairs: list[str]) -> dict[str, float]:
 
 
 def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timesteps: int, optimum: Optimum,
-                       starts: np.ndarray, out: Path, overrides: dict[str, float]) -> Row:  # fmt: skip
+                       starts: np.ndarray, out: Path, overrides: dict[str, float],
+                       layout: tuple[int | None, int] = (None, ENVS_PER_RUNNER)) -> Row:  # fmt: skip
     cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [map_path], "reward": reward}), timesteps=timesteps,
-                      seed=seed, record_every=0, checkpoint_every=1000, overrides=overrides)  # fmt: skip
+                      seed=seed, num_env_runners=layout[0], envs_per_runner=layout[1], record_every=0,
+                      checkpoint_every=1000, overrides=overrides)  # fmt: skip
     name = f"{algo}-{reward}-{Path(map_path).stem}-seed{seed}"
     with open(os.devnull, "w") as devnull:
         summary = train(cfg, name=name, log_dir=out / "runs", out=devnull)
@@ -196,6 +204,9 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
             writer.writerow([r.map, r.method, r.seed, f"{r.median_gap:.4f}", f"{r.within:.3f}", f"{r.evaluations:.1f}",
                              f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}"])  # fmt: skip
     changed = f" Hyperparameters changed from the presets: {' '.join(args.set)}." if args.set else ""
+    if args.env_runners is not None or args.envs_per_runner != ENVS_PER_RUNNER:
+        runners = "the preset's" if args.env_runners is None else args.env_runners
+        changed += f" Sampling: {runners} env runners x {args.envs_per_runner} envs."
     lines = [f"Greedy settled gap to the exact optimum, {len(args.seeds)} seeds ({', '.join(map(str, args.seeds))}), "
              f"{args.timesteps:,} env steps per PPO run and {args.async_timesteps:,} per IMPALA or APPO run, 20 fixed "
              "starts; mean over seeds [95 % bootstrap interval]."
