@@ -382,7 +382,7 @@ def algorithm_config(
         "num_epochs": hp.num_epochs,
         "minibatch_size": hp.minibatch_size,
     }
-    # PPO's lambda is RLlib's; v-trace's two reach our learners through RLlib's public learner_config_dict
+    # PPO's lambda is RLlib's; v-trace's settings reach our learners through RLlib's public learner_config_dict
     pg_lambda = 1.0 if hp.pg_lambda is None else hp.pg_lambda
     trace = {} if cfg.algo == "ppo" else {TRACE_LAMBDA_KEY: hp.lambda_, PG_LAMBDA_KEY: pg_lambda,
                                           FROZEN_CRITIC_KEY: hp.frozen_critic}  # fmt: skip

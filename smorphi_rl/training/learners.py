@@ -6,7 +6,8 @@ learning. These learners standardise v-trace's `pg_advantages` (zero mean, unit 
 and leave the value targets alone. RLlib computes both inside `compute_loss_for_module` with no hook
 between them, so the loss is RLlib's own with `vtrace_torch` resolved to a normalising one
 (`rllib_compat.with_globals`: a copy of the method; RLlib's module is left as it is). That v-trace also takes
-the IMPALA paper's lambda (`vtrace_lambda`), which RLlib's lacks, from the config's `learner_config_dict`.
+the IMPALA paper's lambda (`vtrace_lambda`), which RLlib's lacks, the advantage's form (`pg_lambda`) and, for
+APPO, a critic frozen at each target refresh (`FrozenCritic`), from the config's `learner_config_dict`.
 
 Every learner ends its connector pipeline with `CompactMaps`, which hands the module the batch's maps as
 numbers in the module's table of distinct maps (or, when they are mostly distinct, as int64 words): RLlib's
