@@ -222,6 +222,8 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             kind = (
                 "a positive integer"
                 if least
+                else "0 or 1"
+                if integer and name in FRACTIONS
                 else "a non-negative integer"
                 if integer
                 else "a number in [0, 1]"

@@ -146,6 +146,8 @@ def test_appos_learner_queue_replaces_the_circular_buffer_and_pg_lambda_reaches_
     assert algorithm_config(TrainConfig(algo="appo")).use_circular_buffer  # RLlib's
     with pytest.raises(TrainConfigError, match="'learner_queue' must be a positive integer, got 0"):
         TrainConfig(algo="appo", overrides={"learner_queue": 0})
+    with pytest.raises(TrainConfigError, match="'frozen_critic' must be 0 or 1, got 2"):
+        TrainConfig(algo="appo", overrides={"frozen_critic": 2})
     with pytest.raises(TrainConfigError, match="'pg_lambda' must be a number in"):
         TrainConfig(algo="appo", overrides={"pg_lambda": 1.5})
     with pytest.raises(TrainConfigError, match="impala and appo's; ppo has none"):
