@@ -317,8 +317,8 @@ class FrozenCritic:
 
     def frozen_values(self, module_id: Any, batch: dict[str, Any]) -> torch.Tensor | None:
         module = self.module[module_id].unwrapped()  # type: ignore[attr-defined]  # a mixin of a Learner
-        frozen = getattr(self, "_frozen", {}).get(module_id)
-        if frozen is None or not hasattr(module, "compute_values_with"):
+        frozen = getattr(self, "_frozen", {}).get(module_id)  # only modules with a `value_net` get one
+        if frozen is None:
             return None
         with torch.no_grad():
             return module.compute_values_with(frozen[0], batch)
