@@ -117,6 +117,27 @@ def guard_learner_thread(learner: Any, guard: Callable[[Callable[..., Any]], Cal
     thread._update_method = guard(_private(thread, "_update_method"))
 
 
+LEARNER_STATE_KEY = "_rl_module_state_after_update"
+"""Where IMPALA's `Learner.update` hands the algorithm the module state it broadcasts to the env runners."""
+
+
+def latest_learner_state(learner: Any) -> Any | None:
+    """The module state IMPALA's and APPO's learner thread queued after its latest finished update, taken off its
+    queue (None when it queued none since the last take). RLlib's `update` takes the queued state before it
+    waits for the thread's update to finish and broadcasts that one, so the env runners sample with weights one
+    train batch older than the learner's; the queue and its lock are private and no setting returns the newer."""
+    from queue import Empty
+
+    states = _private(learner, "_learner_state_queue")
+    with _private(learner, "_learner_state_lock"):
+        try:
+            state = states.get_nowait()
+        except Empty:
+            return None
+        learner._learner_state = state  # where RLlib's next `update` looks for it when the queue is empty
+    return state
+
+
 def tensor_norms(tensors: list[Any]) -> Any:
     """The L2 norm of each tensor, in one fused call (torch's `_foreach_norm`: no public multi-tensor norm)."""
     import torch

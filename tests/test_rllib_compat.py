@@ -103,6 +103,19 @@ def test_the_learner_internals_the_adapter_reaches_are_there():
     assert "self._learner_connector = self.config.build_learner_connector(" in inspect.getsource(Learner.build)
 
 
+def test_the_learner_state_queue_the_adapter_reads_is_there():
+    from ray.rllib.algorithms.impala import impala, impala_learner
+
+    from smorphi_rl import rllib_compat
+
+    thread, update = inspect.getsource(impala_learner._LearnerThread), inspect.getsource(impala_learner.IMPALALearner)
+    assert "self.learner._learner_state_queue.put_nowait(learner_state)" in thread
+    assert "self._learner_state_queue = Queue(maxsize=1)" in update
+    assert "self._learner_state_lock = threading.Lock()" in update
+    assert "self._learner_state = self._learner_state_queue.get_nowait()" in update
+    assert f'"{rllib_compat.LEARNER_STATE_KEY}"' in inspect.getsource(impala.IMPALA.training_step)
+
+
 def test_the_normalised_losses_are_rllibs_own_with_the_normalising_vtrace():
     from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
     from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner

