@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
 import numpy as np
 import pytest
 import ray
@@ -47,29 +51,43 @@ def test_one_non_finite_entry_anywhere_is_seen():
     assert not all_finite(list(grads.values()))
 
 
+@contextmanager
+def _async_learner(algo: str) -> Iterator[tuple[Any, Any]]:
+    """(env runner, learner) of one real IMPALA or APPO config, in a Ray session (the learner thread puts its state in
+    Ray's object store); the learner's thread is stopped before Ray is: a live one would start another Ray at its
+    next put."""
+    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
+
+    from smorphi_rl import cluster
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+
+    register_env()
+    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
+    config = algorithm_config(cfg)
+    with cluster.ray_session(None):
+        runner = SingleAgentEnvRunner(config=config)
+        learner = config.build_learner(env=runner.env)  # built, its thread started
+        try:
+            yield runner, learner
+        finally:
+            learner.shutdown()
+            runner.stop()
+
+
 @pytest.mark.slow
 def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it():
     """APPO learns in a thread of its learner; an exception there comes back at the trial's next update."""
     import time
 
     from ray.rllib.core.learner.training_data import TrainingData
-    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 
-    from smorphi_rl import cluster
-    from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
     from smorphi_rl.training.learners import LearnerThreadError
 
     def failing_loss(**kwargs):
         raise ValueError("a broken loss")
 
-    register_env()
-    cfg = TrainConfig(algo="appo", env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
-    config = algorithm_config(cfg)
-    with cluster.ray_session(None):  # the learner thread puts its state in Ray's object store
-        runner = SingleAgentEnvRunner(config=config)
-        learner = config.build_learner(env=runner.env)
-        learner.build()
+    with _async_learner("appo") as (runner, learner):
         learner.compute_loss_for_module = failing_loss
         timesteps = {"num_env_steps_sampled_lifetime": 400}
         learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)), timesteps=timesteps)
@@ -79,8 +97,6 @@ def test_a_failure_in_the_learner_thread_fails_the_update_instead_of_freezing_it
         assert learner._learner_thread.is_alive()  # still taking batches off its queue: nothing blocks
         with pytest.raises(LearnerThreadError, match="ValueError: a broken loss"):
             learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)), timesteps=timesteps)
-        learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
-        runner.stop()
 
 
 def _vtrace_inputs(seed: int = 0) -> dict[str, torch.Tensor]:
@@ -256,19 +272,8 @@ def test_one_update_of_the_async_learners_moves_the_weights(algo):
     import time
 
     from ray.rllib.core.learner.training_data import TrainingData
-    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 
-    from smorphi_rl import cluster
-    from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
-
-    register_env()
-    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
-    config = algorithm_config(cfg)
-    with cluster.ray_session(None):  # the learner thread puts its state in Ray's object store
-        runner = SingleAgentEnvRunner(config=config)
-        learner = config.build_learner(env=runner.env)
-        learner.build()
+    with _async_learner(algo) as (runner, learner):
         before = [p.detach().clone() for p in learner.module["default_policy"].parameters()]
         learner.update(training_data=TrainingData(episodes=runner.sample(num_timesteps=400)),
                        timesteps={"num_env_steps_sampled_lifetime": 400})  # fmt: skip
@@ -276,8 +281,6 @@ def test_one_update_of_the_async_learners_moves_the_weights(algo):
         params = list(learner.module["default_policy"].parameters())
         while all(torch.equal(a, b) for a, b in zip(before, params, strict=True)) and time.monotonic() < deadline:
             time.sleep(0.05)
-        learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
-        runner.stop()
     assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))
 
 
@@ -287,31 +290,18 @@ def test_the_async_learners_hand_over_the_weights_of_the_update_they_waited_for(
     (RLlib's are one batch older), so the env runners sample with the learner's latest policy."""
     from ray.rllib.core import COMPONENT_RL_MODULE
     from ray.rllib.core.learner.training_data import TrainingData
-    from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 
-    from smorphi_rl import cluster, rllib_compat
-    from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
+    from smorphi_rl import rllib_compat
 
-    register_env()
-    cfg = TrainConfig(algo="appo", env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
-    config = algorithm_config(cfg)
-    with cluster.ray_session(None):  # the learner thread puts its state in Ray's object store
-        runner = SingleAgentEnvRunner(config=config)
-        learner = config.build_learner(env=runner.env)
-        learner.build()
-        try:
-            handed = []
-            for _ in range(3):
-                data = TrainingData(episodes=runner.sample(num_timesteps=400))
-                result = learner.update(training_data=data, timesteps={"num_env_steps_sampled_lifetime": 400},
-                                        return_state=True)  # fmt: skip
-                state = result[rllib_compat.LEARNER_STATE_KEY][COMPONENT_RL_MODULE]
-                handed.append(ray.get(state) if isinstance(state, ray.ObjectRef) else state)
-            now = learner.module["default_policy"].get_state(inference_only=True)
-        finally:
-            learner.shutdown()  # its thread stopped before Ray is: a live one would start another Ray at its next put
-            runner.stop()
+    with _async_learner("appo") as (runner, learner):
+        handed = []
+        for _ in range(3):
+            data = TrainingData(episodes=runner.sample(num_timesteps=400))
+            result = learner.update(training_data=data, timesteps={"num_env_steps_sampled_lifetime": 400},
+                                    return_state=True)  # fmt: skip
+            state = result[rllib_compat.LEARNER_STATE_KEY][COMPONENT_RL_MODULE]
+            handed.append(ray.get(state) if isinstance(state, ray.ObjectRef) else state)
+        now = learner.module["default_policy"].get_state(inference_only=True)
     last = handed[-1]["default_policy"]
     assert last.keys() == now.keys()
     assert all(np.array_equal(last[k], now[k]) for k in now)
