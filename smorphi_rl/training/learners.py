@@ -271,8 +271,9 @@ class GuardedLearnerThread:
     the trial's next `update`: the run fails, naming the cause.
 
     `update` also hands the algorithm the weights after the update it waited for (`rllib_compat.latest_learner_state`)
-    where RLlib's hands those of the update before: on 2 env runners APPO's behaviour policy trailed its target by
-    2.4 train batches (probability ratio 1.23, variance 0.26), with these by 1.4 (1.03, 0.05)."""
+    where RLlib's hands those of the update before: on 2 env runners with a plain learner queue (`learner_queue` 1)
+    APPO's behaviour policy trailed its target by 2.4 train batches (probability ratio 1.23, variance 0.26), with
+    these by 1.4 (1.03, 0.05)."""
 
     _thread_error: Exception | None = None
 
