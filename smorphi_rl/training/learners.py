@@ -19,7 +19,8 @@ the Learner's public methods (`configure_optimizers_for_module`, `postprocess_gr
 `apply_gradients`), written whole.
 
 IMPALA's and APPO's learner threads are guarded (`GuardedLearnerThread`): an exception there fails the trial
-with its cause instead of freezing it, and the env runners get the weights of the learner's latest update.
+with its cause instead of freezing it; the env runners get the weights of the learner's latest update
+(`LatestWeights`).
 """
 
 from __future__ import annotations
@@ -268,12 +269,7 @@ class GuardedLearnerThread:
     """IMPALA and APPO learn in a thread of their learner. In RLlib an exception there ends the thread silently,
     and the trial then waits forever on the thread's queue (a frozen run). The guard catches it in the thread,
     which goes on taking batches off its queue without learning from them, so nothing blocks, and raises it in
-    the trial's next `update`: the run fails, naming the cause.
-
-    `update` also hands the algorithm the weights after the update it waited for (`rllib_compat.latest_learner_state`)
-    where RLlib's hands those of the update before: on 2 env runners with a plain learner queue (`learner_queue` 1)
-    APPO's behaviour policy trailed its target by 2.4 train batches (probability ratio 1.23, variance 0.26), with
-    these by 1.4 (1.03, 0.05)."""
+    the trial's next `update`: the run fails, naming the cause."""
 
     _thread_error: Exception | None = None
 
@@ -297,6 +293,16 @@ class GuardedLearnerThread:
         error = self._thread_error
         if error is not None:
             raise LearnerThreadError(f"the learner thread failed: {type(error).__name__}: {error}") from error
+        return super().update(*args, **kwargs)  # type: ignore[misc]  # a mixin of a Learner
+
+
+class LatestWeights:
+    """An IMPALA/APPO learner mixin: `update` hands the algorithm the weights after the update it waited for
+    (`rllib_compat.latest_learner_state`), where RLlib's hands those of the update before. On 2 env runners with a
+    plain learner queue (`learner_queue` 1) APPO's behaviour policy trailed its target by 2.4 train batches
+    (probability ratio 1.23, variance 0.26), with these by 1.4 (1.03, 0.05)."""
+
+    def update(self, *args: Any, **kwargs: Any) -> Any:
         result = super().update(*args, **kwargs)  # type: ignore[misc]  # a mixin of a Learner
         if kwargs.get("return_state") and isinstance(result, dict):  # the weights the algorithm broadcasts
             latest = rllib_compat.latest_learner_state(self)  # after the update this call waited for
@@ -305,7 +311,7 @@ class GuardedLearnerThread:
         return result
 
 
-class NormalisedIMPALALearner(GuardedLearnerThread, FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
+class NormalisedIMPALALearner(GuardedLearnerThread, LatestWeights, FusedStep, IMPALATorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """IMPALA with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
@@ -348,7 +354,7 @@ class FrozenCritic:
                 store[module_id] = (copy.deepcopy(module.value_net()), mark.clone())
 
 
-class NormalisedAPPOLearner(GuardedLearnerThread, FrozenCritic, FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
+class NormalisedAPPOLearner(GuardedLearnerThread, LatestWeights, FrozenCritic, FusedStep, APPOTorchLearner):  # type: ignore[misc]  # RLlib's own bases disagree
     """APPO with per-batch standardised v-trace advantages."""
 
     def build(self) -> None:
