@@ -10,7 +10,10 @@ interval where every run converged; the scratch runs are the yardstick measured 
 of the maps (4 of the default 6). Figures are printed whatever they are.
 
     .venv/bin/python scripts/bench_transfer.py [--pretrain-steps 200000] [--steps 200000] [--seeds 0 1 2]
-        [--floors 3] [--pretrained RUN] [--keep DIR] [--write-docs]
+        [--floors 3] [--pretrained RUN] [--keep DIR [--resume]] [--write-docs]
+
+`--resume` continues a job kept with `--keep DIR` (an interrupted one, or one whose report should be written
+again): its pretraining and every finished run of the same settings are read back, the rest trained.
 """
 
 from __future__ import annotations
@@ -29,7 +32,14 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import DEFAULT_TIMESTEPS
 from smorphi_rl.training.run import train
-from smorphi_rl.training.transfer import TransferJob, TransferRun, by_map, run_transfer, write_transfer_report
+from smorphi_rl.training.transfer import (
+    TransferJob,
+    TransferRun,
+    by_map,
+    finished_run,
+    run_transfer,
+    write_transfer_report,
+)
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 HELD_OUT = MAPS / "designer" / "held-out"
@@ -66,22 +76,30 @@ def main() -> None:
     parser.add_argument("--floors", type=int, default=3, help="generated held-out floors beside val-1..3")
     parser.add_argument("--keep", help="write the runs here instead of a temporary directory")
     parser.add_argument("--pretrained", help="reuse this pretrained run (its pretraining figures are not re-measured)")
+    parser.add_argument("--resume", action="store_true", help="continue the job kept in --keep DIR")
     args = parser.parse_args()
+    if args.resume and not args.keep:
+        parser.error("--resume continues a job kept with --keep DIR: give that DIR")
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-transfer-"))
     t0 = time.perf_counter()
     env = EnvConfig.from_dict({"maps": [str(MAPS / "map-1.yaml"), str(MAPS / "map-2.yaml")]})
     # every run's progress and summary go to stderr (a long job shows where it is); the figures to stdout
-    if args.pretrained:
+    pre_cfg = TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seeds[0], record_every=0)
+    kept = finished_run(root / "pretrain", pre_cfg) if args.resume and not args.pretrained else None
+    if kept is not None:
+        pretrained = root / "pretrain"
+        print(f"pretrained PPO on map-1 + map-2: {kept['env_steps']:,} env steps in {kept['wall_s']:.0f} s "
+              f"(read back from {pretrained})")  # fmt: skip
+    elif args.pretrained:
         pretrained = Path(args.pretrained)
         print(f"reusing the pretrained run {pretrained}")
     else:
-        pre_cfg = TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seeds[0], record_every=0)
         pre = train(pre_cfg, name="pretrain", log_dir=root, out=sys.stderr, label="PPO pretrain")
         pretrained = pre.run_dir
         print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
     held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)
     job = TransferJob(pretrained, tuple(held_out), tuple(args.seeds), args.steps, record_every=0)
-    job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=sys.stderr)
+    job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=sys.stderr, resume=args.resume)
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
     meets = 0
@@ -96,15 +114,19 @@ def main() -> None:
         elif scratch_ok:
             verdict = "no ratio: some fine-tuned runs did not converge"
         else:
-            verdict = "no ratio: runs of both modes did not converge"
+            verdict = "no ratio: some runs of each mode did not converge"
         print(f"{m.map_name}: env steps to converge, seed by seed: fine-tuned {_steps(m.tuned)}; scratch "
               f"{_steps(m.scratch)}: {verdict}; pretrained policy in every runner: "
               f"{all(r.pretrained_in_runners for r in m.tuned)}")  # fmt: skip
     maps = len(dict.fromkeys(r.map_name for r in runs))
     target = math.ceil(TARGET_SHARE * maps)
+    reused = sum(r.reused for r in runs)
+    trained_min = sum(r.wall_s for r in runs) / 60
     print(f"fine-tuning {TARGET_RATIO:g}x faster on {meets} of {maps} maps (target: {target} of {maps}); "
           f"{len(runs)} runs of {args.steps:,} env steps, seeds {' '.join(map(str, args.seeds))}; "
-          f"total {(time.perf_counter() - t0) / 60:.1f} min; runs under {root}")  # fmt: skip
+          f"{trained_min:.1f} min of training in the runs"
+          f"{f' ({reused} read back from the earlier job)' if reused else ''}; "
+          f"this call {(time.perf_counter() - t0) / 60:.1f} min; runs under {root}")  # fmt: skip
 
 
 if __name__ == "__main__":

@@ -46,6 +46,8 @@ def register(sub: Any) -> None:
     option(tf, TransferJob, "envs_per_runner", metavar="N")
     option(tf, TransferJob, "num_env_runners", "--env-runners", type=int, metavar="N",
            default_text="the preset's: 2")  # fmt: skip
+    tf.add_argument("--resume", action="store_true", help="continue the job --name: its finished runs are read back, "
+                    "the others trained (the same options as the job it continues)")  # fmt: skip
     tf.set_defaults(func=cmd_transfer)
 
     sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
@@ -127,6 +129,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     from smorphi_rl.training.versions import warn_once
 
     warn_once()
+    from smorphi_rl.training.config import TrainConfigError
     from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
 
     # the options and maps are checked before anything runs
@@ -134,16 +137,22 @@ def cmd_transfer(args: argparse.Namespace) -> int:
                       args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
     for path in args.maps:
         load_map(path)
+    if args.resume and not args.name:
+        raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
-    job_dir, runs = run_transfer(job, name, args.log_dir, args.address)
+    job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
     files = write_transfer_report(job_dir, runs)
+    reused = sum(r.reused for r in runs)
+    if reused:
+        print(f"{reused} of {len(runs)} runs finished earlier in this job and were read back (--resume)")
     print(files["md"].read_text().rstrip())
     missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
     if missing:
         print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
     print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\ncurves: {rel(files['png'])}")
     if any(r.interrupted for r in runs):
-        print(f"{PROG}: interrupted: the table holds the {len(runs)} run(s) that started, the last one cut short",
+        print(f"{PROG}: interrupted: the table holds the {len(runs)} run(s) that started, the last one cut short; "
+              f"continue with the same command and --name {shlex.quote(job_dir.name)} --resume",
               file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED
     return 0

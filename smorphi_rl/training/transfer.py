@@ -36,6 +36,10 @@ class TransferRun:
     curve: dict[str, list[float]]
     interrupted: bool = False
     """Stopped (Ctrl-C, SIGTERM) before its budget: the job stopped with it."""
+    wall_s: float = math.nan
+    """Seconds the run trained."""
+    reused: bool = False
+    """Finished by an earlier call of the same job (`--resume`), read back rather than trained again."""
 
 
 @dataclass(frozen=True)
@@ -88,12 +92,14 @@ def run_transfer(
     log_dir: str | Path = DEFAULT_LOG_DIR,
     address: str | None = None,
     out: Any = None,
+    resume: bool = False,
 ) -> tuple[Path, list[TransferRun]]:
-    """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget."""
+    """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget.
+    `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
+    short is set aside (renamed, never deleted) and trained again."""
     from smorphi_rl import cluster
     from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
-    from smorphi_rl.training.convergence import convergence
     from smorphi_rl.training.finetune import check_pretrained
     from smorphi_rl.training.run import train
 
@@ -108,29 +114,135 @@ def run_transfer(
         cfg = job.train_config(replace(env, maps=EnvConfig.from_dict({"maps": [path]}).maps))
         check_pretrained(checkpoint, cfg.env.to_dict())
         configs.append(cfg)
+    planned = []
+    for cfg, seed, mode in itertools.product(configs, job.seeds, ("fine-tune", "scratch")):
+        map_name = Path(cfg.env.maps[0]).stem
+        run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
+        planned.append((map_name, seed, mode, run_cfg, safe_name(f"{map_name}-{mode}-seed{seed}")))
+    job_dir = resumed_job_dir(log_dir, name) if resume else None
+    # on resume every earlier run is checked against this job before anything trains
+    earlier = {p[4]: finished_run(job_dir / p[4], p[3]) for p in planned} if job_dir is not None else {}
+    finished = {run_name: summary for run_name, summary in earlier.items() if summary is not None}
     cluster.check_reachable(address)  # no cluster there: one line, no folder
-    job_dir = prepare_run_dir(log_dir, name)
+    job_dir = job_dir or prepare_run_dir(log_dir, name)
     runs: list[TransferRun] = []
     try:
-        for cfg, seed, mode in itertools.product(configs, job.seeds, ("fine-tune", "scratch")):
-            map_name = Path(cfg.env.maps[0]).stem
-            run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
-            run_name = safe_name(f"{map_name}-{mode}-seed{seed}")
-            summary = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
+        for map_name, seed, mode, run_cfg, run_name in planned:
+            summary = finished.get(run_name)
+            if summary is not None:
+                runs.append(transfer_run(map_name, seed, mode, job_dir / run_name, summary, reused=True))
+                continue
+            if (job_dir / run_name).exists():
+                set_aside(job_dir / run_name)
+            trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                             label=f"{job.algo.upper()} {run_name}")  # fmt: skip
-            curve = summary_curve(summary.run_dir)
-            at, plateau = convergence(curve)
-            best = summary.best.R1 if summary.best else float("nan")
-            runs.append(TransferRun(map_name, seed, mode, summary.env_steps, at, plateau, best,
-                                    summary.pretrained_in_runners, summary.run_dir, curve,
-                                    summary.interrupted))  # fmt: skip
-            if summary.interrupted:
+            runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
+            if trained.interrupted:
                 break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException:
-        if not runs:
+        if not runs and not resume:
             discard_run_dir(job_dir)  # nothing trained: the name stays free
         raise
     return job_dir, runs
+
+
+def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
+    """The folder of the transfer job `name` under `log_dir`, which `--resume` continues; one line if none."""
+    from smorphi_rl.rundir import MARKER, check_run_name
+
+    job_dir = Path(log_dir).resolve() / check_run_name(name)
+    if not (job_dir / MARKER).is_file():
+        raise TrainConfigError(f"--resume: {job_dir} is not a job smorphi-rl started (give the --name and --log-dir "
+                               "of the job to continue)")  # fmt: skip
+    return job_dir
+
+
+def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
+    """The summary of the run in `run_dir` when it finished its budget with exactly `cfg`'s settings; None when
+    there is none to reuse (never started, or cut short). A run trained with other settings stops the resume:
+    its figures would measure another job."""
+    from smorphi_rl.inputs import read_json_object
+
+    if not (run_dir / "config.json").is_file():
+        return None
+    stored = read_json_object(run_dir / "config.json", "run configuration")
+    differ = setting_differs(stored, cfg)
+    if differ is not None:
+        raise TrainConfigError(f"--resume: {run_dir} was trained with other settings ({differ}); start a new job "
+                               "with another --name")  # fmt: skip
+    if not (run_dir / "summary.json").is_file():
+        return None
+    summary = read_json_object(run_dir / "summary.json", "run summary")
+    return None if summary.get("interrupted", True) else summary
+
+
+def setting_differs(stored: dict[str, Any], cfg: TrainConfig) -> str | None:
+    """The first setting (`key: stored, this job: value`) in which a run's config.json differs from `cfg`; None
+    when none does. A setting the run's version did not have yet counts as the same when `cfg` holds its default
+    (the value that keeps the older behaviour)."""
+    import json
+
+    wanted = flatten(json.loads(json.dumps(cfg.to_dict())))
+    old = flatten({k: v for k, v in stored.items() if k not in ("name", "address")})
+    defaults = field_defaults()
+    for key in sorted(set(old) | set(wanted)):
+        if key not in old and key in defaults and wanted.get(key) == defaults[key]:
+            continue
+        if old.get(key, "(none)") != wanted.get(key, "(none)"):
+            return f"{key}: {old.get(key, '(none)')!r}, this job: {wanted.get(key, '(none)')!r}"
+    return None
+
+
+def field_defaults() -> dict[str, Any]:
+    """Every TrainConfig setting's default as config.json writes it (dotted keys: `env.w1`,
+    `hyperparameters.pg_lambda`)."""
+    import json
+    from dataclasses import fields
+
+    from smorphi_rl.config_fields import field_default
+    from smorphi_rl.training.presets import Preset
+
+    out: dict[str, Any] = {}
+    for prefix, cls in (("", TrainConfig), ("env.", EnvConfig), ("hyperparameters.", Preset)):
+        for f in fields(cls):
+            try:
+                out[prefix + f.name] = json.loads(json.dumps(field_default(cls, f.name)))
+            except (KeyError, TypeError):
+                continue  # no default, or a nested settings object (its own fields are listed under its prefix)
+    return out
+
+
+def flatten(doc: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """A nested JSON object as one level of dotted keys (`{"env": {"w1": 1}}` -> `{"env.w1": 1}`)."""
+    out: dict[str, Any] = {}
+    for key, value in doc.items():
+        if isinstance(value, dict) and value:
+            out.update(flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def set_aside(run_dir: Path) -> Path:
+    """Rename a run cut short to the first free `<name>.cut-N` beside it (kept, never deleted)."""
+    k = 1
+    while run_dir.with_name(f"{run_dir.name}.cut-{k}").exists():
+        k += 1
+    return run_dir.rename(run_dir.with_name(f"{run_dir.name}.cut-{k}"))
+
+
+def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: dict[str, Any],
+                 reused: bool = False) -> TransferRun:  # fmt: skip
+    """One run's Table 5 figures from its summary (`RunSummary.to_dict`) and its curves."""
+    from smorphi_rl.training.convergence import convergence
+
+    curve = summary_curve(run_dir)
+    at, plateau = convergence(curve)
+    best = summary.get("best") or {}
+    return TransferRun(map_name, seed, mode, int(summary["env_steps"]), at, plateau,
+                       float(best.get("R1", math.nan)), summary.get("pretrained_in_runners"), run_dir, curve,
+                       bool(summary.get("interrupted")), float(summary.get("wall_s", math.nan)),
+                       reused)  # fmt: skip
 
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:

@@ -210,21 +210,71 @@ def test_fine_tuning_puts_the_pretrained_policy_in_every_runner(ppo_run, tmp_pat
     assert first["training_iteration"] == 1 and first[PRETRAINED_KEY] == 1.0
 
 
-def test_transfer_job_fine_tunes_and_trains_from_scratch(ppo_run, tmp_path):
-    """From an exported policy (as the shipped designer is): the weights it holds are the ones every runner gets."""
+@pytest.fixture(scope="module")
+def transfer_job(ppo_run, tmp_path_factory) -> tuple[Path, list[str], subprocess.CompletedProcess[str]]:
+    """`smorphi-rl transfer` on val-1, seed 0, 2,000 steps a run, from an exported policy (as the shipped designer
+    is): (the folder it ran in, its arguments, the process)."""
     from smorphi_rl.training.export import export_policy
 
     run_dir, _ = ppo_run
-    exported = export_policy(find_checkpoint(run_dir), tmp_path / "exported", {})
-    val = str(ROOT / "maps" / "val-1.yaml")
-    proc = cli("transfer", "--pretrained", str(exported), "--maps", val, "--timesteps", "2000", "--seeds", "0",
-               "--name", "job", cwd=tmp_path)  # fmt: skip
+    work = tmp_path_factory.mktemp("transfer")
+    exported = export_policy(find_checkpoint(run_dir), work / "exported", {})
+    args = ["transfer", "--pretrained", str(exported), "--maps", str(ROOT / "maps" / "val-1.yaml"), "--timesteps",
+            "2000", "--seeds", "0", "--name", "job"]  # fmt: skip
+    return work, args, cli(*args, cwd=work)
+
+
+def test_transfer_job_fine_tunes_and_trains_from_scratch(transfer_job):
+    """The weights the exported policy holds are the ones every runner gets."""
+    work, _, proc = transfer_job
     assert proc.returncode == 0, proc.stderr[-3000:]
-    rows = list(csv.DictReader((tmp_path / "logs" / "job" / "transfer.csv").open()))
+    rows = list(csv.DictReader((work / "logs" / "job" / "transfer.csv").open()))
     assert [(r["map"], r["mode"]) for r in rows] == [("val-1", "fine-tune"), ("val-1", "scratch")]
     assert rows[0]["pretrained_in_runners"] == "True" and rows[1]["pretrained_in_runners"] == ""
-    assert "| val-1 |" in (tmp_path / "logs" / "job" / "transfer.md").read_text()
-    assert (tmp_path / "logs" / "job" / "transfer_curves.png").is_file() and "warning" not in proc.stdout
+    assert "| val-1 |" in (work / "logs" / "job" / "transfer.md").read_text()
+    assert (work / "logs" / "job" / "transfer_curves.png").is_file() and "warning" not in proc.stdout
+
+
+def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(transfer_job, tmp_path):
+    import shutil
+
+    work, args, proc = transfer_job
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    shutil.copytree(work / "logs", tmp_path / "logs")
+    job = tmp_path / "logs" / "job"
+    tuned, scratch = job / "val-1-fine-tune-seed0", job / "val-1-scratch-seed0"
+    summary = json.loads((scratch / "summary.json").read_text())
+    (scratch / "summary.json").write_text(json.dumps(summary | {"interrupted": True}))  # as a stopped run writes it
+    tuned_files = {p: p.read_bytes() for p in tuned.rglob("*") if p.is_file()}
+
+    other = cli(*[("4000" if a == "2000" else a) for a in args], "--resume", cwd=tmp_path)  # another budget
+    assert other.returncode != 0 and "Traceback" not in other.stderr
+    assert "trained with other settings (timesteps: 2000, this job: 4000)" in other.stderr.strip().splitlines()[-1]
+    assert sorted(p.name for p in job.iterdir() if p.is_dir()) == [tuned.name, scratch.name]
+
+    resumed = cli(*args, "--resume", cwd=tmp_path)
+    assert resumed.returncode == 0, resumed.stderr[-3000:]
+    assert "1 of 2 runs finished earlier in this job and were read back" in resumed.stdout
+    assert {p: p.read_bytes() for p in tuned.rglob("*") if p.is_file()} == tuned_files  # read, not retrained
+    cut = job / "val-1-scratch-seed0.cut-1"
+    assert json.loads((cut / "summary.json").read_text())["interrupted"] is True  # kept, never deleted
+    assert json.loads((scratch / "summary.json").read_text())["interrupted"] is False  # trained again
+    rows = list(csv.DictReader((job / "transfer.csv").open()))
+    assert [(r["mode"], r["env_steps"]) for r in rows] == [("fine-tune", "2000"), ("scratch", "2000")]
+
+
+@pytest.mark.parametrize(
+    ("extra", "message"),
+    [(["--resume"], "--resume continues a job: give its --name"),
+     (["--resume", "--name", "none"], "is not a job smorphi-rl started")],
+)  # fmt: skip
+def test_transfer_resume_of_no_job_is_one_line(ppo_run, tmp_path, extra, message):
+    run_dir, _ = ppo_run
+    proc = cli("transfer", "--pretrained", str(run_dir), "--maps", str(ROOT / "maps" / "val-1.yaml"), *extra,
+               cwd=tmp_path)  # fmt: skip
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert message in proc.stderr.strip().splitlines()[-1]
+    assert not (tmp_path / "logs").exists()
 
 
 def test_transfer_refuses_a_map_the_policy_was_trained_on(ppo_run, tmp_path):
