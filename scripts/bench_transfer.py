@@ -29,6 +29,7 @@ from _benchdocs import run_documented
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.maps import load_map
+from smorphi_rl.rundir import rename_cut_run
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import DEFAULT_TIMESTEPS
 from smorphi_rl.training.run import train
@@ -86,6 +87,8 @@ def main() -> None:
     # every run's progress and summary go to stderr (a long job shows where it is); the figures to stdout
     pre_cfg = TrainConfig(env=env, timesteps=args.pretrain_steps, seed=args.seeds[0], record_every=0)
     kept = finished_run(root / "pretrain", pre_cfg) if args.resume and not args.pretrained else None
+    if args.resume and not args.pretrained and kept is None and (root / "pretrain").exists():
+        print(f"pretraining was cut short: kept as {rename_cut_run(root / 'pretrain')}, trained again")
     if kept is not None:
         pretrained = root / "pretrain"
         print(f"pretrained PPO on map-1 + map-2: {kept['env_steps']:,} env steps in {kept['wall_s']:.0f} s "
@@ -99,7 +102,8 @@ def main() -> None:
         print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
     held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)
     job = TransferJob(pretrained, tuple(held_out), tuple(args.seeds), args.steps, record_every=0)
-    job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=sys.stderr, resume=args.resume)
+    resume = args.resume and (root / "transfer").exists()  # a job stopped in its pretraining has no runs yet
+    job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=sys.stderr, resume=resume)
     files = write_transfer_report(job_dir, runs)
     print(files["md"].read_text().rstrip())
     meets = 0

@@ -48,25 +48,60 @@ def safe_name(text: str) -> str:
     return name if RUN_NAME.fullmatch(name) else f"run_{name}"[:128]
 
 
+def _claimant(run_dir: Path) -> int:
+    """The pid a run directory's claim names (0 when it names none or cannot be read)."""
+    try:
+        words = (run_dir / MARKER).read_text().split()
+        return int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
+    except (OSError, ValueError):
+        return 0
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` (another than this one) is running."""
+    if pid <= 0 or pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # alive, another user's
+        return True
+    return True
+
+
 def _abandoned(run_dir: Path) -> bool:
     """A folder holding nothing but the claim of a process that is no longer alive (a run killed before it wrote
     anything): it may be claimed again."""
     try:
         if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:
             return False
-        words = (run_dir / MARKER).read_text().split()
-        pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
-    except (OSError, ValueError):
+    except OSError:
         return False
-    if pid <= 0 or pid == os.getpid():
-        return False
+    pid = _claimant(run_dir)
+    return pid > 0 and pid != os.getpid() and not _alive(pid)
+
+
+def claim_again(run_dir: Path) -> None:
+    """Claim a run directory an earlier process made, to continue it (`--resume`): refused while the process
+    its claim names still runs (two writers would mix their files)."""
+    with _write_lock(run_dir / MARKER):
+        pid = _claimant(run_dir)
+        if _alive(pid):
+            raise RunDirError(f"{run_dir} is in use by process {pid}: stop it first, or wait for it to finish")
+        write_text_atomic(run_dir / MARKER, f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+
+
+def rename_cut_run(run_dir: Path) -> Path:
+    """Rename a run that was cut short to the first free `<name>.cut-N` beside it (kept, never deleted), so its
+    name is free for the run that replaces it."""
+    k = 1
+    while run_dir.with_name(f"{run_dir.name}.cut-{k}").exists():
+        k += 1
     try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:  # alive, another user's
-        return False
-    return False
+        return run_dir.rename(run_dir.with_name(f"{run_dir.name}.cut-{k}"))
+    except OSError as exc:
+        raise RunDirError(f"cannot set {run_dir} aside ({exc.strerror or exc})") from None
 
 
 def check_run_dir(log_dir: str | Path, name: str) -> Path:

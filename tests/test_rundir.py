@@ -128,3 +128,35 @@ def test_a_folder_claimed_by_a_dead_process_is_reused_and_a_live_one_is_not(tmp_
             prepare_run_dir(tmp_path, "y")
     finally:
         live.kill()
+
+
+def test_a_run_is_claimed_again_only_when_the_process_that_ran_it_is_gone(tmp_path):
+    """`--resume` claims the folder again; while the process that ran it still runs, the two would mix their files."""
+    import os
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import claim_again
+
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        (tmp_path / "job").mkdir()
+        (tmp_path / "job" / MARKER).write_text(f"pid {live.pid} at 2026-01-01T00:00:00\n")
+        with pytest.raises(RunDirError, match=f"in use by process {live.pid}"):
+            claim_again(tmp_path / "job")
+    finally:
+        live.kill()
+        live.wait()
+    claim_again(tmp_path / "job")
+    assert (tmp_path / "job" / MARKER).read_text().startswith(f"pid {os.getpid()} ")
+    assert sorted(p.name for p in (tmp_path / "job").iterdir()) == [MARKER]  # no lock or temporary left
+
+
+def test_a_run_cut_short_is_renamed_beside_itself_never_deleted(tmp_path):
+    from smorphi_rl.rundir import rename_cut_run
+
+    for k in (1, 2):
+        (tmp_path / "run").mkdir()
+        (tmp_path / "run" / "summary.json").write_text(str(k))
+        assert rename_cut_run(tmp_path / "run") == tmp_path / f"run.cut-{k}"
+    assert [(tmp_path / f"run.cut-{k}" / "summary.json").read_text() for k in (1, 2)] == ["1", "2"]

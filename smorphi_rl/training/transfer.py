@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import csv
 import itertools
+import json
 import math
 import sys
 from dataclasses import dataclass, replace
@@ -18,6 +19,9 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, write_text_atomic
 from smorphi_rl.stats import Interval, median_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
+
+JOB_FILE = "transfer.json"
+"""Written when a transfer job starts (its pretrained policy, maps and seeds): `--resume` knows the folder by it."""
 
 
 @dataclass(frozen=True)
@@ -98,7 +102,7 @@ def run_transfer(
     `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
     short is set aside (renamed, never deleted) and trained again."""
     from smorphi_rl import cluster
-    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
+    from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained
     from smorphi_rl.training.run import train
@@ -119,21 +123,28 @@ def run_transfer(
         map_name = Path(cfg.env.maps[0]).stem
         run_cfg = replace(cfg, seed=seed, pretrained=str(checkpoint) if mode == "fine-tune" else None)
         planned.append((map_name, seed, mode, run_cfg, safe_name(f"{map_name}-{mode}-seed{seed}")))
+    finished: dict[str, TransferRun] = {}
     job_dir = resumed_job_dir(log_dir, name) if resume else None
-    # on resume every earlier run is checked against this job before anything trains
-    earlier = {p[4]: finished_run(job_dir / p[4], p[3]) for p in planned} if job_dir is not None else {}
-    finished = {run_name: summary for run_name, summary in earlier.items() if summary is not None}
+    if job_dir is not None:  # every earlier run is read and checked against this job before anything trains
+        for map_name, seed, mode, run_cfg, run_name in planned:
+            earlier = finished_run(job_dir / run_name, run_cfg)
+            if earlier is not None:
+                finished[run_name] = transfer_run(map_name, seed, mode, job_dir / run_name, earlier, reused=True)
     cluster.check_reachable(address)  # no cluster there: one line, no folder
-    job_dir = job_dir or prepare_run_dir(log_dir, name)
+    if job_dir is None:
+        job_dir = prepare_run_dir(log_dir, name)
+        write_text_atomic(job_dir / JOB_FILE, json.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
+                                                          "seeds": list(job.seeds)}, indent=2))  # fmt: skip
+    else:
+        claim_again(job_dir)  # refused while the process that ran it still runs
     runs: list[TransferRun] = []
     try:
         for map_name, seed, mode, run_cfg, run_name in planned:
-            summary = finished.get(run_name)
-            if summary is not None:
-                runs.append(transfer_run(map_name, seed, mode, job_dir / run_name, summary, reused=True))
+            if run_name in finished:
+                runs.append(finished[run_name])
                 continue
             if (job_dir / run_name).exists():
-                set_aside(job_dir / run_name)
+                rename_cut_run(job_dir / run_name)
             trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                             label=f"{job.algo.upper()} {run_name}")  # fmt: skip
             runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
@@ -147,13 +158,14 @@ def run_transfer(
 
 
 def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
-    """The folder of the transfer job `name` under `log_dir`, which `--resume` continues; one line if none."""
-    from smorphi_rl.rundir import MARKER, check_run_name
+    """The folder of the transfer job `name` under `log_dir`, which `--resume` continues; one line if there is
+    none (a job from before `transfer.json` was written is known by its table)."""
+    from smorphi_rl.rundir import check_run_name
 
     job_dir = Path(log_dir).resolve() / check_run_name(name)
-    if not (job_dir / MARKER).is_file():
-        raise TrainConfigError(f"--resume: {job_dir} is not a job smorphi-rl started (give the --name and --log-dir "
-                               "of the job to continue)")  # fmt: skip
+    if not ((job_dir / JOB_FILE).is_file() or (job_dir / "transfer.csv").is_file()):
+        raise TrainConfigError(f"--resume: {job_dir} is not a transfer job (no {JOB_FILE}; give the --name and "
+                               "--log-dir of the job to continue)")  # fmt: skip
     return job_dir
 
 
@@ -173,15 +185,13 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
     if not (run_dir / "summary.json").is_file():
         return None
     summary = read_json_object(run_dir / "summary.json", "run summary")
-    return None if summary.get("interrupted", True) else summary
+    return None if summary.get("interrupted", True) is not False else summary
 
 
 def setting_differs(stored: dict[str, Any], cfg: TrainConfig) -> str | None:
     """The first setting (`key: stored, this job: value`) in which a run's config.json differs from `cfg`; None
     when none does. A setting the run's version did not have yet counts as the same when `cfg` holds its default
     (the value that keeps the older behaviour)."""
-    import json
-
     wanted = flatten(json.loads(json.dumps(cfg.to_dict())))
     old = flatten({k: v for k, v in stored.items() if k not in ("name", "address")})
     defaults = field_defaults()
@@ -196,7 +206,6 @@ def setting_differs(stored: dict[str, Any], cfg: TrainConfig) -> str | None:
 def field_defaults() -> dict[str, Any]:
     """Every TrainConfig setting's default as config.json writes it (dotted keys: `env.w1`,
     `hyperparameters.pg_lambda`)."""
-    import json
     from dataclasses import fields
 
     from smorphi_rl.config_fields import field_default
@@ -223,26 +232,25 @@ def flatten(doc: dict[str, Any], prefix: str = "") -> dict[str, Any]:
     return out
 
 
-def set_aside(run_dir: Path) -> Path:
-    """Rename a run cut short to the first free `<name>.cut-N` beside it (kept, never deleted)."""
-    k = 1
-    while run_dir.with_name(f"{run_dir.name}.cut-{k}").exists():
-        k += 1
-    return run_dir.rename(run_dir.with_name(f"{run_dir.name}.cut-{k}"))
-
-
 def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: dict[str, Any],
                  reused: bool = False) -> TransferRun:  # fmt: skip
-    """One run's Table 5 figures from its summary (`RunSummary.to_dict`) and its curves."""
+    """One run's Table 5 figures from its summary (`RunSummary.to_dict`) and its curves; one line naming the run
+    when they are not what smorphi-rl writes (a damaged folder read back by `--resume`)."""
+    from smorphi_rl.inputs import InputError
     from smorphi_rl.training.convergence import convergence
 
-    curve = summary_curve(run_dir)
-    at, plateau = convergence(curve)
-    best = summary.get("best") or {}
-    return TransferRun(map_name, seed, mode, int(summary["env_steps"]), at, plateau,
-                       float(best.get("R1", math.nan)), summary.get("pretrained_in_runners"), run_dir, curve,
-                       bool(summary.get("interrupted")), float(summary.get("wall_s", math.nan)),
-                       reused)  # fmt: skip
+    try:
+        curve = summary_curve(run_dir)
+        at, plateau = convergence(curve)
+        best = summary.get("best") or {}
+        steps, wall = summary["env_steps"], summary.get("wall_s", math.nan)
+        held = summary.get("pretrained_in_runners")
+        if not isinstance(steps, int) or not isinstance(wall, int | float) or held not in (True, False, None):
+            raise TypeError("env_steps, wall_s or pretrained_in_runners")
+        return TransferRun(map_name, seed, mode, steps, at, plateau, float(best.get("R1", math.nan)), held, run_dir,
+                           curve, bool(summary.get("interrupted")), float(wall), reused)  # fmt: skip
+    except (KeyError, TypeError, ValueError, AttributeError) as exc:
+        raise InputError(f"{run_dir}: not a training run smorphi-rl wrote ({type(exc).__name__}: {exc})") from None
 
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:

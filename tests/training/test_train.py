@@ -251,6 +251,13 @@ def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(t
     assert other.returncode != 0 and "Traceback" not in other.stderr
     assert "trained with other settings (timesteps: 2000, this job: 4000)" in other.stderr.strip().splitlines()[-1]
     assert sorted(p.name for p in job.iterdir() if p.is_dir()) == [tuned.name, scratch.name]
+    good = (tuned / "summary.json").read_text()
+    (tuned / "summary.json").write_text(json.dumps(json.loads(good) | {"env_steps": "many"}))  # a damaged run
+    damaged = cli(*args, "--resume", cwd=tmp_path)
+    assert damaged.returncode != 0 and "Traceback" not in damaged.stderr
+    assert "not a training run smorphi-rl wrote" in damaged.stderr.strip().splitlines()[-1]
+    assert sorted(p.name for p in job.iterdir() if p.is_dir()) == [tuned.name, scratch.name]
+    (tuned / "summary.json").write_text(good)
 
     resumed = cli(*args, "--resume", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
@@ -259,22 +266,27 @@ def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(t
     cut = job / "val-1-scratch-seed0.cut-1"
     assert json.loads((cut / "summary.json").read_text())["interrupted"] is True  # kept, never deleted
     assert json.loads((scratch / "summary.json").read_text())["interrupted"] is False  # trained again
+    before = {r["mode"]: r for r in csv.DictReader((work / "logs" / "job" / "transfer.csv").open())}
     rows = list(csv.DictReader((job / "transfer.csv").open()))
-    assert [(r["mode"], r["env_steps"]) for r in rows] == [("fine-tune", "2000"), ("scratch", "2000")]
+    assert [r["mode"] for r in rows] == ["fine-tune", "scratch"]
+    assert rows[0] == before["fine-tune"] and int(rows[1]["env_steps"]) >= 2000
 
 
 @pytest.mark.parametrize(
     ("extra", "message"),
     [(["--resume"], "--resume continues a job: give its --name"),
-     (["--resume", "--name", "none"], "is not a job smorphi-rl started")],
+     (["--resume", "--name", "none"], "is not a transfer job"),
+     (["--resume", "--name", "smoke", "--log-dir", "TRAIN"], "is not a transfer job")],  # a train run's folder
 )  # fmt: skip
 def test_transfer_resume_of_no_job_is_one_line(ppo_run, tmp_path, extra, message):
     run_dir, _ = ppo_run
+    before = sorted(run_dir.rglob("*"))
+    extra = [str(run_dir.parent) if a == "TRAIN" else a for a in extra]
     proc = cli("transfer", "--pretrained", str(run_dir), "--maps", str(ROOT / "maps" / "val-1.yaml"), *extra,
                cwd=tmp_path)  # fmt: skip
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert message in proc.stderr.strip().splitlines()[-1]
-    assert not (tmp_path / "logs").exists()
+    assert not (tmp_path / "logs").exists() and sorted(run_dir.rglob("*")) == before
 
 
 def test_transfer_refuses_a_map_the_policy_was_trained_on(ppo_run, tmp_path):
