@@ -174,11 +174,12 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
     there is none to reuse (never started, or cut short). A run trained with other settings stops the resume:
     its figures would measure another job."""
     from smorphi_rl.inputs import read_json_object
+    from smorphi_rl.training.settings_diff import setting_differs
 
     if not (run_dir / "config.json").is_file():
         return None
     stored = read_json_object(run_dir / "config.json", "run configuration")
-    differ = setting_differs(stored, cfg)
+    differ = setting_differs(stored, cfg.to_dict())
     if differ is not None:
         raise TrainConfigError(f"--resume: {run_dir} was trained with other settings ({differ}); start a new job "
                                "with another --name")  # fmt: skip
@@ -186,50 +187,6 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
         return None
     summary = read_json_object(run_dir / "summary.json", "run summary")
     return None if summary.get("interrupted", True) is not False else summary
-
-
-def setting_differs(stored: dict[str, Any], cfg: TrainConfig) -> str | None:
-    """The first setting (`key: stored, this job: value`) in which a run's config.json differs from `cfg`; None
-    when none does. A setting the run's version did not have yet counts as the same when `cfg` holds its default
-    (the value that keeps the older behaviour)."""
-    wanted = flatten(json.loads(json.dumps(cfg.to_dict())))
-    old = flatten({k: v for k, v in stored.items() if k not in ("name", "address")})
-    defaults = field_defaults()
-    for key in sorted(set(old) | set(wanted)):
-        if key not in old and key in defaults and wanted.get(key) == defaults[key]:
-            continue
-        if old.get(key, "(none)") != wanted.get(key, "(none)"):
-            return f"{key}: {old.get(key, '(none)')!r}, this job: {wanted.get(key, '(none)')!r}"
-    return None
-
-
-def field_defaults() -> dict[str, Any]:
-    """Every TrainConfig setting's default as config.json writes it (dotted keys: `env.w1`,
-    `hyperparameters.pg_lambda`)."""
-    from dataclasses import fields
-
-    from smorphi_rl.config_fields import field_default
-    from smorphi_rl.training.presets import Preset
-
-    out: dict[str, Any] = {}
-    for prefix, cls in (("", TrainConfig), ("env.", EnvConfig), ("hyperparameters.", Preset)):
-        for f in fields(cls):
-            try:
-                out[prefix + f.name] = json.loads(json.dumps(field_default(cls, f.name)))
-            except (KeyError, TypeError):
-                continue  # no default, or a nested settings object (its own fields are listed under its prefix)
-    return out
-
-
-def flatten(doc: dict[str, Any], prefix: str = "") -> dict[str, Any]:
-    """A nested JSON object as one level of dotted keys (`{"env": {"w1": 1}}` -> `{"env.w1": 1}`)."""
-    out: dict[str, Any] = {}
-    for key, value in doc.items():
-        if isinstance(value, dict) and value:
-            out.update(flatten(value, f"{prefix}{key}."))
-        else:
-            out[f"{prefix}{key}"] = value
-    return out
 
 
 def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: dict[str, Any],

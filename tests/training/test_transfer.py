@@ -73,19 +73,3 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     assert "ratio 6.00" in line and "**agrees**" in line  # medians 60,000 / 10,000 (the means would give 10.7)
     (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, 50_000, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
-
-
-def test_resume_compares_a_run_setting_by_setting_and_a_setting_added_since_at_its_default():
-    import json
-    from dataclasses import replace
-
-    from smorphi_rl.training.config import TrainConfig
-    from smorphi_rl.training.transfer import setting_differs
-
-    cfg = TrainConfig(timesteps=2000)
-    stored = json.loads(json.dumps(cfg.to_dict())) | {"name": "val-1-scratch-seed0", "address": None}
-    assert setting_differs(stored, cfg) is None
-    assert setting_differs(stored, replace(cfg, timesteps=4000)) == "timesteps: 2000, this job: 4000"
-    del stored["env"]["step_cost"]  # a run from before the setting existed
-    assert setting_differs(stored, cfg) is None  # today's default keeps the older behaviour
-    assert setting_differs(stored, cfg.with_env(step_cost=0.1)) == "env.step_cost: '(none)', this job: 0.1"
