@@ -21,7 +21,8 @@ from smorphi_rl.stats import Interval, median_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
 JOB_FILE = "transfer.json"
-"""Written when a transfer job starts (its pretrained policy, maps and seeds): `--resume` knows the folder by it."""
+"""Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
+folder by it."""
 
 
 @dataclass(frozen=True)
@@ -133,10 +134,10 @@ def run_transfer(
     cluster.check_reachable(address)  # no cluster there: one line, no folder
     if job_dir is None:
         job_dir = prepare_run_dir(log_dir, name)
-        write_text_atomic(job_dir / JOB_FILE, json.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
-                                                          "seeds": list(job.seeds)}, indent=2))  # fmt: skip
     else:
         claim_again(job_dir)  # refused while the process that ran it still runs
+    write_text_atomic(job_dir / JOB_FILE, json.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
+                                                      "seeds": list(job.seeds)}, indent=2))  # fmt: skip
     runs: list[TransferRun] = []
     try:
         for map_name, seed, mode, run_cfg, run_name in planned:
