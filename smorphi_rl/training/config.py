@@ -182,7 +182,7 @@ class TrainConfig:
         return out
 
 
-FRACTIONS = ("gamma", "lambda_", "clip_param", "pg_lambda", "frozen_critic")
+FRACTIONS = ("gamma", "lambda_", "clip_param", "pg_lambda", "frozen_critic", "lr_knee_at")
 """Hyperparameters that must lie in [0, 1]."""
 USED_BY = {
     "clip_param": ("ppo", "appo"),
@@ -231,6 +231,15 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
                 else "a non-negative number"
             )
             raise TrainConfigError(f"hyperparameter '{name}' must be {kind}, got {value!r}")
+
+
+def learning_rate(hp: Preset, timesteps: int) -> float | list[list[float]]:
+    """RLlib's `lr`: the constant rate, or the piecewise-linear schedule in env steps from `lr` to `lr_final`
+    (through `lr_knee` at `lr_knee_at` of the budget when set)."""
+    if hp.lr_final is None:
+        return hp.lr
+    knee = [] if hp.lr_knee is None else [[round(hp.lr_knee_at * timesteps), hp.lr_knee]]
+    return [[0, hp.lr], *knee, [timesteps, hp.lr_final]]
 
 
 def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tuple[float, float]:
@@ -374,7 +383,7 @@ def algorithm_config(
     config_cls = {"ppo": PPOConfig, "impala": IMPALAConfig, "appo": APPOConfig}[cfg.algo]
     env_dict = cfg.env.to_dict()
     training: dict[str, Any] = {
-        "lr": hp.lr if hp.lr_final is None else [[0, hp.lr], [cfg.timesteps, hp.lr_final]],
+        "lr": learning_rate(hp, cfg.timesteps),
         "gamma": hp.gamma,
         "entropy_coeff": hp.entropy_coeff,
         "vf_loss_coeff": hp.vf_loss_coeff,

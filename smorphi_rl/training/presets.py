@@ -28,6 +28,10 @@ class Preset:
     (`learners.vtrace_lambda`); None: 1, IMPALA's; at `lambda_` it is GAE's advantage, PPO's, on-policy."""
     lr_final: float | None = None
     """The learning rate at the end of the budget, reached linearly from `lr` (RLlib's schedule); None: constant."""
+    lr_knee: float | None = None
+    """With `lr_final`: the rate at `lr_knee_at` of the budget, a bend in the linear fall (three points); None: none."""
+    lr_knee_at: float = 0.5
+    """Where the bend `lr_knee` sits, as a share of the budget's env steps."""
     policy_angle_frequencies: int = ANGLE_FREQUENCIES
     """Fourier frequencies of the angles the policy net sees (the critic always sees ANGLE_FREQUENCIES)."""
     num_epochs: int = 1

@@ -120,6 +120,15 @@ def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():
     assert algorithm_config(TrainConfig(algo="impala", preset="paper")).lr == 7e-4  # constant: no lr_final
 
 
+def test_a_knee_bends_the_schedule_at_its_share_of_the_budget():
+    from smorphi_rl.training.config import algorithm_config
+
+    cfg = TrainConfig(timesteps=400_000, overrides={"lr": 1e-3, "lr_final": 5e-5, "lr_knee": 1e-4, "lr_knee_at": 0.625})
+    assert algorithm_config(cfg).lr == [[0, 1e-3], [250_000, 1e-4], [400_000, 5e-5]]
+    with pytest.raises(TrainConfigError, match="lr_knee_at"):
+        TrainConfig(overrides={"lr_knee_at": 1.5})
+
+
 def test_appos_circular_buffer_is_a_tunable_hyperparameter_of_appo_alone():
     from smorphi_rl.training.config import algorithm_config
 
