@@ -140,6 +140,11 @@ class TrainConfig:
                 raise TrainConfigError(f"{name} must be at most {most:,}, got {getattr(self, name):,}")
         check_overrides(self.algo, self.overrides)
         hp = self.hyperparameters
+        if hp.lr_knee is not None and (hp.lr_final is None or not 0 < hp.lr_knee_at < 1):
+            raise TrainConfigError(
+                f"lr_knee bends the fall to lr_final: it needs lr_final and 0 < lr_knee_at < 1 "
+                f"(lr_final {hp.lr_final}, lr_knee_at {hp.lr_knee_at})"
+            )
         if hp.minibatch_size is not None:
             if hp.minibatch_size > hp.train_batch_size:
                 raise TrainConfigError(

@@ -127,6 +127,10 @@ def test_a_knee_bends_the_schedule_at_its_share_of_the_budget():
     assert algorithm_config(cfg).lr == [[0, 1e-3], [250_000, 1e-4], [400_000, 5e-5]]
     with pytest.raises(TrainConfigError, match="lr_knee_at"):
         TrainConfig(overrides={"lr_knee_at": 1.5})
+    with pytest.raises(TrainConfigError, match="needs lr_final"):
+        TrainConfig(preset="paper", overrides={"lr_knee": 1e-4})  # the paper's rate is constant
+    with pytest.raises(TrainConfigError, match="needs lr_final"):
+        TrainConfig(overrides={"lr_knee": 1e-4, "lr_knee_at": 0})
 
 
 def test_appos_circular_buffer_is_a_tunable_hyperparameter_of_appo_alone():
