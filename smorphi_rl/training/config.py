@@ -145,6 +145,8 @@ class TrainConfig:
                 f"lr_knee bends the fall to lr_final: it needs lr_final and 0 < lr_knee_at < 1 "
                 f"(lr_final {hp.lr_final}, lr_knee_at {hp.lr_knee_at})"
             )
+        if "lr_knee_at" in self.overrides and hp.lr_knee is None:
+            raise TrainConfigError("lr_knee_at places lr_knee, which is not set")
         if hp.minibatch_size is not None:
             if hp.minibatch_size > hp.train_batch_size:
                 raise TrainConfigError(

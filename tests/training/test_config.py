@@ -131,6 +131,8 @@ def test_a_knee_bends_the_schedule_at_its_share_of_the_budget():
         TrainConfig(preset="paper", overrides={"lr_knee": 1e-4})  # the paper's rate is constant
     with pytest.raises(TrainConfigError, match="needs lr_final"):
         TrainConfig(overrides={"lr_knee": 1e-4, "lr_knee_at": 0})
+    with pytest.raises(TrainConfigError, match="lr_knee, which is not set"):
+        TrainConfig(overrides={"lr_knee_at": 0.5})
 
 
 def test_appos_circular_buffer_is_a_tunable_hyperparameter_of_appo_alone():
