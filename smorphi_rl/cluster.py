@@ -77,13 +77,21 @@ def check_reachable(address: str | None) -> None:
         raise ClusterError(f"cannot reach a Ray cluster at {address} ({reason})") from None
 
 
+_OPEN: list[str | None] = []
+"""The addresses of the sessions this process holds open, outermost first."""
+
+
 @contextmanager
 def ray_session(address: str | None) -> Iterator[None]:
-    """A local Ray started for this run (address None), or a connection to an existing cluster."""
+    """A local Ray started for this run (address None), or a connection to an existing cluster. Inside a session
+    of the same address (a job of many runs, such as `transfer`), the runs share it: Ray starts and stops once."""
     import ray
 
     if address == "auto":
         address = auto_address() or address  # the recorded cluster, not whichever Ray Ray's own "auto" finds
+    if _OPEN and _OPEN[-1] == address and ray.is_initialized():
+        yield
+        return
     if address is None:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
     # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
@@ -118,9 +126,11 @@ def ray_session(address: str | None) -> Iterator[None]:
     if stop.is_set():
         ray.shutdown()
         raise KeyboardInterrupt
+    _OPEN.append(address)
     try:
         yield
     finally:
+        _OPEN.pop()
         ray.shutdown()
 
 

@@ -85,6 +85,7 @@ def _map(name: str) -> str:
 
 def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = sys.stderr) -> Path:
     """Run every experiment of `budget_name`; returns the report's path."""
+    from smorphi_rl import cluster
     from smorphi_rl.compare import points_of_run, score_methods, write_report
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
@@ -107,38 +108,39 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     t0 = time.monotonic()
     say = lambda text: print(text, file=out, flush=True)  # noqa: E731
 
-    training: dict[tuple[str, str], Path] = {}
-    for map_name in b.train_maps:
-        for algo in b.algorithms:
-            say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps")
-            env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
-            cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner,
+    with cluster.ray_session(None):  # every run of the job on one local Ray, started once
+        training: dict[tuple[str, str], Path] = {}
+        for map_name in b.train_maps:
+            for algo in b.algorithms:
+                say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps")
+                env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
+                cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner,
+                                  num_env_runners=b.env_runners)  # fmt: skip
+                training[(algo, map_name)] = train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
+                                                   label=f"{algo.upper()} {map_name}").run_dir  # fmt: skip
+        searches: dict[tuple[str, str], SearchResult] = {}
+        for map_name in b.train_maps:
+            say(f"[reproduce] random, NSGA-II and the exhaustive front on {map_name}")
+            for result in (
+                run_random(_map(map_name), b.random_samples, seed=0),
+                run_nsga2(_map(map_name), b.nsga2_pop, b.nsga2_generations, seed=0),
+                run_exhaustive(_map(map_name), b.exhaustive_step),
+            ):
+                run_dir = prepare_run_dir(root, safe_name(f"{result.method}-{map_name}"))
+                save(result, run_dir, weights[map_name])
+                searches[(result.method, map_name)] = result
+        say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
+        pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
+        pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
                               num_env_runners=b.env_runners)  # fmt: skip
-            training[(algo, map_name)] = train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
-                                               label=f"{algo.upper()} {map_name}").run_dir  # fmt: skip
-    searches: dict[tuple[str, str], SearchResult] = {}
-    for map_name in b.train_maps:
-        say(f"[reproduce] random, NSGA-II and the exhaustive front on {map_name}")
-        for result in (
-            run_random(_map(map_name), b.random_samples, seed=0),
-            run_nsga2(_map(map_name), b.nsga2_pop, b.nsga2_generations, seed=0),
-            run_exhaustive(_map(map_name), b.exhaustive_step),
-        ):
-            run_dir = prepare_run_dir(root, safe_name(f"{result.method}-{map_name}"))
-            save(result, run_dir, weights[map_name])
-            searches[(result.method, map_name)] = result
-    say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
-    pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
-    pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
-                          num_env_runners=b.env_runners)  # fmt: skip
-    pre = train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain")
-    say(
-        f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
-        f"seeds {', '.join(map(str, b.transfer_seeds))}"
-    )
-    job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
-                      envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
-    job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
+        pre = train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain")
+        say(
+            f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
+            f"seeds {', '.join(map(str, b.transfer_seeds))}"
+        )
+        job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
+                          envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
+        job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [

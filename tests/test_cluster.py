@@ -54,3 +54,13 @@ def test_a_version_mismatch_with_a_cluster_is_one_line_naming_both_versions():
     assert "\n" not in line and line.startswith("Version mismatch")
     assert "Ray 2.50.0" in line and f"Ray {ray.__version__}" in line
     assert ray_error_line(RuntimeError("first\nsecond")) == "first" and ray_error_line(RuntimeError()) == "RuntimeError"
+
+
+def test_a_session_inside_one_of_the_same_address_shares_its_ray():
+    """A job of many runs starts Ray once: a run's session inside it neither starts nor stops Ray."""
+    with cluster.ray_session(None):
+        node = ray.get_runtime_context().get_node_id()
+        with cluster.ray_session(None):
+            assert ray.get_runtime_context().get_node_id() == node
+        assert ray.is_initialized()
+    assert not ray.is_initialized()

@@ -140,17 +140,18 @@ def run_transfer(
                                                       "seeds": list(job.seeds)}, indent=2))  # fmt: skip
     runs: list[TransferRun] = []
     try:
-        for map_name, seed, mode, run_cfg, run_name in planned:
-            if run_name in finished:
-                runs.append(finished[run_name])
-                continue
-            if (job_dir / run_name).exists():
-                rename_cut_run(job_dir / run_name)
-            trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                            label=f"{job.algo.upper()} {run_name}")  # fmt: skip
-            runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
-            if trained.interrupted:
-                break  # a stop request ends the job: what finished is reported, marked as such
+        with cluster.ray_session(address):  # the job's runs share one Ray: it starts (or attaches) once
+            for map_name, seed, mode, run_cfg, run_name in planned:
+                if run_name in finished:
+                    runs.append(finished[run_name])
+                    continue
+                if (job_dir / run_name).exists():
+                    rename_cut_run(job_dir / run_name)
+                trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
+                                label=f"{job.algo.upper()} {run_name}")  # fmt: skip
+                runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
+                if trained.interrupted:
+                    break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException:
         if not runs and not resume:
             discard_run_dir(job_dir)  # nothing trained: the name stays free
