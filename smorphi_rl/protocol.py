@@ -29,6 +29,11 @@ if TYPE_CHECKING:
 
 EVAL_KEY = "eval"
 """The training result key of the periodic greedy evaluation (TensorBoard: ray/tune/eval/...)."""
+TRAINED_KEY = "trained"
+"""Under EVAL_KEY, in the last row of a run that ends on an earlier, better policy: the TRAINED_FIGURES of the
+policy training ended with, which the learning curves and convergence read (the row's own figures are the chosen
+policy's)."""
+TRAINED_FIGURES = ("median_gap", "share_within_1pct", "settled_R1_mean")
 EVAL_EVERY = 5
 """Training iterations between periodic evaluations (and the first iteration)."""
 EVAL_STARTS = 20

@@ -13,7 +13,7 @@ from ray.rllib.callbacks.callbacks import RLlibCallback
 from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
-from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.protocol import EVAL_KEY, TRAINED_FIGURES, TRAINED_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
 from smorphi_rl.training.runners import push_module_to_runners
@@ -130,12 +130,14 @@ class MorphologyCallbacks(RLlibCallback):
                 self._evaluation = self._protocol(algorithm, self.eval_starts + self.select_starts)
             both = _on_learner(algorithm, self._evaluation)
             n = len(self.eval_starts)
-            protocol = [replace(e, outcomes=e.outcomes[:n]) for e in both]
-            policy_steps = steps
+            trained = [replace(e, outcomes=e.outcomes[:n]) for e in both]
+            protocol, policy_steps = trained, steps
             if self.select_starts:
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
-                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, protocol)
+                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, trained)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
+            if policy_steps != steps:  # the run ends on an earlier policy; the curves keep the trained one's
+                result[EVAL_KEY][TRAINED_KEY] = {k: evaluation_metrics(trained)[k] for k in TRAINED_FIGURES}
             if self.design_budget:
                 if self._design is None:
                     self._design = self._design_evaluation(algorithm)

@@ -1,11 +1,12 @@
 """When a run has converged: one definition, used by `sweep`, `transfer`, `reproduce` and the benchmarks.
 
-Every few iterations the evaluation protocol rolls the greedy policy out from fixed seeded starts and
-reports the share of starts whose settled shape is within 1 % of the exact optimum's R1. A run has
-converged at the first evaluation from which that share stays at least 90 % for the rest of the run; the
-convergence step is that evaluation's env-step count. A run whose last evaluation is under 90 % has not
-converged within its budget (None), which reports show as such, never as a number. Iterations without an
-evaluation are skipped. The plateau reported beside it is the mean greedy settled R1 over the run's last
+Every few iterations the evaluation protocol rolls the greedy policy out from fixed seeded starts and reports the
+share of starts whose settled shape is within 1 % of the exact optimum's R1. A run has converged at the first
+evaluation from which that share stays at least 90 % for the rest of the run; the convergence step is that
+evaluation's env-step count. A run whose last evaluation is under 90 % has not converged within its budget (None),
+which reports show as such, never as a number. The shares are the trained policy's, also at the last evaluation of
+a run that ends on an earlier policy (`protocol.TRAINED_KEY`): choosing a policy is not learning. Iterations
+without an evaluation are skipped. The plateau reported beside it is the mean greedy settled R1 over the run's last
 20 % of evaluations. No Ray here.
 """
 

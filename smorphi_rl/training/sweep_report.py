@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.map_sources import map_label
-from smorphi_rl.protocol import EVAL_KEY
+from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
 from smorphi_rl.stats import band, median_interval
 from smorphi_rl.training import result_keys as keys
@@ -91,18 +91,19 @@ CURVE_NAMES = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_
 
 def curve_point(row: dict[str, Any]) -> dict[str, float]:
     """One result row's point of each curve: env steps, mean episode return, the iteration's best R1, the
-    final-shape R1 and the greedy evaluation (settled R1, median gap, share within 1 %; NaN where the
-    iteration was not evaluated)."""
+    final-shape R1 and the greedy evaluation of the policy being trained (settled R1, median gap, share within 1 %;
+    NaN where the iteration was not evaluated), never that of an earlier policy a run ends on."""
     runners = row.get(keys.ENV_RUNNERS, {})
     ev = row.get(EVAL_KEY) or {}
+    learned = ev.get(TRAINED_KEY) or ev
     return {
         "env_steps": float(row.get(keys.STEPS) or 0),
         "episode_return_mean": _num(runners.get(keys.EPISODE_RETURN_MEAN)),
         "best_R1": max((b.R1 for b in episode_bests(row)), default=math.nan),
         "final_R1": _num(runners.get(keys.METRIC_PREFIX, {}).get("R1_final")),
-        "eval_R1": _num(ev.get("settled_R1_mean")),
-        "eval_gap": _num(ev.get("median_gap")),
-        "eval_within": _num(ev.get("share_within_1pct")),
+        "eval_R1": _num(learned.get("settled_R1_mean")),
+        "eval_gap": _num(learned.get("median_gap")),
+        "eval_within": _num(learned.get("share_within_1pct")),
         "design_gap": _num(ev.get("design_median_gap_pct")),
     }
 

@@ -86,3 +86,36 @@ def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_op
     assert not any(snapshots)
     assert twin is not module and not torn(twin.state_dict())
     assert optimizer.k > 10  # the learner kept learning meanwhile
+
+
+def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_convergence(monkeypatch):
+    """Evaluations 20 %, 100 %, 20 %, 20 % of the starts within 1 %: the run ends on the 100 % policy, whose
+    figures its last row reports, but the curves (and so convergence) read the policy training ended with."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.protocol import EVAL_KEY
+    from smorphi_rl.training import callbacks
+    from smorphi_rl.training.convergence import convergence
+    from smorphi_rl.training.sweep_report import result_curve
+
+    poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
+    shares = [poor, good, poor, poor]  # each policy's protocol starts, then its selection starts alike
+    monkeypatch.setattr(callbacks, "_on_learner", lambda algorithm, call: _evaluation(*shares[0], *shares.pop(0)))
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: {"weights": len(shares)})
+    monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    starts = [(0.0, 0.0, 0.0)] * 5
+    evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 4000,
+                                           selection=starts)  # fmt: skip
+    hooks = evaluating()
+    hooks._evaluation = object()
+    rows = []
+    for i in range(1, 5):
+        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
+        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
+        rows.append(result)
+    last = rows[-1][EVAL_KEY]
+    assert last["share_within_1pct"] == 1.0 and last["policy_env_steps"] == 2000  # the policy it ends on
+    assert last["trained"]["share_within_1pct"] == 0.2 and "trained" not in rows[1][EVAL_KEY]
+    assert result_curve(rows)["eval_within"] == [0.2, 1.0, 0.2, 0.2]
+    assert convergence(result_curve(rows))[0] is None  # with the chosen policy's figures it read 4,000
