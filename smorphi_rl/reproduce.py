@@ -12,7 +12,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
@@ -26,6 +26,14 @@ if TYPE_CHECKING:
 MAPS_DIR = Path(__file__).resolve().parent.parent / "maps"
 TRAIN_MAPS = ("map-1", "map-2")
 VAL_MAPS = ("val-1", "val-2", "val-3")
+
+
+class _Cuttable(Protocol):
+    @property
+    def interrupted(self) -> bool: ...
+
+
+_Run = TypeVar("_Run", bound=_Cuttable)
 
 
 @dataclass(frozen=True)
@@ -83,7 +91,15 @@ def _map(name: str) -> str:
     return str(MAPS_DIR / f"{name}.yaml")
 
 
-def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = sys.stderr) -> Path:
+def _whole(run: _Run) -> _Run:
+    """`run`, unless a stop request cut it short: then the job stops too (KeyboardInterrupt), keeping what it wrote,
+    rather than go on from a cut-short policy and report claims on it."""
+    if run.interrupted:
+        raise KeyboardInterrupt
+    return run
+
+
+def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = None) -> Path:
     """Run every experiment of `budget_name`; returns the report's path."""
     from smorphi_rl import cluster
     from smorphi_rl.compare import points_of_run, score_methods, write_report
@@ -106,7 +122,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     defaults = EnvConfig()
     weights = {m: defaults.weights_on(load_map(_map(m))) for m in b.train_maps}  # R1 on each map, as the env ranks
     t0 = time.monotonic()
-    say = lambda text: print(text, file=out, flush=True)  # noqa: E731
+    say = lambda text: print(text, file=out or sys.stderr, flush=True)  # noqa: E731
 
     with cluster.ray_session(None):  # every run of the job on one local Ray, started once
         training: dict[tuple[str, str], Path] = {}
@@ -116,8 +132,8 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
                 env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
                 cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner,
                                   num_env_runners=b.env_runners)  # fmt: skip
-                training[(algo, map_name)] = train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
-                                                   label=f"{algo.upper()} {map_name}").run_dir  # fmt: skip
+                training[(algo, map_name)] = _whole(train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
+                                                          label=f"{algo.upper()} {map_name}")).run_dir  # fmt: skip
         searches: dict[tuple[str, str], SearchResult] = {}
         for map_name in b.train_maps:
             say(f"[reproduce] random, NSGA-II and the exhaustive front on {map_name}")
@@ -133,7 +149,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
         pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
                               num_env_runners=b.env_runners)  # fmt: skip
-        pre = train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain")
+        pre = _whole(train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain"))
         say(
             f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
             f"seeds {', '.join(map(str, b.transfer_seeds))}"
@@ -141,6 +157,8 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
                           envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
         job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
+        for run in transfer_runs:
+            _whole(run)
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [

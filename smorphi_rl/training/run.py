@@ -102,7 +102,8 @@ def fmt_duration(seconds: float) -> str:
 class _Progress:
     """Driver-side Tune callback: collects episode bests and curves, and shows one progress line."""
 
-    def __init__(self, cfg: TrainConfig, out: Any = sys.stderr, label: str | None = None) -> None:
+    def __init__(self, cfg: TrainConfig, out: Any = None, label: str | None = None) -> None:
+        out = out or sys.stderr  # the stream of the moment, not the one at import
         self.cfg = cfg
         self.label = label or cfg.algo.upper()
         self.top = TopMorphologies()
