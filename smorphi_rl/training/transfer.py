@@ -79,6 +79,11 @@ class TransferJob:
             repeated = sorted({str(v) for v in items if items.count(v) > 1})
             if repeated:
                 raise TrainConfigError(f"--{name} names {repeated[0]} twice: each run would be trained twice")
+        stems = [Path(m).stem for m in self.maps]  # a run, its folder and its table row are named by the map's name
+        clash = sorted({m for m in map(str, self.maps) if stems.count(Path(m).stem) > 1})
+        if clash:
+            raise TrainConfigError(f"--maps {clash[0]} and {clash[1]} share the name {Path(clash[0]).stem!r}, which "
+                                   "names the runs and the table's rows: rename one")  # fmt: skip
         for seed in self.seeds:
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
                 raise TrainConfigError(f"seeds must be non-negative integers, got {seed!r}")
@@ -127,6 +132,7 @@ def run_transfer(
     finished: dict[str, TransferRun] = {}
     job_dir = resumed_job_dir(log_dir, name) if resume else None
     if job_dir is not None:  # every earlier run is read and checked against this job before anything trains
+        check_nothing_left_out(job_dir, job)
         for map_name, seed, mode, run_cfg, run_name in planned:
             earlier = finished_run(job_dir / run_name, run_cfg)
             if earlier is not None:
@@ -169,6 +175,23 @@ def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
         raise TrainConfigError(f"--resume: {job_dir} is not a transfer job (no {JOB_FILE}; give the --name and "
                                "--log-dir of the job to continue)")  # fmt: skip
     return job_dir
+
+
+def check_nothing_left_out(job_dir: Path, job: TransferJob) -> None:
+    """One line when a resume leaves out maps or seeds the job ran before: its table covers every run of the job,
+    so a call with fewer would drop finished runs from it."""
+    from smorphi_rl.inputs import read_json_object
+
+    if not (job_dir / JOB_FILE).is_file():
+        return
+    earlier = read_json_object(job_dir / JOB_FILE, "transfer job")
+    maps, seeds = earlier.get("maps"), earlier.get("seeds")
+    names = {Path(m).stem for m in job.maps}
+    gone = [str(m) for m in maps if Path(str(m)).stem not in names] if isinstance(maps, list) else []
+    gone += [f"seed {s}" for s in seeds if s not in job.seeds] if isinstance(seeds, list) else []
+    if gone:
+        raise TrainConfigError(f"--resume: the job also ran {', '.join(gone)}: give every map and seed it ran "
+                               "(its table covers them all), and any new ones")  # fmt: skip
 
 
 def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:

@@ -62,6 +62,8 @@ def test_a_transfer_job_is_checked_when_made():
         TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0, -1))
     with pytest.raises(TrainConfigError, match="unknown algorithm"):
         TransferJob("ckpt", ("maps/val-1.yaml",), algo="a3c")
+    with pytest.raises(TrainConfigError, match="share the name 'val-1'"):  # one name: its runs would collide
+        TransferJob("ckpt", ("maps/val-1.yaml", "other/val-1.yaml"))
 
 
 def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
@@ -73,3 +75,19 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     assert "ratio 6.00" in line and "**agrees**" in line  # medians 60,000 / 10,000 (the means would give 10.7)
     (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, 50_000, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
+
+
+def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path):
+    """The table covers every run of the job: a resume with fewer maps or seeds would drop finished runs from it."""
+    import json
+
+    import pytest
+
+    from smorphi_rl.training.config import TrainConfigError
+    from smorphi_rl.training.transfer import JOB_FILE, TransferJob, check_nothing_left_out
+
+    (tmp_path / JOB_FILE).write_text(json.dumps({"maps": ["maps/val-1.yaml", "maps/val-2.yaml"], "seeds": [0, 1]}))
+    more = TransferJob("ckpt", ("maps/val-1.yaml", "/elsewhere/val-2.yaml", "maps/val-3.yaml"), seeds=(0, 1, 2))
+    check_nothing_left_out(tmp_path, more)  # the same maps by name, and new ones: fine
+    with pytest.raises(TrainConfigError, match=r"the job also ran maps/val-2\.yaml, seed 1: give every map and seed"):
+        check_nothing_left_out(tmp_path, TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0,)))
