@@ -151,7 +151,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
     print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\ncurves: {rel(files['png'])}")
     if any(r.interrupted for r in runs):
-        print(f"{PROG}: interrupted: the table holds the {len(runs)} run(s) that started, the last one cut short; "
+        print(f"{PROG}: interrupted: the table holds the {len(runs) - 1} run(s) that finished (transfer.csv lists the "
+              "one cut short); "
               f"continue with the same command and --name {shlex.quote(job_dir.name)} --resume",
               file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED

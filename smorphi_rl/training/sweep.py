@@ -235,7 +235,7 @@ def run_sweep(
     rows = read_sweep(exp)
     files = write_sweep_outputs(exp, rows)
     if failed:
-        raise TrainingError(f"{failed.line}; tables of the finished trials under {exp}")
+        raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
     finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
     return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files)
 

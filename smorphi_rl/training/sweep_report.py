@@ -46,6 +46,8 @@ class TrialRow:
     """The last evaluation's median gap of the greedy settled R1 to the exact optimum (NaN: never evaluated)."""
     share_within_1pct: float = math.nan
     """The last evaluation's share of starts settled within 1 % of the optimum."""
+    finished: bool = True
+    """Whether the trial reached its budget or stop criteria (False: cut short, or failed; left out of the groups)."""
 
 
 RESULTS = "result.json"
@@ -148,6 +150,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         curve=curve,
         median_gap=_num(last.get("median_gap")),
         share_within_1pct=_num(last.get("share_within_1pct")),
+        finished=bool(rows[-1].get(keys.TRIAL_DONE)),
     )
 
 
@@ -162,7 +165,7 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
               "best_map", "best_P_c", "best_P_len", "greedy_median_gap", "share_within_1pct",
-              "converged_at_env_steps", "settled_R1_plateau"]  # fmt: skip
+              "converged_at_env_steps", "settled_R1_plateau", "finished"]  # fmt: skip
     table = []
     for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
         b = r.best
@@ -171,7 +174,7 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
                       _fixed(r.median_gap), _fixed(r.share_within_1pct),
                       "not converged" if r.converged_at is None else int(r.converged_at),
-                      f"{r.settled_R1_plateau:.2f}"])  # fmt: skip
+                      f"{r.settled_R1_plateau:.2f}", "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
@@ -182,9 +185,10 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
 
 
 def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
-    """Trials that differ only by seed, keyed by (map set, algorithm and hyperparameters)."""
+    """Finished trials that differ only by seed, keyed by (map set, algorithm and hyperparameters): a trial cut
+    short would count a shorter budget's figures as its group's."""
     groups: dict[tuple[str, str], list[TrialRow]] = {}
-    for r in rows:
+    for r in (r for r in rows if r.finished):
         hp = " ".join(f"{k}={_fmt(v)}" for k, v in sorted(r.hyperparameters.items()))
         groups.setdefault((r.maps, f"{r.algo.upper()} {hp}".strip()), []).append(r)
     return groups
@@ -198,9 +202,11 @@ def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
 def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     """Each algorithm and hyperparameters on each map set over its seeds, means with 95 % bootstrap intervals;
     a trial that never converged is counted as such, not as a number (a note, a blank line, the table)."""
+    unfinished = sum(not r.finished for r in rows)
+    left_out = f" {unfinished} unfinished trial(s) (sweep.md) are left out." if unfinished else ""
     lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
              "protocol's starts settle within 1 % of the optimum; env steps to converge are over the converged "
-             "trials only, the others are counted as not converged.", "",
+             f"trials only, the others are counted as not converged.{left_out}", "",
              "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip

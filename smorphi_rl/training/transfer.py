@@ -248,19 +248,21 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     from smorphi_rl.plots import plot_learning_curves
 
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
+    cut = sum(r.interrupted for r in runs)
     with atomic_text(files["csv"]) as fh:
         writer = csv.writer(fh)
         writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_settled_R1", "best_R1",
-                         "pretrained_in_runners"])  # fmt: skip
+                         "pretrained_in_runners", "interrupted"])  # fmt: skip
         for r in runs:
             at = "" if r.converged_at is None else int(r.converged_at)
             writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
-                             r.pretrained_in_runners])  # fmt: skip
+                             r.pretrained_in_runners, r.interrupted])  # fmt: skip
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. Env steps to converge count converged runs only; a run "
         "that never converged is counted as not converged, not as a number; the ratio is of the medians, given only "
-        "where every run of both modes converged.",
+        "where every run of both modes converged."
+        + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "
@@ -327,7 +329,9 @@ class MapTransfer:
 
 
 def by_map(runs: list[TransferRun]) -> list[MapTransfer]:
-    """The runs grouped by held-out map, in the order the job ran them."""
-    names = dict.fromkeys(r.map_name for r in runs)
-    return [MapTransfer(n, *([r for r in runs if r.map_name == n and r.mode == m] for m in ("fine-tune", "scratch")))
+    """The runs that finished their budget grouped by held-out map, in the order the job ran them (a run cut short
+    would count a shorter budget as its mode's)."""
+    whole = [r for r in runs if not r.interrupted]
+    names = dict.fromkeys(r.map_name for r in whole)
+    return [MapTransfer(n, *([r for r in whole if r.map_name == n and r.mode == m] for m in ("fine-tune", "scratch")))
             for n in names]  # fmt: skip

@@ -71,19 +71,22 @@ def test_trial_rows_count_iterations_re_run_after_a_restore_once(tmp_path):
 
 
 def test_sweep_table_and_curves(tmp_path):
-    _trial(tmp_path, "ppo-a", "ppo", 0.001, [_row(i, 80.0 + i, 85.0 + i) for i in range(1, 6)])
-    _trial(tmp_path, "ppo-b", "ppo", 0.003, [_row(i, 81.0, 84.0) for i in range(1, 4)])
+    rows_a = [_row(i, 80.0 + i, 85.0 + i) for i in range(1, 6)]
+    rows_a[-1]["smorphi_done"] = True  # the last row of a trial that reached its budget
+    _trial(tmp_path, "ppo-a", "ppo", 0.001, rows_a)
+    _trial(tmp_path, "ppo-b", "ppo", 0.003, [_row(i, 81.0, 84.0) for i in range(1, 4)])  # cut short
     (tmp_path / "not-a-trial").mkdir()
     rows = read_sweep(tmp_path)
     assert [r.trial for r in rows] == ["ppo-a", "ppo-b"]
     write_sweep_tables(rows, tmp_path / "s.csv", tmp_path / "s.md")
     lines = (tmp_path / "s.csv").read_text().splitlines()
     assert lines[0].startswith("trial,algo,maps,seed,lr,env_steps")
-    assert lines[0].endswith("greedy_median_gap,share_within_1pct,converged_at_env_steps,settled_R1_plateau")
+    assert lines[0].endswith("share_within_1pct,converged_at_env_steps,settled_R1_plateau,finished")
     assert lines[1].startswith("ppo-a,ppo,map-1,0,0.001,5000,5,10,90.00,")  # sorted by best R1
-    assert lines[1].endswith(",5,0.5,not converged,85.00")  # the last evaluation: gap 90 - 85, half within 1 %
+    assert lines[1].endswith(",5,0.5,not converged,85.00,yes")  # the last evaluation: gap 90 - 85, half within 1 %
+    assert lines[2].endswith(",no")
     groups = group_curves(rows)
     (lines_by_label,) = groups.values()
-    assert set(lines_by_label) == {"PPO lr=0.001 (1 seed)", "PPO lr=0.003 (1 seed)"}
+    assert set(lines_by_label) == {"PPO lr=0.001 (1 seed)"}  # a trial cut short is in no group
     line = lines_by_label["PPO lr=0.001 (1 seed)"]
     assert math.isnan(line["eval_R1_mean"][0]) and line["eval_R1_mean"][-1] == 85.0

@@ -41,3 +41,12 @@ def test_band_of_one_curve_is_the_curve():
     mean, lo, hi = band(np.array([[1.0, 2.0, np.nan]]))
     assert np.array_equal(hi[:2], mean[:2])
     assert np.array_equal(mean[:2], [1.0, 2.0]) and np.array_equal(lo[:2], mean[:2]) and np.isnan(mean[2])
+
+
+def test_a_trial_cut_short_is_left_out_of_its_group_and_said_so(tmp_path):
+    from dataclasses import replace
+
+    cut = replace(_trial(2, 1e-3, 70.0, None), finished=False)
+    write_sweep_groups([_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, 6_000), cut], tmp_path / "groups.md")
+    text = (tmp_path / "groups.md").read_text()
+    assert "1 unfinished trial(s) (sweep.md) are left out" in text and "| 2 of 2 |" in text

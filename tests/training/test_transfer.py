@@ -41,13 +41,18 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
 
 
 def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
+    from dataclasses import replace
+
     from smorphi_rl.training.transfer import by_map
 
-    runs = [_run("fine-tune", 0, 2_000, 88.0)]
+    cut = replace(_run("scratch", 0, None, 80.0), interrupted=True)  # its shorter budget is no scratch figure
+    runs = [_run("fine-tune", 0, 2_000, 88.0), cut]
     files = write_transfer_report(tmp_path, runs)
     row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
     assert row.rstrip().endswith("| 89.00 / nan |")
     assert by_map(runs)[0].all_converged == (True, False) and by_map(runs)[0].ratio.n == 0
+    assert by_map(runs)[0].scratch == [] and "1 run(s) cut short (transfer.csv) are left out" in files["md"].read_text()
+    assert files["csv"].read_text().splitlines()[-1].endswith(",True")
 
 
 def test_a_transfer_job_is_checked_when_made():
