@@ -157,14 +157,17 @@ class SweepConfig:
 
     def trials(self) -> list[dict[str, Any]]:
         """Every trial of the sweep, in order: {index, algo, maps, seed, hp}, the random parts drawn here from
-        `SAMPLE_SEED` (not by Tune), so a resumed sweep finds the same trials under the same indices."""
+        `SAMPLE_SEED` (not by Tune), so a resumed sweep finds the same trials under the same indices. A sample's draw
+        depends on its grid point and number alone: every seed, algorithm and map set gets the same values, so its
+        seeds form one group over which the tables give intervals."""
         names = sorted(self.search)
         grids = [self.search[k].values if self.search[k].kind == "grid" else (None,) for k in names]
+        points = list(enumerate(itertools.product(*grids)))
         out: list[dict[str, Any]] = []
-        for algo, maps, seed, point in itertools.product(self.algorithms, self.map_sets, self.seeds,
-                                                         itertools.product(*grids)):  # fmt: skip
-            for _ in range(self.num_samples):
-                rng = np.random.default_rng([SAMPLE_SEED, len(out)])
+        for algo, maps, seed, (p, point) in itertools.product(self.algorithms, self.map_sets, self.seeds,
+                                                              points):  # fmt: skip
+            for sample in range(self.num_samples):
+                rng = np.random.default_rng([SAMPLE_SEED, p, sample])
                 hp = {k: v if self.search[k].kind == "grid" else self.search[k].draw(rng)
                       for k, v in zip(names, point, strict=True)}  # fmt: skip
                 out.append({"index": len(out), "algo": algo, "maps": list(maps), "seed": seed, "hp": hp})
@@ -274,6 +277,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
         env_runners=doc.env_runners,
         envs_per_runner=doc.envs_per_runner,
     )
+    if cfg.num_samples > 1 and all(s.kind in ("grid", "constant") for s in spaces.values()):
+        raise fail("num_samples", f"{cfg.num_samples} samples of a search with no random part would repeat the same "
+                   "trials: give more seeds, or a choice, uniform or loguniform part")  # fmt: skip
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
     for algo in cfg.algorithms:  # every value of every space must suit every algorithm
@@ -339,6 +345,8 @@ def _space(value: Any, key: str, fail: Any) -> Space:
     ((kind, args),) = value.items()
     if not isinstance(args, list) or not args or not all(is_finite_number(a) for a in args):
         raise fail(key, f"{kind} takes a list of numbers, got {args!r}")
+    if kind == "grid" and len(set(args)) < len(args):
+        raise fail(key, f"grid {args!r} gives a value twice: its trials would run twice")
     if kind in ("uniform", "loguniform"):
         if len(args) != 2 or not args[0] < args[1] or (kind == "loguniform" and args[0] <= 0):
             raise fail(key, f"{kind} takes [low, high] with low < high{' and low > 0' if kind == 'loguniform' else ''}")

@@ -45,7 +45,13 @@ def test_trials_are_the_grid_with_random_parts_drawn_reproducibly(sweep):
     assert [t["index"] for t in trials] == list(range(16))
     assert trials == load_sweep(sweep.path).trials()  # a resumed sweep finds the same trials
     lrs = [t["hp"]["lr"] for t in trials]
-    assert all(1e-4 <= lr <= 1e-2 for lr in lrs) and len(set(lrs)) == 16  # each trial its own stream
+    assert all(1e-4 <= lr <= 1e-2 for lr in lrs) and len(set(lrs)) == 4  # each grid point and sample its own draw
+    by_run = {}
+    for t in trials:
+        by_run.setdefault((t["algo"], t["seed"]), []).append(
+            (t["hp"]["entropy_coeff"], t["hp"]["lr"], t["hp"]["gamma"])
+        )
+    assert len({tuple(v) for v in by_run.values()}) == 1  # shared by every seed and algorithm: a group over seeds
     assert {t["hp"]["entropy_coeff"] for t in trials} == {0.0, 0.01} and {t["hp"]["gamma"] for t in trials} <= {
         0.99, 0.995}  # fmt: skip
     assert json.loads(json.dumps(trials)) == trials  # what params.json records compares equal

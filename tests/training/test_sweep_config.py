@@ -56,6 +56,10 @@ def test_search_space_kinds_and_overrides(tmp_path):
     assert {k: s.kind for k, s in cfg.search.items()} == {
         "lr": "loguniform", "entropy_coeff": "choice", "lambda_": "grid", "gamma": "constant"}  # fmt: skip
     assert cfg.num_grid_trials == 2 * 3
+    seeds = load_sweep(write(tmp_path, f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0, 1]\nnum_samples: 2\n"
+                                       "search:\n  lr: {loguniform: [0.0001, 0.01]}\n"))  # fmt: skip
+    drawn = {(t["seed"], t["hp"]["lr"]) for t in seeds.trials()}
+    assert len(drawn) == 4 and len({lr for _, lr in drawn}) == 2  # each sample's draw is shared by the seeds
     trial = cfg.base_config("ppo", cfg.map_sets[0], 0, {"lr": 0.002, "lambda_": 0.9, "gamma": 0.98})
     hp = trial.hyperparameters
     assert (hp.lr, hp.lambda_, hp.gamma, hp.num_epochs) == (0.002, 0.9, 0.98, PRESETS["fast"]["ppo"].num_epochs)
@@ -97,6 +101,11 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (base("search: {lr: {uniform: [0.1, 0.01]}}\n"), "key 'search.lr': uniform takes [low, high] with low < high"),
         (base("search: {lr: {normal: [0, 1]}}\n"), "key 'search.lr': expected a number or one of"),
         (base("search: {lr: {grid: [fast]}}\n"), "key 'search.lr': grid takes a list of numbers"),
+        (base("search: {lr: {grid: [0.001, 0.001]}}\n"), "key 'search.lr': grid [0.001, 0.001] gives a value twice"),
+        (
+            base("num_samples: 3\nsearch: {lr: {grid: [0.001, 0.003]}}\n"),
+            "key 'num_samples': 3 samples of a search with no random part would repeat the same trials",
+        ),
         (base("search: {momentum: 0.9}\n"), "key 'search.momentum': unknown hyperparameter 'momentum'"),
         (base("search: {gamma: {grid: [0.9, 1.5]}}\n"), "key 'search.gamma': hyperparameter 'gamma' must be"),
         (
