@@ -140,8 +140,8 @@ class MapEvaluation:
 
     def summary(self) -> dict[str, float]:
         """The figures logged and tabulated (TensorBoard's eval/... tags)."""
-        n = len(self.outcomes)
-        return {"median_gap": self.median_gap, "share_within_1pct": self.within / n, "settled_R1_mean": self.mean_R1,
+        share = self.within / len(self.outcomes) if math.isfinite(self.optimum.R1) else math.nan  # NaN: not measured
+        return {"median_gap": self.median_gap, "share_within_1pct": share, "settled_R1_mean": self.mean_R1,
                 "evaluations_mean": self.mean_evaluations, "optimum_R1": self.optimum.R1}  # fmt: skip
 
     def to_dict(self) -> dict[str, object]:

@@ -209,13 +209,18 @@ def selection_score(evaluations: list[Any]) -> tuple[int, float]:
 
 
 def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
-    """The eval/... figures: every map's summary under its name, and the medians and shares over all maps."""
+    """The eval/... figures: every map's summary under its name, and the medians and shares over the maps with an
+    exact optimum (NaN when none has one: not measured, which is not 0 %)."""
+    import math
+
     import numpy as np
 
-    gaps = np.concatenate([e.gaps for e in evaluations])
-    within = sum(e.within for e in evaluations)
+    measured = [e for e in evaluations if math.isfinite(e.optimum.R1)]
+    gaps = np.concatenate([e.gaps for e in measured]) if measured else np.array([])
     out: dict[str, Any] = {e.map: e.summary() for e in evaluations}
-    out |= {"median_gap": float(np.median(gaps)), "share_within_1pct": within / len(gaps), "starts": len(gaps),
+    out |= {"median_gap": float(np.median(gaps)) if gaps.size else math.nan,
+            "share_within_1pct": sum(e.within for e in measured) / gaps.size if gaps.size else math.nan,
+            "starts": sum(len(e.outcomes) for e in evaluations),
             "settled_R1_mean": float(np.mean([e.mean_R1 for e in evaluations]))}  # fmt: skip
     return out
 

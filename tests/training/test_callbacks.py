@@ -119,3 +119,20 @@ def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_conver
     assert last["trained"]["share_within_1pct"] == 0.2 and "trained" not in rows[1][EVAL_KEY]
     assert result_curve(rows)["eval_within"] == [0.2, 1.0, 0.2, 0.2]
     assert convergence(result_curve(rows))[0] is None  # with the chosen policy's figures it read 4,000
+
+
+def test_a_map_without_an_exact_optimum_is_not_measured_rather_than_0_percent():
+    """A map too large to enumerate has no R1*: its share is NaN (not measured), and the pooled figures are over the
+    maps that have one, so it cannot hold the run under 90 % for ever."""
+    import math
+
+    from smorphi_rl.protocol import NO_OPTIMUM
+    from smorphi_rl.training.callbacks import evaluation_metrics
+
+    (large,) = _evaluation(50.0, 60.0)
+    large = MapEvaluation("large", "policy", NO_OPTIMUM, large.outcomes)
+    both = evaluation_metrics([*_evaluation(89.9, 89.9, 80.0, 89.5), large])
+    assert both["share_within_1pct"] == 0.75 and math.isclose(both["median_gap"], 0.3) and both["starts"] == 6
+    assert math.isnan(both["large"]["share_within_1pct"])
+    alone = evaluation_metrics([large])
+    assert math.isnan(alone["share_within_1pct"]) and math.isnan(alone["median_gap"])
