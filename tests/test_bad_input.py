@@ -487,6 +487,18 @@ def test_a_sweep_whose_trials_need_more_cpus_than_there_are_is_refused_before_ra
     assert not (tmp_path / "logs").exists()
 
 
+def test_a_sweep_whose_evaluation_map_cannot_be_read_leaves_no_folder(tmp_path, capsys):
+    """The evaluated maps are read (and their optima computed) before the experiment's folder is made, so the same
+    command runs again once the map is mended, with no --resume."""
+    (tmp_path / "broken.yaml").write_text("image: missing.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"name: s\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\n"
+                     "evaluation: {maps: [broken.yaml]}\n")  # fmt: skip
+    code, _, err = run(capsys, "sweep", str(sweep), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "missing.pgm" in one_line(err)
+    assert not (tmp_path / "logs" / "s").exists()
+
+
 def test_a_crop_that_holds_no_robot_is_refused(tmp_path, capsys):
     code, _, err = run(capsys, "maps", "crop", MAP_1, "--rect", "1", "1", "1.05", "1.05", "--out",
                        str(tmp_path / "c.yaml"))  # fmt: skip

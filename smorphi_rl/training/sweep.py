@@ -214,13 +214,13 @@ def run_sweep(
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
     if address is None:
         cluster.check_capacity(widest.cpus, widest.env_runners, address)
+    out = out or sys.stderr
+    optima: dict[str, Optimum] = {}
+    for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
+        optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)  # and the folder
     exp = prepare_experiment(sweep, log_dir, resume)
     trials = sweep.trials()
     pending, points = plan_resume(exp, trials) if resume else (trials, {})
-    out = out or sys.stderr
-    optima: dict[str, Optimum] = {}
-    for maps in sweep.map_sets:  # every evaluated map's exact optimum, before Ray starts (cached after the first)
-        optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     quiet()
     progress = _SweepProgress(sweep, len(trials), out)
     progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}
