@@ -8,6 +8,7 @@ lands under logs/<run>/, with report.md on top.
 
 from __future__ import annotations
 
+import math
 import sys
 import time
 from dataclasses import dataclass
@@ -18,6 +19,7 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, write_text_atomic
+from smorphi_rl.stats import Interval, median_interval
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
@@ -57,10 +59,13 @@ class Budget:
     process (0): a smoke check of the pipeline, not of the layout, in a third of the time."""
     transfer_seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds of the transfer job: each held-out map is fine-tuned and trained from scratch once per seed."""
+    train_seeds: tuple[int, ...] = (0, 1, 2)
+    """Seeds of each algorithm on each training map: the claims compare them over seeds, with intervals; the tables
+    and figures show the first seed's run."""
 
 
 BUDGETS = {
-    # About 15 minutes on 2 cores (estimated from per-run timings: 4 training runs, 18 transfer runs).
+    # About 20 minutes on 2 cores (estimated from per-run timings: 12 training runs, 18 transfer runs).
     "small": Budget(30_000, 50_000, 20_000, VAL_MAPS, ("ppo", "impala"), TRAIN_MAPS, 1000, 40, 50, 1.0),
     # The paper's scale: 3 x 10^5 steps a run (its Figure 5); hours on 2 cores.
     "paper": Budget(300_000, 300_000, 300_000, VAL_MAPS, ("ppo", "impala"), TRAIN_MAPS, 1000, 100, 100, 1.0),
@@ -79,6 +84,7 @@ BUDGETS = {
         envs_per_runner=2,
         env_runners=0,
         transfer_seeds=(0,),
+        train_seeds=(0,),
     ),
 }
 
@@ -125,15 +131,18 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     say = lambda text: print(text, file=out or sys.stderr, flush=True)  # noqa: E731
 
     with cluster.ray_session(None):  # every run of the job on one local Ray, started once
-        training: dict[tuple[str, str], Path] = {}
+        training: dict[tuple[str, str], list[Path]] = {}
         for map_name in b.train_maps:
             for algo in b.algorithms:
-                say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps")
+                say(f"[reproduce] {algo.upper()} on {map_name}, {b.train_steps:,} env steps, seeds "
+                    f"{', '.join(map(str, b.train_seeds))}")  # fmt: skip
                 env = EnvConfig.from_dict({"maps": [_map(map_name)], "reward": PAPER_REWARD})
-                cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, envs_per_runner=b.envs_per_runner,
-                                  num_env_runners=b.env_runners)  # fmt: skip
-                training[(algo, map_name)] = _whole(train(cfg, name=f"{algo}-{map_name}", log_dir=root, out=out,
-                                                          label=f"{algo.upper()} {map_name}")).run_dir  # fmt: skip
+                for seed in b.train_seeds:
+                    cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, seed=seed,
+                                      envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
+                    run = train(cfg, name=f"{algo}-{map_name}-seed{seed}", log_dir=root, out=out,
+                                label=f"{algo.upper()} {map_name} seed {seed}")  # fmt: skip
+                    training.setdefault((algo, map_name), []).append(_whole(run).run_dir)
         searches: dict[tuple[str, str], SearchResult] = {}
         for map_name in b.train_maps:
             say(f"[reproduce] random, NSGA-II and the exhaustive front on {map_name}")
@@ -157,28 +166,31 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
                           envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
         job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
-        for run in transfer_runs:
-            _whole(run)
+        for transfer_run in transfer_runs:
+            _whole(transfer_run)
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [
         f"# Reproduction of Kalimuthu et al. (2023), budget '{budget_name}'",
         "",
         f"{Weights(defaults.w1, defaults.w2).formula()} (the env's defaults). Every figure below was measured "
-        f"in this run ({(time.monotonic() - t0) / 60:.0f} min on {len(b.algorithms) * len(b.train_maps)} training "
-        "runs, the searches and the transfer job).",
+        f"in this run ({(time.monotonic() - t0) / 60:.0f} min on "
+        f"{len(b.algorithms) * len(b.train_maps) * len(b.train_seeds)} training runs, the searches and the transfer "
+        f"job). Each algorithm trains with seeds {', '.join(map(str, b.train_seeds))} on each map: the claims compare "
+        f"them over seeds (median [95 % interval]); the tables and figures show seed {b.train_seeds[0]}'s run.",
     ]
     claims: list[str] = []
     for map_name in b.train_maps:
         exact = searches[("exhaustive", map_name)]
-        runs = [points_of_run(training[(a, map_name)], map_name) for a in b.algorithms]
+        runs = [points_of_run(training[(a, map_name)][0], map_name) for a in b.algorithms]
         runs += [points_of_run(root / f"{m}-{map_name}", map_name) for m in ("nsga2", "random")]
         exact_score, scores = score_methods(exact, runs, weights[map_name])
         cmp_dir = prepare_run_dir(root, safe_name(f"compare-{map_name}"))
         files = write_report(exact_score, scores, map_name, weights[map_name], cmp_dir)
-        curves = {a.upper(): summary_curve(training[(a, map_name)]) for a in b.algorithms}
+        curves = {a.upper(): summary_curve(training[(a, map_name)][0]) for a in b.algorithms}
         sections += _map_section(map_name, training, b, exact_score, scores, files, curves, root)
-        claims += _claims(map_name, b, scores, curves)
+        seeds = {a: [_seed_figures(d) for d in training[(a, map_name)]] for a in b.algorithms}
+        claims += _claims(map_name, b, scores, seeds)
     sections += ["", "## Transfer to unseen maps (Table 5)", "",
                  transfer_files["md"].read_text().rstrip(), "",
                  f"![transfer curves]({transfer_files['png'].relative_to(root)})"]  # fmt: skip
@@ -189,7 +201,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     return report
 
 
-def _map_section(map_name: str, training: dict[tuple[str, str], Path], b: Budget, exact: MethodScore,
+def _map_section(map_name: str, training: dict[tuple[str, str], list[Path]], b: Budget, exact: MethodScore,
                  scores: list[MethodScore], files: dict[str, Path], curves: dict[str, Any],
                  root: Path) -> list[str]:  # fmt: skip
     """Tables 2-4 and 6 and Figures 5-7 for one map."""
@@ -199,7 +211,7 @@ def _map_section(map_name: str, training: dict[tuple[str, str], Path], b: Budget
     curve_png = plot_learning_curves(curves, root / f"curves-{map_name}.png", exact.best_R1)
     lines = ["", f"## {map_name}", "", "### Top morphologies found by RL (Tables 2-3, Figure 6)", ""]
     for algo in b.algorithms:
-        run_dir = training[(algo, map_name)]
+        run_dir = training[(algo, map_name)][0]
         lines += [(run_dir / "top_morphologies.md").read_text().rstrip(), "",
                   f"![top {algo}]({(run_dir / 'top_morphologies.png').relative_to(root)})", ""]  # fmt: skip
     lines += ["### Every method against the exact front (Tables 4 and 6, Figure 7)", "",
@@ -215,27 +227,55 @@ def _final_return(curve: dict[str, list[float]]) -> float:
     return float(np.mean(tail)) if tail.size else float("nan")
 
 
-def _claims(map_name: str, b: Budget, scores: list[MethodScore], curves: dict[str, Any]) -> list[str]:
-    """Claim by claim, on one map: agree or disagree, with the numbers."""
+@dataclass(frozen=True)
+class SeedFigures:
+    """What the claims compare of one training run: its final mean episode return and the best R1 it visited."""
+
+    final_return: float
+    best_R1: float
+
+
+def _seed_figures(run_dir: Path) -> SeedFigures:
+    from smorphi_rl.inputs import read_json_object
+    from smorphi_rl.training.transfer import summary_curve
+
+    best = read_json_object(run_dir / "summary.json", "run summary").get("best") or {}
+    return SeedFigures(_final_return(summary_curve(run_dir)), float(best.get("R1", math.nan)))
+
+
+def above(a: Interval, b: Interval | float) -> str:
+    """The verdict on "a is higher than b" over seeds (`b` a number: one fixed reference, such as a search run once):
+    agrees when a's 95 % interval lies wholly above b's, does not agree when wholly below, else undecided; one seed
+    decides nothing."""
+    low, high = (b, b) if isinstance(b, float) else (b.lo, b.hi)
+    if a.n < 2 or (isinstance(b, Interval) and b.n < 2):
+        return "**undecided** (1 seed)"
+    return "**agrees**" if a.lo > high else "**does not agree**" if a.hi < low else "**undecided**"
+
+
+def _claims(map_name: str, b: Budget, scores: list[MethodScore], seeds: dict[str, list[SeedFigures]]) -> list[str]:
+    """Claim by claim, on one map: agree, disagree or undecided over the seeds, with the numbers."""
     by_label = {s.label.split(" (")[0].lower(): s for s in scores}
-    rl = [by_label[a] for a in b.algorithms if a in by_label]
-    best_rl = max(rl, key=lambda s: s.best_R1)
+    rl = {a: median_interval([f.best_R1 for f in seeds[a]]) for a in b.algorithms}
+    best_algo = max(rl, key=lambda a: rl[a].mean)
+    n = f"{len(b.train_seeds)} seed{'s' if len(b.train_seeds) > 1 else ''}"
     out = []
-    if "ppo" in by_label and "impala" in by_label:
-        ppo, imp = _final_return(curves["PPO"]), _final_return(curves["IMPALA"])
-        verdict = "**agrees**" if ppo > imp else "**does not agree**"
-        out.append(f"- {map_name}: *PPO reaches a higher mean reward than A3C.* Final mean episode return PPO "
-                   f"{ppo:,.0f}, IMPALA {imp:,.0f}: {verdict}.")  # fmt: skip
+    if "ppo" in seeds and "impala" in seeds:
+        ppo, imp = (median_interval([f.final_return for f in seeds[a]]) for a in ("ppo", "impala"))
+        out.append(f"- {map_name}: *PPO reaches a higher mean reward than A3C.* Final mean episode return over {n}, "
+                   f"PPO {ppo.text(',.0f')}, IMPALA {imp.text(',.0f')}: {above(ppo, imp)}.")  # fmt: skip
     rnd = by_label["random"]
-    verdict = "**agrees**" if best_rl.best_R1 > rnd.best_R1 else "**does not agree**"
-    out.append(f"- {map_name}: *RL finds better shapes than random shapes.* Best R1 {best_rl.label} "
-               f"{best_rl.best_R1:.2f} vs random {rnd.best_R1:.2f} ({rnd.budget}): {verdict}.")  # fmt: skip
+    out.append(f"- {map_name}: *RL finds better shapes than random shapes.* Best R1 over {n}, {best_algo.upper()} "
+               f"{rl[best_algo].text()} vs random {rnd.best_R1:.2f} ({rnd.budget}, one run): "
+               f"{above(rl[best_algo], float(rnd.best_R1))}.")  # fmt: skip
+    best_rl = by_label[best_algo]
     nsga = by_label["nsga2"]
     better_pc, shorter = nsga.front_pc >= best_rl.best_P_c, nsga.front_len <= best_rl.best_P_len
     strictly = (nsga.front_pc > best_rl.best_P_c) | (nsga.front_len < best_rl.best_P_len)
     dominated = bool(np.any(better_pc & shorter & strictly))
     verdict = "**does not agree**" if dominated else "**agrees**"
-    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {best_rl.label}'s best "
+    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {best_rl.label}'s best (seed "
+               f"{b.train_seeds[0]}) "
                f"(P_c {best_rl.best_P_c:.2f} %, P_len {best_rl.best_P_len}) is "
                f"{'dominated by' if dominated else 'not dominated by'} a NSGA-II shape; NSGA-II's best R1 "
                f"{nsga.best_R1:.2f} vs RL {best_rl.best_R1:.2f}: {verdict} (strictly dominating a whole front "

@@ -31,7 +31,8 @@ def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
     assert "gap to the exact optimum" in report
     for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report):
         assert (root / link).is_file(), link
-    for method in ("ppo-map-1", "impala-map-1", "random-map-1", "nsga2-map-1", "exhaustive-map-1", "pretrain"):
+    for method in ("ppo-map-1-seed0", "impala-map-1-seed0", "random-map-1", "nsga2-map-1", "exhaustive-map-1",
+                   "pretrain"):  # fmt: skip
         assert (root / method).is_dir(), method
     assert "| val-1 |" in report
 
@@ -66,5 +67,16 @@ def test_a_stop_request_that_cuts_a_run_short_stops_the_job(monkeypatch, tmp_pat
     monkeypatch.setattr(run, "train", cut_short)
     monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
     assert main(["reproduce", "--budget", "tiny", "--name", "r", "--log-dir", str(tmp_path)]) == 130
-    assert calls == ["ppo-map-1"] and (tmp_path / "r" / "ppo-map-1").is_dir()
+    assert calls == ["ppo-map-1-seed0"] and (tmp_path / "r" / "ppo-map-1-seed0").is_dir()
     assert not (tmp_path / "r" / "report.md").exists()
+
+
+def test_a_claim_over_seeds_is_decided_by_its_intervals_and_one_seed_decides_nothing():
+    from smorphi_rl.reproduce import above
+    from smorphi_rl.stats import median_interval
+
+    high, low = median_interval([10.0, 11.0, 12.0]), median_interval([1.0, 2.0, 3.0])
+    assert above(high, low) == "**agrees**" and above(low, high) == "**does not agree**"
+    assert above(high, median_interval([9.0, 11.0, 13.0])) == "**undecided**"  # the intervals overlap
+    assert above(high, 5.0) == "**agrees**" and above(low, 2.5) == "**undecided**"  # against one fixed run
+    assert above(median_interval([10.0]), low) == "**undecided** (1 seed)"
