@@ -68,11 +68,14 @@ def sweep_trainable(
               stop=sweep.stop, resumable=True)  # fmt: skip
 
 
-def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[int, Path]]:
-    """(the trials left to run, the checkpoint each started one continues from) of experiment `exp`. The state
-    files are read back safely here, before Ray starts, so a damaged or crafted one is refused in one line and
-    nothing is moved; then each started trial's checkpoints and results are set aside (`resume.set_aside`)."""
-    started: dict[int, tuple[Path, Path | None]] = {}
+_Started = dict[int, tuple[Path, Path | None]]
+"""A started trial's index -> (its folder, the checkpoint it continues from, if any)."""
+
+
+def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[set[int], _Started]:
+    """(the finished trials' indices, the started ones) of experiment `exp`, moving nothing. The state files are
+    read back safely here, before Ray starts, so a damaged or crafted one is refused in one line."""
+    started: _Started = {}
     done: set[int] = set()
     for d in sorted(p for p in exp.iterdir() if p.is_dir()):
         spec = trial_spec(d)
@@ -92,6 +95,12 @@ def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
             done.add(index)
         else:
             started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
+    return done, started
+
+
+def set_aside_started(started: _Started) -> dict[int, Path]:
+    """Set each started trial's checkpoints and results aside (`resume.set_aside`); the checkpoint each one
+    continues from, at its new place."""
     points: dict[int, Path] = {}
     for index, (d, point) in started.items():
         try:
@@ -100,7 +109,14 @@ def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
             raise RunDirError(f"{d}: its checkpoints cannot be set aside ({exc.strerror or exc})") from None
         if point is not None:
             points[index] = aside / point.name if aside is not None and point.parent == d else point
-    return [t for t in trials if t["index"] not in done], points
+    return points
+
+
+def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[int, Path]]:
+    """(the trials left to run, the checkpoint each started one continues from) of experiment `exp`: read back
+    (`read_resume`, refusing before anything moves), then set aside."""
+    done, started = read_resume(exp, trials)
+    return [t for t in trials if t["index"] not in done], set_aside_started(started)
 
 
 class _SweepProgress:
@@ -165,6 +181,10 @@ def _tune_callback(progress: _SweepProgress) -> Any:
     return _Callback()
 
 
+def _exists_message(exp: Path) -> str:
+    return f"experiment folder {exp} already exists: give the sweep file another `name`, or add --resume to continue it"
+
+
 def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) -> Path:
     """The experiment folder: new (refusing an existing one), or, with resume, an existing one of the same sweep."""
     exp = Path(log_dir).resolve() / sweep.name
@@ -173,8 +193,7 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
             exp = prepare_run_dir(log_dir, sweep.name)
         except RunDirError:
             if exp.is_dir():
-                raise RunDirError(f"experiment folder {exp} already exists: give the sweep file another `name`, or "
-                                  "add --resume to continue it") from None  # fmt: skip
+                raise RunDirError(_exists_message(exp)) from None
             raise
         write_atomic(exp / SWEEP_COPY, sweep.path.read_bytes())
         return exp
@@ -215,12 +234,20 @@ def run_sweep(
     if address is None:
         cluster.check_capacity(widest.cpus, widest.env_runners, address)
     out = out or sys.stderr
+    trials = sweep.trials()
+    exp = Path(log_dir).resolve() / sweep.name  # the folder's checks first: they are instant, the optima are not
+    if resume:
+        exp = prepare_experiment(sweep, log_dir, resume)
+        done, started = read_resume(exp, trials)
+    elif exp.is_dir():
+        raise RunDirError(_exists_message(exp))
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)  # and the folder
-    exp = prepare_experiment(sweep, log_dir, resume)
-    trials = sweep.trials()
-    pending, points = plan_resume(exp, trials) if resume else (trials, {})
+    if resume:
+        pending, points = [t for t in trials if t["index"] not in done], set_aside_started(started)
+    else:
+        exp, pending, points = prepare_experiment(sweep, log_dir, resume), trials, {}
     quiet()
     progress = _SweepProgress(sweep, len(trials), out)
     progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}
