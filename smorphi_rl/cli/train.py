@@ -130,7 +130,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     warn_once()
     from smorphi_rl.training.config import TrainConfigError
-    from smorphi_rl.training.transfer import TransferJob, run_transfer, write_transfer_report
+    from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
 
     # the options and maps are checked before anything runs
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
@@ -140,19 +140,26 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.resume and not args.name:
         raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
-    job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
-    files = write_transfer_report(job_dir, runs)
-    reused = sum(r.reused for r in runs)
-    if reused:
-        print(f"{reused} of {len(runs)} runs finished earlier in this job and were read back (--resume)")
-    print(files["md"].read_text().rstrip())
-    missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
-    if missing:
-        print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every env runner")
-    print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\ncurves: {rel(files['png'])}")
-    if any(r.interrupted for r in runs):
-        print(f"{PROG}: interrupted: the table holds the {len(runs) - 1} run(s) that finished (transfer.csv lists the "
-              "one cut short); "
+    try:
+        job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
+    except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
+        job_dir, runs, cut = stop.job_dir, stop.runs, False
+    else:
+        cut = any(r.interrupted for r in runs)
+    if runs:
+        files = write_transfer_report(job_dir, runs)
+        reused = sum(r.reused for r in runs)
+        if reused:
+            print(f"{reused} of {len(runs)} runs finished earlier in this job and were read back (--resume)")
+        print(files["md"].read_text().rstrip())
+        missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
+        if missing:
+            print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every runner")
+        print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
+              f"curves: {rel(files['png'])}")  # fmt: skip
+    if cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
+        listed = " (transfer.csv lists the one cut short)" if cut else ""
+        print(f"{PROG}: interrupted: the table holds the {len(runs) - cut} run(s) that finished{listed}; "
               f"continue with the same command and --name {shlex.quote(job_dir.name)} --resume",
               file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED

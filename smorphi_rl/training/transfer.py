@@ -47,6 +47,15 @@ class TransferRun:
     """Finished by an earlier call of the same job (`--resume`), read back rather than trained again."""
 
 
+class TransferInterrupted(KeyboardInterrupt):
+    """A stop request (Ctrl-C, SIGTERM) ended the job as a run started, before that run reported: the job's folder
+    and the runs that finished before it, for the table and the `--resume` hint."""
+
+    def __init__(self, job_dir: Path, runs: list[TransferRun]) -> None:
+        super().__init__(str(job_dir))
+        self.job_dir, self.runs = job_dir, runs
+
+
 @dataclass(frozen=True)
 class TransferJob:
     """What a transfer job runs: fine-tune `pretrained` and train from scratch on each held-out map, per seed.
@@ -106,7 +115,8 @@ def run_transfer(
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget.
     `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
-    short is set aside (renamed, never deleted) and trained again."""
+    short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
+    raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked."""
     from smorphi_rl import cluster
     from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run, safe_name
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
@@ -158,9 +168,14 @@ def run_transfer(
                 runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
+    except KeyboardInterrupt:
+        if runs or resume:  # the runs that finished are kept, to report and to resume
+            raise TransferInterrupted(job_dir, runs) from None
+        discard_run_dir(job_dir)  # nothing trained: the name stays free
+        raise
     except BaseException:
         if not runs and not resume:
-            discard_run_dir(job_dir)  # nothing trained: the name stays free
+            discard_run_dir(job_dir)
         raise
     return job_dir, runs
 

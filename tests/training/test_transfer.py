@@ -96,3 +96,42 @@ def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path
     check_nothing_left_out(tmp_path, more)  # the same maps by name, and new ones: fine
     with pytest.raises(TrainConfigError, match=r"the job also ran maps/val-2\.yaml, seed 1: give every map and seed"):
         check_nothing_left_out(tmp_path, TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0,)))
+
+
+def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resume_hint(tmp_path, monkeypatch, capsys):
+    """Ctrl-C before a run's first report (the run discards itself): the job still reports what finished."""
+    import contextlib
+    from types import SimpleNamespace
+
+    from smorphi_rl import cluster
+    from smorphi_rl.cli import main
+    from smorphi_rl.training import checkpoints, finetune, run, transfer
+
+    root = Path(__file__).resolve().parents[2]
+    monkeypatch.setattr(checkpoints, "find_checkpoint", lambda path: Path(path))
+    monkeypatch.setattr(checkpoints, "load_module", lambda path: SimpleNamespace(model_config={"env_config": {}}))
+    monkeypatch.setattr(finetune, "check_pretrained", lambda checkpoint, env: "digest")
+    monkeypatch.setattr(cluster, "check_reachable", lambda address: None)
+    monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
+    calls: list[str] = []
+
+    def train(cfg, name, log_dir, **kwargs):
+        calls.append(name)
+        if len(calls) > 1:
+            raise KeyboardInterrupt  # the second run is stopped before it reports
+        (Path(log_dir) / name).mkdir()
+        return SimpleNamespace(run_dir=Path(log_dir) / name, to_dict=dict, interrupted=False)
+
+    monkeypatch.setattr(run, "train", train)
+    monkeypatch.setattr(
+        transfer, "transfer_run", lambda m, seed, mode, run_dir, summary, reused=False: _run(mode, seed, 2_000, 88)
+    )
+    argv = ["transfer", "--pretrained", str(tmp_path / "ckpt"), "--maps", str(root / "maps" / "val-1.yaml"),
+            "--seeds", "0", "--name", "job", "--log-dir", str(tmp_path / "logs")]  # fmt: skip
+    assert main(argv) == 130
+    out, err = capsys.readouterr()
+    assert calls == ["val-1-fine-tune-seed0", "val-1-scratch-seed0"]
+    rows = (tmp_path / "logs" / "job" / "transfer.csv").read_text().splitlines()
+    assert len(rows) == 2 and rows[1].startswith("val-1,0,fine-tune,")
+    assert "| val-1 |" in out and "the table holds the 1 run(s) that finished" in err
+    assert "--name job --resume" in err and "Traceback" not in err
