@@ -49,6 +49,18 @@ class TrialRow:
     finished: bool = True
     """Whether the trial reached its budget or stop criteria (False: cut short, or failed; left out of the groups)."""
 
+    @property
+    def measured(self) -> bool:
+        """Whether any evaluation measured the share within 1 % (not on maps without an exact optimum)."""
+        return bool(np.isfinite(np.asarray(self.curve.get("eval_within", []), dtype=float)).any())
+
+    @property
+    def convergence_text(self) -> str:
+        """The env steps it converged at, or why there are none."""
+        if self.converged_at is not None:
+            return str(int(self.converged_at))
+        return "not converged" if self.measured else "not measured"
+
 
 RESULTS = "result.json"
 SET_ASIDE = "before-resume"
@@ -173,7 +185,7 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
                       _fixed(r.median_gap), _fixed(r.share_within_1pct),
-                      "not converged" if r.converged_at is None else int(r.converged_at),
+                      r.convergence_text,
                       f"{r.settled_R1_plateau:.2f}", "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
@@ -217,8 +229,10 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
         plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
         best = median_interval([t.best.R1 for t in trials if t.best is not None])
         to_converge = median_interval(steps).text(",.0f")
-        lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {len(steps)} of "
-                     f"{len(trials)} | {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
+        measured = [t for t in trials if t.measured]  # maps without an exact optimum measure no convergence
+        count = f"{len(steps)} of {len(measured)}" if measured else "not measured"
+        lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "
+                     f"| {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
     return lines
 
 

@@ -7,9 +7,11 @@ from smorphi_rl.training.sweep_report import TrialRow, group_curves, write_sweep
 from smorphi_rl.training.topk import Found
 
 
-def _trial(seed: int, lr: float, plateau: float, converged_at: float | None) -> TrialRow:
+def _trial(seed: int, lr: float, plateau: float, converged_at: float | None, measured: bool = True) -> TrialRow:
     steps = [0.0, 5_000.0, 10_000.0]
-    curve = {"env_steps": steps, "episode_return_mean": [1.0, 2.0, 3.0], "eval_R1": [80.0, 85.0 + seed, plateau]}
+    within = [0.0, 0.5, 0.9 - seed / 10] if measured else [np.nan] * 3  # NaN: a map without an exact optimum
+    curve = {"env_steps": steps, "episode_return_mean": [1.0, 2.0, 3.0], "eval_R1": [80.0, 85.0 + seed, plateau],
+             "eval_within": within}  # fmt: skip
     best = Found("ppo", "map-1", (1.0, 2.0, 3.0), 95.0, 60, 89.0 + seed / 10, 100)
     return TrialRow(f"t{seed}-{lr}", "ppo", "map-1", seed, {"lr": lr}, 10_000, 5, 60.0, best, converged_at, plateau,
                     curve, median_gap=1.0 + seed, share_within_1pct=0.9 - seed / 10)  # fmt: skip
@@ -50,3 +52,14 @@ def test_a_trial_cut_short_is_left_out_of_its_group_and_said_so(tmp_path):
     write_sweep_groups([_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, 6_000), cut], tmp_path / "groups.md")
     text = (tmp_path / "groups.md").read_text()
     assert "1 unfinished trial(s) (sweep.md) are left out" in text and "| 2 of 2 |" in text
+
+
+def test_trials_on_a_map_without_an_optimum_are_not_measured_rather_than_not_converged(tmp_path):
+    from smorphi_rl.training.sweep_report import write_sweep_tables
+
+    rows = [_trial(0, 1e-3, 88.0, None, measured=False), _trial(1, 1e-3, 88.6, None, measured=False)]
+    write_sweep_groups(rows, tmp_path / "groups.md")
+    assert "| not measured |" in (tmp_path / "groups.md").read_text()
+    write_sweep_tables([*rows, _trial(2, 1e-3, 87.0, None)], tmp_path / "sweep.csv", tmp_path / "sweep.md")
+    cells = [line.split(",")[-3] for line in (tmp_path / "sweep.csv").read_text().splitlines()[1:]]
+    assert sorted(cells) == ["not converged", "not measured", "not measured"]
