@@ -46,6 +46,11 @@ class TransferRun:
     reused: bool = False
     """Finished by an earlier call of the same job (`--resume`), read back rather than trained again."""
 
+    @property
+    def measured(self) -> bool:
+        """Whether any evaluation measured the share within 1 % (not on maps without an exact optimum)."""
+        return any(math.isfinite(v) for v in self.curve.get("eval_within", []))
+
 
 class TransferInterrupted(KeyboardInterrupt):
     """A stop request (Ctrl-C, SIGTERM) ended the job as a run started, before that run reported: the job's folder
@@ -338,9 +343,15 @@ class MapTransfer:
 
     @property
     def counts(self) -> tuple[str, str]:
-        """ "k of n" converged, fine-tuned and from scratch."""
-        return (f"{len(converged_steps(self.tuned))} of {len(self.tuned)}",
-                f"{len(converged_steps(self.scratch))} of {len(self.scratch)}")  # fmt: skip
+        """ "k of n" converged, fine-tuned and from scratch ("not measured" on a map without an exact optimum)."""
+        return _count(self.tuned), _count(self.scratch)
+
+
+def _count(runs: list[TransferRun]) -> str:
+    """ "k of n" of `runs` converged; "not measured" where none could be (no exact optimum)."""
+    return (
+        f"{len(converged_steps(runs))} of {len(runs)}" if any(r.measured for r in runs) or not runs else "not measured"
+    )
 
 
 def by_map(runs: list[TransferRun]) -> list[MapTransfer]:

@@ -135,3 +135,15 @@ def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resu
     assert len(rows) == 2 and rows[1].startswith("val-1,0,fine-tune,")
     assert "| val-1 |" in out and "the table holds the 1 run(s) that finished" in err
     assert "--name job --resume" in err and "Traceback" not in err
+
+
+def test_runs_on_a_map_without_an_optimum_are_not_measured(tmp_path):
+    from dataclasses import replace
+
+    from smorphi_rl.training.transfer import by_map
+
+    blind = {"eval_within": [float("nan")] * 2}
+    runs = [replace(_run(mode, 0, None, 88.0), curve=_run(mode, 0, None, 88.0).curve | blind)
+            for mode in ("fine-tune", "scratch")]  # fmt: skip
+    assert by_map(runs)[0].counts == ("not measured", "not measured")
+    assert by_map([_run("fine-tune", 0, None, 88.0)])[0].counts == ("0 of 1", "0 of 0")
