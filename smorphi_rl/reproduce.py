@@ -274,8 +274,7 @@ def _claims(map_name: str, b: Budget, scores: list[MethodScore], seeds: dict[str
     strictly = (nsga.front_pc > best_rl.best_P_c) | (nsga.front_len < best_rl.best_P_len)
     dominated = bool(np.any(better_pc & shorter & strictly))
     verdict = "**does not agree**" if dominated else "**agrees**"
-    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {best_rl.label}'s best (seed "
-               f"{b.train_seeds[0]}) "
+    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {best_rl.label}'s best "
                f"(P_c {best_rl.best_P_c:.2f} %, P_len {best_rl.best_P_len}) is "
                f"{'dominated by' if dominated else 'not dominated by'} a NSGA-II shape; NSGA-II's best R1 "
                f"{nsga.best_R1:.2f} vs RL {best_rl.best_R1:.2f}: {verdict} (strictly dominating a whole front "

@@ -137,7 +137,8 @@ class MorphologyCallbacks(RLlibCallback):
                 protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, trained)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
             if policy_steps != steps:  # the run ends on an earlier policy; the curves keep the trained one's
-                result[EVAL_KEY][TRAINED_KEY] = {k: evaluation_metrics(trained)[k] for k in TRAINED_FIGURES}
+                figures = evaluation_metrics(trained)
+                result[EVAL_KEY][TRAINED_KEY] = {k: figures[k] for k in TRAINED_FIGURES}
             if self.design_budget:
                 if self._design is None:
                     self._design = self._design_evaluation(algorithm)
