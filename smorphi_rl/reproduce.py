@@ -247,9 +247,10 @@ def above(a: Interval, b: Interval | float) -> str:
     """The verdict on "a is higher than b" over seeds (`b` a number: one fixed reference, such as a search run once):
     agrees when a's 95 % interval lies wholly above b's, does not agree when wholly below, else undecided; one seed
     decides nothing."""
-    low, high = (b, b) if isinstance(b, float) else (b.lo, b.hi)
-    if a.n < 2 or (isinstance(b, Interval) and b.n < 2):
-        return "**undecided** (1 seed)"
+    low, high = (b.lo, b.hi) if isinstance(b, Interval) else (float(b), float(b))
+    n = min(a.n, b.n) if isinstance(b, Interval) else a.n
+    if n < 2:
+        return "**undecided** (no seed)" if n == 0 else "**undecided** (1 seed)"
     return "**agrees**" if a.lo > high else "**does not agree**" if a.hi < low else "**undecided**"
 
 
@@ -298,7 +299,7 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
         if not ratio.n:  # a ratio only where every run of both modes converged (MapTransfer.ratio)
             out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue
-        verdict = "**agrees**" if ratio.lo >= 5 else "**does not agree**" if ratio.hi < 5 else "**undecided**"
+        verdict = above(ratio, 5.0)  # five-fold, over seeds
         out.append(f"- {m.map_name}: {claim} Fine-tuned {m.tuned_steps.text(',.0f')} vs scratch "
                    f"{m.scratch_steps.text(',.0f')} env steps to converge (medians), ratio {ratio.text()} "
                    f"({counts}): {verdict}.")  # fmt: skip

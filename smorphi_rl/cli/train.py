@@ -143,9 +143,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     try:
         job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
     except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
-        job_dir, runs, cut = stop.job_dir, stop.runs, False
-    else:
-        cut = any(r.interrupted for r in runs)
+        job_dir, runs = stop.job_dir, stop.runs
+    cut = sum(r.interrupted for r in runs)
     if runs:
         files = write_transfer_report(job_dir, runs)
         reused = sum(r.reused for r in runs)
@@ -159,9 +158,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
               f"curves: {rel(files['png'])}")  # fmt: skip
     if cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
         listed = " (transfer.csv lists the one cut short)" if cut else ""
-        print(f"{PROG}: interrupted: the table holds the {len(runs) - cut} run(s) that finished{listed}; "
-              f"continue with the same command and --name {shlex.quote(job_dir.name)} --resume",
-              file=sys.stderr)  # fmt: skip
+        held = f"the table holds the {len(runs) - cut} run(s) that finished{listed}" if runs else "no run finished"
+        print(f"{PROG}: interrupted: {held}; continue with the same command and --name "
+              f"{shlex.quote(job_dir.name)} --resume", file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED
     return 0
 

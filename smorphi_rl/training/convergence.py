@@ -48,3 +48,22 @@ def convergence(curve: dict[str, list[float]]) -> tuple[float | None, float]:
     """(env steps at convergence or None, the settled-R1 plateau) of a run's curves (`sweep_report.result_curve`)."""
     steps = np.array(curve["env_steps"], dtype=float)
     return converged_at(steps, np.array(curve[CURVE_KEY], dtype=float)), plateau(np.array(curve[PLATEAU_KEY]))
+
+
+def measured(curve: dict[str, list[float]]) -> bool:
+    """Whether any evaluation of the run measured its share within 1 % (none can on a map without an exact
+    optimum: the run is "not measured", not "not converged")."""
+    return bool(np.isfinite(np.asarray(curve.get(CURVE_KEY, []), dtype=float)).any())
+
+
+def converged_text(converged_at: float | None, curve: dict[str, list[float]]) -> str:
+    """One run's convergence as a table shows it: its env steps, "not converged" or "not measured"."""
+    if converged_at is not None:
+        return str(int(converged_at))
+    return "not converged" if measured(curve) else "not measured"
+
+
+def converged_count(converged: int, curves: list[dict[str, list[float]]]) -> str:
+    """ "k of n" runs converged, n counting the runs that were measured; "not measured" when none was."""
+    n = sum(measured(c) for c in curves)
+    return f"{converged} of {n}" if n or not curves else "not measured"

@@ -385,7 +385,9 @@ def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
             lines.append(f"final policy: the one of {int(chosen):,} env steps, the best of the run's evaluations on "
                          "other seeded starts (--select-starts)")  # fmt: skip
         if math.isfinite(ev.get("share_within_1pct", math.nan)):
-            lines.append(f"greedy policy from {ev.get('starts', '?')} fixed starts: settles within 1 % "
+            lines.append(f"greedy policy from {ev.get('measured_starts', ev.get('starts', '?'))} fixed starts"
+                         f"{'' if ev.get('measured_starts') == ev.get('starts') else ' (maps with an exact optimum)'}"
+                         ": settles within 1 % "
                          f"of the optimum from {100 * ev['share_within_1pct']:.0f} % of them; median gap "
                          f"{ev['median_gap']:.2f} R1, mean settled R1 {ev['settled_R1_mean']:.2f}")  # fmt: skip
         else:

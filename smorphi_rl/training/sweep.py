@@ -243,7 +243,7 @@ def run_sweep(
         raise RunDirError(_exists_message(exp))
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
-        optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)  # and the folder
+        optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     if resume:
         pending, points = [t for t in trials if t["index"] not in done], set_aside_started(started)
     else:

@@ -43,7 +43,8 @@ class _Evaluation(BaseModel):
     """The sweep file's `evaluation` mapping: the protocol every trial runs, as `train` runs it."""
 
     model_config = ConfigDict(extra="forbid", strict=True, frozen=True)
-    every: int = Field(TrainConfig.eval_every, ge=1, description=_DOCS["eval_every"])  # every trial is evaluated
+    every: int = Field(TrainConfig.eval_every, ge=1, description="iterations between evaluations (every trial is "
+                       "evaluated: at least 1)")  # fmt: skip
     starts: int = Field(TrainConfig.eval_starts, ge=1, description=_DOCS["eval_starts"])
     select_starts: int = Field(TrainConfig.select_starts, ge=0, description=_DOCS["select_starts"])
     maps: list[str] = Field(default_factory=list, description=_DOCS["eval_maps"])

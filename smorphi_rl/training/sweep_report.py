@@ -20,7 +20,7 @@ from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
 from smorphi_rl.stats import band, median_interval
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.convergence import PLATEAU_KEY, convergence
+from smorphi_rl.training.convergence import PLATEAU_KEY, converged_count, converged_text, convergence
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
 CURVE_POINTS = 100
@@ -48,18 +48,6 @@ class TrialRow:
     """The last evaluation's share of starts settled within 1 % of the optimum."""
     finished: bool = True
     """Whether the trial reached its budget or stop criteria (False: cut short, or failed; left out of the groups)."""
-
-    @property
-    def measured(self) -> bool:
-        """Whether any evaluation measured the share within 1 % (not on maps without an exact optimum)."""
-        return bool(np.isfinite(np.asarray(self.curve.get("eval_within", []), dtype=float)).any())
-
-    @property
-    def convergence_text(self) -> str:
-        """The env steps it converged at, or why there are none."""
-        if self.converged_at is not None:
-            return str(int(self.converged_at))
-        return "not converged" if self.measured else "not measured"
 
 
 RESULTS = "result.json"
@@ -185,7 +173,7 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
                       _fixed(r.median_gap), _fixed(r.share_within_1pct),
-                      r.convergence_text,
+                      converged_text(r.converged_at, r.curve),
                       f"{r.settled_R1_plateau:.2f}", "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
@@ -229,8 +217,7 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
         plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
         best = median_interval([t.best.R1 for t in trials if t.best is not None])
         to_converge = median_interval(steps).text(",.0f")
-        measured = [t for t in trials if t.measured]  # maps without an exact optimum measure no convergence
-        count = f"{len(steps)} of {len(measured)}" if measured else "not measured"
+        count = converged_count(len(steps), [t.curve for t in trials])
         lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "
                      f"| {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
     return lines

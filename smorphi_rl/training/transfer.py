@@ -16,9 +16,10 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, write_text_atomic
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import Interval, median_interval, ratio_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
+from smorphi_rl.training.convergence import converged_count, converged_text
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -45,11 +46,6 @@ class TransferRun:
     """Seconds the run trained."""
     reused: bool = False
     """Finished by an earlier call of the same job (`--resume`), read back rather than trained again."""
-
-    @property
-    def measured(self) -> bool:
-        """Whether any evaluation measured the share within 1 % (not on maps without an exact optimum)."""
-        return any(math.isfinite(v) for v in self.curve.get("eval_within", []))
 
 
 class TransferInterrupted(KeyboardInterrupt):
@@ -93,11 +89,12 @@ class TransferJob:
             repeated = sorted({str(v) for v in items if items.count(v) > 1})
             if repeated:
                 raise TrainConfigError(f"--{name} names {repeated[0]} twice: each run would be trained twice")
-        stems = [Path(m).stem for m in self.maps]  # a run, its folder and its table row are named by the map's name
-        clash = sorted({m for m in map(str, self.maps) if stems.count(Path(m).stem) > 1})
-        if clash:
-            raise TrainConfigError(f"--maps {clash[0]} and {clash[1]} share the name {Path(clash[0]).stem!r}, which "
-                                   "names the runs and the table's rows: rename one")  # fmt: skip
+        named: dict[str, str] = {}  # a run, its folder and its table row are named by the map's name
+        for m in map(str, self.maps):
+            other = named.setdefault(safe_name(Path(m).stem), m)
+            if other != m:
+                raise TrainConfigError(f"--maps {other} and {m} share the name {safe_name(Path(m).stem)!r}, which "
+                                       "names the runs and the table's rows: rename one")  # fmt: skip
         for seed in self.seeds:
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
                 raise TrainConfigError(f"seeds must be non-negative integers, got {seed!r}")
@@ -123,7 +120,7 @@ def run_transfer(
     short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
     raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked."""
     from smorphi_rl import cluster
-    from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run, safe_name
+    from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained
     from smorphi_rl.training.run import train
@@ -159,30 +156,30 @@ def run_transfer(
         claim_again(job_dir)  # refused while the process that ran it still runs
     write_text_atomic(job_dir / JOB_FILE, json.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
                                                       "seeds": list(job.seeds)}, indent=2))  # fmt: skip
-    runs: list[TransferRun] = []
+    done: dict[str, TransferRun] = {}
+
+    def reported() -> list[TransferRun]:  # in the job's order: the runs so far and those of earlier calls
+        return [done.get(n) or finished[n] for *_, n in planned if n in done or n in finished]
+
     try:
         with cluster.ray_session(address):  # the job's runs share one Ray: it starts (or attaches) once
             for map_name, seed, mode, run_cfg, run_name in planned:
                 if run_name in finished:
-                    runs.append(finished[run_name])
                     continue
                 if (job_dir / run_name).exists():
                     rename_cut_run(job_dir / run_name)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{job.algo.upper()} {run_name}")  # fmt: skip
-                runs.append(transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict()))
+                done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
-    except KeyboardInterrupt:
-        if runs or resume:  # the runs that finished are kept, to report and to resume
-            raise TransferInterrupted(job_dir, runs) from None
-        discard_run_dir(job_dir)  # nothing trained: the name stays free
+    except BaseException as exc:
+        if not (resume or any(p.is_dir() for p in job_dir.iterdir())):
+            discard_run_dir(job_dir)  # nothing trained: the name stays free
+        elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
+            raise TransferInterrupted(job_dir, reported()) from None
         raise
-    except BaseException:
-        if not runs and not resume:
-            discard_run_dir(job_dir)
-        raise
-    return job_dir, runs
+    return job_dir, reported()
 
 
 def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
@@ -274,7 +271,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_settled_R1", "best_R1",
                          "pretrained_in_runners", "interrupted"])  # fmt: skip
         for r in runs:
-            at = "" if r.converged_at is None else int(r.converged_at)
+            at = converged_text(r.converged_at, r.curve)
             writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
                              r.pretrained_in_runners, r.interrupted])  # fmt: skip
     lines = [
@@ -344,14 +341,8 @@ class MapTransfer:
     @property
     def counts(self) -> tuple[str, str]:
         """ "k of n" converged, fine-tuned and from scratch ("not measured" on a map without an exact optimum)."""
-        return _count(self.tuned), _count(self.scratch)
-
-
-def _count(runs: list[TransferRun]) -> str:
-    """ "k of n" of `runs` converged; "not measured" where none could be (no exact optimum)."""
-    return (
-        f"{len(converged_steps(runs))} of {len(runs)}" if any(r.measured for r in runs) or not runs else "not measured"
-    )
+        return (converged_count(len(converged_steps(self.tuned)), [r.curve for r in self.tuned]),
+                converged_count(len(converged_steps(self.scratch)), [r.curve for r in self.scratch]))  # fmt: skip
 
 
 def by_map(runs: list[TransferRun]) -> list[MapTransfer]:

@@ -133,6 +133,21 @@ def test_a_map_without_an_exact_optimum_is_not_measured_rather_than_0_percent():
     large = MapEvaluation("large", "policy", NO_OPTIMUM, large.outcomes)
     both = evaluation_metrics([*_evaluation(89.9, 89.9, 80.0, 89.5), large])
     assert both["share_within_1pct"] == 0.75 and math.isclose(both["median_gap"], 0.3) and both["starts"] == 6
-    assert math.isnan(both["large"]["share_within_1pct"])
+    assert both["measured_starts"] == 4 and math.isnan(both["large"]["share_within_1pct"])
     alone = evaluation_metrics([large])
     assert math.isnan(alone["share_within_1pct"]) and math.isnan(alone["median_gap"])
+
+
+def test_policies_rank_by_settled_r1_where_no_map_has_an_exact_optimum():
+    """A NaN score never ranks (nan >= nan is False): selection would keep the first policy for ever."""
+    from smorphi_rl.protocol import NO_OPTIMUM
+    from smorphi_rl.training.callbacks import selection_score
+
+    def blind(*r1: float) -> list[MapEvaluation]:
+        (e,) = _evaluation(*r1)
+        return [MapEvaluation("large", "policy", NO_OPTIMUM, e.outcomes)]
+
+    assert selection_score(blind(60.0, 70.0)) > selection_score(blind(50.0, 60.0))
+    assert selection_score(blind(50.0, 60.0)) >= selection_score(blind(50.0, 60.0))
+    score = selection_score([*_evaluation(89.9, 89.9), *blind(50.0)])
+    assert score[0] == 2 and abs(score[1] + 0.1) < 1e-9

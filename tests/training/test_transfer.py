@@ -1,6 +1,9 @@
 """The transfer job's Table 5, from synthetic runs (no Ray): intervals over seeds, non-converged runs named."""
 
+from dataclasses import replace
 from pathlib import Path
+
+import pytest
 
 from smorphi_rl.training.transfer import TransferRun, write_transfer_report
 
@@ -41,7 +44,6 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
 
 
 def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
-    from dataclasses import replace
 
     from smorphi_rl.training.transfer import by_map
 
@@ -69,6 +71,8 @@ def test_a_transfer_job_is_checked_when_made():
         TransferJob("ckpt", ("maps/val-1.yaml",), algo="a3c")
     with pytest.raises(TrainConfigError, match="share the name 'val-1'"):  # one name: its runs would collide
         TransferJob("ckpt", ("maps/val-1.yaml", "other/val-1.yaml"))
+    with pytest.raises(TrainConfigError, match="share the name 'val_1'"):  # the runs' folders are named alike
+        TransferJob("ckpt", ("maps/val 1.yaml", "maps/val_1.yaml"))
 
 
 def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
@@ -80,6 +84,8 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     assert "ratio 6.00" in line and "**agrees**" in line  # medians 60,000 / 10,000 (the means would give 10.7)
     (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, 50_000, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
+    (lone,) = _transfer_claims([_run("fine-tune", 0, 10_000, 88.0), _run("scratch", 0, 60_000, 88.0)])
+    assert "ratio 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
 
 
 def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path):
@@ -98,37 +104,50 @@ def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path
         check_nothing_left_out(tmp_path, TransferJob("ckpt", ("maps/val-1.yaml",), seeds=(0,)))
 
 
-def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resume_hint(tmp_path, monkeypatch, capsys):
-    """Ctrl-C before a run's first report (the run discards itself): the job still reports what finished."""
+@pytest.fixture
+def fake_runs(tmp_path, monkeypatch):
+    """`transfer` through the CLI on val-1 with the checkpoint, Ray and training replaced: `stops` names the
+    training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report. Returns the
+    argv and the runs trained."""
     import contextlib
     from types import SimpleNamespace
 
     from smorphi_rl import cluster
-    from smorphi_rl.cli import main
     from smorphi_rl.training import checkpoints, finetune, run, transfer
 
-    root = Path(__file__).resolve().parents[2]
     monkeypatch.setattr(checkpoints, "find_checkpoint", lambda path: Path(path))
     monkeypatch.setattr(checkpoints, "load_module", lambda path: SimpleNamespace(model_config={"env_config": {}}))
     monkeypatch.setattr(finetune, "check_pretrained", lambda checkpoint, env: "digest")
     monkeypatch.setattr(cluster, "check_reachable", lambda address: None)
     monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
     calls: list[str] = []
+    stops: dict[int, str] = {}
 
     def train(cfg, name, log_dir, **kwargs):
         calls.append(name)
-        if len(calls) > 1:
-            raise KeyboardInterrupt  # the second run is stopped before it reports
+        if stops.get(len(calls)) == "reported":
+            (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
+        if len(calls) in stops:
+            raise KeyboardInterrupt
         (Path(log_dir) / name).mkdir()
         return SimpleNamespace(run_dir=Path(log_dir) / name, to_dict=dict, interrupted=False)
 
     monkeypatch.setattr(run, "train", train)
-    monkeypatch.setattr(
-        transfer, "transfer_run", lambda m, seed, mode, run_dir, summary, reused=False: _run(mode, seed, 2_000, 88)
-    )
+    monkeypatch.setattr(transfer, "transfer_run", lambda m, seed, mode, run_dir, summary, reused=False:
+                        replace(_run(mode, seed, 2_000, 88), reused=reused))  # fmt: skip
+    root = Path(__file__).resolve().parents[2]
     argv = ["transfer", "--pretrained", str(tmp_path / "ckpt"), "--maps", str(root / "maps" / "val-1.yaml"),
-            "--seeds", "0", "--name", "job", "--log-dir", str(tmp_path / "logs")]  # fmt: skip
-    assert main(argv) == 130
+            "--name", "job", "--log-dir", str(tmp_path / "logs")]  # fmt: skip
+    return argv, calls, stops
+
+
+def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resume_hint(tmp_path, fake_runs, capsys):
+    """Ctrl-C before a run's first report (the run discards itself): the job still reports what finished."""
+    from smorphi_rl.cli import main
+
+    argv, calls, stops = fake_runs
+    stops[2] = "before"
+    assert main([*argv, "--seeds", "0"]) == 130
     out, err = capsys.readouterr()
     assert calls == ["val-1-fine-tune-seed0", "val-1-scratch-seed0"]
     rows = (tmp_path / "logs" / "job" / "transfer.csv").read_text().splitlines()
@@ -137,8 +156,34 @@ def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resu
     assert "--name job --resume" in err and "Traceback" not in err
 
 
+def test_a_stop_of_the_first_run_after_it_reported_keeps_the_jobs_folder(tmp_path, fake_runs, capsys):
+    from smorphi_rl.cli import main
+
+    argv, _calls, stops = fake_runs
+    stops[1] = "reported"  # a second Ctrl-C, say, after the run's first checkpoint
+    assert main([*argv, "--seeds", "0"]) == 130
+    assert (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
+    assert "no run finished; continue with the same command and --name job --resume" in capsys.readouterr().err
+
+
+def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path, fake_runs, monkeypatch, capsys):
+    from smorphi_rl.cli import main
+    from smorphi_rl.training import transfer
+
+    argv, calls, stops = fake_runs
+    job = tmp_path / "logs" / "job"
+    job.mkdir(parents=True)
+    (job / transfer.JOB_FILE).write_text('{"maps": [], "seeds": [1]}')
+    monkeypatch.setattr(transfer, "finished_run", lambda run_dir, cfg: {} if run_dir.name.endswith("seed1") else None)
+    stops[1] = "before"  # seed 0, new in this call, comes first in the job's order
+    assert main([*argv, "--seeds", "0", "1", "--resume"]) == 130
+    assert calls == ["val-1-fine-tune-seed0"]
+    rows = (job / "transfer.csv").read_text().splitlines()[1:]
+    assert [r.split(",")[:3] for r in rows] == [["val-1", "1", "fine-tune"], ["val-1", "1", "scratch"]]
+    assert "the table holds the 2 run(s) that finished" in capsys.readouterr().err
+
+
 def test_runs_on_a_map_without_an_optimum_are_not_measured(tmp_path):
-    from dataclasses import replace
 
     from smorphi_rl.training.transfer import by_map
 
