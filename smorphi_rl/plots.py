@@ -200,6 +200,10 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
         panels.append(("design_gap", "designer's median gap on the evaluated maps (% of R1*)"))
     fig, axes = plt.subplots(len(panels), cols, figsize=(6 * cols + (5 if crowded else 0), 4 * len(panels)),
                              squeeze=False)  # fmt: skip
+    if not groups:  # the curves are over finished trials only
+        for ax in axes[:, 0]:
+            ax.text(0.5, 0.5, "no finished trial yet\n(sweep.md lists the unfinished ones)", ha="center", va="center")
+            ax.set_axis_off()
     for col, (maps, lines) in enumerate(groups.items()):
         for row, (key, title) in enumerate(panels):
             ax = axes[row][col]
