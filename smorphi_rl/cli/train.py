@@ -61,7 +61,9 @@ def register(sub: Any) -> None:
     from smorphi_rl.reproduce import BUDGETS
 
     rp = sub.add_parser("reproduce", help="the paper's experiments end to end, with a claim-by-claim report")
-    rp.add_argument("--budget", choices=tuple(BUDGETS), default="small", help="small (~15 min), paper, tiny (smoke)")
+    rp.add_argument(
+        "--budget", choices=tuple(BUDGETS), default="small", help="small (~10 min), paper (hours), tiny (smoke)"
+    )
     run_options(rp, "run name (default: reproduce-BUDGET-TIMESTAMP)")
     rp.set_defaults(func=cmd_reproduce)
 
