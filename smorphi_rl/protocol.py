@@ -34,6 +34,16 @@ TRAINED_KEY = "trained"
 policy training ended with, which the learning curves and convergence read (the row's own figures are the chosen
 policy's)."""
 TRAINED_FIGURES = ("median_gap", "share_within_1pct", "settled_R1_mean")
+POOLED_KEYS = (*TRAINED_FIGURES, "starts", "measured_starts", "policy_env_steps", TRAINED_KEY)
+"""Keys under EVAL_KEY beside each evaluated map's summary (which is under the map's name), with those starting
+`design_`: a map may not be named like one."""
+
+
+def clashing_map_name(name: str) -> bool:
+    """Whether a map of this name would overwrite, or be overwritten by, a pooled figure under EVAL_KEY."""
+    return name in POOLED_KEYS or name.startswith("design_")
+
+
 EVAL_EVERY = 5
 """Training iterations between periodic evaluations (and the first iteration)."""
 EVAL_STARTS = 20

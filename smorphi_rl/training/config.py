@@ -109,6 +109,12 @@ class TrainConfig:
                 object.__setattr__(self, "eval_maps", resolve([str(m) for m in self.eval_maps]))
             except MapSourceError as exc:
                 raise TrainConfigError(f"eval_maps: {exc}") from None
+        from smorphi_rl.protocol import clashing_map_name
+
+        for path in self.evaluation_maps:
+            if clashing_map_name(Path(path).stem):
+                raise TrainConfigError(f"{path}: a map named {Path(path).stem!r} would be mistaken for the "
+                                       "evaluation's figure of that name: rename the map file")  # fmt: skip
         if self.algo not in ALGORITHMS:
             raise TrainConfigError(f"unknown algorithm '{self.algo}' (choose from {', '.join(ALGORITHMS)})")
         if self.preset not in PRESETS:

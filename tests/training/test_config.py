@@ -167,3 +167,15 @@ def test_appos_learner_queue_replaces_the_circular_buffer_and_pg_lambda_reaches_
         TrainConfig(algo="appo", overrides={"pg_lambda": 1.5})
     with pytest.raises(TrainConfigError, match="impala and appo's; ppo has none"):
         TrainConfig(overrides={"pg_lambda": 0.5})
+
+
+@pytest.mark.parametrize("stem", ["trained", "starts", "median_gap", "design_median_gap_pct"])
+def test_a_map_named_like_an_evaluation_figure_is_refused(tmp_path, stem):
+    """Its summary sits beside the pooled figures under eval/: one would overwrite the other."""
+    from pathlib import Path
+
+    source = Path(__file__).resolve().parents[2] / "maps"
+    (tmp_path / f"{stem}.yaml").write_text((source / "map-1.yaml").read_text())
+    (tmp_path / "map-1.pgm").write_bytes((source / "map-1.pgm").read_bytes())
+    with pytest.raises(TrainConfigError, match=f"a map named '{stem}' would be mistaken"):
+        TrainConfig(env=EnvConfig.from_dict({"maps": [str(tmp_path / f"{stem}.yaml")]}))
