@@ -22,7 +22,7 @@ from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, prepare_run_dir, write_atomic
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, check_run_dir, prepare_run_dir, write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
@@ -181,22 +181,32 @@ def _tune_callback(progress: _SweepProgress) -> Any:
     return _Callback()
 
 
-def _exists_message(exp: Path) -> str:
-    return f"experiment folder {exp} already exists: give the sweep file another `name`, or add --resume to continue it"
+def _new_experiment(log_dir: str | Path, name: str, claim: Any) -> Path:
+    """`claim(log_dir, name)` (`rundir.check_run_dir` or `prepare_run_dir`), saying how to continue a folder that
+    already exists."""
+    try:
+        return Path(claim(log_dir, name))
+    except RunDirError:
+        try:
+            exp: Path | None = Path(log_dir).resolve() / name
+        except (RuntimeError, OSError):  # a symlink loop: the claim's own line says so
+            exp = None
+        if exp is not None and exp.is_dir():
+            raise RunDirError(f"experiment folder {exp} already exists: give the sweep file another `name`, or add "
+                              "--resume to continue it") from None  # fmt: skip
+        raise
 
 
 def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) -> Path:
     """The experiment folder: new (refusing an existing one), or, with resume, an existing one of the same sweep."""
-    exp = Path(log_dir).resolve() / sweep.name
     if not resume:
-        try:
-            exp = prepare_run_dir(log_dir, sweep.name)
-        except RunDirError:
-            if exp.is_dir():
-                raise RunDirError(_exists_message(exp)) from None
-            raise
+        exp = _new_experiment(log_dir, sweep.name, prepare_run_dir)
         write_atomic(exp / SWEEP_COPY, sweep.path.read_bytes())
         return exp
+    try:
+        exp = Path(log_dir).resolve() / sweep.name
+    except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder
+        raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
     copy = exp / SWEEP_COPY
     if copy.is_symlink() or not copy.is_file():
         raise RunDirError(f"nothing to resume: {exp} holds no sweep started by smorphi-rl")
@@ -235,12 +245,11 @@ def run_sweep(
         cluster.check_capacity(widest.cpus, widest.env_runners, address)
     out = out or sys.stderr
     trials = sweep.trials()
-    exp = Path(log_dir).resolve() / sweep.name  # the folder's checks first: they are instant, the optima are not
-    if resume:
+    if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
         done, started = read_resume(exp, trials)
-    elif exp.is_dir():
-        raise RunDirError(_exists_message(exp))
+    else:
+        _new_experiment(log_dir, sweep.name, check_run_dir)
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)

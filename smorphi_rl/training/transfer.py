@@ -174,7 +174,7 @@ def run_transfer(
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException as exc:
-        if not (resume or any(p.is_dir() for p in job_dir.iterdir())):
+        if not (resume or any((job_dir / n).exists() for *_, n in planned)):  # (not the optima's .cache)
             discard_run_dir(job_dir)  # nothing trained: the name stays free
         elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
             raise TransferInterrupted(job_dir, reported()) from None

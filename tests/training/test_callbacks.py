@@ -126,7 +126,7 @@ def test_a_map_without_an_exact_optimum_is_not_measured_rather_than_0_percent():
     maps that have one, so it cannot hold the run under 90 % for ever."""
     import math
 
-    from smorphi_rl.protocol import NO_OPTIMUM
+    from smorphi_rl.protocol import NO_OPTIMUM, POOLED_KEYS
     from smorphi_rl.training.callbacks import evaluation_metrics
 
     (large,) = _evaluation(50.0, 60.0)
@@ -134,6 +134,7 @@ def test_a_map_without_an_exact_optimum_is_not_measured_rather_than_0_percent():
     both = evaluation_metrics([*_evaluation(89.9, 89.9, 80.0, 89.5), large])
     assert both["share_within_1pct"] == 0.75 and math.isclose(both["median_gap"], 0.3) and both["starts"] == 6
     assert both["measured_starts"] == 4 and math.isnan(both["large"]["share_within_1pct"])
+    assert set(both) - {"map-1", "large"} <= set(POOLED_KEYS)  # a map may not take a pooled figure's name
     alone = evaluation_metrics([large])
     assert math.isnan(alone["share_within_1pct"]) and math.isnan(alone["median_gap"])
 

@@ -106,6 +106,16 @@ def test_sweep_rejects_bad_input_before_anything_starts(capsys, tmp_path, sweep,
     assert not logs.exists() or not list(logs.rglob("*"))
 
 
+@pytest.mark.parametrize("extra", [[], ["--resume"]])
+def test_a_sweep_into_a_log_dir_that_loops_is_one_line(capsys, tmp_path, extra):
+    config = tmp_path / "s.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\n")
+    loop = tmp_path / "loop"
+    loop.symlink_to(loop)
+    code, err = run(capsys, "sweep", str(config), "--log-dir", str(loop), *extra)
+    assert code == 1 and "cannot be used" in err
+
+
 def test_sweep_file_missing(capsys, tmp_path):
     code, err = run(capsys, "sweep", str(tmp_path / "absent.yaml"))
     assert code == 1 and "no such sweep file" in err

@@ -125,6 +125,7 @@ def fake_runs(tmp_path, monkeypatch):
 
     def train(cfg, name, log_dir, **kwargs):
         calls.append(name)
+        (Path(log_dir) / ".cache").mkdir(exist_ok=True)  # the exact optima, as the real one caches them
         if stops.get(len(calls)) == "reported":
             (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
         if len(calls) in stops:
@@ -154,6 +155,16 @@ def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resu
     assert len(rows) == 2 and rows[1].startswith("val-1,0,fine-tune,")
     assert "| val-1 |" in out and "the table holds the 1 run(s) that finished" in err
     assert "--name job --resume" in err and "Traceback" not in err
+
+
+def test_a_stop_before_the_first_run_reports_leaves_no_folder(tmp_path, fake_runs, capsys):
+    from smorphi_rl.cli import main
+
+    argv, _calls, stops = fake_runs
+    stops[1] = "before"
+    assert main([*argv, "--seeds", "0"]) == 130
+    assert not (tmp_path / "logs" / "job").exists()  # nothing trained: the name stays free
+    assert capsys.readouterr().err.strip() == "smorphi-rl: interrupted"
 
 
 def test_a_stop_of_the_first_run_after_it_reported_keeps_the_jobs_folder(tmp_path, fake_runs, capsys):
