@@ -120,10 +120,11 @@ def run_transfer(
     short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
     raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked."""
     from smorphi_rl import cluster
+    from smorphi_rl.errors import SmorphiError
     from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained
-    from smorphi_rl.training.run import train
+    from smorphi_rl.training.run import TrainingError, train
 
     checkpoint = find_checkpoint(job.pretrained)
     env = EnvConfig.from_dict(dict(load_module(checkpoint).model_config.get("env_config") or {}))
@@ -178,6 +179,9 @@ def run_transfer(
             discard_run_dir(job_dir)  # nothing trained: the name stays free
         elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
             raise TransferInterrupted(job_dir, reported()) from None
+        elif isinstance(exc, SmorphiError) and reported():  # a run failed: the others are kept, and resumable
+            raise TrainingError(f"{exc}; the {len(reported())} run(s) that finished are kept under {job_dir}: "
+                                f"continue with --name {job_dir.name} --resume") from None  # fmt: skip
         raise
     return job_dir, reported()
 

@@ -107,8 +107,8 @@ def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path
 @pytest.fixture
 def fake_runs(tmp_path, monkeypatch):
     """`transfer` through the CLI on val-1 with the checkpoint, Ray and training replaced: `stops` names the
-    training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report. Returns the
-    argv and the runs trained."""
+    training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report, or failing
+    (`"error"`). Returns the argv, the runs trained and `stops`."""
     import contextlib
     from types import SimpleNamespace
 
@@ -128,6 +128,8 @@ def fake_runs(tmp_path, monkeypatch):
         (Path(log_dir) / ".cache").mkdir(exist_ok=True)  # the exact optima, as the real one caches them
         if stops.get(len(calls)) == "reported":
             (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
+        if stops.get(len(calls)) == "error":
+            raise run.TrainingError("trial failed: boom")
         if len(calls) in stops:
             raise KeyboardInterrupt
         (Path(log_dir) / name).mkdir()
@@ -203,3 +205,14 @@ def test_runs_on_a_map_without_an_optimum_are_not_measured(tmp_path):
             for mode in ("fine-tune", "scratch")]  # fmt: skip
     assert by_map(runs)[0].counts == ("not measured", "not measured")
     assert by_map([_run("fine-tune", 0, None, 88.0)])[0].counts == ("0 of 1", "0 of 0")
+
+
+def test_a_run_that_fails_after_others_finished_names_the_resume(tmp_path, fake_runs, capsys):
+    from smorphi_rl.cli import main
+
+    argv, _calls, stops = fake_runs
+    stops[2] = "error"
+    assert main([*argv, "--seeds", "0"]) == 1
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "trial failed: boom; the 1 run(s) that finished are kept" in err
+    assert "--name job --resume" in err and (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
