@@ -71,10 +71,16 @@ def run_documented(name: str, title: str, main: object) -> None:
     write = "--write-docs" in sys.argv
     if write:
         sys.argv.remove("--write-docs")
+    from smorphi_rl.errors import SmorphiError
+
     tee = _Tee(sys.stdout)
     sys.stdout = tee  # type: ignore[assignment]
     try:
         main()  # type: ignore[operator]
+    except SmorphiError as exc:  # a bad option or input: one line, as the CLI gives it, and nothing written
+        sys.stdout = tee.stream  # type: ignore[assignment]
+        print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None
     finally:
         sys.stdout = tee.stream  # type: ignore[assignment]
     if write:
