@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import os
 import time
 from dataclasses import dataclass
@@ -92,11 +93,14 @@ def main() -> None:
     args = parser.parse_args()
     if (args.env_runners is not None and args.env_runners < 0) or args.envs_per_runner < 1:
         raise SystemExit("bench_learning.py: --env-runners must be at least 0 and --envs-per-runner at least 1")
+    overrides = parse_overrides(args.set)
+    layout = (args.env_runners, args.envs_per_runner)
+    for algo, reward, map_path in itertools.product(args.algos, args.rewards, args.maps):  # checked before writing
+        run_config(algo, reward, 0, map_path, args.timesteps, overrides, layout)
     try:
         out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
     except RunDirError as exc:
         raise SystemExit(f"bench_learning.py: {exc}") from None
-    overrides = parse_overrides(args.set)
     starts = eval_starts()
     rows: list[Row] = []
     t_all = time.monotonic()
@@ -111,7 +115,6 @@ def main() -> None:
             for reward in args.rewards:
                 for seed in args.seeds:
                     budget = args.timesteps if algo == "ppo" else args.async_timesteps
-                    layout = (args.env_runners, args.envs_per_runner)
                     rows.append(train_and_evaluate(algo, reward, seed, map_path, budget, optimum, starts, out,
                                                    overrides, layout))  # fmt: skip
                     r = rows[-1]
@@ -143,12 +146,18 @@ def parse_overrides(pairs: list[str]) -> dict[str, float]:
     return overrides
 
 
+def run_config(algo: str, reward: str, seed: int, map_path: str, timesteps: int, overrides: dict[str, float],
+               layout: tuple[int | None, int]) -> TrainConfig:  # fmt: skip
+    """One benchmark run's configuration (a bad --set name or value is a TrainConfigError here)."""
+    return TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [map_path], "reward": reward}),
+                       timesteps=timesteps, seed=seed, num_env_runners=layout[0], envs_per_runner=layout[1],
+                       record_every=0, checkpoint_every=1000, overrides=overrides)  # fmt: skip
+
+
 def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timesteps: int, optimum: Optimum,
                        starts: np.ndarray, out: Path, overrides: dict[str, float],
                        layout: tuple[int | None, int] = (None, ENVS_PER_RUNNER)) -> Row:  # fmt: skip
-    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"maps": [map_path], "reward": reward}), timesteps=timesteps,
-                      seed=seed, num_env_runners=layout[0], envs_per_runner=layout[1], record_every=0,
-                      checkpoint_every=1000, overrides=overrides)  # fmt: skip
+    cfg = run_config(algo, reward, seed, map_path, timesteps, overrides, layout)
     name = f"{algo}-{reward}-{Path(map_path).stem}-seed{seed}"
     with open(os.devnull, "w") as devnull:
         summary = train(cfg, name=name, log_dir=out / "runs", out=devnull)
