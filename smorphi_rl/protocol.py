@@ -127,6 +127,11 @@ class MapEvaluation:
     outcomes: tuple[Outcome, ...]
 
     @property
+    def measured(self) -> bool:
+        """Whether the map has an exact optimum to measure gaps and shares against (NaN R1*: not measured)."""
+        return math.isfinite(self.optimum.R1)
+
+    @property
     def gaps(self) -> np.ndarray:
         """R1* minus each settled shape's R1 (0 at the optimum)."""
         return np.array([self.optimum.R1 - o.R1 for o in self.outcomes])
@@ -150,7 +155,7 @@ class MapEvaluation:
 
     def summary(self) -> dict[str, float]:
         """The figures logged and tabulated (TensorBoard's eval/... tags)."""
-        share = self.within / len(self.outcomes) if math.isfinite(self.optimum.R1) else math.nan  # NaN: not measured
+        share = self.within / len(self.outcomes) if self.measured else math.nan
         return {"median_gap": self.median_gap, "share_within_1pct": share, "settled_R1_mean": self.mean_R1,
                 "evaluations_mean": self.mean_evaluations, "optimum_R1": self.optimum.R1}  # fmt: skip
 

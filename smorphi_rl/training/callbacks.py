@@ -204,11 +204,9 @@ def _on_learner_itself(algorithm: Any, call: Any) -> Any:
 def selection_score(evaluations: list[Any]) -> tuple[int, float]:
     """How a policy ranks on the selection starts: starts within 1 % of the optimum, then the smaller median gap,
     on the maps with an exact optimum; on none, the higher mean settled R1 (a NaN would never rank)."""
-    import math
-
     import numpy as np
 
-    measured = [e for e in evaluations if math.isfinite(e.optimum.R1)]
+    measured = [e for e in evaluations if e.measured]
     if not measured:
         return 0, float(np.mean([e.mean_R1 for e in evaluations]))
     return sum(e.within for e in measured), -float(np.median(np.concatenate([e.gaps for e in measured])))
@@ -221,7 +219,7 @@ def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
 
     import numpy as np
 
-    measured = [e for e in evaluations if math.isfinite(e.optimum.R1)]
+    measured = [e for e in evaluations if e.measured]
     gaps = np.concatenate([e.gaps for e in measured]) if measured else np.array([])
     out: dict[str, Any] = {e.map: e.summary() for e in evaluations}
     out |= {"median_gap": float(np.median(gaps)) if gaps.size else math.nan,

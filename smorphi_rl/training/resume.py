@@ -23,7 +23,7 @@ import numpy as np
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import CheckpointError, checkpoints_under, safe_unpickle
-from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows
+from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows, trial_done
 
 STATE_FILE = "smorphi_state.pkl"
 """Our resumable state in a checkpoint folder (numbers and arrays: `SafeUnpickler` reads it)."""
@@ -161,5 +161,4 @@ def trial_spec(trial_dir: Path) -> dict[str, Any] | None:
 def finished(trial_dir: Path) -> bool:
     """Whether the trial's last recorded result says it reached its budget or its stop criteria."""
     files = result_files(trial_dir)
-    rows = result_rows(*files) if files else []
-    return bool(rows and rows[-1].get(keys.TRIAL_DONE))
+    return trial_done(result_rows(*files) if files else [])

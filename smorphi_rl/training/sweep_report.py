@@ -150,8 +150,13 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         curve=curve,
         median_gap=_num(last.get("median_gap")),
         share_within_1pct=_num(last.get("share_within_1pct")),
-        finished=bool(rows[-1].get(keys.TRIAL_DONE)),
+        finished=trial_done(rows),
     )
+
+
+def trial_done(rows: list[dict[str, Any]]) -> bool:
+    """Whether a trial's last recorded result says it reached its budget or its stop criteria."""
+    return bool(rows and rows[-1].get(keys.TRIAL_DONE))
 
 
 def read_sweep(experiment_dir: Path) -> list[TrialRow]:
