@@ -255,6 +255,13 @@ def learning_rate(hp: Preset, timesteps: int) -> float | list[list[float]]:
     return [[0, hp.lr], *knee, [timesteps, hp.lr_final]]
 
 
+def entropy_coefficient(hp: Preset, timesteps: int) -> float | list[list[float]]:
+    """RLlib's `entropy_coeff`: the constant, or the linear schedule in env steps to `entropy_final`."""
+    if hp.entropy_final is None:
+        return hp.entropy_coeff
+    return [[0, hp.entropy_coeff], [timesteps, hp.entropy_final]]
+
+
 def value_normalisation(env: EnvConfig, gamma: float, samples: int = 256) -> tuple[float, float]:
     """(offset, scale) for the critic, V = offset + scale * head, from R1 of random shapes on the maps.
 
@@ -398,7 +405,7 @@ def algorithm_config(
     training: dict[str, Any] = {
         "lr": learning_rate(hp, cfg.timesteps),
         "gamma": hp.gamma,
-        "entropy_coeff": hp.entropy_coeff,
+        "entropy_coeff": entropy_coefficient(hp, cfg.timesteps),
         "vf_loss_coeff": hp.vf_loss_coeff,
         "grad_clip": hp.grad_clip,
         "grad_clip_by": "norm",  # per tensor: the value net's large gradients never shrink the policy's

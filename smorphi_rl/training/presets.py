@@ -32,6 +32,8 @@ class Preset:
     """With `lr_final`: the rate at `lr_knee_at` of the budget, a bend in the linear fall (three points); None: none."""
     lr_knee_at: float = 0.5
     """Where the bend `lr_knee` sits, as a share of the budget's env steps."""
+    entropy_final: float | None = None
+    """The entropy coefficient at the end of the budget, reached linearly from `entropy_coeff`; None: constant."""
     policy_angle_frequencies: int = ANGLE_FREQUENCIES
     """Fourier frequencies of the angles the policy net sees (the critic always sees ANGLE_FREQUENCIES)."""
     num_epochs: int = 1

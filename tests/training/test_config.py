@@ -120,6 +120,16 @@ def test_a_final_learning_rate_makes_a_linear_schedule_over_the_budget():
     assert algorithm_config(TrainConfig(algo="impala", preset="paper")).lr == 7e-4  # constant: no lr_final
 
 
+def test_a_final_entropy_coefficient_makes_a_linear_schedule_over_the_budget():
+    from smorphi_rl.training.config import algorithm_config
+
+    cfg = TrainConfig(algo="appo", timesteps=400_000, overrides={"entropy_coeff": 0.01, "entropy_final": 0.0})
+    assert algorithm_config(cfg).entropy_coeff == [[0, 0.01], [400_000, 0.0]]
+    assert algorithm_config(TrainConfig(algo="appo", preset="paper")).entropy_coeff == 0.01  # constant
+    with pytest.raises(TrainConfigError, match="entropy_final"):
+        TrainConfig(overrides={"entropy_final": -0.01})
+
+
 def test_a_knee_bends_the_schedule_at_its_share_of_the_budget():
     from smorphi_rl.training.config import algorithm_config
 
