@@ -65,7 +65,7 @@ class Budget:
 
 
 BUDGETS = {
-    # 10 minutes on 2 cores (9 min 55 s measured on 2026-12-04: 12 training runs, the searches, 18 transfer runs).
+    # 10 minutes on 2 cores (9 min 35 s measured on 2026-12-04: 12 training runs, the searches, 18 transfer runs).
     "small": Budget(30_000, 50_000, 20_000, VAL_MAPS, ("ppo", "impala"), TRAIN_MAPS, 1000, 40, 50, 1.0),
     # The paper's scale: 3 x 10^5 steps a run (its Figure 5); hours on 2 cores.
     "paper": Budget(300_000, 300_000, 300_000, VAL_MAPS, ("ppo", "impala"), TRAIN_MAPS, 1000, 100, 100, 1.0),
