@@ -87,7 +87,7 @@ seeds 0-2); with the rate falling, 40, 40 and 25 % (gaps 1.30, 2.99, 2.96); with
 Iterations of at least 0.4 s (about 4,000 env steps on 2 cores): the protocol, every 5 iterations, then evaluates
 about every 20,000 steps, some 20 times in the async budget as in PPO's, and the run ends on the best of as many
 policies; at 2 s it evaluated every 50,000 (8 times) and APPO settled 6 of 10 runs (map-1, map-2, seeds 0-4) at
-90 % of the starts within 1 %, at 0.4 s 10 of 12 (seeds 0-5; docs/decisions.md)."""
+90 % of the starts within 1 %, at 0.4 s 18 of 24 (seeds 0-8; docs/decisions.md)."""
 PRESETS: dict[str, dict[str, Preset]] = {
     "fast": {
         # 2,000 steps an iteration, 4 epochs of 4 minibatches: about 0.25 s of learner time on 2 cores
