@@ -72,8 +72,8 @@ _Started = dict[int, tuple[Path, Path | None]]
 """A started trial's index -> (its folder, the checkpoint it continues from, if any)."""
 
 
-def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[set[int], _Started]:
-    """(the finished trials' indices, the started ones) of experiment `exp`, moving nothing. The state files are
+def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], _Started]:
+    """(the trials left to run, the started ones among them) of experiment `exp`, moving nothing. The state files are
     read back safely here, before Ray starts, so a damaged or crafted one is refused in one line."""
     started: _Started = {}
     done: set[int] = set()
@@ -95,7 +95,7 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[set[int], _Sta
             done.add(index)
         else:
             started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
-    return done, started
+    return [t for t in trials if t["index"] not in done], started
 
 
 def set_aside_started(started: _Started) -> dict[int, Path]:
@@ -110,13 +110,6 @@ def set_aside_started(started: _Started) -> dict[int, Path]:
         if point is not None:
             points[index] = aside / point.name if aside is not None and point.parent == d else point
     return points
-
-
-def plan_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], dict[int, Path]]:
-    """(the trials left to run, the checkpoint each started one continues from) of experiment `exp`: read back
-    (`read_resume`, refusing before anything moves), then set aside."""
-    done, started = read_resume(exp, trials)
-    return [t for t in trials if t["index"] not in done], set_aside_started(started)
 
 
 class _SweepProgress:
@@ -247,14 +240,14 @@ def run_sweep(
     trials = sweep.trials()
     if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
-        done, started = read_resume(exp, trials)
+        pending, started = read_resume(exp, trials)
     else:
         _new_experiment(log_dir, sweep.name, check_run_dir)
     optima: dict[str, Optimum] = {}
     for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     if resume:
-        pending, points = [t for t in trials if t["index"] not in done], set_aside_started(started)
+        points = set_aside_started(started)
     else:
         exp, pending, points = prepare_experiment(sweep, log_dir, resume), trials, {}
     quiet()

@@ -14,7 +14,7 @@ from smorphi_rl.rundir import RunDirError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import MODULE_SUBDIR, CheckpointError
 from smorphi_rl.training.resume import STATE_FILE, finished, load_state, resume_point, set_aside
-from smorphi_rl.training.sweep import plan_resume, trial_dirname
+from smorphi_rl.training.sweep import read_resume, set_aside_started, trial_dirname
 from smorphi_rl.training.sweep_config import STOP_METRICS, load_sweep
 from smorphi_rl.training.sweep_report import result_files, result_rows
 from smorphi_rl.training.trial import stop_reached
@@ -30,6 +30,12 @@ search:
   entropy_coeff: {{grid: [0.0, 0.01]}}
   gamma: {{choice: [0.99, 0.995]}}
 """
+
+
+def plan_resume(exp, trials):
+    """What `sweep --resume` does with a folder: read it back (refusing before anything moves), then set aside."""
+    pending, started = read_resume(exp, trials)
+    return pending, set_aside_started(started)
 
 
 @pytest.fixture
