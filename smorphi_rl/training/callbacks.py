@@ -17,7 +17,7 @@ from smorphi_rl.protocol import EVAL_KEY, TRAINED_FIGURES, TRAINED_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
 from smorphi_rl.training.runners import push_module_to_runners
-from smorphi_rl.training.snapshot import snapshot_module, snapshot_state, update_lock
+from smorphi_rl.training.snapshot import hold_updates, snapshot_module, update_lock
 from smorphi_rl.training.topk import EPISODE_BEST_KEY, EpisodeBest, encode_bests
 from smorphi_rl.vector_env import SEED_KEY, action_seed
 
@@ -124,25 +124,28 @@ class MorphologyCallbacks(RLlibCallback):
         result[EPISODE_BEST_KEY] = encode_bests(bests)
         iteration = int(getattr(algorithm, "iteration", 0) or 0)
         last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
+        if last:  # an asynchronous learner's thread would go on stepping: the checkpoint holds what is evaluated
+            _on_learner_itself(algorithm, hold_updates)
         if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):
             steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
             if self._evaluation is None:
                 self._evaluation = self._protocol(algorithm, self.eval_starts + self.select_starts)
-            both = _on_learner(algorithm, self._evaluation)
+            if self.design_budget and self._design is None:
+                self._design = self._design_evaluation(algorithm)
+            calls = [self._evaluation, *([self._design] if self.design_budget else [])]
+            (both, *design), state = _on_snapshot(algorithm, calls)
             n = len(self.eval_starts)
             trained = [replace(e, outcomes=e.outcomes[:n]) for e in both]
             protocol, policy_steps = trained, steps
             if self.select_starts:
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
-                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, trained)
+                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, trained, state)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
             if policy_steps != steps:  # the run ends on an earlier policy; the curves keep the trained one's
                 figures = evaluation_metrics(trained)
                 result[EVAL_KEY][TRAINED_KEY] = {k: figures[k] for k in TRAINED_FIGURES}
-            if self.design_budget:
-                if self._design is None:
-                    self._design = self._design_evaluation(algorithm)
-                result[EVAL_KEY] |= _on_learner(algorithm, self._design)
+            for figures in design:
+                result[EVAL_KEY] |= figures
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
         """The protocol's greedy roll-outs from `starts` on every training map (a GreedyRollouts)."""
@@ -167,16 +170,17 @@ class MorphologyCallbacks(RLlibCallback):
         return DesignEvaluation(env, {name: Optimum(**o) for name, o in self.eval_optima.items()}, self.design_budget)
 
     def _select(
-        self, algorithm: Any, steps: int, last: bool, selection: list[Any], protocol: list[Any]
-    ) -> tuple[list[Any], int]:
-        """Rank the learner's policy by its `selection` evaluation and keep it if it is the best so far (ties:
-        the later); at the run's last iteration, put the kept policy back if it beat the last one. The protocol
-        evaluation and env steps of the policy the learner now holds (greedy roll-outs are deterministic, so the
-        kept policy's evaluation stands for it)."""
+        self, algorithm: Any, steps: int, last: bool, selection: list[Any], protocol: list[Any],
+        state: dict[str, Any],
+    ) -> tuple[list[Any], int]:  # fmt: skip
+        """Rank the evaluated policy (weights `state`) by its `selection` evaluation and keep it if it is the best
+        so far (ties: the later); at the run's last iteration, put the kept policy back if it beat the last one.
+        The protocol evaluation and env steps of the policy the learner now holds (greedy roll-outs are
+        deterministic, so the kept policy's evaluation stands for it)."""
         score = selection_score(selection)
         kept = self._kept
         if kept is None or score >= kept[0]:
-            self._kept = (score, steps, _on_learner_itself(algorithm, snapshot_state), protocol)
+            self._kept = (score, steps, state, protocol)
             return protocol, steps
         if not last:
             return protocol, steps
@@ -185,10 +189,16 @@ class MorphologyCallbacks(RLlibCallback):
         return kept[3], int(kept[1])
 
 
-def _on_learner(algorithm: Any, call: Any) -> Any:
-    """`call(module)` on a snapshot of the learner's module (the local learner, or the first remote one): a copy
-    holding one update's weights, never the module an asynchronous learner's thread may be writing (`snapshot`)."""
-    return _on_learner_itself(algorithm, lambda learner: call(snapshot_module(learner)))
+def _on_snapshot(algorithm: Any, calls: list[Any]) -> tuple[list[Any], dict[str, Any]]:
+    """Each `call(module)` on one snapshot of the learner's module (the local learner, or the first remote one): a
+    copy holding one update's weights, never the module an asynchronous learner's thread may be writing
+    (`snapshot`); with the snapshot's weights, which a run keeps as the policy these calls measured."""
+
+    def run(learner: Any) -> tuple[list[Any], dict[str, Any]]:
+        twin = snapshot_module(learner)
+        return [call(twin) for call in calls], twin.state_dict()
+
+    return _on_learner_itself(algorithm, run)  # type: ignore[no-any-return]
 
 
 def _on_live_learner(algorithm: Any, call: Any) -> Any:

@@ -44,6 +44,7 @@ from ray.rllib.utils.torch_utils import clip_gradients
 
 from smorphi_rl import rllib_compat
 from smorphi_rl.training.module import MAP_KEY, pack_maps
+from smorphi_rl.training.snapshot import update_lock, updates_held
 
 ADVANTAGE_EPS = 1e-8
 TRACE_LAMBDA_KEY = "vtrace_lambda"
@@ -206,7 +207,8 @@ class FusedStep:
     update for our two nets) and builds a single-tensor Adam on CPU; the arithmetic is the same. A step with a
     non-finite gradient goes through RLlib's own `apply_gradients` (which zeroes nan gradients and warns); a
     learning-rate schedule moves the rate as RLlib's does; torch lr schedulers and grad scalers (RLlib's
-    experimental settings, which our configs never set) are not supported."""
+    experimental settings, which our configs never set) are not supported. Steps are taken under the learner's
+    update lock and skipped once a run's end holds its updates (`snapshot.hold_updates`)."""
 
     def configure_optimizers_for_module(self, module_id: Any, config: Any = None) -> None:
         params = self.get_parameters(self.module[module_id])  # type: ignore[attr-defined]
@@ -242,6 +244,11 @@ class FusedStep:
         return clipped
 
     def apply_gradients(self, gradients_dict: dict[Any, torch.Tensor]) -> None:
+        with update_lock(self):  # a run's end holds the updates (`snapshot.hold_updates`): none applies after it
+            if not updates_held(self):
+                self._apply_gradients(gradients_dict)
+
+    def _apply_gradients(self, gradients_dict: dict[Any, torch.Tensor]) -> None:
         grads = [g for g in gradients_dict.values() if g is not None]
         if not (grads and all_finite(grads)):  # RLlib's step zeroes nan gradients and warns
             super().apply_gradients(gradients_dict)  # type: ignore[misc]

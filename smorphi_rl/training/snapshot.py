@@ -5,6 +5,9 @@ during a step holds two updates' weights. Every optimizer of the learner's modul
 length of its step (torch's public `register_step_pre_hook` / `register_step_post_hook`), and a snapshot is
 copied under that lock, so it holds the weights of one update. The evaluation then runs on a copy of the
 module, never on the module the thread writes. PPO learns in the driver's thread: the lock is never contended.
+
+At the end of a run the learner's updates are held (`hold_updates`): the thread goes on draining its queue, but
+no step changes the weights, so the final checkpoint holds the policy the last evaluation measured.
 """
 
 from __future__ import annotations
@@ -16,16 +19,17 @@ from typing import Any
 
 from ray.rllib.core import DEFAULT_MODULE_ID
 
-_LOCKS: weakref.WeakKeyDictionary[Any, threading.Lock] = weakref.WeakKeyDictionary()
+_LOCKS: weakref.WeakKeyDictionary[Any, threading.RLock] = weakref.WeakKeyDictionary()
+_HELD: weakref.WeakSet[Any] = weakref.WeakSet()
 
 
-def update_lock(learner: Any) -> threading.Lock:
+def update_lock(learner: Any) -> threading.RLock:
     """The lock held while any optimizer of the learner's module steps; hooks registered on first use (call it
     before training starts: a step already under way when the hooks arrive releases nothing it did not take)."""
     lock = _LOCKS.get(learner)
     if lock is not None:
         return lock
-    lock = _LOCKS[learner] = threading.Lock()
+    lock = _LOCKS[learner] = threading.RLock()  # re-entered by a step taken under it (`FusedStep`)
     for _, optimizer in learner.get_optimizers_for_module(DEFAULT_MODULE_ID):
         held = threading.local()
 
@@ -56,3 +60,15 @@ def snapshot_module(learner: Any) -> Any:
     twin = copy.deepcopy(learner.module[DEFAULT_MODULE_ID])
     twin.load_state_dict(state)
     return twin
+
+
+def hold_updates(learner: Any) -> None:
+    """From now on the learner's updates leave its weights as they are (`updates_held`); set under the update
+    lock, so a step under way finishes first and none starts after."""
+    with update_lock(learner):
+        _HELD.add(learner)
+
+
+def updates_held(learner: Any) -> bool:
+    """Whether `hold_updates` was called on the learner: its optimizer steps are skipped (read under the lock)."""
+    return learner in _HELD

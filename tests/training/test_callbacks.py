@@ -100,8 +100,12 @@ def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_conver
 
     poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
     shares = [poor, good, poor, poor]  # each policy's protocol starts, then its selection starts alike
-    monkeypatch.setattr(callbacks, "_on_learner", lambda algorithm, call: _evaluation(*shares[0], *shares.pop(0)))
-    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: {"weights": len(shares)})
+
+    def on_snapshot(algorithm, calls):
+        return [_evaluation(*shares[0], *shares.pop(0))], {"weights": len(shares)}
+
+    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
     monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
     monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
     starts = [(0.0, 0.0, 0.0)] * 5

@@ -266,6 +266,27 @@ def test_the_fused_optimiser_step_is_rllibs_step_and_schedule():
     assert any(not torch.equal(a, b) for a, b in zip(start, ours_params, strict=True))  # the steps moved the weights
 
 
+def test_a_learner_whose_updates_are_held_keeps_its_weights():
+    """At a run's end the learner's updates are held (`snapshot.hold_updates`): a step then changes nothing, as an
+    asynchronous learner's thread would otherwise go on stepping after the last evaluation."""
+    from smorphi_rl.training.snapshot import hold_updates, updates_held
+
+    learner = _ppo_learner()
+    params = list(learner.module["default_policy"].parameters())
+
+    def step() -> list[torch.Tensor]:
+        before = [p.detach().clone() for p in params]
+        learner.apply_gradients({learner.get_param_ref(p): torch.ones_like(p) for p in params})
+        return before
+
+    before = step()
+    assert any(not torch.equal(a, b) for a, b in zip(before, params, strict=True))  # a step moves the weights
+    assert not updates_held(learner)
+    hold_updates(learner)
+    before = step()
+    assert updates_held(learner) and all(torch.equal(a, b) for a, b in zip(before, params, strict=True))
+
+
 @pytest.mark.parametrize("algo", ["impala", "appo"])
 def test_one_update_of_the_async_learners_moves_the_weights(algo):
     """IMPALA and APPO learn in their learner's thread: one update's batch changes the module's weights."""
