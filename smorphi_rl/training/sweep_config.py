@@ -283,6 +283,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
                    "trials: give more seeds, or a choice, uniform or loguniform part")  # fmt: skip
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
+    for i, maps in enumerate(map_sets):  # every trial is measured against its evaluated maps' exact optima
+        _check_evaluable(cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {}), f"maps[{i}]", fail)
     for algo in cfg.algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
             for value in space.examples():
@@ -291,6 +293,27 @@ def load_sweep(path: str | Path) -> SweepConfig:
                 except SmorphiError as exc:
                     raise fail(f"search.{key}", str(exc)) from None
     return cfg
+
+
+def _check_evaluable(trial: TrainConfig, key: str, fail: Any) -> None:
+    """One line when a trial could not be evaluated against an exact optimum: it trains on generated floors with no
+    `evaluation.maps`, or a map it is evaluated on is over the cells an optimum is computed on."""
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.protocol import OPTIMUM_MAX_CELLS
+
+    if not trial.evaluation_maps:
+        raise fail("evaluation.maps", f"the maps of {key} are generated ({', '.join(trial.env.maps)}), so its trials "
+                   "have no exact optimum to be measured against: name fixed floors under evaluation.maps")  # fmt: skip
+    where = "evaluation.maps" if trial.eval_maps else key
+    for path in trial.evaluation_maps:
+        try:
+            cells = load_map(path).cells.size
+        except SmorphiError as exc:
+            raise fail(where, str(exc)) from None
+        if cells > OPTIMUM_MAX_CELLS:
+            raise fail(where, f"{path}: {cells:,} cells, over the {OPTIMUM_MAX_CELLS:,} an exact optimum is "
+                       "computed on, so its trials could not be evaluated: cut it down (smorphi-rl maps crop or "
+                       "resample)")  # fmt: skip
 
 
 def _first_problem(exc: ValidationError, fail: Any) -> SweepConfigError:

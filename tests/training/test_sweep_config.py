@@ -158,3 +158,38 @@ def test_a_sweep_can_plan_with_the_footprint_safe_planner(tmp_path):
     assert train.env.planner == "fit" and train.env.start_xy == (2.5, 0.5)
     with pytest.raises(SweepConfigError, match="planner"):
         load_sweep(write(tmp_path, base("env: {planner: astar}\n")))
+
+
+def test_a_sweep_whose_trials_could_not_be_evaluated_is_refused_before_anything_is_written(tmp_path):
+    """Every trial is measured against an exact optimum: generated floors with no evaluation maps, or a map over
+    the cells an optimum is computed on, are one line naming the key; the command writes nothing."""
+    import subprocess
+    import sys
+
+    import numpy as np
+    import yaml
+    from PIL import Image
+
+    from smorphi_rl.protocol import OPTIMUM_MAX_CELLS
+
+    generated = "algorithms: [ppo]\nmaps: ['generate:mixed']\nseeds: [0]\n"
+    with pytest.raises(SweepConfigError, match=r"key 'evaluation.maps': the maps of maps\[0\] are generated"):
+        load_sweep(write(tmp_path, generated))
+    load_sweep(write(tmp_path, generated + f"evaluation: {{maps: [{MAP_1}]}}\n"))  # evaluated on a fixed floor
+    side = int(OPTIMUM_MAX_CELLS**0.5) + 1
+    pixels = np.full((side, side), 254, dtype=np.uint8)
+    pixels[0, :] = 0
+    Image.fromarray(pixels).save(tmp_path / "large.pgm")
+    (tmp_path / "large.yaml").write_text(yaml.safe_dump({"image": "large.pgm", "resolution": 0.05,
+                                                          "origin": [0.0, 0.0, 0.0]}))  # fmt: skip
+    large = "algorithms: [ppo]\nmaps: [large.yaml]\nseeds: [0]\n"
+    with pytest.raises(SweepConfigError, match=rf"key 'maps\[0\]': .*large.yaml: {side * side:,} cells, over the"):
+        load_sweep(write(tmp_path, large))
+    with pytest.raises(SweepConfigError, match=r"key 'evaluation.maps': .*large.yaml: .* cells, over the"):
+        load_sweep(write(tmp_path, base("evaluation: {maps: [large.yaml]}\n")))
+    before = sorted(p.name for p in tmp_path.iterdir())
+    proc = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", "sweep", "s.yaml"], capture_output=True,
+                          text=True, cwd=tmp_path, timeout=120)  # fmt: skip
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert len(proc.stderr.strip().splitlines()) == 1 and "cells, over the" in proc.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == before  # no logs folder, nothing else
