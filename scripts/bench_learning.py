@@ -5,7 +5,8 @@ layout) for a fixed budget, then the evaluation protocol: greedy roll-outs from 
 starts, each settled shape's gap to the exact 1-degree optimum. Yardsticks from the same starts,
 seeded the same way: a random walk (uniform moves, settled as a policy's would be), hill
 climbing, simulated annealing and random search, each held to the FBCPP evaluations the policies
-used per start. Every figure is the mean over seeds with a 95 % bootstrap interval. The ceiling:
+used per start. Every figure is the mean over seeds with a 95 % bootstrap interval; a trained run's
+convergence (the README's definition, `smorphi_rl/training/convergence.py`) is counted over seeds. The ceiling:
 the exact optimal policy of each reward mode at the preset's discount (value iteration over the whole
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
@@ -42,6 +43,7 @@ from smorphi_rl.search.local import run_local
 from smorphi_rl.stats import mean_interval
 from smorphi_rl.training.checkpoints import load_module
 from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.convergence import converged_text, convergence
 from smorphi_rl.training.policy import evaluate_policy
 from smorphi_rl.training.presets import DEFAULT_TIMESTEPS, ENVS_PER_RUNNER, PRESETS
 from smorphi_rl.training.run import train
@@ -64,11 +66,24 @@ class Row:
     settled_R1: float
     wall_s: float = float("nan")
     curve: tuple[list[float], list[float]] | None = None
+    converged: str = ""
+    """A trained run's env steps until it converged, "not converged" or "not measured" (`converged_text`); a
+    baseline's: empty."""
 
 
-def row_of(ev: MapEvaluation, method: str, seed: int, wall_s: float = float("nan"), curve=None) -> Row:
+def row_of(ev: MapEvaluation, method: str, seed: int, wall_s: float = float("nan"), curve=None,
+           converged: str = "") -> Row:  # fmt: skip
     return Row(ev.map, method, seed, ev.median_gap, ev.within / len(ev.outcomes), ev.mean_evaluations, ev.mean_R1,
-               wall_s, curve)  # fmt: skip
+               wall_s, curve, converged)  # fmt: skip
+
+
+def converged_cell(group: list[Row]) -> str:
+    """How many of a group's trained runs converged, and the median env steps of those that did; "-" for a
+    baseline."""
+    if not all(r.converged for r in group):
+        return "-"
+    steps = [int(r.converged) for r in group if r.converged.isdigit()]
+    return f"{len(steps)} of {len(group)}" + (f", {np.median(steps):,.0f} steps" if steps else "")
 
 
 def main() -> None:
@@ -166,8 +181,9 @@ def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timeste
     curve = summary_curve(summary.run_dir)
     steps, gaps = curve["env_steps"], curve["eval_gap"]
     kept = [(s, g) for s, g in zip(steps, gaps, strict=True) if np.isfinite(g)]
+    converged = converged_text(convergence(curve)[0], curve)
     return row_of(ev, f"{algo.upper()} {reward}", seed, summary.wall_s,
-                  ([s for s, _ in kept], [g for _, g in kept]))  # fmt: skip
+                  ([s for s, _ in kept], [g for _, g in kept]), converged)  # fmt: skip
 
 
 def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarray, rewards: list[str]) -> list[Row]:
@@ -208,27 +224,30 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
     with (out / "learning.csv").open("w", newline="") as fh:
         writer = csv.writer(fh)
         writer.writerow(["map", "method", "seed", "median_gap", "share_within_1pct", "evaluations_per_start",
-                         "settled_R1_mean", "wall_s"])  # fmt: skip
+                         "settled_R1_mean", "wall_s", "converged_at_env_steps"])  # fmt: skip
         for r in rows:
             writer.writerow([r.map, r.method, r.seed, f"{r.median_gap:.4f}", f"{r.within:.3f}", f"{r.evaluations:.1f}",
-                             f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}"])  # fmt: skip
+                             f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}", r.converged])  # fmt: skip
     changed = f" Hyperparameters changed from the presets: {' '.join(args.set)}." if args.set else ""
     if args.env_runners is not None or args.envs_per_runner != ENVS_PER_RUNNER:
         runners = "the preset's" if args.env_runners is None else args.env_runners
         changed += f" Sampling: {runners} env runners x {args.envs_per_runner} envs."
     lines = [f"Greedy settled gap to the exact optimum, {len(args.seeds)} seeds ({', '.join(map(str, args.seeds))}), "
              f"{args.timesteps:,} env steps per PPO run and {args.async_timesteps:,} per IMPALA or APPO run, 20 fixed "
-             "starts; mean over seeds [95 % bootstrap interval]."
+             "starts; mean over seeds [95 % bootstrap interval]. Converged: runs that converged (from some "
+             "evaluation on, at least 90 % of the starts within 1 %) and their median env steps to it."
              + changed, "",
-             "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start |",
-             "|---|---|---:|---:|---:|---:|"]  # fmt: skip
+             "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start "
+             "| converged |",
+             "|---|---|---:|---:|---:|---:|---:|"]  # fmt: skip
     for map_name, method in dict.fromkeys((r.map, r.method) for r in rows):
         group = [r for r in rows if r.map == map_name and r.method == method]
         gap = mean_interval([r.median_gap for r in group])
         within = mean_interval([100 * r.within for r in group])
         r1 = mean_interval([r.settled_R1 for r in group])
         evals = float(np.mean([r.evaluations for r in group]))
-        lines.append(f"| {map_name} | {method} | {gap.text()} | {within.text('.0f')} % | {r1.text()} | {evals:.0f} |")
+        lines.append(f"| {map_name} | {method} | {gap.text()} | {within.text('.0f')} % | {r1.text()} | {evals:.0f} "
+                     f"| {converged_cell(group)} |")  # fmt: skip
     lines.append("")
     lines.append(f"{len(rows)} rows in {wall_s / 60:.1f} min.")
     text = "\n".join(lines)
