@@ -284,7 +284,11 @@ def load_sweep(path: str | Path) -> SweepConfig:
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
     for i, maps in enumerate(map_sets):  # every trial is measured against its evaluated maps' exact optima
-        _check_evaluable(cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {}), f"maps[{i}]", fail)
+        try:
+            trial = cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {})
+        except SmorphiError as exc:
+            raise fail(f"maps[{i}]", str(exc)) from None
+        _check_evaluable(trial, f"maps[{i}]", fail)
     for algo in cfg.algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
             for value in space.examples():
