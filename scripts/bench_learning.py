@@ -66,15 +66,16 @@ class Row:
     settled_R1: float
     wall_s: float = float("nan")
     curve: tuple[list[float], list[float]] | None = None
+    converged_at: float | None = None
+    """A trained run's env steps until it converged (None: it did not, or it is a baseline)."""
     converged: str = ""
-    """A trained run's env steps until it converged, "not converged" or "not measured" (`converged_text`); a
-    baseline's: empty."""
+    """As `converged_text` says it for a trained run ("not converged", "not measured"); a baseline's: empty."""
 
 
 def row_of(ev: MapEvaluation, method: str, seed: int, wall_s: float = float("nan"), curve=None,
-           converged: str = "") -> Row:  # fmt: skip
+           converged_at: float | None = None, converged: str = "") -> Row:  # fmt: skip
     return Row(ev.map, method, seed, ev.median_gap, ev.within / len(ev.outcomes), ev.mean_evaluations, ev.mean_R1,
-               wall_s, curve, converged)  # fmt: skip
+               wall_s, curve, converged_at, converged)  # fmt: skip
 
 
 def converged_cell(group: list[Row]) -> str:
@@ -82,7 +83,7 @@ def converged_cell(group: list[Row]) -> str:
     baseline."""
     if not all(r.converged for r in group):
         return "-"
-    steps = [int(r.converged) for r in group if r.converged.isdigit()]
+    steps = [r.converged_at for r in group if r.converged_at is not None]
     return f"{len(steps)} of {len(group)}" + (f", {np.median(steps):,.0f} steps" if steps else "")
 
 
@@ -181,9 +182,9 @@ def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timeste
     curve = summary_curve(summary.run_dir)
     steps, gaps = curve["env_steps"], curve["eval_gap"]
     kept = [(s, g) for s, g in zip(steps, gaps, strict=True) if np.isfinite(g)]
-    converged = converged_text(convergence(curve)[0], curve)
+    at = convergence(curve)[0]
     return row_of(ev, f"{algo.upper()} {reward}", seed, summary.wall_s,
-                  ([s for s, _ in kept], [g for _, g in kept]), converged)  # fmt: skip
+                  ([s for s, _ in kept], [g for _, g in kept]), at, converged_text(at, curve))  # fmt: skip
 
 
 def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarray, rewards: list[str]) -> list[Row]:
