@@ -55,6 +55,8 @@ class MorphologyCallbacks(RLlibCallback):
     the protocol's starts, then the selection starts, rolled out together (one forward pass a step for both)."""
     _kept: Any = None
     """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
+    _ended: bool = False
+    """Whether the run's last iteration has been evaluated (by its budget, or `end_run`)."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
         """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index), and give a
@@ -122,9 +124,22 @@ class MorphologyCallbacks(RLlibCallback):
         if not isinstance(bests, list | tuple):  # no episode ended this iteration (RLlib reports NaN)
             bests = []
         result[EPISODE_BEST_KEY] = encode_bests(bests)
+        steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
+        self._evaluate(algorithm, result, bool(self.eval_final_steps and steps >= self.eval_final_steps))
+
+    def end_run(self, *, algorithm: Any, result: dict[str, Any]) -> None:
+        """The run ends at this iteration before its budget (a sweep's stop criterion, `max_iterations`): what the
+        budget's last iteration does, once; the iteration's `result` gains the final evaluation."""
+        if not self._ended:
+            self._evaluate(algorithm, result, True)
+
+    def _evaluate(self, algorithm: Any, result: dict[str, Any], last: bool) -> None:
+        """Every `eval_every` iterations, the first and the `last`: the protocol's greedy roll-outs (and the
+        designer's figures) on one snapshot of the weights, into `result`; at the last, an asynchronous learner's
+        updates held first and the kept policy put back if it beat the trained one (`_select`)."""
         iteration = int(getattr(algorithm, "iteration", 0) or 0)
-        last = self.eval_final_steps and int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0) >= self.eval_final_steps
         if last:  # an asynchronous learner's thread would go on stepping: the checkpoint holds what is evaluated
+            self._ended = True
             _on_learner_itself(algorithm, hold_updates)
         if self.eval_every and self.eval_starts and (iteration <= 1 or iteration % self.eval_every == 0 or last):
             steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
@@ -139,7 +154,7 @@ class MorphologyCallbacks(RLlibCallback):
             protocol, policy_steps = trained, steps
             if self.select_starts:
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
-                protocol, policy_steps = self._select(algorithm, steps, bool(last), selection, trained, state)
+                protocol, policy_steps = self._select(algorithm, steps, last, selection, trained, state)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
             if policy_steps != steps:  # the run ends on an earlier policy; the curves keep the trained one's
                 figures = evaluation_metrics(trained)
@@ -187,6 +202,14 @@ class MorphologyCallbacks(RLlibCallback):
         _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
         return kept[3], int(kept[1])
+
+
+def end_run(algorithm: Any, result: dict[str, Any]) -> None:
+    """Tell the run's callbacks that this iteration (`result`) is its last though its budget is not reached."""
+    callbacks = algorithm.callbacks if isinstance(algorithm.callbacks, list) else [algorithm.callbacks]
+    for callback in callbacks:
+        if isinstance(callback, MorphologyCallbacks):
+            callback.end_run(algorithm=algorithm, result=result)
 
 
 def _on_snapshot(algorithm: Any, calls: list[Any]) -> tuple[list[Any], dict[str, Any]]:

@@ -55,6 +55,8 @@ def run_trial(
     from ray import tune
     from ray.tune.result import AUTO_RESULT_KEYS
 
+    from smorphi_rl.training.callbacks import end_run
+
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
     run_dir = recording_dir or trial_dir
@@ -76,6 +78,8 @@ def run_trial(
             steps = int(result.get(keys.STEPS) or 0)
             done = (steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
                     or stop_reached(stop or {}, algo.iteration, steps, elapsed))  # fmt: skip
+            if done:  # ended before its budget: evaluated and its policy chosen as at the budget's end
+                end_run(algo, result)
             metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
             metrics[keys.ALGO_ITERATION] = algo.iteration
             metrics[keys.TRIAL_DONE] = done

@@ -344,6 +344,18 @@ def test_async_learners_train_and_report(algo, tmp_path):
     _checkpoint_holds_the_reported_policy(summary.run_dir)
 
 
+def test_a_run_that_ends_before_its_budget_is_evaluated_and_chosen_at_its_end(tmp_path):
+    """A run cut by `max_iterations` (a sweep's stop criterion alike) ends as one that reaches its budget: its last
+    iteration is evaluated and the final checkpoint holds the policy that evaluation reports."""
+    cfg = TrainConfig(timesteps=10**6, max_iterations=3, eval_every=5, num_env_runners=0, envs_per_runner=4)
+    summary = train(cfg, name="cut", log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
+    assert summary.iterations == 3 and not summary.interrupted
+    rows = [json.loads(line) for line in (trial_dir(summary.run_dir) / "result.json").read_text().splitlines()]
+    assert [r["smorphi_iteration"] for r in rows if r.get("eval")] == [1, 3]
+    assert summary.evaluation["starts"] == 20
+    _checkpoint_holds_the_reported_policy(summary.run_dir)
+
+
 def test_attaches_to_a_running_cluster(tmp_path):
     with ray_cluster(2) as address:
         proc = cli("train", "--address", address, "--timesteps", "2000", "--name", "attached",
