@@ -221,3 +221,18 @@ def test_a_model_config_that_is_not_plain_data_is_refused(genuine, tmp_path, cap
         code, err = run(capsys, *argv)
         assert code == 1 and len(err.strip().splitlines()) == 1 and "not a table of plain values" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_folder_of_several_trials_names_them_instead_of_choosing_by_clock(genuine, tmp_path):
+    """A sweep's folder holds one trial's checkpoints per trial: the newest would be a choice by clock, so every
+    loader asks for one trial's folder; a trial's own folder, with a resume's set-aside checkpoints, is one trial."""
+    from smorphi_rl.training.checkpoints import find_checkpoint
+
+    for trial in ("ppo-seed0_00000", "ppo-seed1_00001"):
+        (tmp_path / trial).mkdir()
+        (tmp_path / trial / "params.json").write_text("{}")
+        shutil.copytree(genuine, tmp_path / trial / "checkpoint_000000")
+    shutil.copytree(genuine, tmp_path / "ppo-seed0_00000" / "before-resume-1" / "checkpoint_000001")
+    assert find_checkpoint(tmp_path / "ppo-seed0_00000").is_relative_to(tmp_path / "ppo-seed0_00000")
+    with pytest.raises(CheckpointError, match=r"holds the checkpoints of 2 trials .* such as .*ppo-seed0_00000$"):
+        find_checkpoint(tmp_path)

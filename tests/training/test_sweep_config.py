@@ -29,9 +29,9 @@ def test_shipped_sweeps_load(name, monkeypatch):
     monkeypatch.chdir(ROOT)
     cfg = load_sweep(ROOT / "tune_configs" / f"{name}.yaml")
     assert cfg.name == name
-    expected = {"paper-ppo-vs-impala": 12, "hparams": 18, "pretrain-multimap": 1}[name]
+    expected = {"paper-ppo-vs-impala": 12, "hparams": 27, "pretrain-multimap": 3}[name]
     assert cfg.num_grid_trials == expected
-
+    assert len(cfg.seeds) >= 3  # every group of seeds gets its median with an interval
 
 def test_paper_sweep_is_both_algorithms_on_both_maps_with_three_seeds(monkeypatch):
     monkeypatch.chdir(ROOT)
