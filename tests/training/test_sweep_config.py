@@ -33,6 +33,7 @@ def test_shipped_sweeps_load(name, monkeypatch):
     assert cfg.num_grid_trials == expected
     assert len(cfg.seeds) >= 3  # every group of seeds gets its median with an interval
 
+
 def test_paper_sweep_is_both_algorithms_on_both_maps_with_three_seeds(monkeypatch):
     monkeypatch.chdir(ROOT)
     cfg = load_sweep(ROOT / "tune_configs" / "paper-ppo-vs-impala.yaml")
