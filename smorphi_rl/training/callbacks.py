@@ -6,6 +6,7 @@ Runs inside the env runners (`on_episode_end`) and the trial process (`on_algori
 
 from __future__ import annotations
 
+import math
 from dataclasses import replace
 from typing import Any
 
@@ -201,15 +202,40 @@ class MorphologyCallbacks(RLlibCallback):
             return protocol, steps
         _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
-        return kept[3], int(kept[1])
+        evaluation = kept[3]
+        if evaluation is None:  # kept before a resume, which keeps its weights only: its roll-outs are repeated
+            (both,), _ = _on_snapshot(algorithm, [self._evaluation])
+            evaluation = [replace(e, outcomes=e.outcomes[: len(self.eval_starts)]) for e in both]
+        return evaluation, int(kept[1])
+
+    def kept_policy(self) -> dict[str, Any] | None:
+        """The kept policy as numbers and arrays (a resumable sweep's state file holds it): its selection score,
+        env steps and weights; None when none is kept."""
+        if self._kept is None or not math.isfinite(self._kept[0][1]):  # a NaN never ranks: nothing to keep
+            return None
+        (within, gap), steps, state, _ = self._kept
+        weights = {name: value.detach().cpu().numpy() for name, value in state.items()}
+        return {"score": [int(within), float(gap)], "env_steps": int(steps), "weights": weights}
+
+    def restore_kept(self, kept: dict[str, Any]) -> None:
+        """Keep the policy `kept_policy` gave before a resume, as if this run had evaluated it."""
+        import torch
+
+        within, gap = kept["score"]
+        weights = {name: torch.from_numpy(value.copy()) for name, value in kept["weights"].items()}
+        self._kept = ((int(within), float(gap)), int(kept["env_steps"]), weights, None)
+
+
+def ours(algorithm: Any) -> list[MorphologyCallbacks]:
+    """The algorithm's callbacks objects of this module's class (RLlib keeps one object, or a list of them)."""
+    callbacks = algorithm.callbacks if isinstance(algorithm.callbacks, list) else [algorithm.callbacks]
+    return [c for c in callbacks if isinstance(c, MorphologyCallbacks)]
 
 
 def end_run(algorithm: Any, result: dict[str, Any]) -> None:
     """Tell the run's callbacks that this iteration (`result`) is its last though its budget is not reached."""
-    callbacks = algorithm.callbacks if isinstance(algorithm.callbacks, list) else [algorithm.callbacks]
-    for callback in callbacks:
-        if isinstance(callback, MorphologyCallbacks):
-            callback.end_run(algorithm=algorithm, result=result)
+    for callback in ours(algorithm):
+        callback.end_run(algorithm=algorithm, result=result)
 
 
 def _on_snapshot(algorithm: Any, calls: list[Any]) -> tuple[list[Any], dict[str, Any]]:
@@ -248,8 +274,6 @@ def selection_score(evaluations: list[Any]) -> tuple[int, float]:
 def evaluation_metrics(evaluations: list[Any]) -> dict[str, Any]:
     """The eval/... figures: every map's summary under its name, and the medians and shares over the maps with an
     exact optimum (NaN when none has one: not measured, which is not 0 %)."""
-    import math
-
     import numpy as np
 
     measured = [e for e in evaluations if e.measured]

@@ -34,6 +34,9 @@ LEFT_OUT = ("env_runner", "eval_env_runner")
 """RLlib's names (COMPONENT_ENV_RUNNER, COMPONENT_EVAL_ENV_RUNNER) of the parts not kept."""
 ELAPSED = "smorphi_time_total_s"
 """Training seconds before this checkpoint (a sweep's `time_total_s` stop counts across resumes)."""
+KEPT = "smorphi_kept_policy"
+"""The policy the run would end on if no later one beats it (`MorphologyCallbacks.kept_policy`: its selection
+score, env steps and weights); absent when the run keeps none."""
 
 
 def _plain(obj: Any) -> Any:
@@ -47,11 +50,14 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def save_state(algo: Any, folder: Path, elapsed_s: float) -> None:
-    """Write the algorithm's resumable state (module docstring) into checkpoint `folder`."""
+def save_state(algo: Any, folder: Path, elapsed_s: float, kept_policy: dict[str, Any] | None = None) -> None:
+    """Write the algorithm's resumable state (module docstring), and the run's kept policy if it has one, into
+    checkpoint `folder`."""
     state = algo.get_state(not_components=list(LEFT_OUT))
     kept = {k: _plain(state[k]) for k in STATE_KEYS}
     kept[ELAPSED] = float(elapsed_s)
+    if kept_policy is not None:
+        kept[KEPT] = _plain(kept_policy)
     write_atomic(folder / STATE_FILE, pickle.dumps(kept, protocol=pickle.HIGHEST_PROTOCOL))
 
 
@@ -93,8 +99,33 @@ def _shape_problem(state: dict[str, Any]) -> str | None:
     stats = state["metrics_logger"].get("stats") if isinstance(state["metrics_logger"], dict) else None
     if not isinstance(stats, dict) or not all(isinstance(v, dict) for v in stats.values()):
         return "its metrics are not RLlib's"
+    if KEPT in state and (problem := _kept_problem(state[KEPT], weights)) is not None:
+        return problem
     if not _numbers_only(state):
         return "it holds something other than numbers, strings and numeric arrays"
+    return None
+
+
+def _kept_problem(kept: Any, weights: dict[str, Any]) -> str | None:
+    """What in the kept policy's record is not of the shape `save_state` writes: a score (starts within 1 %, a
+    finite number), env steps and the module's weights, name for name and shape for shape."""
+    if not isinstance(kept, dict) or set(kept) != {"score", "env_steps", "weights"}:
+        return "its kept policy is not a score, env steps and weights"
+    score, steps, kept_weights = kept["score"], kept["env_steps"], kept["weights"]
+    if (not isinstance(score, list) or len(score) != 2 or isinstance(score[0], bool) or not isinstance(score[0], int)
+            or not isinstance(score[1], float) or not np.isfinite(score[1])):  # fmt: skip
+        return f"its kept policy's score {score!r} is not a count and a finite number"
+    if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
+        return f"its kept policy's env steps {steps!r} are not a whole number"
+    if (
+        not isinstance(kept_weights, dict)
+        or set(kept_weights) != set(weights)
+        or not all(
+            isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape == weights[k].shape and np.all(np.isfinite(v))
+            for k, v in kept_weights.items()
+        )
+    ):
+        return "its kept policy's weights are not the module's (the same names and shapes, finite)"
     return None
 
 
@@ -103,7 +134,7 @@ def load_state(checkpoint: Path) -> dict[str, Any]:
     writes; CheckpointError otherwise."""
     path = checkpoint / STATE_FILE
     state = safe_unpickle(path)
-    if not isinstance(state, dict) or set(state) != {*STATE_KEYS, ELAPSED}:
+    if not isinstance(state, dict) or set(state) - {KEPT} != {*STATE_KEYS, ELAPSED}:
         raise CheckpointError(f"{path}: not the state a smorphi-rl sweep writes")
     try:
         problem = _shape_problem(state)

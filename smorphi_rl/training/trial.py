@@ -23,7 +23,7 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
-from smorphi_rl.training.resume import ELAPSED, STATE_KEYS, load_state, save_state
+from smorphi_rl.training.resume import ELAPSED, KEPT, STATE_KEYS, load_state, save_state
 from smorphi_rl.training.runners import push_module_to_runners, reseed_runners
 
 
@@ -55,7 +55,7 @@ def run_trial(
     from ray import tune
     from ray.tune.result import AUTO_RESULT_KEYS
 
-    from smorphi_rl.training.callbacks import end_run
+    from smorphi_rl.training.callbacks import end_run, ours
 
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
@@ -69,6 +69,8 @@ def run_trial(
             state = load_state(resume_from)
             algo.set_state({k: state[k] for k in STATE_KEYS})
             elapsed = state[ELAPSED]
+            for callback in ours(algo) if KEPT in state else []:  # the policy it would end on, if none beats it
+                callback.restore_kept(state[KEPT])
             push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
             reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
         while True:
@@ -87,7 +89,8 @@ def run_trial(
                 with tempfile.TemporaryDirectory() as path:
                     algo.save_to_path(path)
                     if resumable:
-                        save_state(algo, Path(path), elapsed)
+                        kept = [k for c in ours(algo) if (k := c.kept_policy()) is not None]
+                        save_state(algo, Path(path), elapsed, kept[0] if kept else None)
                     tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
             else:
                 tune.report(metrics)

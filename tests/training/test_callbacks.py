@@ -156,3 +156,49 @@ def test_policies_rank_by_settled_r1_where_no_map_has_an_exact_optimum():
     assert selection_score(blind(50.0, 60.0)) >= selection_score(blind(50.0, 60.0))
     score = selection_score([*_evaluation(89.9, 89.9), *blind(50.0)])
     assert score[0] == 2 and abs(score[1] + 0.1) < 1e-9
+
+
+def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(monkeypatch):
+    """Evaluations 20 %, 100 %, an interruption, a resume from the state file's kept policy, then 20 %, 20 %: the
+    run ends on the 100 % policy kept before the resume; its weights are put back and, as only its weights are
+    kept, its protocol roll-outs are repeated for the figures."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from smorphi_rl.protocol import EVAL_KEY
+    from smorphi_rl.training import callbacks
+
+    poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
+    shares = [poor, good, poor, poor, good]  # the last: the kept policy's roll-outs, repeated
+
+    def on_snapshot(algorithm, calls):
+        return [_evaluation(*shares[0], *shares.pop(0))], {"w": torch.tensor([float(len(shares))])}
+
+    loaded = []
+    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "_on_live_learner",
+                        lambda algorithm, call: call(SimpleNamespace(load_state_dict=loaded.append)))  # fmt: skip
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    starts = [(0.0, 0.0, 0.0)] * 5
+    evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 4000,
+                                           selection=starts)  # fmt: skip
+
+    def run(hooks, iterations):
+        hooks._evaluation = object()
+        for i in iterations:
+            result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
+            hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
+        return result[EVAL_KEY]
+
+    before = evaluating()
+    run(before, (1, 2))
+    kept = before.kept_policy()
+    assert kept["score"][0] == 5 and kept["env_steps"] == 2000 and kept["weights"]["w"].tolist() == [3.0]
+    after = evaluating()
+    after.restore_kept(kept)
+    last = run(after, (3, 4))
+    assert last["share_within_1pct"] == 1.0 and last["policy_env_steps"] == 2000
+    assert last["trained"]["share_within_1pct"] == 0.2
+    assert [w["w"].tolist() for w in loaded] == [[3.0]] and not shares

@@ -13,7 +13,7 @@ import pytest
 from smorphi_rl.rundir import RunDirError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import MODULE_SUBDIR, CheckpointError
-from smorphi_rl.training.resume import STATE_FILE, finished, load_state, resume_point, set_aside
+from smorphi_rl.training.resume import KEPT, STATE_FILE, finished, load_state, resume_point, set_aside
 from smorphi_rl.training.sweep import read_resume, set_aside_started, trial_dirname
 from smorphi_rl.training.sweep_config import STOP_METRICS, load_sweep
 from smorphi_rl.training.sweep_report import result_files, result_rows
@@ -142,8 +142,24 @@ def test_a_crafted_state_file_is_refused_before_anything_moves(sweep, tmp_path):
     assert not marker.exists() and (d / "checkpoint_000000").is_dir() and (d / "result.json").is_file()
 
 
+def kept(**changed: object) -> dict:
+    """A kept policy's record as `save_state` writes it, for `state`'s module (one weight `w` of 3)."""
+    return {"score": [18, -0.25], "env_steps": 4000, "weights": {"w": np.ones(3, np.float32)}} | changed
+
+
+def test_a_state_file_with_the_run_s_kept_policy_loads(tmp_path):
+    (tmp_path / STATE_FILE).write_bytes(pickle.dumps({**state(2), KEPT: kept()}))
+    assert load_state(tmp_path)[KEPT]["env_steps"] == 4000
+
+
 @pytest.mark.parametrize("bad", [[1, 2], {**state(1), "extra": 1}, {**state(1), "training_iteration": 0},
-                                 {**state(1), "learner_group": [1]}])  # fmt: skip
+                                 {**state(1), "learner_group": [1]}, {**state(1), KEPT: [1]},
+                                 {**state(1), KEPT: kept(score=[True, 0.0])},
+                                 {**state(1), KEPT: kept(score=[3, float("nan")])},
+                                 {**state(1), KEPT: kept(env_steps=-1)},
+                                 {**state(1), KEPT: kept(weights={"w": np.ones(4, np.float32)})},
+                                 {**state(1), KEPT: kept(weights={"v": np.ones(3, np.float32)})},
+                                 {**state(1), KEPT: kept(weights={"w": np.full(3, np.inf, np.float32)})}])  # fmt: skip
 def test_a_state_file_of_another_shape_is_refused(tmp_path, bad):
     (tmp_path / STATE_FILE).write_bytes(pickle.dumps(bad))
     with pytest.raises(CheckpointError, match=STATE_FILE):
