@@ -41,7 +41,7 @@ from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_na
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
-from smorphi_rl.training.topk import FOUND_CSV, Found, TopMorphologies, episode_bests, write_csv, write_tables
+from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests, write_found
 from smorphi_rl.training.trial import resources, run_trial
 
 TOP_PLOT = 4
@@ -183,13 +183,7 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
     """Top-k CSV/Markdown/PNG and the learning curves, with every map's exact optimum as yardstick."""
     from smorphi_rl.plots import plot_learning_curves, plot_top_morphologies
 
-    files: dict[str, Path] = {}
-    rows = [f for m in progress.top.maps() for f in progress.top.top(cfg.top_k, m)]
-    if rows:
-        files["top_csv"], files["top_md"] = run_dir / "top_morphologies.csv", run_dir / "top_morphologies.md"
-        write_tables(rows, files["top_csv"], files["top_md"])
-        files["found_csv"] = run_dir / FOUND_CSV  # every distinct morphology found, for `compare`
-        write_csv(progress.top.top(len(progress.top)), files["found_csv"])
+    files = write_found(progress.top, run_dir, cfg.top_k)
     for path in cfg.env.map_files:
         grid_map = load_map(path)
         evaluator = cfg.env.planning.evaluator(grid_map)

@@ -9,6 +9,7 @@ did not finish, each in its own folder again, continuing from our state file of 
 
 from __future__ import annotations
 
+import json
 import sys
 import time
 from dataclasses import dataclass
@@ -22,12 +23,21 @@ from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, RunDirError, check_run_dir, prepare_run_dir, write_atomic
+from smorphi_rl.rundir import (
+    DEFAULT_LOG_DIR,
+    RunDirError,
+    check_run_dir,
+    prepare_run_dir,
+    write_atomic,
+    write_text_atomic,
+)
 from smorphi_rl.training import result_keys as keys
+from smorphi_rl.training.checkpoints import checkpoints_under
+from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
 from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_spec
-from smorphi_rl.training.run import TrainingError, fmt_duration, training_optima, trial_callbacks
+from smorphi_rl.training.run import RunSummary, TrainingError, fmt_duration, training_optima, trial_callbacks
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
     TrialRow,
@@ -37,7 +47,7 @@ from smorphi_rl.training.sweep_report import (
     write_sweep_groups,
     write_sweep_tables,
 )
-from smorphi_rl.training.topk import episode_bests
+from smorphi_rl.training.topk import episode_bests, write_found
 from smorphi_rl.training.trial import resources, run_trial
 
 SWEEP_COPY = "sweep.yaml"
@@ -262,6 +272,7 @@ def run_sweep(
     if failed and (failed.disk_full or results is None):
         raise TrainingError(failed.line)  # no tables either
     rows = read_sweep(exp)
+    write_trial_files(exp, rows, optima)
     files = write_sweep_outputs(exp, rows)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
@@ -320,6 +331,23 @@ def trial_dirname(trial: dict[str, Any]) -> str:
     Tune's own config still holds placeholders for the fields when it names the folder)."""
     maps = "+".join(map_label(m) for m in trial["maps"])
     return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
+
+
+def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum]) -> None:
+    """Each trial's summary.json, morphologies.csv and top-k tables in its folder, as `train` writes them for a run
+    (`RunSummary`): `compare` takes a sweep's trial as it takes a run. Written again from the results on every
+    call, so a resumed sweep's are those of all its rows."""
+    for r in rows:
+        trial = exp / r.trial
+        files = write_found(r.top, trial, TrainConfig.top_k)
+        checkpoints = checkpoints_under(trial)
+        files["summary"] = trial / "summary.json"
+        summary = RunSummary(run_dir=trial, algorithm=r.algo, env_steps=r.env_steps, iterations=r.iterations,
+                             wall_s=r.wall_s, interrupted=not r.finished, best=r.best,
+                             optimum={m: o for m, o in optima.items() if m in r.evaluation},
+                             checkpoint=checkpoints[-1] if checkpoints else None, files=files,
+                             evaluation=r.evaluation)  # fmt: skip
+        write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
 
 
 def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:

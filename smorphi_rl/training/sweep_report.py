@@ -9,7 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -48,6 +48,10 @@ class TrialRow:
     """The last evaluation's share of starts settled within 1 % of the optimum."""
     finished: bool = True
     """Whether the trial reached its budget or stop criteria (False: cut short, or failed; left out of the groups)."""
+    evaluation: dict[str, Any] = field(default_factory=dict)
+    """The last evaluation's eval/... figures (empty: never evaluated)."""
+    top: TopMorphologies = field(default_factory=TopMorphologies)
+    """Every distinct shape its episodes found, best first."""
 
 
 RESULTS = "result.json"
@@ -151,6 +155,8 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         median_gap=_num(last.get("median_gap")),
         share_within_1pct=_num(last.get("share_within_1pct")),
         finished=trial_done(rows),
+        evaluation=last,
+        top=top,
     )
 
 

@@ -117,6 +117,19 @@ class TopMorphologies:
         return sorted({f.map for f in self._found.values()})
 
 
+def write_found(top: TopMorphologies, folder: Path, k: int) -> dict[str, Path]:
+    """A run's top-k tables per map (top_morphologies.csv and .md) and every distinct shape it found (FOUND_CSV, for
+    `compare`), in `folder`; the files written, by key (none when nothing was found)."""
+    rows = [f for m in top.maps() for f in top.top(k, m)]
+    if not rows:
+        return {}
+    files = {"top_csv": folder / "top_morphologies.csv", "top_md": folder / "top_morphologies.md",
+             "found_csv": folder / FOUND_CSV}  # fmt: skip
+    write_tables(rows, files["top_csv"], files["top_md"])
+    write_csv(top.top(len(top)), files["found_csv"])
+    return files
+
+
 def write_tables(rows: list[Found], csv_path: Path, md_path: Path) -> None:
     """CSV for tools and Markdown for people, both ranked best first."""
     write_csv(rows, csv_path)

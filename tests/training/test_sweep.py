@@ -130,6 +130,16 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     assert all(int(r["env_steps"]) >= 10_000 and r["iterations"] == str(ITERATIONS) and float(r["best_R1"]) > 80
                for r in table)  # fmt: skip
     assert (exp / "sweep_curves.png").stat().st_size > 10_000
+    # each trial's folder holds what `train` writes for a run, so `compare` takes it; the sweep's is several trials
+    summary = json.loads((first / "summary.json").read_text())
+    assert summary["evaluation"]["starts"] == 20 and summary["env_steps"] >= 10_000 and not summary["interrupted"]
+    assert Path(summary["checkpoint"]).parent == first and (first / "top_morphologies.md").is_file()
+    compared = cli("compare", "--map", MAP_1, "--runs", str(first), "--step", "10", "--log-dir",
+                   str(tmp_path / "compared"), cwd=tmp_path)  # fmt: skip
+    assert compared.returncode == 0, compared.stderr[-3000:]
+    assert f"| PPO ({first.name}) |" in (tmp_path / "compared" / "compare-map-1" / "report.md").read_text()
+    several = cli("evaluate-policy", "--checkpoint", str(exp), cwd=tmp_path)
+    assert several.returncode == 1 and "holds the checkpoints of 2 trials" in several.stderr
 
     config.write_text(SWEEP.replace("10000", "11000"))  # another sweep under the same name: refused
     changed = cli("sweep", str(config), "--resume", cwd=tmp_path)
