@@ -27,7 +27,9 @@ def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
         assert heading in report, heading
     claims = [line for line in report.splitlines() if line.startswith("- ")]
     verdicts = ("agree", "undecided", "Not testable")  # the last: no transfer run converged on one side
-    assert len(claims) == 5 and sum(any(v in c for v in verdicts) for c in claims) == 4
+    assert len(claims) == 6 and sum(any(v in c for v in verdicts) for c in claims) == 5
+    (protocol,) = [c for c in claims if "evaluation protocol" in c]
+    assert re.search(r"PPO \d\.\d\d \(1 seed\), IMPALA \d\.\d\d \(1 seed\)", protocol), protocol
     assert "gap to the exact optimum" in report
     for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report):
         assert (root / link).is_file(), link
