@@ -58,6 +58,9 @@ class MorphologyCallbacks(RLlibCallback):
     """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
     _ended: bool = False
     """Whether the run's last iteration has been evaluated (by its budget, or `end_run`)."""
+    _snapshot: Any = None
+    """((iteration, env steps), (evaluations, weights)) of the latest evaluation: `end_run` on an iteration just
+    evaluated reuses it where no learner thread has stepped since."""
 
     def on_environment_created(self, *, env: Any, env_context: Any, **kwargs: Any) -> None:
         """Tell our vector env which env runner it is in (RLlib's vector entry point loses the index), and give a
@@ -80,9 +83,8 @@ class MorphologyCallbacks(RLlibCallback):
         env runners sample, so a second thread only contends with them; on 2 cores IMPALA trained 5,208 ->
         6,644 env steps/s and APPO 5,008 -> 6,187 with one (README, Training throughput)."""
         import torch
-        from ray.rllib.algorithms.impala import IMPALA  # APPO is an IMPALA
 
-        torch.set_num_threads(1 if isinstance(algorithm, IMPALA) else LEARNER_THREADS)
+        torch.set_num_threads(1 if _is_async(algorithm) else LEARNER_THREADS)
         _on_learner_itself(algorithm, lambda learner: update_lock(learner) and None)  # before the first step
         settle_heap()  # the built algorithm's objects live as long as the trial: out of the collector's way
 
@@ -149,7 +151,11 @@ class MorphologyCallbacks(RLlibCallback):
             if self.design_budget and self._design is None:
                 self._design = self._design_evaluation(algorithm)
             calls = [self._evaluation, *([self._design] if self.design_budget else [])]
-            (both, *design), state = _on_snapshot(algorithm, calls)
+            if self._snapshot is not None and self._snapshot[0] == (iteration, steps) and not _is_async(algorithm):
+                (both, *design), state = self._snapshot[1]  # this iteration's, evaluated already: the same weights
+            else:
+                (both, *design), state = _on_snapshot(algorithm, calls)
+            self._snapshot = ((iteration, steps), ((both, *design), state))
             n = len(self.eval_starts)
             trained = [replace(e, outcomes=e.outcomes[:n]) for e in both]
             protocol, policy_steps = trained, steps
@@ -157,7 +163,7 @@ class MorphologyCallbacks(RLlibCallback):
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
                 protocol, policy_steps = self._select(algorithm, steps, last, selection, trained, state)
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
-            if policy_steps != steps:  # the run ends on an earlier policy; the curves keep the trained one's
+            if protocol is not trained:  # the run ends on an earlier policy; the curves keep the trained one's
                 figures = evaluation_metrics(trained)
                 result[EVAL_KEY][TRAINED_KEY] = {k: figures[k] for k in TRAINED_FIGURES}
             for figures in design:
@@ -224,6 +230,13 @@ class MorphologyCallbacks(RLlibCallback):
         within, gap = kept["score"]
         weights = {name: torch.from_numpy(value.copy()) for name, value in kept["weights"].items()}
         self._kept = ((int(within), float(gap)), int(kept["env_steps"]), weights, None)
+
+
+def _is_async(algorithm: Any) -> bool:
+    """Whether the algorithm's learner steps in a thread of its own, beside its env runners (IMPALA, APPO)."""
+    from ray.rllib.algorithms.impala import IMPALA  # APPO is an IMPALA
+
+    return isinstance(algorithm, IMPALA)
 
 
 def ours(algorithm: Any) -> list[MorphologyCallbacks]:

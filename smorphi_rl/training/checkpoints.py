@@ -75,7 +75,7 @@ def find_checkpoint(path: str | Path) -> Path:
         raise CheckpointError(f"{root}: cannot be searched for checkpoints ({exc})") from None
     if not found:
         raise CheckpointError(f"{root}: holds no RLlib checkpoint of ours (no {MODULE_SUBDIR.as_posix()} below it)")
-    trials = sorted({_trial_of(p, root) for p in found})
+    trials = sorted({_trial_of(p, root) for p in found}, key=lambda t: (t == root, str(t)))
     if len(trials) > 1:  # the newest of several trials would be a choice by clock, not by the user
         raise CheckpointError(f"{root}: holds the checkpoints of {len(trials)} trials (a sweep, or a job of several "
                               f"runs); give one trial's folder, such as {trials[0]}")  # fmt: skip
@@ -84,13 +84,13 @@ def find_checkpoint(path: str | Path) -> Path:
 
 def _trial_of(checkpoint: Path, root: Path) -> Path:
     """The trial folder `checkpoint` belongs to: its nearest folder at or below `root` holding Tune's params.json
-    (a resumed sweep's set-aside checkpoints belong to their trial); `root` when none does."""
+    (a resumed sweep's set-aside checkpoints belong to their trial); when none does, the folder holding it."""
     for folder in checkpoint.parents:
         if (folder / "params.json").is_file():
             return folder
         if folder == root:
             break
-    return root
+    return checkpoint.parent
 
 
 class _ModuleClass:

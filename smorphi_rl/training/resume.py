@@ -88,14 +88,8 @@ def _shape_problem(state: dict[str, Any]) -> str | None:
     if not isinstance(learner, dict) or not all(isinstance(learner.get(k), dict) for k in ("rl_module", "optimizer")):
         return "its learner state is not a learner's (module weights and optimiser)"
     weights = learner["rl_module"].get("default_policy")
-    if (
-        not isinstance(weights, dict)
-        or not weights
-        or not all(
-            isinstance(v, np.ndarray) and v.dtype.kind == "f" and np.all(np.isfinite(v)) for v in weights.values()
-        )
-    ):
-        return "its module weights are not a table of finite float arrays"
+    if not isinstance(weights, dict) or not weights or not all(_weight(v) for v in weights.values()):
+        return "its module weights are not a table of finite float32 arrays"
     stats = state["metrics_logger"].get("stats") if isinstance(state["metrics_logger"], dict) else None
     if not isinstance(stats, dict) or not all(isinstance(v, dict) for v in stats.values()):
         return "its metrics are not RLlib's"
@@ -106,6 +100,11 @@ def _shape_problem(state: dict[str, Any]) -> str | None:
     return None
 
 
+def _weight(value: Any) -> bool:
+    """Whether `value` is a weight as our modules hold them: a finite float32 array in the machine's byte order."""
+    return isinstance(value, np.ndarray) and value.dtype == np.dtype(np.float32) and bool(np.all(np.isfinite(value)))
+
+
 def _kept_problem(kept: Any, weights: dict[str, Any]) -> str | None:
     """What in the kept policy's record is not of the shape `save_state` writes: a score (starts within 1 %, a
     finite number), env steps and the module's weights, name for name and shape for shape."""
@@ -113,20 +112,32 @@ def _kept_problem(kept: Any, weights: dict[str, Any]) -> str | None:
         return "its kept policy is not a score, env steps and weights"
     score, steps, kept_weights = kept["score"], kept["env_steps"], kept["weights"]
     if (not isinstance(score, list) or len(score) != 2 or isinstance(score[0], bool) or not isinstance(score[0], int)
-            or not isinstance(score[1], float) or not np.isfinite(score[1])):  # fmt: skip
+            or score[0] < 0 or not isinstance(score[1], float) or not np.isfinite(score[1])):  # fmt: skip
         return f"its kept policy's score {score!r} is not a count and a finite number"
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
         return f"its kept policy's env steps {steps!r} are not a whole number"
     if (
         not isinstance(kept_weights, dict)
         or set(kept_weights) != set(weights)
-        or not all(
-            isinstance(v, np.ndarray) and v.dtype.kind == "f" and v.shape == weights[k].shape and np.all(np.isfinite(v))
-            for k, v in kept_weights.items()
-        )
+        or not all(_weight(v) and v.shape == weights[k].shape for k, v in kept_weights.items())
     ):
-        return "its kept policy's weights are not the module's (the same names and shapes, finite)"
+        return "its kept policy's weights are not the module's (the same names and shapes, finite float32)"
     return None
+
+
+def check_fits(state: dict[str, Any], module: dict[str, Any], checkpoint: Path) -> None:
+    """CheckpointError unless the weights of `state` (`load_state`'s), and its kept policy's, are `module`'s (the
+    trial's own weights, by name) name for name and shape for shape: RLlib restores weights leniently, and a name
+    missing from the file would leave that weight as initialised."""
+    weights = state["learner_group"]["learner"]["rl_module"]["default_policy"]
+    tables = [weights] + ([state[KEPT]["weights"]] if KEPT in state else [])
+    ours = {k: np.shape(v) for k, v in module.items()}
+    for table in tables:
+        if {k: v.shape for k, v in table.items()} != ours:
+            missing, extra = sorted(set(ours) - set(table)), sorted(set(table) - set(ours))
+            raise CheckpointError(f"{checkpoint / STATE_FILE}: its weights are not this trial's module's (missing "
+                                  f"{missing[:2]}, extra {extra[:2]}, or shapes differ); not the state this sweep "
+                                  "writes")  # fmt: skip
 
 
 def load_state(checkpoint: Path) -> dict[str, Any]:
@@ -158,7 +169,8 @@ def resume_point(trial_dir: Path) -> Path | None:
     return None
 
 
-SET_ASIDE_FILES = ("result.json", "progress.csv")
+SET_ASIDE_FILES = ("result.json", "progress.csv", "summary.json")
+"""A trial's files a resume moves with its checkpoints (summary.json names a checkpoint; it is written again)."""
 
 
 def set_aside(trial_dir: Path) -> Path | None:

@@ -23,7 +23,7 @@ from smorphi_rl.training.config import (
     recording_settings,
     register_env,
 )
-from smorphi_rl.training.resume import ELAPSED, KEPT, STATE_KEYS, load_state, save_state
+from smorphi_rl.training.resume import ELAPSED, KEPT, STATE_KEYS, check_fits, load_state, save_state
 from smorphi_rl.training.runners import push_module_to_runners, reseed_runners
 
 
@@ -53,6 +53,7 @@ def run_trial(
     MCAP episodes go (default the trial's folder), when `cfg.record_every` is set; `resumable`: every checkpoint
     also holds our state file, for `sweep --resume`."""
     from ray import tune
+    from ray.rllib.core import DEFAULT_MODULE_ID
     from ray.tune.result import AUTO_RESULT_KEYS
 
     from smorphi_rl.training.callbacks import end_run, ours
@@ -67,6 +68,7 @@ def run_trial(
     try:
         if resume_from is not None:
             state = load_state(resume_from)
+            check_fits(state, algo.learner_group.get_weights()[DEFAULT_MODULE_ID], resume_from)
             algo.set_state({k: state[k] for k in STATE_KEYS})
             elapsed = state[ELAPSED]
             for callback in ours(algo) if KEPT in state else []:  # the policy it would end on, if none beats it

@@ -202,3 +202,34 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
     assert last["share_within_1pct"] == 1.0 and last["policy_env_steps"] == 2000
     assert last["trained"]["share_within_1pct"] == 0.2
     assert [w["w"].tolist() for w in loaded] == [[3.0]] and not shares
+
+
+def test_a_run_ending_early_on_an_evaluated_iteration_is_not_rolled_out_twice(monkeypatch):
+    """A stop criterion met on an iteration the protocol has just evaluated: `end_run` chooses the policy on that
+    evaluation (a learner that steps only inside `train()` has not changed since), rolling nothing out again."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from smorphi_rl.protocol import EVAL_KEY
+    from smorphi_rl.training import callbacks
+
+    good = (89.9, 89.9, 89.9, 89.9, 89.9)
+    calls = []
+
+    def on_snapshot(algorithm, work):
+        calls.append(algorithm.iteration)
+        return [_evaluation(*good, *good)], {"w": torch.zeros(1)}
+
+    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    starts = [(0.0, 0.0, 0.0)] * 5
+    hooks = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 5, starts, {"map-1": OPTIMUM}, 10**6,
+                                      selection=starts)()  # fmt: skip
+    hooks._evaluation = object()
+    for i in range(1, 6):
+        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
+        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
+    hooks.end_run(algorithm=SimpleNamespace(iteration=5), result=result)
+    hooks.end_run(algorithm=SimpleNamespace(iteration=5), result=result)  # once only
+    assert calls == [1, 5] and result[EVAL_KEY]["policy_env_steps"] == 5000 and "trained" not in result[EVAL_KEY]

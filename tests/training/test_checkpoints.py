@@ -236,3 +236,6 @@ def test_a_folder_of_several_trials_names_them_instead_of_choosing_by_clock(genu
     assert find_checkpoint(tmp_path / "ppo-seed0_00000").is_relative_to(tmp_path / "ppo-seed0_00000")
     with pytest.raises(CheckpointError, match=r"holds the checkpoints of 2 trials .* such as .*ppo-seed0_00000$"):
         find_checkpoint(tmp_path)
+    shutil.copytree(genuine, tmp_path / "checkpoint_000009")  # one beside them, in no trial: never the hint
+    with pytest.raises(CheckpointError, match=r"holds the checkpoints of 3 trials .* such as .*ppo-seed0_00000$"):
+        find_checkpoint(tmp_path)

@@ -159,7 +159,9 @@ def test_a_state_file_with_the_run_s_kept_policy_loads(tmp_path):
                                  {**state(1), KEPT: kept(env_steps=-1)},
                                  {**state(1), KEPT: kept(weights={"w": np.ones(4, np.float32)})},
                                  {**state(1), KEPT: kept(weights={"v": np.ones(3, np.float32)})},
-                                 {**state(1), KEPT: kept(weights={"w": np.full(3, np.inf, np.float32)})}])  # fmt: skip
+                                 {**state(1), KEPT: kept(weights={"w": np.full(3, np.inf, np.float32)})},
+                                 {**state(1), KEPT: kept(weights={"w": np.ones(3, np.float64)})},
+                                 {**state(1), KEPT: kept(score=[-1, 0.0])}])  # fmt: skip
 def test_a_state_file_of_another_shape_is_refused(tmp_path, bad):
     (tmp_path / STATE_FILE).write_bytes(pickle.dumps(bad))
     with pytest.raises(CheckpointError, match=STATE_FILE):
@@ -241,3 +243,39 @@ def test_a_damaged_copy_of_the_sweep_file_is_one_line(sweep, tmp_path, copy):
     (exp / SWEEP_COPY).write_bytes(copy)
     with pytest.raises(RunDirError, match="not the sweep file smorphi-rl copied there"):
         prepare_experiment(sweep, tmp_path / "logs", resume=True)
+
+
+def test_a_kept_policy_of_a_real_module_round_trips_and_names_must_be_the_trial_s(tmp_path):
+    """What `kept_policy` writes of a real module loads back (`load_state`), fits that module and is put back into
+    it; a file whose two weight tables both lack or add a name, which RLlib's lenient restore would take, does not
+    fit the trial's module and is refused in one line."""
+    import torch
+
+    from smorphi_rl.env import MorphologyEnv
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.callbacks import MorphologyCallbacks
+    from smorphi_rl.training.checkpoints import build_module
+    from smorphi_rl.training.resume import check_fits
+
+    env_config = EnvConfig().to_dict()
+    env = MorphologyEnv(env_config)
+    module = build_module(env.observation_space, env.action_space, {"value_offset": 0.0, "value_scale": 1.0,
+                          "policy_angle_frequencies": 0, "env_config": env_config, "algorithm": "ppo"})  # fmt: skip
+    ours = {k: v.detach().numpy() for k, v in module.state_dict().items()}
+    hooks = MorphologyCallbacks()
+    hooks._kept = ((18, -0.25), 4000, {k: v + 1 for k, v in module.state_dict().items()}, None)
+    written = state(2)
+    written["learner_group"]["learner"]["rl_module"]["default_policy"] = ours
+    (tmp_path / STATE_FILE).write_bytes(pickle.dumps({**written, KEPT: hooks.kept_policy()}))
+    loaded = load_state(tmp_path)
+    check_fits(loaded, ours, tmp_path)
+    again = MorphologyCallbacks()
+    again.restore_kept(loaded[KEPT])
+    module.load_state_dict(again._kept[2])  # strict: every name, every shape
+    assert again._kept[:2] == ((18, -0.25), 4000)
+    first = next(iter(ours))
+    assert torch.equal(module.state_dict()[first], torch.from_numpy(ours[first] + 1))
+    for table in (loaded["learner_group"]["learner"]["rl_module"]["default_policy"], loaded[KEPT]["weights"]):
+        table["extra"] = np.zeros(2, np.float32)
+    with pytest.raises(CheckpointError, match=r"not this trial's module's \(missing \[\], extra \['extra'\]"):
+        check_fits(loaded, ours, tmp_path)
