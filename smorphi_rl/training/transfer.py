@@ -291,7 +291,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for m in by_map(runs):
-        best = " / ".join(f"{max((r.best_R1 for r in rs), default=math.nan):.2f}" for rs in (m.tuned, m.scratch))
+        best = " / ".join(_best_text(rs) for rs in (m.tuned, m.scratch))
         lines.append(
             f"| {m.map_name} | {m.tuned_steps.text(',.0f')} | {m.counts[0]} | {m.scratch_steps.text(',.0f')} "
             f"| {m.counts[1]} | {m.ratio.text()} | {median_interval([r.plateau for r in m.tuned]).text()} "
@@ -347,6 +347,12 @@ class MapTransfer:
         """ "k of n" converged, fine-tuned and from scratch ("not measured" on a map without an exact optimum)."""
         return (converged_count(len(converged_steps(self.tuned)), [r.curve for r in self.tuned]),
                 converged_count(len(converged_steps(self.scratch)), [r.curve for r in self.scratch]))  # fmt: skip
+
+
+def _best_text(runs: list[Any]) -> str:
+    """The best R1 any of `runs` visited; "-" when none finished an episode."""
+    found = [r.best_R1 for r in runs if math.isfinite(r.best_R1)]
+    return f"{max(found):.2f}" if found else "-"
 
 
 def by_map(runs: list[TransferRun]) -> list[MapTransfer]:

@@ -51,7 +51,11 @@ def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_pat
     runs = [_run("fine-tune", 0, 2_000, 88.0), cut]
     files = write_transfer_report(tmp_path, runs)
     row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
-    assert row.rstrip().endswith("| 89.00 / nan |")
+    assert row.rstrip().endswith("| 89.00 / - |")  # no scratch run finished: no best, not "nan"
+    unfinished = [replace(r, best_R1=float("nan")) for r in runs]  # no episode ended within the budget
+    row = next(line for line in write_transfer_report(tmp_path, unfinished)["md"].read_text().splitlines()
+               if line.startswith("| val-1"))  # fmt: skip
+    assert row.rstrip().endswith("| - / - |")
     assert by_map(runs)[0].all_converged == (True, False) and by_map(runs)[0].ratio.n == 0
     assert by_map(runs)[0].scratch == [] and "1 run(s) cut short (transfer.csv) are left out" in files["md"].read_text()
     assert files["csv"].read_text().splitlines()[-1].endswith(",True")
