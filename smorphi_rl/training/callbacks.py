@@ -246,9 +246,23 @@ def ours(algorithm: Any) -> list[MorphologyCallbacks]:
 
 
 def end_run(algorithm: Any, result: dict[str, Any]) -> None:
-    """Tell the run's callbacks that this iteration (`result`) is its last though its budget is not reached."""
+    """Tell the run's callbacks that this iteration (`result`) is its last; a no-op where the budget's last
+    iteration has been evaluated already."""
     for callback in ours(algorithm):
         callback.end_run(algorithm=algorithm, result=result)
+
+
+def kept_policy(algorithm: Any) -> dict[str, Any] | None:
+    """The policy the run keeps so far, as a resumable state file holds it (`MorphologyCallbacks.kept_policy`)."""
+    return next((k for c in ours(algorithm) if (k := c.kept_policy()) is not None), None)
+
+
+def restore_kept(algorithm: Any, kept: dict[str, Any] | None) -> None:
+    """Put back the policy `kept_policy` gave before a resume (None: none was kept)."""
+    if kept is None:
+        return
+    for callback in ours(algorithm):
+        callback.restore_kept(kept)
 
 
 def _on_snapshot(algorithm: Any, calls: list[Any]) -> tuple[list[Any], dict[str, Any]]:

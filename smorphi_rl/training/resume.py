@@ -126,18 +126,16 @@ def _kept_problem(kept: Any, weights: dict[str, Any]) -> str | None:
 
 
 def check_fits(state: dict[str, Any], module: dict[str, Any], checkpoint: Path) -> None:
-    """CheckpointError unless the weights of `state` (`load_state`'s), and its kept policy's, are `module`'s (the
-    trial's own weights, by name) name for name and shape for shape: RLlib restores weights leniently, and a name
-    missing from the file would leave that weight as initialised."""
+    """CheckpointError unless the weights of `state` (`load_state`'s, whose kept policy matches them) are
+    `module`'s (the trial's own weights, by name) name for name and shape for shape: RLlib restores weights
+    leniently, and a name missing from the file would leave that weight as initialised."""
     weights = state["learner_group"]["learner"]["rl_module"]["default_policy"]
-    tables = [weights] + ([state[KEPT]["weights"]] if KEPT in state else [])
     ours = {k: np.shape(v) for k, v in module.items()}
-    for table in tables:
-        if {k: v.shape for k, v in table.items()} != ours:
-            missing, extra = sorted(set(ours) - set(table)), sorted(set(table) - set(ours))
-            raise CheckpointError(f"{checkpoint / STATE_FILE}: its weights are not this trial's module's (missing "
-                                  f"{missing[:2]}, extra {extra[:2]}, or shapes differ); not the state this sweep "
-                                  "writes")  # fmt: skip
+    if {k: v.shape for k, v in weights.items()} != ours:
+        missing, extra = sorted(set(ours) - set(weights)), sorted(set(weights) - set(ours))
+        raise CheckpointError(f"{checkpoint / STATE_FILE}: its weights are not this trial's module's (missing "
+                              f"{missing[:2]}, extra {extra[:2]}, or shapes differ); not the state this sweep "
+                              "writes")  # fmt: skip
 
 
 def load_state(checkpoint: Path) -> dict[str, Any]:

@@ -56,7 +56,7 @@ def run_trial(
     from ray.rllib.core import DEFAULT_MODULE_ID
     from ray.tune.result import AUTO_RESULT_KEYS
 
-    from smorphi_rl.training.callbacks import end_run, ours
+    from smorphi_rl.training.callbacks import end_run, kept_policy, restore_kept
 
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
@@ -71,8 +71,7 @@ def run_trial(
             check_fits(state, algo.learner_group.get_weights()[DEFAULT_MODULE_ID], resume_from)
             algo.set_state({k: state[k] for k in STATE_KEYS})
             elapsed = state[ELAPSED]
-            for callback in ours(algo) if KEPT in state else []:  # the policy it would end on, if none beats it
-                callback.restore_kept(state[KEPT])
+            restore_kept(algo, state.get(KEPT))  # the policy it would end on, if none beats it
             push_module_to_runners(algo)  # RLlib's own sync after a restore may be dropped (the notes)
             reseed_runners(algo, algo.iteration)  # fresh start shapes, not a replay of the first iterations
         while True:
@@ -82,7 +81,7 @@ def run_trial(
             steps = int(result.get(keys.STEPS) or 0)
             done = (steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
                     or stop_reached(stop or {}, algo.iteration, steps, elapsed))  # fmt: skip
-            if done:  # ended before its budget: evaluated and its policy chosen as at the budget's end
+            if done:  # ended by a stop criterion too: evaluated and its policy chosen as at the budget's end
                 end_run(algo, result)
             metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}
             metrics[keys.ALGO_ITERATION] = algo.iteration
@@ -91,8 +90,7 @@ def run_trial(
                 with tempfile.TemporaryDirectory() as path:
                     algo.save_to_path(path)
                     if resumable:
-                        kept = [k for c in ours(algo) if (k := c.kept_policy()) is not None]
-                        save_state(algo, Path(path), elapsed, kept[0] if kept else None)
+                        save_state(algo, Path(path), elapsed, kept_policy(algo))
                     tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
             else:
                 tune.report(metrics)
