@@ -1,15 +1,16 @@
 """Figures over seeds with 95 % bootstrap intervals (scipy.stats.bootstrap; no hand-written resampling).
 
 A claim about learning is a statistic per seed (a run's median gap, its share of starts within 1 %),
-summarised over seeds as the mean or the median (transfer's steps to converge) with a percentile bootstrap
-interval. With 3-5 seeds such intervals are wide; they say so honestly rather than hide it.
+summarised over seeds as the mean or the median with a percentile bootstrap interval; transfer's steps to
+converge are medians of times some runs never reach within their budget (right-censored). With 3-5 seeds such
+intervals are wide; they say so honestly rather than hide it.
 """
 
 from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,11 +28,16 @@ class Interval:
     lo: float
     hi: float
     n: int
+    bound: str = ""
+    """">" when the value is a lower bound only, "<" an upper bound (figures past a budget, `censored_...`)."""
 
     def text(self, fmt: str = ".2f") -> str:
+        point = f"{self.bound} {self.mean:{fmt}}".lstrip()
         if self.n < 2 or not math.isfinite(self.lo):
-            return f"{self.mean:{fmt}} (1 seed)" if self.n == 1 else "-"
-        return f"{self.mean:{fmt}} [{self.lo:{fmt}}, {self.hi:{fmt}}]"
+            return f"{point} (1 seed)" if self.n == 1 else "-"
+        if self.bound == ">" and self.lo == self.mean and math.isinf(self.hi):
+            return point  # every resample past the budget: no interval to add
+        return f"{point} [{self.lo:{fmt}}, {self.hi:{fmt}}]".replace(f"{math.inf:{fmt}}", "inf")
 
 
 def mean_interval(values: Sequence[float], seed: int = 0) -> Interval:
@@ -58,29 +64,72 @@ def _interval(values: Sequence[float], statistic: Any, seed: int) -> Interval:
     return Interval(point, float(res.confidence_interval.low), float(res.confidence_interval.high), int(data.size))
 
 
-def ratio_interval(
-    numerator: Sequence[float], denominator: Sequence[float], seed: int = 0, statistic: Callable[..., Any] = np.mean
-) -> Interval:
-    """statistic(numerator) / statistic(denominator) of two independent sets of seeds (a Table-5 speed-up: the
-    mean by default, `np.median` for medians), with its 95 % percentile bootstrap interval (each set resampled on
-    its own)."""
-    from scipy.stats import bootstrap
+def censored_median_interval(times: Sequence[float], budget: float, seed: int = 0) -> Interval:
+    """Median over seeds of the env steps until an event (a run's convergence), `inf` for a run in which it did not
+    happen within `budget`, every run having had that budget, with its 95 % percentile bootstrap interval.
 
-    a = np.asarray([v for v in numerator if math.isfinite(v)], dtype=float)
-    b = np.asarray([v for v in denominator if math.isfinite(v)], dtype=float)
-    if a.size == 0 or b.size == 0 or statistic(b) == 0:
+    Such a run is right-censored: later than every time observed. The median is an order statistic, so it is exact
+    while it falls on an observed time, and otherwise known only to lie past the budget (`bound` ">", `mean` the
+    budget). A resample's median past the budget counts as the budget for the interval's low end and as inf for its
+    high end, so the interval is never narrower than the data say."""
+    data = np.asarray(times, dtype=float)
+    if data.size == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    ratio = float(statistic(a) / statistic(b))
-    n = int(min(a.size, b.size))
-    if n < 2 or (np.all(a == a[0]) and np.all(b == b[0])):
-        return Interval(ratio, ratio, ratio, n)
+    point = float(np.median(data))
+    low = _censored_distribution((_at_budget(data, budget),), np.median, seed)
+    high = _censored_distribution((data,), np.median, seed)
+    past = math.isinf(point)
+    return Interval(budget if past else point, _end(low, 2.5), _end(high, 97.5), int(data.size), ">" if past else "")
+
+
+def censored_ratio_interval(numerator: Sequence[float], denominator: Sequence[float], budget: float,
+                            seed: int = 0) -> Interval:  # fmt: skip
+    """median(numerator) / median(denominator) of two independent sets of such times (Table 5's speed-up, scratch /
+    fine-tuned; `censored_median_interval`), with its 95 % percentile bootstrap interval (each set resampled on its
+    own). Exact where both medians are; where one lies past the budget, the budget bounds it: a lower bound (">")
+    when it is the numerator's, an upper bound ("<") when the denominator's; NaN (no ratio) when both are. The
+    interval's low end takes each resample's least possible ratio, its high end the greatest."""
+    a, b = (np.asarray(v, dtype=float) for v in (numerator, denominator))
+    if a.size == 0 or b.size == 0:
+        return Interval(math.nan, math.nan, math.nan, 0)
+    top, bottom = float(np.median(a)), float(np.median(b))
+    if math.isinf(top) and math.isinf(bottom):
+        return Interval(math.nan, math.nan, math.nan, 0)
+    bound = ">" if math.isinf(top) else "<" if math.isinf(bottom) else ""
+    point = (budget if math.isinf(top) else top) / (budget if math.isinf(bottom) else bottom)
 
     def of_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
-        return statistic(x, axis=axis) / statistic(y, axis=axis)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.median(x, axis=axis) / np.median(y, axis=axis)
 
-    res = bootstrap((a, b), of_ratio, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
-                    random_state=np.random.default_rng(seed))  # fmt: skip
-    return Interval(ratio, float(res.confidence_interval.low), float(res.confidence_interval.high), n)
+    low = _censored_distribution((_at_budget(a, budget), b), of_ratio, seed)  # x / inf = 0: no less than that
+    high = _censored_distribution((a, _at_budget(b, budget)), of_ratio, seed)
+    return Interval(point, _end(low, 2.5), _end(high, 97.5), int(min(a.size, b.size)), bound)
+
+
+def _censored_distribution(samples: tuple[np.ndarray, ...], statistic: Any, seed: int) -> np.ndarray:
+    """The statistic over scipy's bootstrap resamples of `samples` (inf allowed): the same resamples for one seed."""
+    from scipy.stats import bootstrap
+
+    if all(s.size < 2 or np.all(s == s[0]) for s in samples):
+        return np.atleast_1d(np.asarray(statistic(*samples), dtype=float))
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # scipy's own interval of a distribution holding inf; only its draws are used
+        res = bootstrap(samples, statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+                        random_state=np.random.default_rng(seed))  # fmt: skip
+    return np.asarray(res.bootstrap_distribution, dtype=float)
+
+
+def _at_budget(times: np.ndarray, budget: float) -> np.ndarray:
+    """The times with each one past the budget (inf) at the budget: the least it can be."""
+    return np.where(np.isinf(times), budget, times)
+
+
+def _end(distribution: np.ndarray, q: float) -> float:
+    """A percentile of a bootstrap distribution; with inf in it, the nearest draw outward (no interpolation to inf)."""
+    if np.isinf(distribution).any():
+        return float(np.percentile(distribution, q, method="higher" if q > 50 else "lower"))
+    return float(np.percentile(distribution, q))
 
 
 def band(curves: np.ndarray, seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -17,9 +17,9 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
-from smorphi_rl.stats import Interval, median_interval, ratio_interval
+from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
-from smorphi_rl.training.convergence import converged_count, converged_text
+from smorphi_rl.training.convergence import converged_count, converged_text, measured
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -280,9 +280,10 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
                              r.pretrained_in_runners, r.interrupted])  # fmt: skip
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
-        "protocol's starts settle within 1 % of the optimum. Env steps to converge count converged runs only; a run "
-        "that never converged is counted as not converged, not as a number; the ratio is of the medians, given only "
-        "where every run of both modes converged."
+        "protocol's starts settle within 1 % of the optimum. A run that never converged is counted as not converged, "
+        "not as a number: its env steps to converge lie past its budget, later than every run that converged, so a "
+        'median that falls on it reads "> budget", a ratio of the medians bounded by it "> x" (at least) or '
+        '"< x" (at most), and an interval\'s end past the budget "inf".'
         + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
@@ -304,49 +305,48 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
 
 
 def converged_steps(runs: list[TransferRun]) -> list[float]:
-    """Env steps to convergence of the runs that converged."""
-    return [float(r.converged_at) for r in runs if r.converged_at is not None]
+    """Env steps to convergence of each measured run; inf for one that did not converge within its budget (it
+    would converge later than every run that did, if ever: right-censored, never left out)."""
+    return [math.inf if r.converged_at is None else float(r.converged_at) for r in runs if measured(r.curve)]
 
 
 @dataclass(frozen=True)
 class MapTransfer:
     """One held-out map's runs over seeds and Table 5's figures: env steps to converge fine-tuned and from scratch
-    (median [95 %] of the runs that converged, beside how many did) and the ratio of the medians, scratch /
-    fine-tuned, where every run converged."""
+    (median [95 %] over every run, beside how many converged) and the ratio of the medians, scratch / fine-tuned.
+    A run that did not converge counts as past its budget (`stats.censored_median_interval`): leaving it out
+    would flatter its mode."""
 
     map_name: str
     tuned: list[TransferRun]
     scratch: list[TransferRun]
 
     @property
+    def budget(self) -> float:
+        """The fewest env steps any of the map's runs trained: every run that did not converge ran at least that."""
+        return float(min((r.env_steps for r in self.tuned + self.scratch), default=0))
+
+    @property
     def tuned_steps(self) -> Interval:
-        return median_interval(converged_steps(self.tuned))
+        return censored_median_interval(converged_steps(self.tuned), self.budget)
 
     @property
     def scratch_steps(self) -> Interval:
-        return median_interval(converged_steps(self.scratch))
-
-    @property
-    def all_converged(self) -> tuple[bool, bool]:
-        """Whether every fine-tuned run, and every scratch run, converged (a mode with no runs has not)."""
-        return (bool(self.tuned) and all(r.converged_at is not None for r in self.tuned),
-                bool(self.scratch) and all(r.converged_at is not None for r in self.scratch))  # fmt: skip
+        return censored_median_interval(converged_steps(self.scratch), self.budget)
 
     @property
     def ratio(self) -> Interval:
-        """The ratio of the medians, scratch / fine-tuned, with its interval; NaN (no ratio) unless every run of
-        both modes converged: leaving out a run that never converged would flatter the mode it belongs to."""
-        import numpy as np
-
-        if not all(self.all_converged):
-            return Interval(math.nan, math.nan, math.nan, 0)
-        return ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), statistic=np.median)
+        """The ratio of the medians, scratch / fine-tuned, with its interval: a lower bound (`bound` ">") where the
+        scratch median lies past the budget, an upper bound ("<") where the fine-tuned one does, NaN (no ratio)
+        where both do or a mode has no measured run."""
+        return censored_ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), self.budget)
 
     @property
     def counts(self) -> tuple[str, str]:
         """ "k of n" converged, fine-tuned and from scratch ("not measured" on a map without an exact optimum)."""
-        return (converged_count(len(converged_steps(self.tuned)), [r.curve for r in self.tuned]),
-                converged_count(len(converged_steps(self.scratch)), [r.curve for r in self.scratch]))  # fmt: skip
+        tuned, scratch = (converged_count(sum(r.converged_at is not None for r in runs), [r.curve for r in runs])
+                          for runs in (self.tuned, self.scratch))  # fmt: skip
+        return tuned, scratch
 
 
 def _best_text(runs: list[Any]) -> str:

@@ -18,7 +18,7 @@ def _run(mode: str, seed: int, converged_at: float | None, plateau: float) -> Tr
         "eval_gap": [5.0, 1.0],
         "eval_within": [0.0, 0.5],
     }
-    return TransferRun("val-1", seed, mode, 10_000, converged_at, plateau, 89.0, True, Path("."), curve)
+    return TransferRun("val-1", seed, mode, 20_000, converged_at, plateau, 89.0, True, Path("."), curve)
 
 
 def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
@@ -33,14 +33,22 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
     files = write_transfer_report(tmp_path, runs)
     row = next(line for line in files["md"].read_text().splitlines() if line.startswith("| val-1"))
     cells = [c.strip() for c in row.strip("|").split("|")]
-    assert cells[1].startswith("3,000 [") and cells[2] == "2 of 3"  # the run that never settled is not a number
+    # the run that never converged is not a number, and not left out (2,000 and 4,000 alone would give 3,000):
+    # it counts as past the 20,000-step budget, above every run that converged
+    assert cells[1] == "4,000 [2,000, inf]" and cells[2] == "2 of 3"
     assert cells[3].startswith("8,000 [") and cells[4] == "3 of 3"
-    assert cells[5] == "-"  # a fine-tuned run never converged: leaving it out would flatter fine-tuning
+    assert cells[5] == "2.00 [0.00, 8.00]"  # the medians: 8,000 / 4,000, exact; a resample may lose fine-tuning's
     assert files["png"].is_file()
-    runs[2] = _run("fine-tune", 2, 30_000, 87.0)  # every run converged: the ratio of the medians, 8,000 / 4,000
+    runs[1] = _run("fine-tune", 1, None, 87.0)  # most fine-tuned runs never converged: their median is past 20,000
     row = next(line for line in write_transfer_report(tmp_path, runs)["md"].read_text().splitlines()
                if line.startswith("| val-1"))  # fmt: skip
-    assert [c.strip() for c in row.strip("|").split("|")][5].startswith("2.00 [")
+    cells = [c.strip() for c in row.strip("|").split("|")]
+    assert cells[1].startswith("> 20,000 [") and cells[2] == "1 of 3"
+    assert cells[5].startswith("< 0.40 [")  # at most 8,000 / 20,000: a bound, never a number it cannot be
+    runs[1:3] = [_run("fine-tune", 1, 4_000, 88.4), _run("fine-tune", 2, 3_000, 87.0)]  # every run converged
+    row = next(line for line in write_transfer_report(tmp_path, runs)["md"].read_text().splitlines()
+               if line.startswith("| val-1"))  # fmt: skip
+    assert [c.strip() for c in row.strip("|").split("|")][5].startswith("2.67 [")  # 8,000 / 3,000
 
 
 def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
@@ -56,7 +64,7 @@ def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_pat
     row = next(line for line in write_transfer_report(tmp_path, unfinished)["md"].read_text().splitlines()
                if line.startswith("| val-1"))  # fmt: skip
     assert row.rstrip().endswith("| - / - |")
-    assert by_map(runs)[0].all_converged == (True, False) and by_map(runs)[0].ratio.n == 0
+    assert by_map(runs)[0].ratio.n == 0  # no scratch run finished its budget: no ratio
     assert by_map(runs)[0].scratch == [] and "1 run(s) cut short (transfer.csv) are left out" in files["md"].read_text()
     assert files["csv"].read_text().splitlines()[-1].endswith(",True")
 
@@ -82,13 +90,16 @@ def test_a_transfer_job_is_checked_when_made():
 def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     from smorphi_rl.reproduce import _transfer_claims
 
-    runs = [_run("fine-tune", s, 10_000, 88.0) for s in range(3)]
-    runs += [_run("scratch", s, at, 88.0) for s, at in enumerate((60_000, 60_000, 200_000))]
+    runs = [_run("fine-tune", s, 1_000, 88.0) for s in range(3)]
+    runs += [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, 6_000, 20_000))]
     (line,) = _transfer_claims(runs)
-    assert "ratio 6.00" in line and "**agrees**" in line  # medians 60,000 / 10,000 (the means would give 10.7)
-    (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, 50_000, 88.0)])
+    assert "ratio 6.00" in line and "**agrees**" in line  # medians 6,000 / 1,000 (the means would give 10.7)
+    runs[3:] = [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, None, None))]
+    (bound,) = _transfer_claims(runs)  # the scratch median lies past the 20,000-step budget: at least 20x
+    assert "ratio > 20.00" in bound and "scratch 1 of 3" in bound and "**agrees**" in bound
+    (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, None, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
-    (lone,) = _transfer_claims([_run("fine-tune", 0, 10_000, 88.0), _run("scratch", 0, 60_000, 88.0)])
+    (lone,) = _transfer_claims([_run("fine-tune", 0, 1_000, 88.0), _run("scratch", 0, 6_000, 88.0)])
     assert "ratio 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
 
 
