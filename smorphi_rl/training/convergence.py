@@ -12,6 +12,8 @@ without an evaluation are skipped. The plateau reported beside it is the mean gr
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 CURVE_KEY = "eval_within"
@@ -67,3 +69,16 @@ def converged_count(converged: int, curves: list[dict[str, list[float]]]) -> str
     """ "k of n" runs converged, n counting the runs that were measured; "not measured" when none was."""
     n = sum(measured(c) for c in curves)
     return f"{converged} of {n}" if n or not curves else "not measured"
+
+
+def censored_steps(runs: list[tuple[float | None, float]]) -> tuple[list[float], float] | None:
+    """Env steps to converge of runs given as (converged at or None, env steps trained), inf for each run that did
+    not converge, and the fewest env steps such a run trained (the budget every one of them went past): for
+    `stats.censored_median_interval`. None where a run that did not converge trained fewer env steps than another
+    run needed to converge: its place among them is then unknown."""
+    times = [math.inf if at is None else float(at) for at, _ in runs]
+    ends = [float(steps) for at, steps in runs if at is None]
+    budget = min(ends, default=max((float(steps) for _, steps in runs), default=0.0))
+    if any(t > budget for t in times if math.isfinite(t)):
+        return None
+    return times, budget

@@ -18,9 +18,16 @@ import numpy as np
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
-from smorphi_rl.stats import band, median_interval
+from smorphi_rl.stats import band, censored_median_interval, median_interval
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.convergence import PLATEAU_KEY, converged_count, converged_text, convergence
+from smorphi_rl.training.convergence import (
+    PLATEAU_KEY,
+    censored_steps,
+    converged_count,
+    converged_text,
+    convergence,
+    measured,
+)
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
 
 CURVE_POINTS = 100
@@ -216,19 +223,20 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     unfinished = sum(not r.finished for r in rows)
     left_out = f" {unfinished} unfinished trial(s) (sweep.md) are left out." if unfinished else ""
     lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
-             "protocol's starts settle within 1 % of the optimum; env steps to converge are over the converged "
-             f"trials only, the others are counted as not converged.{left_out}", "",
+             "protocol's starts settle within 1 % of the optimum; a trial that never converged counts as "
+             "converging past its budget, after every trial that did, so a median that falls on it reads "
+             f"\"> budget\" and an interval's end past the budget \"inf\".{left_out}", "",
              "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     for (maps, label), trials in _groups(rows).items():
-        steps = [float(t.converged_at) for t in trials if t.converged_at is not None]
+        steps = censored_steps([(t.converged_at, t.env_steps) for t in trials if measured(t.curve)])
         gap = median_interval([t.median_gap for t in trials if math.isfinite(t.median_gap)])
         within = median_interval([t.share_within_1pct for t in trials if math.isfinite(t.share_within_1pct)])
         plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
         best = median_interval([t.best.R1 for t in trials if t.best is not None])
-        to_converge = median_interval(steps).text(",.0f")
-        count = converged_count(len(steps), [t.curve for t in trials])
+        to_converge = "-" if steps is None else censored_median_interval(*steps).text(",.0f")
+        count = converged_count(sum(t.converged_at is not None for t in trials), [t.curve for t in trials])
         lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "
                      f"| {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
     return lines

@@ -19,7 +19,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
-from smorphi_rl.training.convergence import converged_count, converged_text, measured
+from smorphi_rl.training.convergence import censored_steps, converged_count, converged_text, measured
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -304,10 +304,10 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     return files
 
 
-def converged_steps(runs: list[TransferRun]) -> list[float]:
-    """Env steps to convergence of each measured run; inf for one that did not converge within its budget (it
-    would converge later than every run that did, if ever: right-censored, never left out)."""
-    return [math.inf if r.converged_at is None else float(r.converged_at) for r in runs if measured(r.curve)]
+def converged_steps(runs: list[TransferRun]) -> tuple[list[float], float] | None:
+    """Env steps to convergence of each measured run, inf for one that did not converge within its budget (it
+    would converge later than every run that did, if ever: right-censored, never left out), and that budget."""
+    return censored_steps([(r.converged_at, r.env_steps) for r in runs if measured(r.curve)])
 
 
 @dataclass(frozen=True)
@@ -322,24 +322,22 @@ class MapTransfer:
     scratch: list[TransferRun]
 
     @property
-    def budget(self) -> float:
-        """The fewest env steps any of the map's runs trained: every run that did not converge ran at least that."""
-        return float(min((r.env_steps for r in self.tuned + self.scratch), default=0))
-
-    @property
     def tuned_steps(self) -> Interval:
-        return censored_median_interval(converged_steps(self.tuned), self.budget)
+        return _median(converged_steps(self.tuned))
 
     @property
     def scratch_steps(self) -> Interval:
-        return censored_median_interval(converged_steps(self.scratch), self.budget)
+        return _median(converged_steps(self.scratch))
 
     @property
     def ratio(self) -> Interval:
         """The ratio of the medians, scratch / fine-tuned, with its interval: a lower bound (`bound` ">") where the
         scratch median lies past the budget, an upper bound ("<") where the fine-tuned one does, NaN (no ratio)
         where both do or a mode has no measured run."""
-        return censored_ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned), self.budget)
+        scratch, tuned = converged_steps(self.scratch), converged_steps(self.tuned)
+        if scratch is None or tuned is None:
+            return _NONE
+        return censored_ratio_interval(scratch[0], tuned[0], min(scratch[1], tuned[1]))
 
     @property
     def counts(self) -> tuple[str, str]:
@@ -347,6 +345,13 @@ class MapTransfer:
         tuned, scratch = (converged_count(sum(r.converged_at is not None for r in runs), [r.curve for r in runs])
                           for runs in (self.tuned, self.scratch))  # fmt: skip
         return tuned, scratch
+
+
+_NONE = Interval(math.nan, math.nan, math.nan, 0)
+
+
+def _median(steps: tuple[list[float], float] | None) -> Interval:
+    return _NONE if steps is None else censored_median_interval(*steps)
 
 
 def _best_text(runs: list[Any]) -> str:

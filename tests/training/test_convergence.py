@@ -90,3 +90,13 @@ def test_sweep_table_and_curves(tmp_path):
     assert set(lines_by_label) == {"PPO lr=0.001 (1 seed)"}  # a trial cut short is in no group
     line = lines_by_label["PPO lr=0.001 (1 seed)"]
     assert math.isnan(line["eval_R1_mean"][0]) and line["eval_R1_mean"][-1] == 85.0
+
+
+def test_runs_that_never_converged_are_censored_at_the_budget_they_all_went_past():
+    from smorphi_rl.training.convergence import censored_steps
+
+    assert censored_steps([(4_000, 10_000), (None, 10_000), (6_000, 10_000)]) == ([4_000, math.inf, 6_000], 10_000)
+    assert censored_steps([(4_000, 10_000), (6_000, 12_000)]) == ([4_000, 6_000], 12_000)  # none past a budget
+    # a run that stopped at 5,000 without converging may yet have converged before the one at 6,000: no order
+    assert censored_steps([(4_000, 10_000), (None, 5_000), (6_000, 10_000)]) is None
+    assert censored_steps([]) == ([], 0.0)

@@ -26,9 +26,9 @@ def test_groups_table_gives_intervals_over_seeds_and_counts_non_converged(tmp_pa
     cells = [c.strip() for c in first.strip("|").split("|")]
     # seeds, median gap, share within 1 %, converged, env steps to converge, plateau: medians with intervals
     assert cells[2] == "3" and cells[3].startswith("2.00 [") and cells[4].startswith("0.80 [") and cells[5] == "2 of 3"
-    assert cells[6].startswith("5,000 [") and cells[7].startswith("88.00 [")
+    assert cells[6] == "6,000 [4,000, inf]" and cells[7].startswith("88.00 [")  # the third trial: past 10,000
     lone = next(line for line in lines if "lr=0.0003" in line)
-    assert "(1 seed)" in lone and "0 of 1" in lone
+    assert "| > 10,000 (1 seed) |" in lone and "0 of 1" in lone
     assert (tmp_path / "groups.md").read_text().count("| map-1 |") == 2
 
 
