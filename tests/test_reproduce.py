@@ -27,7 +27,8 @@ def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
         assert heading in report, heading
     claims = [line for line in report.splitlines() if line.startswith("- ")]
     verdicts = ("agree", "undecided", "Not testable")  # the last: no transfer run converged on one side
-    assert len(claims) == 6 and sum(any(v in c for v in verdicts) for c in claims) == 5
+    assert len(claims) == 7 and sum(any(v in c for v in verdicts) for c in claims) == 6
+    assert any("adapts faster" in c and "Greedy median gap at" in c for c in claims)  # at equal env steps
     (protocol,) = [c for c in claims if "evaluation protocol" in c]
     assert re.search(r"PPO \d\.\d\d \(1 seed\), IMPALA \d\.\d\d \(1 seed\)", protocol), protocol
     assert "gap to the exact optimum" in report

@@ -52,6 +52,15 @@ def convergence(curve: dict[str, list[float]]) -> tuple[float | None, float]:
     return converged_at(steps, np.array(curve[CURVE_KEY], dtype=float)), plateau(np.array(curve[PLATEAU_KEY]))
 
 
+def at_steps(curve: dict[str, list[float]], key: str, env_steps: float) -> float:
+    """The run's last measured `key` (an `eval_...` curve) at or before `env_steps`; NaN when none was measured
+    by then. Two runs compared at equal env steps read this."""
+    steps = np.asarray(curve.get("env_steps", []), dtype=float)
+    values = np.asarray(curve.get(key, []), dtype=float)
+    ok = np.flatnonzero(np.isfinite(values) & (steps <= env_steps))
+    return float(values[ok[-1]]) if ok.size else math.nan
+
+
 def measured(curve: dict[str, list[float]]) -> bool:
     """Whether any evaluation of the run measured its share within 1 % (none can on a map without an exact
     optimum: the run is "not measured", not "not converged")."""

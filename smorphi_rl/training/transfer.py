@@ -19,7 +19,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
-from smorphi_rl.training.convergence import censored_steps, converged_count, converged_text, measured
+from smorphi_rl.training.convergence import at_steps, censored_steps, converged_count, converged_text, measured
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -270,38 +270,55 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
 
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
     cut = sum(r.interrupted for r in runs)
+    equal = equal_steps(runs)
     with atomic_text(files["csv"]) as fh:
         writer = csv.writer(fh)
         writer.writerow(["map", "seed", "mode", "env_steps", "converged_at_env_steps", "plateau_settled_R1", "best_R1",
-                         "pretrained_in_runners", "interrupted"])  # fmt: skip
+                         "equal_env_steps", "median_gap_at_equal_env_steps", "pretrained_in_runners",
+                         "interrupted"])  # fmt: skip
         for r in runs:
             at = converged_text(r.converged_at, r.curve)
-            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}",
-                             r.pretrained_in_runners, r.interrupted])  # fmt: skip
+            gap = at_steps(r.curve, GAP_KEY, equal)
+            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}", equal,
+                             f"{gap:.3f}", r.pretrained_in_runners, r.interrupted])  # fmt: skip
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. A run that never converged is counted as not converged, "
         "not as a number: its env steps to converge lie past its budget, later than every run that converged, so a "
         'median that falls on it reads "> budget", a ratio of the medians bounded by it "> x" (at least) or '
-        '"< x" (at most), and an interval\'s end past the budget "inf".'
+        '"< x" (at most), and an interval\'s end past the budget "inf". At equal env steps (a tenth of the '
+        "budget): each run's greedy median gap to the optimum's R1 at its last evaluation by then."
         + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
-        "| Ratio scratch / fine-tuned | Plateau greedy settled R1 fine-tuned | scratch "
-        "| Best R1 fine-tuned / scratch |",
-        "|---|---:|---:|---:|---:|---:|---:|---:|---:|",
+        f"| Ratio scratch / fine-tuned | Gap at {equal:,} env steps fine-tuned | scratch "
+        "| Plateau greedy settled R1 fine-tuned | scratch | Best R1 fine-tuned / scratch |",
+        "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for m in by_map(runs):
         best = " / ".join(_best_text(rs) for rs in (m.tuned, m.scratch))
+        gaps = " | ".join(median_interval([at_steps(r.curve, GAP_KEY, equal) for r in rs]).text()
+                          for rs in (m.tuned, m.scratch))  # fmt: skip
         lines.append(
             f"| {m.map_name} | {m.tuned_steps.text(',.0f')} | {m.counts[0]} | {m.scratch_steps.text(',.0f')} "
-            f"| {m.counts[1]} | {m.ratio.text()} | {median_interval([r.plateau for r in m.tuned]).text()} "
+            f"| {m.counts[1]} | {m.ratio.text()} | {gaps} | {median_interval([r.plateau for r in m.tuned]).text()} "
             f"| {median_interval([r.plateau for r in m.scratch]).text()} | {best} |"
         )
     write_text_atomic(files["md"], "\n".join(lines) + "\n")
     curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
     plot_learning_curves(curves, files["png"])
     return files
+
+
+GAP_KEY = "eval_gap"
+"""The curve of a run's greedy median gap to the optimum's R1 (`sweep_report.curve_point`)."""
+EQUAL_SHARE = 0.1
+"""The runs of a job are compared at this share of the budget, where a head start shows before either converges."""
+
+
+def equal_steps(runs: list[TransferRun]) -> int:
+    """The env steps at which fine-tuned and scratch runs are compared: a tenth of the fewest any whole run trained."""
+    return int(EQUAL_SHARE * min((r.env_steps for r in runs if not r.interrupted), default=0))
 
 
 def converged_steps(runs: list[TransferRun]) -> tuple[list[float], float] | None:

@@ -100,3 +100,11 @@ def test_runs_that_never_converged_are_censored_at_the_budget_they_all_went_past
     # a run that stopped at 5,000 without converging may yet have converged before the one at 6,000: no order
     assert censored_steps([(4_000, 10_000), (None, 5_000), (6_000, 10_000)]) is None
     assert censored_steps([]) == ([], 0.0)
+
+
+def test_a_curve_is_read_at_equal_env_steps_from_its_last_evaluation_by_then():
+    from smorphi_rl.training.convergence import at_steps
+
+    curve = {"env_steps": [1_000.0, 2_000.0, 3_000.0], "eval_gap": [4.0, math.nan, 1.0]}
+    assert at_steps(curve, "eval_gap", 2_500) == 4.0  # the evaluation at 2,000 measured nothing
+    assert at_steps(curve, "eval_gap", 3_000) == 1.0 and math.isnan(at_steps(curve, "eval_gap", 500))

@@ -51,6 +51,25 @@ def test_table_5_has_intervals_and_counts_runs_that_never_converged(tmp_path):
     assert [c.strip() for c in row.strip("|").split("|")][5].startswith("2.67 [")  # 8,000 / 3,000
 
 
+def test_table_5_compares_the_modes_at_equal_env_steps(tmp_path):
+    """A head start shows before either mode converges: each run's greedy gap at a tenth of the budget."""
+    runs = [_run("fine-tune", s, None, 88.0) for s in range(3)] + [_run("scratch", s, None, 88.0) for s in range(3)]
+
+    def curve(r: TransferRun, gap: float) -> dict[str, list[float]]:
+        by_key = {k: v + v for k, v in r.curve.items()}  # four evaluations
+        by_key["env_steps"] = [1_000.0, 2_000.0, 3_000.0, 20_000.0]
+        by_key["eval_gap"] = [gap, 0.5 * gap, 0.1, 0.1] if r.mode == "fine-tune" else [4.0, 3.0 + r.seed, 0.1, 0.1]
+        return by_key
+
+    runs = [replace(r, curve=curve(r, gap)) for r, gap in zip(runs, (2.0, 1.0, 3.0, 0, 0, 0), strict=True)]
+    files = write_transfer_report(tmp_path, runs)
+    text = files["md"].read_text()
+    assert "| Gap at 2,000 env steps fine-tuned | scratch |" in text  # a tenth of the 20,000-step budget
+    cells = [c.strip() for c in next(line for line in text.splitlines() if line.startswith("| val-1")).split("|")]
+    assert cells[7].startswith("1.00 [") and cells[8].startswith("4.00 [")  # medians of (1, 0.5, 1.5), (3, 4, 5)
+    assert files["csv"].read_text().splitlines()[1].split(",")[7:9] == ["2000", "1.000"]
+
+
 def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
 
     from smorphi_rl.training.transfer import by_map
@@ -92,14 +111,15 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
 
     runs = [_run("fine-tune", s, 1_000, 88.0) for s in range(3)]
     runs += [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, 6_000, 20_000))]
-    (line,) = _transfer_claims(runs)
+    adapts, line = _transfer_claims(runs)
     assert "ratio 6.00" in line and "**agrees**" in line  # medians 6,000 / 1,000 (the means would give 10.7)
+    assert "adapts faster" in adapts and "at 2,000 env steps" in adapts and "**undecided**" in adapts  # equal gaps
     runs[3:] = [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, None, None))]
-    (bound,) = _transfer_claims(runs)  # the scratch median lies past the 20,000-step budget: at least 20x
+    _, bound = _transfer_claims(runs)  # the scratch median lies past the 20,000-step budget: at least 20x
     assert "ratio > 20.00" in bound and "scratch 1 of 3" in bound and "**agrees**" in bound
-    (none,) = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, None, 88.0)])
+    _, none = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, None, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
-    (lone,) = _transfer_claims([_run("fine-tune", 0, 1_000, 88.0), _run("scratch", 0, 6_000, 88.0)])
+    _, lone = _transfer_claims([_run("fine-tune", 0, 1_000, 88.0), _run("scratch", 0, 6_000, 88.0)])
     assert "ratio 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
 
 
