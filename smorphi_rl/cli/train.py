@@ -100,6 +100,7 @@ def _register_train(sub: Any) -> None:
            default_text="the preset's: 2")  # fmt: skip
     for name in ("envs_per_runner", "eval_every", "eval_starts", "select_starts"):
         option(tr, TrainConfig, name, metavar="N")
+    option(tr, TrainConfig, "eval_maps", nargs="+", type=str, metavar="MAP", default_text="the --map files")
     record_option(tr)
     tr.set_defaults(func=cmd_train)
 
@@ -109,13 +110,14 @@ def cmd_train(args: argparse.Namespace) -> int:
     from smorphi_rl.training.versions import warn_once
 
     warn_once()
-    from smorphi_rl.env_config import EnvConfig
-    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
-    env = {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
-    env["maps"] = map_paths(args.map) if args.map is not None else None
     trained = {name: getattr(args, "env_runners" if name == "num_env_runners" else name) for name in TRAIN_FIELDS}
-    cfg = TrainConfig(env=EnvConfig.from_dict({k: v for k, v in env.items() if v is not None}), **trained)
+    cfg = TrainConfig(env=train_env(args), eval_maps=tuple(args.eval_maps or ()), **trained)
+    if cfg.eval_every and not cfg.evaluation_maps:
+        raise TrainConfigError(f"the maps are generated ({', '.join(cfg.env.maps)}), so the run has no exact optimum "
+                               "to be measured against: name fixed floors with --eval-maps, or --eval-every 0 to "
+                               "train without the evaluation protocol")  # fmt: skip
     from smorphi_rl.training.run import format_summary, train
 
     summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address)
@@ -124,6 +126,24 @@ def cmd_train(args: argparse.Namespace) -> int:
         print(f"{PROG}: interrupted: checkpoints written so far are kept", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
+
+
+def train_env(args: argparse.Namespace) -> Any:
+    """The env of `train`: the options given, on the --map files (or the default map); every other field the
+    pretrained policy's, when there is one (its layout, moves and reward, as `transfer` takes them), else the
+    defaults."""
+    from smorphi_rl.env_config import EnvConfig
+
+    env: dict[str, Any] = {}
+    if args.pretrained is not None:  # a bad checkpoint is named here, before anything else
+        from smorphi_rl.training.finetune import pretrained_env
+
+        env = {k: v for k, v in pretrained_env(args.pretrained).items() if k in EnvConfig.__dataclass_fields__}
+        env.pop("maps", None)
+    env |= {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
+    if args.map is not None:
+        env["maps"] = map_paths(args.map)
+    return EnvConfig.from_dict(env)
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:

@@ -76,6 +76,12 @@ def critic_renormalised(state: dict[str, Any], trained_with: dict[str, Any], now
     }
 
 
+def pretrained_env(pretrained: str | Path) -> dict[str, Any]:
+    """The env configuration the policy `pretrained` names was trained with (its model config carries it; empty
+    for one written before it did): `train --pretrained` starts from it, as `transfer` does."""
+    return dict(load_module(find_checkpoint(pretrained)).model_config.get("env_config") or {})
+
+
 def fine_tune_from(pretrained: str | Path, env_config: dict[str, Any]) -> tuple[Path, type[MorphologyCallbacks]]:
     """The checkpoint `pretrained` names (a checkpoint, trial or run directory), checked against the env, and the
     callbacks that start training from it; a bad one fails here, before anything trains."""

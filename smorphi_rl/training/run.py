@@ -235,7 +235,7 @@ def trial_callbacks(cfg: TrainConfig, optima: dict[str, Optimum], base: type | N
     evaluation protocol on `cfg`'s evaluated maps, the final-policy selection and the designer's figures, as
     `cfg` asks; the one way every job builds its trials."""
     base = base or MorphologyCallbacks
-    if not cfg.eval_every:
+    if not cfg.eval_every or not cfg.evaluation_maps:  # generated floors alone: no fixed map to evaluate on
         return base
     step = cfg.env.angle_step_deg
     starts = eval_starts(cfg.eval_starts, step)
@@ -316,6 +316,8 @@ def train(
             write_text_atomic(run_dir / "config.json", json.dumps(cfg.to_dict() | {"name": name, "address": address},
                                                             indent=2))  # fmt: skip
             progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
+    except TrainingError:
+        raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException:
         if not reported_any(run_dir, cfg.algo):
             discard_run_dir(run_dir)  # nothing trained: the name stays free

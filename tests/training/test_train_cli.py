@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import pytest
@@ -40,6 +41,14 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--eval-starts", "0"], 1, "eval_starts must be a positive integer, got 0"),
         (["--select-starts", "-1"], 1, "select_starts must be a non-negative integer (0: off), got -1"),
         (["--name", "../../etc"], 1, "is not a plain folder name"),
+        (
+            ["--map", "generate:mixed"],
+            1,
+            "so the run has no exact optimum to be measured against: name fixed floors "
+            "with --eval-maps, or --eval-every 0",
+        ),
+        (["--eval-maps", "generate:rooms"], 1, "eval_maps must be map files"),
+        (["--eval-maps", "/no/such/map.yaml"], 1, "/no/such/map.yaml"),
     ],
 )
 def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
@@ -239,3 +248,40 @@ def test_a_run_stopped_before_its_first_report_leaves_no_folder(cached_optimum):
     assert not reported, "the first iteration finished before the signal"
     assert proc.returncode == 130 and err.strip().splitlines()[-1] == "smorphi-rl: interrupted", err
     assert not (logs / name).exists()
+
+
+def test_a_run_whose_trial_failed_keeps_the_folder_its_error_line_names(tmp_path, monkeypatch):
+    """The one line says where the full errors are: that folder stays, even when no iteration reported."""
+    from contextlib import nullcontext
+
+    from smorphi_rl import cluster
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training import run as run_module
+    from smorphi_rl.training.config import TrainConfig
+
+    def failing_fit(cfg, name, run_dir, *args):
+        (run_dir / "ppo-x_00000").mkdir()
+        (run_dir / "ppo-x_00000" / "error.txt").write_text("Traceback ...\nKeyError: 'mixed-1'\n")
+        raise run_module.TrainingError(f"training failed: KeyError: 'mixed-1' (full errors under {run_dir})")
+
+    monkeypatch.setattr(run_module, "_fit", failing_fit)
+    monkeypatch.setattr(cluster, "ray_session", lambda address: nullcontext())
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [MAP_1]}), eval_every=0, timesteps=1_000)
+    with pytest.raises(run_module.TrainingError, match="full errors under") as failed:
+        run_module.train(cfg, name="failed", log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
+    assert str(tmp_path / "failed") in str(failed.value)
+    assert (tmp_path / "failed" / "ppo-x_00000" / "error.txt").is_file()
+
+
+def test_train_fine_tunes_a_policy_in_the_env_it_was_trained_in():
+    """`train --pretrained` takes the policy's layout, moves and reward (the designer's `floor`, 1/4/16) on the
+    maps given; an option given on the command line still wins."""
+    from smorphi_rl.cli import build_parser
+    from smorphi_rl.cli.train import train_env
+
+    designer = str(ROOT / "smorphi_rl" / "policies" / "designer")
+    env = train_env(build_parser().parse_args(["train", "--pretrained", designer, "--map", MAP_1, "--w2", "0.2"]))
+    assert env.observation == "floor" and env.moves == (1, 4, 16) and env.w2 == 0.2
+    assert [Path(m).name for m in env.maps] == ["map-1.yaml"]
+    plain = train_env(build_parser().parse_args(["train"]))
+    assert plain.observation == "picture" and plain.moves == (1,)
