@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -249,6 +250,10 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
     from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache
     from smorphi_rl.training.policy import evaluate_policy
 
+    if not env_config.map_files:
+        raise SmorphiError(f"the policy was trained on generated floors ({', '.join(env_config.maps)}), which have no "
+                           "exact optimum to measure against: give fixed floors with --map")  # fmt: skip
+    env_config = replace(env_config, maps=env_config.map_files)  # a generated floor has no optimum: files only
     cache = optimum_cache(args.log_dir)
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache)
               for p in env_config.maps}  # fmt: skip
