@@ -61,6 +61,13 @@ def at_steps(curve: dict[str, list[float]], key: str, env_steps: float) -> float
     return float(values[ok[-1]]) if ok.size else math.nan
 
 
+def at_steps_first(curve: dict[str, list[float]], key: str) -> float:
+    """The env steps of the run's first measured `key`; inf when none was measured."""
+    steps = np.asarray(curve.get("env_steps", []), dtype=float)
+    ok = np.flatnonzero(np.isfinite(np.asarray(curve.get(key, []), dtype=float)))
+    return float(steps[ok[0]]) if ok.size else math.inf
+
+
 def measured(curve: dict[str, list[float]]) -> bool:
     """Whether any evaluation of the run measured its share within 1 % (none can on a map without an exact
     optimum: the run is "not measured", not "not converged")."""

@@ -19,7 +19,14 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
-from smorphi_rl.training.convergence import at_steps, censored_steps, converged_count, converged_text, measured
+from smorphi_rl.training.convergence import (
+    at_steps,
+    at_steps_first,
+    censored_steps,
+    converged_count,
+    converged_text,
+    measured,
+)
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -317,8 +324,11 @@ EQUAL_SHARE = 0.1
 
 
 def equal_steps(runs: list[TransferRun]) -> int:
-    """The env steps at which fine-tuned and scratch runs are compared: a tenth of the fewest any whole run trained."""
-    return int(EQUAL_SHARE * min((r.env_steps for r in runs if not r.interrupted), default=0))
+    """The env steps at which fine-tuned and scratch runs are compared: a tenth of the fewest any whole run trained,
+    or later, where a run's first evaluation came later (a short budget)."""
+    whole = [r for r in runs if not r.interrupted]
+    first = [at_steps_first(r.curve, GAP_KEY) for r in whole]
+    return int(max([EQUAL_SHARE * min((r.env_steps for r in whole), default=0)] + [f for f in first if f < math.inf]))
 
 
 def converged_steps(runs: list[TransferRun]) -> tuple[list[float], float] | None:

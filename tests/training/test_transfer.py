@@ -68,6 +68,10 @@ def test_table_5_compares_the_modes_at_equal_env_steps(tmp_path):
     cells = [c.strip() for c in next(line for line in text.splitlines() if line.startswith("| val-1")).split("|")]
     assert cells[7].startswith("1.00 [") and cells[8].startswith("4.00 [")  # medians of (1, 0.5, 1.5), (3, 4, 5)
     assert files["csv"].read_text().splitlines()[1].split(",")[7:9] == ["2000", "1.000"]
+    from smorphi_rl.training.transfer import equal_steps
+
+    short = [replace(r, env_steps=4_000) for r in runs]  # a tenth, 400, comes before any evaluation: the first
+    assert equal_steps(short) == 1_000
 
 
 def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_path):
