@@ -367,9 +367,13 @@ def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:
 
 def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
     """The end-of-sweep text: trials, the best of each, and where the files are."""
-    state = "interrupted after" if s.interrupted else "ran"
-    lines = [f"sweep {s.experiment_dir.name}: {state} {len(s.rows)} of {s.trials_total} trials "
-             f"in {fmt_duration(s.wall_s)}"]  # fmt: skip
+    if s.interrupted:  # a trial cut short has rows too: count it apart from those that finished
+        done = sum(r.finished for r in s.rows)
+        cut = len(s.rows) - done
+        head = f"interrupted after {done} of {s.trials_total} trials finished" + (f" ({cut} cut short)" if cut else "")
+    else:
+        head = f"ran {len(s.rows)} of {s.trials_total} trials"
+    lines = [f"sweep {s.experiment_dir.name}: {head} in {fmt_duration(s.wall_s)}"]
     ranked = sorted((r for r in s.rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
     for r in ranked[:5]:
         b = r.best

@@ -63,3 +63,14 @@ def test_trials_on_a_map_without_an_optimum_are_not_measured_rather_than_not_con
     write_sweep_tables([*rows, _trial(2, 1e-3, 87.0, None)], tmp_path / "sweep.csv", tmp_path / "sweep.md")
     cells = [line.split(",")[-3] for line in (tmp_path / "sweep.csv").read_text().splitlines()[1:]]
     assert sorted(cells) == ["not converged", "not measured", "not measured"]
+
+
+def test_an_interrupted_sweep_counts_the_trials_that_finished_apart_from_those_cut_short(tmp_path):
+    from dataclasses import replace
+
+    from smorphi_rl.training.sweep import SweepSummary, format_sweep_summary
+
+    rows = [_trial(0, 1e-3, 88.0, 4_000), replace(_trial(1, 1e-3, 80.0, None), finished=False)]
+    head = format_sweep_summary(SweepSummary(tmp_path / "s", rows, 3, 60.0, True, {})).splitlines()[0]
+    assert "interrupted after 1 of 3 trials finished (1 cut short)" in head
+    assert "ran 2 of 3 trials" in format_sweep_summary(SweepSummary(tmp_path / "s", rows, 3, 60.0, False, {}))
