@@ -38,7 +38,7 @@ def register(sub: Any) -> None:
     tf.add_argument("--maps", nargs="+", required=True, metavar="MAP", help=field_docs(TransferJob)["maps"])
     option(tf, TransferJob, "seeds", nargs="+", type=seed_arg, metavar="S")
     option(tf, TransferJob, "timesteps", metavar="N")
-    option(tf, TransferJob, "algo", choices=ALGORITHMS)
+    option(tf, TransferJob, "algo", unset=True, choices=ALGORITHMS, default_text="the pretrained policy's, else ppo")
     option(tf, TransferJob, "preset", choices=tuple(PRESETS))
     tf.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     run_options(tf, "job name: runs go to LOG_DIR/NAME (default: transfer-TIMESTAMP)")
@@ -84,7 +84,7 @@ def _register_train(sub: Any) -> None:
     tr.add_argument(
         "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
     )
-    option(tr, TrainConfig, "algo", choices=ALGORITHMS)
+    option(tr, TrainConfig, "algo", unset=True, choices=ALGORITHMS, default_text="the pretrained policy's, else ppo")
     option(tr, TrainConfig, "timesteps", metavar="N")
     option(tr, TrainConfig, "seed", type=seed_arg, metavar="S")
     option(tr, TrainConfig, "preset", choices=tuple(PRESETS))
@@ -112,8 +112,9 @@ def cmd_train(args: argparse.Namespace) -> int:
     warn_once()
     from smorphi_rl.training.config import TrainConfig, TrainConfigError
 
+    algo, env = train_setup(args)
     trained = {name: getattr(args, "env_runners" if name == "num_env_runners" else name) for name in TRAIN_FIELDS}
-    cfg = TrainConfig(env=train_env(args), eval_maps=tuple(args.eval_maps or ()), **trained)
+    cfg = TrainConfig(env=env, eval_maps=tuple(args.eval_maps or ()), **(trained | {"algo": algo}))
     if cfg.eval_every and not cfg.evaluation_maps:
         raise TrainConfigError(f"the maps are generated ({', '.join(cfg.env.maps)}), so the run has no exact optimum "
                                "to be measured against: name fixed floors with --eval-maps, or --eval-every 0 to "
@@ -128,22 +129,23 @@ def cmd_train(args: argparse.Namespace) -> int:
     return 0
 
 
-def train_env(args: argparse.Namespace) -> Any:
-    """The env of `train`: the options given, on the --map files (or the default map); every other field the
-    pretrained policy's, when there is one (its layout, moves and reward, as `transfer` takes them), else the
-    defaults."""
+def train_setup(args: argparse.Namespace) -> tuple[str, Any]:
+    """The algorithm and env of `train`: the options given, on the --map files (or the default map); the rest the
+    pretrained policy's, when there is one (its algorithm, layout, moves and reward, as `transfer` takes them),
+    else the defaults."""
     from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.training.config import TrainConfig
 
-    env: dict[str, Any] = {}
+    algo, env = None, {}
     if args.pretrained is not None:  # a bad checkpoint is named here, before anything else
-        from smorphi_rl.training.finetune import pretrained_env
+        from smorphi_rl.training.finetune import pretrained_setup
 
-        env = {k: v for k, v in pretrained_env(args.pretrained).items() if k in EnvConfig.__dataclass_fields__}
-        env.pop("maps", None)
+        algo, trained_with = pretrained_setup(args.pretrained)
+        env = {k: v for k, v in trained_with.items() if k in EnvConfig.__dataclass_fields__ and k != "maps"}
     env |= {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
     if args.map is not None:
         env["maps"] = map_paths(args.map)
-    return EnvConfig.from_dict(env)
+    return args.algo or algo or TrainConfig.algo, EnvConfig.from_dict(env)
 
 
 def cmd_transfer(args: argparse.Namespace) -> int:
@@ -152,13 +154,21 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     warn_once()
     from smorphi_rl.training.config import TrainConfigError
-    from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
 
     # the options and maps are checked before anything runs
+    from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
+
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
-                      args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
+                      args.algo or TransferJob.algo, args.preset, args.record_every, args.envs_per_runner,
+                      args.env_runners)  # fmt: skip
     for path in args.maps:
         load_map(path)
+    if args.algo is None:  # the pretrained policy's algorithm (a bad checkpoint: one line here)
+        from dataclasses import replace
+
+        from smorphi_rl.training.finetune import pretrained_setup
+
+        job = replace(job, algo=pretrained_setup(args.pretrained)[0] or job.algo)
     if args.resume and not args.name:
         raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"

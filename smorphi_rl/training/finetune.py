@@ -76,10 +76,11 @@ def critic_renormalised(state: dict[str, Any], trained_with: dict[str, Any], now
     }
 
 
-def pretrained_env(pretrained: str | Path) -> dict[str, Any]:
-    """The env configuration the policy `pretrained` names was trained with (its model config carries it; empty
-    for one written before it did): `train --pretrained` starts from it, as `transfer` does."""
-    return dict(load_module(find_checkpoint(pretrained)).model_config.get("env_config") or {})
+def pretrained_setup(pretrained: str | Path) -> tuple[str | None, dict[str, Any]]:
+    """The algorithm and env configuration the policy `pretrained` names was trained with (its model config carries
+    them; None and empty for one written before it did): `train --pretrained` and `transfer` start from them."""
+    model = load_module(find_checkpoint(pretrained)).model_config
+    return model.get("algorithm"), dict(model.get("env_config") or {})
 
 
 def fine_tune_from(pretrained: str | Path, env_config: dict[str, Any]) -> tuple[Path, type[MorphologyCallbacks]]:

@@ -34,10 +34,13 @@ def test_the_command_lines_defaults_are_the_configurations():
     parser = build_parser()
     train = parser.parse_args(["train"])
     defaults = TrainConfig()
-    for name in ("algo", "timesteps", "seed", "preset", "checkpoint_every", "envs_per_runner", "eval_every",
+    for name in ("timesteps", "seed", "preset", "checkpoint_every", "envs_per_runner", "eval_every",
                  "eval_starts", "select_starts", "record_every"):  # fmt: skip
         assert getattr(train, name) == getattr(defaults, name), name
     assert train.env_runners is None and train.reward is None  # applied downstream (the preset, the env)
+    from smorphi_rl.cli.train import train_setup
+
+    assert train.algo is None and train_setup(train)[0] == defaults.algo  # or the pretrained policy's
     nsga2 = parser.parse_args(["search", "nsga2"])
     assert (nsga2.pop, nsga2.generations, nsga2.seed) == (SearchConfig.pop, SearchConfig.generations, 0)
     assert parser.parse_args(["search", "exhaustive"]).step == SearchConfig.step

@@ -277,11 +277,13 @@ def test_train_fine_tunes_a_policy_in_the_env_it_was_trained_in():
     """`train --pretrained` takes the policy's layout, moves and reward (the designer's `floor`, 1/4/16) on the
     maps given; an option given on the command line still wins."""
     from smorphi_rl.cli import build_parser
-    from smorphi_rl.cli.train import train_env
+    from smorphi_rl.cli.train import train_setup
 
     designer = str(ROOT / "smorphi_rl" / "policies" / "designer")
-    env = train_env(build_parser().parse_args(["train", "--pretrained", designer, "--map", MAP_1, "--w2", "0.2"]))
-    assert env.observation == "floor" and env.moves == (1, 4, 16) and env.w2 == 0.2
+    algo, env = train_setup(
+        build_parser().parse_args(["train", "--pretrained", designer, "--map", MAP_1, "--w2", "0.2"])
+    )
+    assert env.observation == "floor" and env.moves == (1, 4, 16) and env.w2 == 0.2 and algo == "ppo"
     assert [Path(m).name for m in env.maps] == ["map-1.yaml"]
-    plain = train_env(build_parser().parse_args(["train"]))
-    assert plain.observation == "picture" and plain.moves == (1,)
+    algo, plain = train_setup(build_parser().parse_args(["train", "--algo", "appo"]))
+    assert plain.observation == "picture" and plain.moves == (1,) and algo == "appo"
