@@ -159,16 +159,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
 
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
-                      args.algo or TransferJob.algo, args.preset, args.record_every, args.envs_per_runner,
-                      args.env_runners)  # fmt: skip
+                      args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
     for path in args.maps:
         load_map(path)
-    if args.algo is None:  # the pretrained policy's algorithm (a bad checkpoint: one line here)
-        from dataclasses import replace
-
-        from smorphi_rl.training.finetune import pretrained_setup
-
-        job = replace(job, algo=pretrained_setup(args.pretrained)[0] or job.algo)
     if args.resume and not args.name:
         raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"

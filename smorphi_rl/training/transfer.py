@@ -78,8 +78,8 @@ class TransferJob:
     """Seeds; each map runs once per seed and mode (three: a speed-up is a ratio of medians with an interval)."""
     timesteps: int = TrainConfig.timesteps
     """Env-step budget of every run."""
-    algo: str = TrainConfig.algo
-    """Algorithm of every run (the pretrained policy's)."""
+    algo: str | None = None
+    """Algorithm of every run; None: the pretrained policy's (PPO for one that does not say)."""
     preset: str = TrainConfig.preset
     """Hyperparameters of every run: fast (2 cores) or paper (Table 1)."""
     record_every: int = TrainConfig.record_every
@@ -109,8 +109,8 @@ class TransferJob:
 
     def train_config(self, env: EnvConfig | None = None) -> TrainConfig:
         """The training run of one map (its env given; else the default env) before seed and mode are set."""
-        return TrainConfig(algo=self.algo, env=env or EnvConfig(), timesteps=self.timesteps, preset=self.preset,
-                           record_every=self.record_every, envs_per_runner=self.envs_per_runner,
+        return TrainConfig(algo=self.algo or TrainConfig.algo, env=env or EnvConfig(), timesteps=self.timesteps,
+                           preset=self.preset, record_every=self.record_every, envs_per_runner=self.envs_per_runner,
                            num_env_runners=self.num_env_runners)  # fmt: skip
 
 
@@ -134,7 +134,9 @@ def run_transfer(
     from smorphi_rl.training.run import TrainingError, train
 
     checkpoint = find_checkpoint(job.pretrained)
-    env = EnvConfig.from_dict(dict(load_module(checkpoint).model_config.get("env_config") or {}))
+    model = load_module(checkpoint).model_config
+    env = EnvConfig.from_dict(dict(model.get("env_config") or {}))
+    job = replace(job, algo=job.algo or model.get("algorithm") or TrainConfig.algo)  # the pretrained policy's
     configs = []
     trained_on = {Path(m).resolve() for m in env.map_files}
     for path in job.maps:  # every map and the checkpoint are checked before the first run starts
@@ -177,7 +179,7 @@ def run_transfer(
                 if (job_dir / run_name).exists():
                     rename_cut_run(job_dir / run_name)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{job.algo.upper()} {run_name}")  # fmt: skip
+                                label=f"{run_cfg.algo.upper()} {run_name}")  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such

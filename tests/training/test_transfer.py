@@ -147,7 +147,7 @@ def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path
 def fake_runs(tmp_path, monkeypatch):
     """`transfer` through the CLI on val-1 with the checkpoint, Ray and training replaced: `stops` names the
     training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report, or failing
-    (`"error"`). Returns the argv, the runs trained and `stops`."""
+    (`"error"`). Returns the argv, the runs trained, `stops` and each run's algorithm."""
     import contextlib
     from types import SimpleNamespace
 
@@ -160,10 +160,12 @@ def fake_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(cluster, "check_reachable", lambda address: None)
     monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
     calls: list[str] = []
+    algos: list[str] = []
     stops: dict[int, str] = {}
 
     def train(cfg, name, log_dir, **kwargs):
         calls.append(name)
+        algos.append(cfg.algo)
         (Path(log_dir) / ".cache").mkdir(exist_ok=True)  # the exact optima, as the real one caches them
         if stops.get(len(calls)) == "reported":
             (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
@@ -180,14 +182,30 @@ def fake_runs(tmp_path, monkeypatch):
     root = Path(__file__).resolve().parents[2]
     argv = ["transfer", "--pretrained", str(tmp_path / "ckpt"), "--maps", str(root / "maps" / "val-1.yaml"),
             "--name", "job", "--log-dir", str(tmp_path / "logs")]  # fmt: skip
-    return argv, calls, stops
+    return argv, calls, stops, algos
+
+
+def test_transfer_trains_with_the_pretrained_policys_algorithm_unless_told(tmp_path, fake_runs, monkeypatch, capsys):
+    from types import SimpleNamespace
+
+    from smorphi_rl.cli import main
+    from smorphi_rl.training import checkpoints
+
+    argv, calls, _stops, algos = fake_runs
+    config = SimpleNamespace(model_config={"env_config": {}, "algorithm": "appo"})
+    monkeypatch.setattr(checkpoints, "load_module", lambda path: config)
+    assert main([*argv, "--seeds", "0"]) == 0
+    assert algos == ["appo", "appo"] and len(calls) == 2
+    assert main([*argv[:-4], "--name", "other", "--log-dir", str(tmp_path / "logs"), "--seeds", "0", "--algo",
+                 "ppo"]) == 0  # fmt: skip
+    assert algos[2:] == ["ppo", "ppo"]
 
 
 def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resume_hint(tmp_path, fake_runs, capsys):
     """Ctrl-C before a run's first report (the run discards itself): the job still reports what finished."""
     from smorphi_rl.cli import main
 
-    argv, calls, stops = fake_runs
+    argv, calls, stops, _algos = fake_runs
     stops[2] = "before"
     assert main([*argv, "--seeds", "0"]) == 130
     out, err = capsys.readouterr()
@@ -201,7 +219,7 @@ def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resu
 def test_a_stop_before_the_first_run_reports_leaves_no_folder(tmp_path, fake_runs, capsys):
     from smorphi_rl.cli import main
 
-    argv, _calls, stops = fake_runs
+    argv, _calls, stops, _algos = fake_runs
     stops[1] = "before"
     assert main([*argv, "--seeds", "0"]) == 130
     assert not (tmp_path / "logs" / "job").exists()  # nothing trained: the name stays free
@@ -211,7 +229,7 @@ def test_a_stop_before_the_first_run_reports_leaves_no_folder(tmp_path, fake_run
 def test_a_stop_of_the_first_run_after_it_reported_keeps_the_jobs_folder(tmp_path, fake_runs, capsys):
     from smorphi_rl.cli import main
 
-    argv, _calls, stops = fake_runs
+    argv, _calls, stops, _algos = fake_runs
     stops[1] = "reported"  # a second Ctrl-C, say, after the run's first checkpoint
     assert main([*argv, "--seeds", "0"]) == 130
     assert (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
@@ -222,7 +240,7 @@ def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path
     from smorphi_rl.cli import main
     from smorphi_rl.training import transfer
 
-    argv, calls, stops = fake_runs
+    argv, calls, stops, _algos = fake_runs
     job = tmp_path / "logs" / "job"
     job.mkdir(parents=True)
     (job / transfer.JOB_FILE).write_text('{"maps": [], "seeds": [1]}')
@@ -249,7 +267,7 @@ def test_runs_on_a_map_without_an_optimum_are_not_measured(tmp_path):
 def test_a_run_that_fails_after_others_finished_names_the_resume(tmp_path, fake_runs, capsys):
     from smorphi_rl.cli import main
 
-    argv, _calls, stops = fake_runs
+    argv, _calls, stops, _algos = fake_runs
     stops[2] = "error"
     assert main([*argv, "--seeds", "0"]) == 1
     err = capsys.readouterr().err
