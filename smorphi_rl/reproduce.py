@@ -298,15 +298,13 @@ def _claims(map_name: str, b: Budget, scores: list[MethodScore], seeds: dict[str
 def _transfer_claims(runs: list[Any]) -> list[str]:
     """Table 5's claim per held-out map, over seeds: the speed-up with its interval; a run that never converged
     counts as past its budget, and a map where the medians of both modes lie past it gives no ratio."""
-    from smorphi_rl.training.convergence import at_steps
-    from smorphi_rl.training.transfer import GAP_KEY, by_map, equal_steps
+    from smorphi_rl.training.transfer import by_map, equal_steps
 
     out = []
     claim = "*A pretrained policy converges about five times faster.*"
     equal = equal_steps(runs)
     for m in by_map(runs):
-        tuned, scratch = (median_interval([at_steps(r.curve, GAP_KEY, equal) for r in rs])
-                          for rs in (m.tuned, m.scratch))  # fmt: skip
+        tuned, scratch = m.gaps_at(equal)
         out.append(f"- {m.map_name}: *A pretrained policy adapts faster.* Greedy median gap at {equal:,} env steps "
                    f"fine-tuned {tuned.text()} vs scratch {scratch.text()}: {above(scratch, tuned)}.")  # fmt: skip
         counts = f"converged: fine-tuned {m.counts[0]}, scratch {m.counts[1]}"

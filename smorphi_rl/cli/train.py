@@ -154,10 +154,9 @@ def cmd_transfer(args: argparse.Namespace) -> int:
 
     warn_once()
     from smorphi_rl.training.config import TrainConfigError
-
-    # the options and maps are checked before anything runs
     from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
 
+    # the options and maps are checked before anything runs
     job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
                       args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
     for path in args.maps:

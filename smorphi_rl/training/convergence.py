@@ -61,7 +61,7 @@ def at_steps(curve: dict[str, list[float]], key: str, env_steps: float) -> float
     return float(values[ok[-1]]) if ok.size else math.nan
 
 
-def at_steps_first(curve: dict[str, list[float]], key: str) -> float:
+def first_measured_steps(curve: dict[str, list[float]], key: str) -> float:
     """The env steps of the run's first measured `key`; inf when none was measured."""
     steps = np.asarray(curve.get("env_steps", []), dtype=float)
     ok = np.flatnonzero(np.isfinite(np.asarray(curve.get(key, []), dtype=float)))

@@ -21,10 +21,10 @@ from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_
 from smorphi_rl.training.config import TrainConfig, TrainConfigError
 from smorphi_rl.training.convergence import (
     at_steps,
-    at_steps_first,
     censored_steps,
     converged_count,
     converged_text,
+    first_measured_steps,
     measured,
 )
 
@@ -306,8 +306,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     ]
     for m in by_map(runs):
         best = " / ".join(_best_text(rs) for rs in (m.tuned, m.scratch))
-        gaps = " | ".join(median_interval([at_steps(r.curve, GAP_KEY, equal) for r in rs]).text()
-                          for rs in (m.tuned, m.scratch))  # fmt: skip
+        gaps = " | ".join(gap.text() for gap in m.gaps_at(equal))
         lines.append(
             f"| {m.map_name} | {m.tuned_steps.text(',.0f')} | {m.counts[0]} | {m.scratch_steps.text(',.0f')} "
             f"| {m.counts[1]} | {m.ratio.text()} | {gaps} | {median_interval([r.plateau for r in m.tuned]).text()} "
@@ -329,7 +328,7 @@ def equal_steps(runs: list[TransferRun]) -> int:
     """The env steps at which fine-tuned and scratch runs are compared: a tenth of the fewest any whole run trained,
     or later, where a run's first evaluation came later (a short budget)."""
     whole = [r for r in runs if not r.interrupted]
-    first = [at_steps_first(r.curve, GAP_KEY) for r in whole]
+    first = [first_measured_steps(r.curve, GAP_KEY) for r in whole]
     return int(max([EQUAL_SHARE * min((r.env_steps for r in whole), default=0)] + [f for f in first if f < math.inf]))
 
 
@@ -367,6 +366,12 @@ class MapTransfer:
         if scratch is None or tuned is None:
             return _NONE
         return censored_ratio_interval(scratch[0], tuned[0], min(scratch[1], tuned[1]))
+
+    def gaps_at(self, env_steps: float) -> tuple[Interval, Interval]:
+        """The greedy median gap of the fine-tuned and of the scratch runs at equal env steps, over seeds."""
+        tuned, scratch = (median_interval([at_steps(r.curve, GAP_KEY, env_steps) for r in runs])
+                          for runs in (self.tuned, self.scratch))  # fmt: skip
+        return tuned, scratch
 
     @property
     def counts(self) -> tuple[str, str]:

@@ -108,6 +108,9 @@ def test_a_curve_is_read_at_equal_env_steps_from_its_last_evaluation_by_then():
     curve = {"env_steps": [1_000.0, 2_000.0, 3_000.0], "eval_gap": [4.0, math.nan, 1.0]}
     assert at_steps(curve, "eval_gap", 2_500) == 4.0  # the evaluation at 2,000 measured nothing
     assert at_steps(curve, "eval_gap", 3_000) == 1.0 and math.isnan(at_steps(curve, "eval_gap", 500))
-    from smorphi_rl.training.convergence import at_steps_first
+    from smorphi_rl.training.convergence import first_measured_steps
 
-    assert at_steps_first(curve, "eval_gap") == 1_000 and at_steps_first({"env_steps": []}, "eval_gap") == math.inf
+    assert (
+        first_measured_steps(curve, "eval_gap") == 1_000
+        and first_measured_steps({"env_steps": []}, "eval_gap") == math.inf
+    )
