@@ -85,8 +85,6 @@ def converged_cell(group: list[Row]) -> str:
         return "-"
     count = f"{sum(r.converged_at is not None for r in group)} of {len(group)}"
     steps = censored_steps([(r.converged_at, r.curve[0][-1] if r.curve and r.curve[0] else 0.0) for r in group])
-    if steps is None:
-        return count
     median = censored_median_interval(*steps)
     return f"{count}, median {median.bound} {median.mean:,.0f} steps".replace("  ", " ")
 

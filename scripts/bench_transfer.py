@@ -110,7 +110,9 @@ def main() -> None:
     meets = 0
     for m in by_map(runs):
         ratio = m.ratio  # Interval.mean holds the ratio of the medians, or the bound on it
-        if not ratio.n:
+        if "not measured" in m.counts:
+            verdict = "no ratio: the map has no exact optimum (not measured)"
+        elif not ratio.n:
             verdict = "no ratio: the medians of both modes lie past the budget"
         else:
             met = ratio.bound != "<" and ratio.mean >= TARGET_RATIO  # "> x": at least x, a measured bound

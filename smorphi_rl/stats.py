@@ -64,47 +64,55 @@ def _interval(values: Sequence[float], statistic: Any, seed: int) -> Interval:
     return Interval(point, float(res.confidence_interval.low), float(res.confidence_interval.high), int(data.size))
 
 
-def censored_median_interval(times: Sequence[float], budget: float, seed: int = 0) -> Interval:
-    """Median over seeds of the env steps until an event (a run's convergence), `inf` for a run in which it did not
-    happen within `budget`, every run having had that budget, with its 95 % percentile bootstrap interval.
+def censored_median_interval(least: Sequence[float], most: Sequence[float], seed: int = 0) -> Interval:
+    """Median over seeds of the env steps until an event (a run's convergence), each run's time known to lie in
+    [least, most]: its time where it happened, [its env steps, inf] where it did not happen within its budget
+    (right-censored), with its 95 % percentile bootstrap interval.
 
-    Such a run is right-censored: later than every time observed. The median is an order statistic, so it is exact
-    while it falls on an observed time, and otherwise known only to lie past the budget (`bound` ">", `mean` the
-    budget). A resample's median past the budget counts as the budget for the interval's low end and as inf for its
-    high end, so the interval is never narrower than the data say."""
-    data = np.asarray(times, dtype=float)
-    if data.size == 0:
+    The median is monotone in every time, so it lies between the medians of `least` and of `most`: exact where they
+    agree (a median that falls on a run that converged, later than every censored run's budget), otherwise known
+    only to be at least the first (`bound` ">"). The interval's low end resamples `least`, its high end `most`
+    (the same resamples), so it is never narrower than the data say."""
+    low_times, high_times = (np.asarray(v, dtype=float) for v in (least, most))
+    if low_times.size == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    point = float(np.median(data))
-    low = _censored_distribution((_at_budget(data, budget),), np.median, seed)
-    high = _censored_distribution((data,), np.median, seed)
-    past = math.isinf(point)
-    return Interval(budget if past else point, _end(low, 2.5), _end(high, 97.5), int(data.size), ">" if past else "")
+    point, upper = float(np.median(low_times)), float(np.median(high_times))
+    low = _censored_distribution((low_times,), np.median, seed)
+    high = _censored_distribution((high_times,), np.median, seed)
+    return Interval(point, _end(low, 2.5), _end(high, 97.5), int(low_times.size), "" if point == upper else ">")
 
 
-def censored_ratio_interval(numerator: Sequence[float], denominator: Sequence[float], budget: float,
-                            seed: int = 0) -> Interval:  # fmt: skip
-    """median(numerator) / median(denominator) of two independent sets of such times (Table 5's speed-up, scratch /
-    fine-tuned; `censored_median_interval`), with its 95 % percentile bootstrap interval (each set resampled on its
-    own). Exact where both medians are; where one lies past the budget, the budget bounds it: a lower bound (">")
-    when it is the numerator's, an upper bound ("<") when the denominator's; NaN (no ratio) when both are. The
-    interval's low end takes each resample's least possible ratio, its high end the greatest."""
-    a, b = (np.asarray(v, dtype=float) for v in (numerator, denominator))
-    if a.size == 0 or b.size == 0:
+Bounds = tuple[Sequence[float], Sequence[float]]
+"""Times over seeds as (least, most): each run's time lies between the two (`censored_median_interval`)."""
+
+
+def censored_ratio_interval(numerator: Bounds, denominator: Bounds, seed: int = 0) -> Interval:
+    """median(numerator) / median(denominator) of two independent sets of such times, each given as (least, most)
+    (Table 5's speed-up, scratch / fine-tuned; `censored_median_interval`), with its 95 % percentile bootstrap
+    interval (each set resampled on its own). Exact where both medians are; where only the numerator's is
+    uncertain, a lower bound (">"); where only the denominator's, an upper bound ("<"); NaN (no ratio) where both
+    are, or a median is not positive. The interval's low end takes each resample's least possible ratio, its high
+    end the greatest."""
+    (a_least, a_most), (b_least, b_most) = ((np.asarray(x, dtype=float), np.asarray(y, dtype=float))
+                                            for x, y in (numerator, denominator))  # fmt: skip
+    if a_least.size == 0 or b_least.size == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    top, bottom = float(np.median(a)), float(np.median(b))
-    if math.isinf(top) and math.isinf(bottom):
+    a_exact = float(np.median(a_least)) == float(np.median(a_most))
+    b_exact = float(np.median(b_least)) == float(np.median(b_most))
+    if not (a_exact or b_exact) or float(np.median(b_least)) <= 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    bound = ">" if math.isinf(top) else "<" if math.isinf(bottom) else ""
-    point = (budget if math.isinf(top) else top) / (budget if math.isinf(bottom) else bottom)
+    least_ratio = float(np.median(a_least) / np.median(b_most))  # b exact here, or the ratio is only bounded above
+    most_ratio = float(np.median(a_most) / np.median(b_least))
+    point, bound = ((least_ratio, "") if a_exact and b_exact else (least_ratio, ">") if b_exact
+                    else (most_ratio, "<"))  # fmt: skip
 
     def of_ratio(x: np.ndarray, y: np.ndarray, axis: int = -1) -> np.ndarray:
         with np.errstate(divide="ignore", invalid="ignore"):
             return np.median(x, axis=axis) / np.median(y, axis=axis)
 
-    low = _censored_distribution((_at_budget(a, budget), b), of_ratio, seed)  # x / inf = 0: no less than that
-    high = _censored_distribution((a, _at_budget(b, budget)), of_ratio, seed)
-    return Interval(point, _end(low, 2.5), _end(high, 97.5), int(min(a.size, b.size)), bound)
+    low = _censored_distribution((a_least, b_most), of_ratio, seed)  # x / inf = 0: no less than that
+    high = _censored_distribution((a_most, b_least), of_ratio, seed)
+    return Interval(point, _end(low, 2.5), _end(high, 97.5), int(min(a_least.size, b_least.size)), bound)
 
 
 def _censored_distribution(samples: tuple[np.ndarray, ...], statistic: Any, seed: int) -> np.ndarray:
@@ -118,11 +126,6 @@ def _censored_distribution(samples: tuple[np.ndarray, ...], statistic: Any, seed
         res = bootstrap(samples, statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
                         random_state=np.random.default_rng(seed))  # fmt: skip
     return np.asarray(res.bootstrap_distribution, dtype=float)
-
-
-def _at_budget(times: np.ndarray, budget: float) -> np.ndarray:
-    """The times with each one past the budget (inf) at the budget: the least it can be."""
-    return np.where(np.isinf(times), budget, times)
 
 
 def _end(distribution: np.ndarray, q: float) -> float:

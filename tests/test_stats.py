@@ -21,40 +21,57 @@ def test_degenerate_inputs():
     assert math.isnan(mean_interval([float("nan")]).mean) and mean_interval([]).text() == "-"
 
 
+def _bounds(times: list[float], budget: float) -> tuple[list[float], list[float]]:
+    """(least, most) of runs with one budget, inf for a run that did not converge within it."""
+    return [budget if math.isinf(t) else t for t in times], times
+
+
 def test_ratio_of_medians_of_runs_that_all_converged():
     from smorphi_rl.stats import censored_ratio_interval
 
-    iv = censored_ratio_interval([10.0, 50.0, 300.0], [10.0, 10.0, 40.0], budget=400.0)
+    iv = censored_ratio_interval(_bounds([10.0, 50.0, 300.0], 400), _bounds([10.0, 10.0, 40.0], 400))
     assert iv.mean == 5.0 and iv.bound == ""  # medians 50 / 10; the means would give 6.0
     assert iv.lo <= 5.0 <= iv.hi and iv.n == 3
-    single = censored_ratio_interval([10.0], [5.0], budget=400.0)
+    single = censored_ratio_interval(([10.0], [10.0]), ([5.0], [5.0]))
     assert (single.mean, single.lo, single.hi) == (2.0, 2.0, 2.0)
-    assert math.isnan(censored_ratio_interval([], [1.0], budget=400.0).mean)
+    assert math.isnan(censored_ratio_interval(([], []), ([1.0], [1.0])).mean)
+    assert math.isnan(censored_ratio_interval(([1.0], [1.0]), ([0.0], [0.0])).mean)  # no ratio to a zero median
 
 
 def test_a_run_that_never_converged_counts_past_the_budget_never_left_out():
     from smorphi_rl.stats import censored_median_interval
 
     inf = math.inf
-    one_late = censored_median_interval([80_000, 130_000, inf], budget=200_000)
+    one_late = censored_median_interval(*_bounds([80_000, 130_000, inf], 200_000))
     assert one_late.mean == 130_000 and one_late.bound == ""  # the median is an order statistic: still exact
     assert one_late.hi == inf and one_late.text(",.0f") == "130,000 [80,000, inf]"
-    assert censored_median_interval([80_000, 130_000], budget=200_000).mean == 105_000  # leaving it out flatters
-    most_late = censored_median_interval([130_000, inf, inf], budget=200_000)
+    assert censored_median_interval(*_bounds([80_000, 130_000], 200_000)).mean == 105_000  # leaving it out flatters
+    most_late = censored_median_interval(*_bounds([130_000, inf, inf], 200_000))
     assert (most_late.mean, most_late.bound, most_late.lo) == (200_000, ">", 130_000)
     assert most_late.text(",.0f") == "> 200,000 [130,000, inf]"
-    assert censored_median_interval([inf, inf, inf], budget=200_000).text(",.0f") == "> 200,000"
+    assert censored_median_interval(*_bounds([inf, inf, inf], 200_000)).text(",.0f") == "> 200,000"
+    # an even count: the median averages a run that converged with one that did not, so it is only at least
+    even = censored_median_interval(*_bounds([90_000, inf], 200_000))
+    assert (even.mean, even.bound) == (145_000, ">")
+    # budgets that differ (an async run stops a little past its budget): still at least, never dropped
+    uneven = censored_median_interval([100_000, 200_000, 200_320], [100_000, inf, 200_320])
+    assert (uneven.mean, uneven.bound) == (200_000, ">")
 
 
 def test_a_ratio_past_the_budget_is_a_bound_in_the_right_direction():
     from smorphi_rl.stats import censored_ratio_interval
 
     inf = math.inf
-    faster = censored_ratio_interval([90_000, inf, inf], [40_000, 60_000, 40_000], budget=200_000)
+    tuned = _bounds([40_000, 60_000, 40_000], 200_000)
+    faster = censored_ratio_interval(_bounds([90_000, inf, inf], 200_000), tuned)
     assert (faster.mean, faster.bound) == (5.0, ">") and faster.text().startswith("> 5.00 [")  # 200,000 / 40,000
     assert faster.hi == inf and faster.lo < 5.0
-    slower = censored_ratio_interval([150_000, 110_000, 110_000], [inf, inf, inf], budget=200_000)
+    even = censored_ratio_interval(_bounds([90_000, inf], 200_000), _bounds([40_000, 40_000], 200_000))
+    assert (even.mean, even.bound) == (145_000 / 40_000, ">")  # at least 3.6, not 5
+    slower = censored_ratio_interval(_bounds([150_000, 110_000, 110_000], 200_000), _bounds([inf, inf, inf], 200_000))
     assert (slower.mean, slower.bound, slower.lo) == (0.55, "<", 0.0) and slower.hi == 0.75
-    assert censored_ratio_interval([inf, inf, 1.0], [inf, inf, inf], budget=200_000).n == 0  # both past: no ratio
-    exact = censored_ratio_interval([110_000, 90_000, 110_000], [50_000, 50_000, 80_000], budget=200_000)
+    both = censored_ratio_interval(_bounds([inf, inf, 1.0], 200_000), _bounds([inf, inf, inf], 200_000))
+    assert both.n == 0  # both medians past the budget: no ratio
+    exact = censored_ratio_interval(_bounds([110_000, 90_000, 110_000], 200_000), _bounds([50_000, 50_000, 80_000],
+                                                                                          200_000))  # fmt: skip
     assert exact.bound == "" and exact.mean == 2.2 and exact.lo < exact.mean

@@ -251,8 +251,9 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
     from smorphi_rl.training.policy import evaluate_policy
 
     if not env_config.map_files:
-        raise SmorphiError(f"the policy was trained on generated floors ({', '.join(env_config.maps)}), which have no "
-                           "exact optimum to measure against: give fixed floors with --map")  # fmt: skip
+        said = "--map names" if args.map is not None else "the policy was trained on"
+        raise SmorphiError(f"{said} generated floors only ({', '.join(env_config.maps)}), which have no exact "
+                           "optimum to measure against: give fixed floors with --map")  # fmt: skip
     env_config = replace(env_config, maps=env_config.map_files)  # a generated floor has no optimum: files only
     cache = optimum_cache(args.log_dir)
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache)

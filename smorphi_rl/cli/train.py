@@ -130,9 +130,9 @@ def cmd_train(args: argparse.Namespace) -> int:
 
 
 def train_setup(args: argparse.Namespace) -> tuple[str, Any]:
-    """The algorithm and env of `train`: the options given, on the --map files (or the default map); the rest the
-    pretrained policy's, when there is one (its algorithm, layout, moves and reward, as `transfer` takes them),
-    else the defaults."""
+    """The algorithm and env of `train`: the options given, on the --map files (or the default map); every other
+    setting the pretrained policy's, when there is one, but its floors and start point (`finetune.MAP_FIELDS`), as
+    `transfer` takes them; else the defaults."""
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
@@ -141,7 +141,7 @@ def train_setup(args: argparse.Namespace) -> tuple[str, Any]:
         from smorphi_rl.training.finetune import pretrained_setup
 
         algo, trained_with = pretrained_setup(args.pretrained)
-        env = {k: v for k, v in trained_with.items() if k in EnvConfig.__dataclass_fields__ and k != "maps"}
+        env = {k: v for k, v in trained_with.items() if k in EnvConfig.__dataclass_fields__}
     env |= {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
     if args.map is not None:
         env["maps"] = map_paths(args.map)

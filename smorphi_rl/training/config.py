@@ -77,7 +77,8 @@ class TrainConfig:
     top_k: int = 8
     """Best shapes kept in the run's top-k table."""
     pretrained: str | None = None
-    """Checkpoint (or trial or run directory) to start from: fine-tuning, the paper's transfer."""
+    """Checkpoint (or trial or run directory, or exported policy) to start from: fine-tuning, the paper's transfer.
+    `train` then takes the policy's algorithm and env settings, but its floors and start point, unless given."""
     max_iterations: int | None = None
     """Also stop after this many training iterations (tests and smoke runs); None: the env-step budget only."""
     overrides: dict[str, float] = field(default_factory=dict)

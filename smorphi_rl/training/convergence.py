@@ -87,14 +87,10 @@ def converged_count(converged: int, curves: list[dict[str, list[float]]]) -> str
     return f"{converged} of {n}" if n or not curves else "not measured"
 
 
-def censored_steps(runs: list[tuple[float | None, float]]) -> tuple[list[float], float] | None:
-    """Env steps to converge of runs given as (converged at or None, env steps trained), inf for each run that did
-    not converge, and the fewest env steps such a run trained (the budget every one of them went past): for
-    `stats.censored_median_interval`. None where a run that did not converge trained fewer env steps than another
-    run needed to converge: its place among them is then unknown."""
-    times = [math.inf if at is None else float(at) for at, _ in runs]
-    ends = [float(steps) for at, steps in runs if at is None]
-    budget = min(ends, default=max((float(steps) for _, steps in runs), default=0.0))
-    if any(t > budget for t in times if math.isfinite(t)):
-        return None
-    return times, budget
+def censored_steps(runs: list[tuple[float | None, float]]) -> tuple[list[float], list[float]]:
+    """Env steps to converge of runs given as (converged at or None, env steps trained), as the bounds
+    `stats.censored_median_interval` takes: (least, most), each a run's time where it converged, and its env steps
+    and inf where it did not (it would converge later, if ever: right-censored, never left out)."""
+    least = [float(steps) if at is None else float(at) for at, steps in runs]
+    most = [math.inf if at is None else float(at) for at, _ in runs]
+    return least, most

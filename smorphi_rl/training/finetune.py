@@ -76,11 +76,22 @@ def critic_renormalised(state: dict[str, Any], trained_with: dict[str, Any], now
     }
 
 
+MAP_FIELDS = ("maps", "start_xy")
+"""Env fields of a pretrained policy that belong to the floors it was trained on, so a run on other floors does not
+take them."""
+
+
 def pretrained_setup(pretrained: str | Path) -> tuple[str | None, dict[str, Any]]:
     """The algorithm and env configuration the policy `pretrained` names was trained with (its model config carries
-    them; None and empty for one written before it did): `train --pretrained` and `transfer` start from them."""
-    model = load_module(find_checkpoint(pretrained)).model_config
-    return model.get("algorithm"), dict(model.get("env_config") or {})
+    them; None and empty for one written before it did), less its floors and start point (`MAP_FIELDS`): `train
+    --pretrained` and `transfer` start from them."""
+    return model_setup(load_module(find_checkpoint(pretrained)).model_config)
+
+
+def model_setup(model_config: dict[str, Any]) -> tuple[str | None, dict[str, Any]]:
+    """`pretrained_setup` of a loaded policy's model config."""
+    env = {k: v for k, v in dict(model_config.get("env_config") or {}).items() if k not in MAP_FIELDS}
+    return model_config.get("algorithm"), env
 
 
 def fine_tune_from(pretrained: str | Path, env_config: dict[str, Any]) -> tuple[Path, type[MorphologyCallbacks]]:

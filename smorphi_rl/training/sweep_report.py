@@ -224,8 +224,8 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     left_out = f" {unfinished} unfinished trial(s) (sweep.md) are left out." if unfinished else ""
     lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
              "protocol's starts settle within 1 % of the optimum; a trial that never converged counts as "
-             "converging past its budget, after every trial that did, so a median that falls on it reads "
-             f"\"> budget\" and an interval's end past the budget \"inf\".{left_out}", "",
+             "converging past its budget, so a median that depends on it reads \"> x\" (at least x) and an "
+             f"interval's end past the budget \"inf\".{left_out}", "",
              "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
@@ -235,7 +235,7 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
         within = median_interval([t.share_within_1pct for t in trials if math.isfinite(t.share_within_1pct)])
         plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
         best = median_interval([t.best.R1 for t in trials if t.best is not None])
-        to_converge = "-" if steps is None else censored_median_interval(*steps).text(",.0f")
+        to_converge = censored_median_interval(*steps).text(",.0f")
         count = converged_count(sum(t.converged_at is not None for t in trials), [t.curve for t in trials])
         lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "
                      f"| {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip

@@ -130,15 +130,17 @@ def run_transfer(
     from smorphi_rl.errors import SmorphiError
     from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
-    from smorphi_rl.training.finetune import check_pretrained
+    from smorphi_rl.training.finetune import check_pretrained, model_setup
     from smorphi_rl.training.run import TrainingError, train
 
     checkpoint = find_checkpoint(job.pretrained)
     model = load_module(checkpoint).model_config
-    env = EnvConfig.from_dict(dict(model.get("env_config") or {}))
-    job = replace(job, algo=job.algo or model.get("algorithm") or TrainConfig.algo)  # the pretrained policy's
+    algo, trained_with = model_setup(model)
+    env = EnvConfig.from_dict(trained_with)
+    job = replace(job, algo=job.algo or algo or TrainConfig.algo)  # the pretrained policy's
     configs = []
-    trained_on = {Path(m).resolve() for m in env.map_files}
+    pretrained_maps = EnvConfig.from_dict(dict(model.get("env_config") or {})).map_files
+    trained_on = {Path(m).resolve() for m in pretrained_maps}
     for path in job.maps:  # every map and the checkpoint are checked before the first run starts
         if Path(path).resolve() in trained_on:
             raise TrainConfigError(f"--maps {path} is one the pretrained policy was trained on: transfer measures "
@@ -293,10 +295,10 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. A run that never converged is counted as not converged, "
-        "not as a number: its env steps to converge lie past its budget, later than every run that converged, so a "
-        'median that falls on it reads "> budget", a ratio of the medians bounded by it "> x" (at least) or '
-        '"< x" (at most), and an interval\'s end past the budget "inf". At equal env steps (a tenth of the '
-        "budget): each run's greedy median gap to the optimum's R1 at its last evaluation by then."
+        "not as a number: its env steps to converge lie past its budget, so a median that depends on it reads "
+        '"> x" (at least x), a ratio of the medians bounded by it "> x" (at least) or "< x" (at most), and an '
+        'interval\'s end past the budget "inf". At equal env steps (a tenth of the budget, or the first evaluation '
+        "if later): each run's greedy median gap to the optimum's R1 at its last evaluation by then."
         + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
@@ -332,9 +334,9 @@ def equal_steps(runs: list[TransferRun]) -> int:
     return int(max([EQUAL_SHARE * min((r.env_steps for r in whole), default=0)] + [f for f in first if f < math.inf]))
 
 
-def converged_steps(runs: list[TransferRun]) -> tuple[list[float], float] | None:
-    """Env steps to convergence of each measured run, inf for one that did not converge within its budget (it
-    would converge later than every run that did, if ever: right-censored, never left out), and that budget."""
+def converged_steps(runs: list[TransferRun]) -> tuple[list[float], list[float]]:
+    """Env steps to convergence of each measured run as (least, most): its time where it converged, its env steps
+    and inf where it did not (it would converge later, if ever: right-censored, never left out)."""
     return censored_steps([(r.converged_at, r.env_steps) for r in runs if measured(r.curve)])
 
 
@@ -351,21 +353,18 @@ class MapTransfer:
 
     @property
     def tuned_steps(self) -> Interval:
-        return _median(converged_steps(self.tuned))
+        return censored_median_interval(*converged_steps(self.tuned))
 
     @property
     def scratch_steps(self) -> Interval:
-        return _median(converged_steps(self.scratch))
+        return censored_median_interval(*converged_steps(self.scratch))
 
     @property
     def ratio(self) -> Interval:
         """The ratio of the medians, scratch / fine-tuned, with its interval: a lower bound (`bound` ">") where the
-        scratch median lies past the budget, an upper bound ("<") where the fine-tuned one does, NaN (no ratio)
-        where both do or a mode has no measured run."""
-        scratch, tuned = converged_steps(self.scratch), converged_steps(self.tuned)
-        if scratch is None or tuned is None:
-            return _NONE
-        return censored_ratio_interval(scratch[0], tuned[0], min(scratch[1], tuned[1]))
+        scratch median depends on runs that did not converge, an upper bound ("<") where the fine-tuned one does,
+        NaN (no ratio) where both do or a mode has no measured run."""
+        return censored_ratio_interval(converged_steps(self.scratch), converged_steps(self.tuned))
 
     def gaps_at(self, env_steps: float) -> tuple[Interval, Interval]:
         """The greedy median gap of the fine-tuned and of the scratch runs at equal env steps, over seeds."""
@@ -379,13 +378,6 @@ class MapTransfer:
         tuned, scratch = (converged_count(sum(r.converged_at is not None for r in runs), [r.curve for r in runs])
                           for runs in (self.tuned, self.scratch))  # fmt: skip
         return tuned, scratch
-
-
-_NONE = Interval(math.nan, math.nan, math.nan, 0)
-
-
-def _median(steps: tuple[list[float], float] | None) -> Interval:
-    return _NONE if steps is None else censored_median_interval(*steps)
 
 
 def _best_text(runs: list[Any]) -> str:

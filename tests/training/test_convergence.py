@@ -92,14 +92,12 @@ def test_sweep_table_and_curves(tmp_path):
     assert math.isnan(line["eval_R1_mean"][0]) and line["eval_R1_mean"][-1] == 85.0
 
 
-def test_runs_that_never_converged_are_censored_at_the_budget_they_all_went_past():
+def test_runs_that_never_converged_are_censored_at_their_own_budget():
     from smorphi_rl.training.convergence import censored_steps
 
-    assert censored_steps([(4_000, 10_000), (None, 10_000), (6_000, 10_000)]) == ([4_000, math.inf, 6_000], 10_000)
-    assert censored_steps([(4_000, 10_000), (6_000, 12_000)]) == ([4_000, 6_000], 12_000)  # none past a budget
-    # a run that stopped at 5,000 without converging may yet have converged before the one at 6,000: no order
-    assert censored_steps([(4_000, 10_000), (None, 5_000), (6_000, 10_000)]) is None
-    assert censored_steps([]) == ([], 0.0)
+    least, most = censored_steps([(4_000, 10_000), (None, 10_000), (6_000, 10_000), (None, 5_000)])
+    assert least == [4_000, 10_000, 6_000, 5_000] and most == [4_000, math.inf, 6_000, math.inf]
+    assert censored_steps([]) == ([], [])
 
 
 def test_a_curve_is_read_at_equal_env_steps_from_its_last_evaluation_by_then():
