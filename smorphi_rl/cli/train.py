@@ -136,12 +136,12 @@ def train_setup(args: argparse.Namespace) -> tuple[str, Any]:
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.training.config import TrainConfig
 
-    algo, env = None, {}
+    algo: str | None = None
+    env: dict[str, Any] = {}
     if args.pretrained is not None:  # a bad checkpoint is named here, before anything else
         from smorphi_rl.training.finetune import pretrained_setup
 
-        algo, trained_with = pretrained_setup(args.pretrained)
-        env = {k: v for k, v in trained_with.items() if k in EnvConfig.__dataclass_fields__}
+        algo, env = pretrained_setup(args.pretrained)
     env |= {name: value for name in ENV_FIELDS if (value := getattr(args, name)) is not None}
     if args.map is not None:
         env["maps"] = map_paths(args.map)

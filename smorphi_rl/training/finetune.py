@@ -89,8 +89,11 @@ def pretrained_setup(pretrained: str | Path) -> tuple[str | None, dict[str, Any]
 
 
 def model_setup(model_config: dict[str, Any]) -> tuple[str | None, dict[str, Any]]:
-    """`pretrained_setup` of a loaded policy's model config."""
-    env = {k: v for k, v in dict(model_config.get("env_config") or {}).items() if k not in MAP_FIELDS}
+    """`pretrained_setup` of a loaded policy's model config (only the env fields this version knows)."""
+    from smorphi_rl.env_config import EnvConfig
+
+    known = set(EnvConfig.__dataclass_fields__) - set(MAP_FIELDS)
+    env = {k: v for k, v in dict(model_config.get("env_config") or {}).items() if k in known}
     return model_config.get("algorithm"), env
 
 
