@@ -170,7 +170,7 @@ class MorphologyCallbacks(RLlibCallback):
                 result[EVAL_KEY] |= figures
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
-        """The protocol's greedy roll-outs from `starts` on every training map (a GreedyRollouts)."""
+        """The protocol's greedy roll-outs from `starts` on every evaluated map (a GreedyRollouts)."""
         import numpy as np
 
         from smorphi_rl.env_config import EnvConfig
@@ -179,7 +179,8 @@ class MorphologyCallbacks(RLlibCallback):
 
         known = set(EnvConfig.__dataclass_fields__)
         raw = {k: v for k, v in dict(algorithm.config.env_config).items() if k in known}
-        env = EnvConfig.from_dict(raw | ({"maps": list(self.eval_maps)} if self.eval_maps else {}))
+        env = EnvConfig.from_dict(raw)
+        env = replace(env, maps=self.eval_maps or env.map_files)  # a generated floor has no optimum: files only
         optima = {name: Optimum(**o) for name, o in self.eval_optima.items()}
         return GreedyRollouts(env, np.array(starts, dtype=np.float64), optima)
 
@@ -320,7 +321,8 @@ def with_evaluation(
     """`base` with the periodic evaluation switched on: `starts` (n x 3), each evaluated map's Optimum, and the
     env-step budget (the iteration that reaches it is evaluated too); `selection` (m x 3), other starts on
     which the run chooses the evaluated policy it ends on (empty: the last); `maps`, the maps evaluated on
-    (empty: the training maps); `design_budget`, the designer's figures at that many planner evaluations (0: off)."""
+    (empty: the training maps that are files); `design_budget`, the designer's figures at that many planner
+    evaluations (0: off)."""
     from dataclasses import asdict
 
     evaluations = design_budget

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome
 from smorphi_rl.training.callbacks import selection_score
 
 OPTIMUM = Optimum((0.0, 0.0, 0.0), 90.0, 100.0, 1)
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _evaluation(*settled_R1: float) -> list[MapEvaluation]:
@@ -233,3 +236,16 @@ def test_a_run_ending_early_on_an_evaluated_iteration_is_not_rolled_out_twice(mo
     hooks.end_run(algorithm=SimpleNamespace(iteration=5), result=result)
     hooks.end_run(algorithm=SimpleNamespace(iteration=5), result=result)  # once only
     assert calls == [1, 5] and result[EVAL_KEY]["policy_env_steps"] == 5000 and "trained" not in result[EVAL_KEY]
+
+
+def test_the_protocol_runs_on_the_training_maps_that_are_files_never_on_a_generator():
+    """A run on a map file and generated floors, with no evaluation maps named, is evaluated on the file alone
+    (a generated floor has no exact optimum to look up)."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.training import callbacks
+
+    maps = [str(ROOT / "maps" / "map-1.yaml"), "generate:mixed"]
+    hooks = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, [(90.0, 90.0, 90.0)], {"map-1": OPTIMUM})()
+    rollouts = hooks._protocol(SimpleNamespace(config=SimpleNamespace(env_config={"maps": maps})), [(90.0,) * 3])
+    assert [Path(m).name for m in rollouts.env_config.maps] == ["map-1.yaml"]
