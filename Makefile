@@ -4,7 +4,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 
-.PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer bench-designer bench-search-ray clean
+.PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer bench-designer bench-search-ray bench-sweeps clean
 
 # torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
 $(BIN)/.installed: pyproject.toml
@@ -55,6 +55,9 @@ bench-designer: setup
 
 bench-search-ray: setup  ## search exhaustive on a local Ray with 1 and 2 CPUs against the local pool
 	$(BIN)/python scripts/bench_search_ray.py
+
+bench-sweeps: setup  ## the shipped sweep files through `smorphi-rl sweep`, timed, with their tables over seeds
+	$(BIN)/python scripts/bench_sweeps.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

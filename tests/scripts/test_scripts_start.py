@@ -29,3 +29,14 @@ def test_a_bad_setting_given_to_a_benchmark_is_one_line_and_writes_nothing():
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     assert proc.stderr.strip().splitlines()[-1].startswith("bench_learning.py: error: unknown hyperparameter")
     assert (sorted(logs.iterdir()) if logs.is_dir() else []) == before
+
+
+def test_a_sweep_benchmark_of_a_missing_file_is_one_line(tmp_path):
+    argv = [sys.executable, str(SCRIPTS / "bench_sweeps.py"), "no-such-sweep.yaml", "--keep", str(tmp_path / "kept")]
+    proc = subprocess.run(argv, capture_output=True, text=True, timeout=120, cwd=SCRIPTS.parent)
+    configs = SCRIPTS.parent / "tune_configs"
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.stderr.strip() == (
+        f"bench_sweeps.py: error: no sweep file {configs / 'no-such-sweep.yaml'} (the shipped ones are in {configs})"
+    )
+    assert not (tmp_path / "kept").exists()
