@@ -9,13 +9,13 @@ evaluations (distinct shapes scored), so every method is compared at equal cost:
 - `anneal`: simulated annealing over the same neighbours (a random neighbour, accepted with
   probability exp(dR1 / T), T falling geometrically from 1 to 0.01 R1-spreads as the budget is
   spent; at most 20 proposed moves per evaluation), ending on the best;
-- `random_walk`: uniformly random moves from the start, ending on the shape the protocol says it
-  settled on (as a policy's roll-out would);
+- `random_walk`: uniformly random moves from the start (an untrained policy's episode of `max_steps`, cut short
+  at the budget of distinct shapes), ending on the shape the protocol says it settled on;
 - `random_search`: uniformly random shapes, ending on the best;
-- `pattern`: compass search with shrinking steps: from the start, each hinge tries +-32 lattice steps, then
-  +-16, ... down to +-1, taking every move that improves R1; when no step of any size improves, it restarts
-  from a uniformly random shape (seeded), ending on the best. Unlike the one-step moves, it jumps the plateaus
-  and ripples of the R1 landscape at a few degrees.
+- `pattern`: compass search with shrinking steps: from the start, each hinge tries +-32 lattice steps, taking
+  every move that improves R1 until none does, then +-16, ... down to +-1 (sizes only shrink); when the +-1 pass
+  improves nothing, it restarts from a uniformly random shape (seeded), ending on the best. Unlike the one-step
+  moves, it jumps the plateaus and ripples of the R1 landscape at a few degrees.
 """
 
 from __future__ import annotations
@@ -124,9 +124,9 @@ def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> The
     for _ in range(space.env.config.max_steps):
         m = MOVES[int(rng.integers(len(MOVES)))] if rng.random() > 1 / 27 else (0, 0, 0)
         theta = tuple(min(max(a + d * space.step, 0.0), 180.0) for a, d in zip(history[-1], m, strict=True))
+        if space.r1(theta) is None:  # type: ignore[arg-type]
+            break  # the budget of distinct shapes is spent: the walk ends where it stands
         history.append(theta)  # type: ignore[arg-type]
-        if theta not in space.seen:
-            space._score(theta)  # type: ignore[arg-type]
     return settled_theta(history)
 
 
@@ -156,7 +156,7 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
                         return space.best()
                     if v > value:
                         current, value, improved = candidate, v, True
-        current = space.random_theta(rng)  # no step of any size improves: restart
+        current = space.random_theta(rng)  # the +-1 pass improves nothing: restart
     return space.best()
 
 

@@ -19,9 +19,17 @@ def test_budget_seed_and_improvement(method):
     assert a == b
     for outcome, start in zip(a, starts, strict=True):
         assert outcome.start == tuple(start)
+        assert outcome.evaluations <= 150  # every method, the walk included: equal budgets
         if method != "random_walk":  # a walk ends where it settles; the others keep their best
-            assert outcome.evaluations <= 150
             assert env.score(tuple(start)).R1 <= outcome.R1
+
+
+def test_a_random_walk_stops_at_its_budget_of_distinct_shapes():
+    env = MorphologyEnv()
+    (short,) = run_local("random_walk", env, eval_starts(1), budget=20, seed=0)
+    (long,) = run_local("random_walk", env, eval_starts(1), budget=1_000, seed=0)
+    assert short.evaluations == 20
+    assert 20 < long.evaluations <= env.config.max_steps + 1  # a whole episode's walk, when the budget allows
 
 
 def test_hill_climbing_ends_on_a_local_maximum_of_its_neighbourhood():
