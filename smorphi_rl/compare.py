@@ -111,6 +111,8 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")
     if (run_dir / FOUND_CSV).is_file():
+        if methods:  # a training run's label says PPO or IMPALA: it would sit in the table under another name
+            raise SmorphiError(f"{run_dir}: a training run, given as {' or '.join(methods)} (pass it with --runs)")
         every = read_csv(run_dir / FOUND_CSV)
         if not every:
             raise SmorphiError(f"{run_dir / FOUND_CSV}: holds no rows of the table smorphi-rl writes")

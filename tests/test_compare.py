@@ -74,6 +74,18 @@ def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
     assert not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize("flag", ["--nsga2", "--random", "--local"])
+def test_compare_refuses_a_training_run_given_as_a_search(tmp_path, capsys, flag):
+    run = tmp_path / "logs" / "ppo-map-1"
+    run.mkdir(parents=True)
+    (run / "morphologies.csv").write_text("")
+    capsys.readouterr()
+    code = main(["compare", flag, str(run), "--log-dir", str(tmp_path / "out"), "--step", "30"])
+    err = capsys.readouterr().err
+    assert code == 1 and "a training run, given as" in err and "(pass it with --runs)" in err and err.count("\n") == 1
+    assert not (tmp_path / "out").exists()
+
+
 def test_compare_refuses_runs_scored_by_another_planner(tmp_path, capsys):
     from smorphi_rl.cli import main
 
