@@ -38,8 +38,8 @@ size (P_c, free coverage, the path against the free area, R1 / 100: `Box(0, 1, (
   move gains anything, standing still then pays more than drifting, so the policy settles on a shape.
 - `improvement`: `R = (R1(s') - R1(s)) / sigma_map`; the return telescopes to the final shape's R1
   minus the start's, so standing still at the optimum costs nothing.
-- `commit`: the all-zero action ends the episode and pays `R1(s) / sigma_map`; any other step pays
-  `-step_cost`, and truncation pays the final shape's `R1 / sigma_map` as well.
+- `commit`: the stay action (index K, no move, on every hinge) ends the episode and pays `R1(s) / sigma_map`;
+  any other step pays `-step_cost`, and truncation pays the final shape's `R1 / sigma_map` as well.
 `mu_map`, `sigma_map` and `q90_map` are the mean, standard deviation and 90th percentile of R1 over a
 fixed seeded sample of random shapes on the map.
 
@@ -49,7 +49,7 @@ uniform on the `angle_step_deg` lattice (or `start_theta`, or `reset(options={"t
 lattice), both from the env's seeded generator.
 
 ## Episode End
-Terminated when P_c >= `coverage_threshold` (off unless set), or in `commit` mode on the all-zero
+Terminated when P_c >= `coverage_threshold` (off unless set), or in `commit` mode on the stay
 action; truncated after `max_steps`.
 
 ## Version History

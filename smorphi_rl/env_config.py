@@ -23,7 +23,7 @@ DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
 
 
 class RewardMode(str, Enum):
-    """What an episode pays (docs/spec/env.md, "Reward modes")."""
+    """What an episode pays (docs/spec/env.md section 3, "Score and rewards")."""
 
     PAPER = "paper"
     LEVEL = "level"
@@ -134,7 +134,7 @@ class EnvConfig:
             top = f"{MAX_WEIGHT:g}"
             raise EnvConfigError(f"env_config 'w1' must be in (0, {top}] and 'w2' in [0, {top}] (R1 rewards "
                                  f"coverage and charges the path), got w1 {self.w1:g}, w2 {self.w2:g}")  # fmt: skip
-        for name in ("step_cost", "move_cost"):
+        for name in ("step_cost", "move_cost", "beta"):
             if not 0 <= getattr(self, name) <= MAX_WEIGHT:
                 raise EnvConfigError(f"env_config '{name}' must be in [0, {MAX_WEIGHT:g}], got {getattr(self, name)}")
         if not self.maps:

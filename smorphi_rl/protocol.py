@@ -1,4 +1,4 @@
-"""The one evaluation protocol (docs/spec/env.md, "Evaluating a policy"): fixed seeded starts, the settled shape,
+"""The one evaluation protocol (docs/spec/env.md section 6): fixed seeded starts, the settled shape,
 its gap to the exact optimum, and a map's summary. No torch, no Ray: policies and baselines share it.
 
 Every policy and baseline is started from the same `eval_starts()` on each map; an outcome is the

@@ -224,9 +224,11 @@ def test_a_step_that_changes_the_shape_pays_the_move_cost(mode: str):
     assert costs[0.25][2] == pytest.approx(costs[0.0][2] - 0.25)
 
 
-def test_negative_move_cost_is_refused():
-    with pytest.raises(EnvConfigError, match=r"env_config 'move_cost' must be in \[0, 1e\+06\]"):
-        MorphologyEnv({"move_cost": -0.1})
+@pytest.mark.parametrize("key", ["move_cost", "step_cost", "beta"])
+def test_a_negative_or_huge_cost_is_refused(key: str):
+    for value in (-0.1, 1e7):
+        with pytest.raises(EnvConfigError, match=rf"env_config '{key}' must be in \[0, 1e\+06\]"):
+            MorphologyEnv({key: value})
 
 
 def test_reset_option_theta_sets_the_start():
