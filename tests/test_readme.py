@@ -70,3 +70,10 @@ def test_a_readme_example_prints_what_the_readme_shows(workdir, command, expecte
     assert proc.returncode == 0, proc.stderr
     actual = proc.stdout.splitlines()
     assert matches(expected, actual), "\n".join(["README:", *expected, "printed:", *actual])
+
+
+def test_the_readme_stays_a_reference_read_in_minutes():
+    """Issue 35's bound: a reference of about 600 lines in the present tense, figures in docs/benchmarks.md."""
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 600
+    assert not re.search(r"\b(this|last|next) (session|round)\b|tried and not kept", text, flags=re.I)
