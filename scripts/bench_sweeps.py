@@ -2,13 +2,15 @@
 and print its table over seeds (medians with 95 % bootstrap intervals) and its best trials.
 
 Target (issue 32): `paper-ppo-vs-impala.yaml` finishes within 60 minutes on 2 cores. Yardstick, measured in the
-same run: the trials' own training time (the sum of their iterations' times, from their results), so the ratio
-says how much of the wall time the sweep spends around its trials (Ray, the exact optima, evaluation, files).
+same run: the trials' own time (the sum of their iterations as Tune clocks them, building the algorithm,
+evaluations and checkpoints included), so the ratio says how much of the wall time falls around the trials (Ray's
+start, the exact optima, scheduling, the tables); above 1 where a larger machine runs trials side by side.
 
     .venv/bin/python scripts/bench_sweeps.py [FILE.yaml ...] [--keep DIR] [--write-docs]
 
-Without files: `paper-ppo-vs-impala.yaml` and `pretrain-multimap.yaml` (about 8 minutes on 2 cores); name
-`hparams.yaml` (about 20 minutes) or `designer.yaml` (hours) to run them too. Figures are printed whatever they are.
+Without files: `paper-ppo-vs-impala.yaml` and `pretrain-multimap.yaml` (about 17 minutes on 2 cores); name
+`hparams.yaml` (about 20 minutes more) or `designer.yaml` (hours) to run them too. The experiments stay in a
+temporary folder (or `--keep DIR`, a new or empty one), named at the end. Figures are printed whatever they are.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from pathlib import Path
 from _benchdocs import run_documented
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.training.sweep_config import load_sweep
+from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
 from smorphi_rl.training.sweep_report import read_sweep, sweep_group_lines
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -35,18 +37,26 @@ TARGET_MIN = 60.0
 
 
 def _minutes(seconds: float) -> str:
-    return f"{int(seconds // 60)} min {seconds % 60:04.1f} s"
+    tenths = round(seconds * 10)  # rounded once, so 119.97 s reads 2 min 00.0 s
+    return f"{tenths // 600} min {tenths % 600 / 10:04.1f} s"
 
 
-def bench(path: Path, root: Path) -> None:
+def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
     """Run one sweep file through the public command under `root`; print its time and its table over seeds."""
-    sweep = load_sweep(path)
+    argv = [sys.executable, "-m", "smorphi_rl.cli", "sweep", str(path), "--log-dir", str(root)]
     t0 = time.perf_counter()
-    # the sweep's progress display goes to the terminal (stderr); its end-of-sweep summary is read from stdout
-    proc = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", "sweep", str(path), "--log-dir", str(root)],
-                          cwd=ROOT, stdout=subprocess.PIPE, text=True)  # fmt: skip
+    # the sweep's progress display and its lines on a stop go to the terminal (stderr); its summary is kept
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, text=True)
+    try:
+        out, _ = proc.communicate()
+    except KeyboardInterrupt:  # the sweep heard Ctrl-C too: let it stop as it does, keeping what finished
+        proc.communicate()
+        print(f"bench_sweeps.py: interrupted; the experiment is {root / sweep.name} (the sweep's own line above says "
+              "how to resume it); nothing written to docs", file=sys.stderr)  # fmt: skip
+        raise SystemExit(130) from None
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
+        sys.stderr.write(out)
         raise SmorphiError(f"{path.name}: `smorphi-rl sweep` exited {proc.returncode} after {_minutes(wall)}")
     rows = read_sweep(root / sweep.name)
     trained = sum(r.wall_s for r in rows)
@@ -57,13 +67,15 @@ def bench(path: Path, root: Path) -> None:
     target = f" (target {TARGET_MIN:.0f} min: {'met' if wall <= TARGET_MIN * 60 else 'missed'})"
     print(f"{path.name}: {finished} of {len(sweep.trials())} trials finished ({algos} on {maps}; seeds {seeds}; "
           f"{sweep.timesteps:,} env steps each) in {_minutes(wall)} end to end"
-          f"{target if path.name == DEFAULT[0] else ''}; the trials' own training {_minutes(trained)} = "
+          f"{target if path.name == DEFAULT[0] else ''}; the trials' own time {_minutes(trained)} = "
           f"{trained / wall:.2f} of it")  # fmt: skip
     print("\n".join(sweep_group_lines(rows)[2:]))
-    best = [line for line in proc.stdout.splitlines() if line.startswith("  ")]
-    if best:
-        print("best trials (best R1 any episode visited):")
-        print("\n".join(best))
+    ranked = sorted((r for r in rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
+    print("best shape any episode of a trial visited, per trial:")
+    for r in ranked:
+        assert r.best is not None
+        print(f"  {r.algo:<6} {r.maps:<14} seed {r.seed}  R1 {r.best.R1:.2f} {r.best.angles}  "
+              f"({r.env_steps:,} steps, {_minutes(r.wall_s)})")  # fmt: skip
     print(f"trials: {root / sweep.name}")
     print()
 
@@ -77,13 +89,21 @@ def main() -> None:
     missing = [str(p) for p in paths if not p.is_file()]
     if missing:
         raise SmorphiError(f"no sweep file {missing[0]} (the shipped ones are in {CONFIGS})")
-    root = Path(args.keep).resolve() if args.keep else Path(tempfile.mkdtemp(prefix="bench-sweeps-"))
-    if root.exists() and any(root.iterdir()):
-        raise SmorphiError(f"--keep {root} is not empty: give a new or empty folder")
     os.chdir(ROOT)  # the shipped sweep files name their maps from the project's root, as `make` runs them
+    sweeps = [load_sweep(p) for p in paths]  # every file checked before the first sweep runs
+    names = [s.name for s in sweeps]
+    twice = next((n for n in names if names.count(n) > 1), None)
+    if twice is not None:
+        raise SmorphiError(f"two sweeps are named '{twice}': each runs in its own folder, so give each file once")
+    if args.keep:
+        root = Path(args.keep).resolve()
+        if root.exists() and (not root.is_dir() or any(root.iterdir())):
+            raise SmorphiError(f"--keep {args.keep}: not a new or empty folder")
+    else:
+        root = Path(tempfile.mkdtemp(prefix="bench-sweeps-"))
     t0 = time.perf_counter()
-    for path in paths:
-        bench(path, root)
+    for path, sweep in zip(paths, sweeps, strict=True):
+        bench(path, sweep, root)
     print(f"{len(paths)} sweep(s) in {_minutes(time.perf_counter() - t0)}; experiments under {root}")
 
 
