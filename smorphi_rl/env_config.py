@@ -39,7 +39,7 @@ DEFAULT_MOVE_COST = 0.0
 
 
 class ObservationLayout(str, Enum):
-    """What the observation holds (docs/spec/env.md, "Observation")."""
+    """What the observation holds (docs/spec/env.md section 4)."""
 
     PICTURE = "picture"
     """The map as a picture of the known cells, the angles, P_c and P_len: the paper's, for one map or a few."""

@@ -47,8 +47,8 @@ def _stack_column(column: list[np.ndarray]) -> np.ndarray:
 
 
 def sub_env_generator(run_seed: int, worker_index: int, env_index: int, generation: int = 0) -> np.random.Generator:
-    """The independent random stream of one sub-env of one env runner of one run; `generation` counts the
-    restores of a resumed run, so a resumed run draws fresh shapes instead of replaying its first ones."""
+    """The independent random stream of one sub-env of one env runner of one run; `generation` is the iteration
+    a resumed run restarted from (0 for a fresh run), so it draws fresh shapes instead of replaying its first ones."""
     key = (worker_index, env_index) if generation == 0 else (worker_index, env_index, generation)
     return np.random.Generator(np.random.PCG64(np.random.SeedSequence(run_seed, spawn_key=key)))
 

@@ -208,6 +208,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if not d.is_dir():
             raise SmorphiError(f"{d}: not a run folder (give the folder a `train` or `search` run wrote)")
     grid_map = load_map(args.map)
+    given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
+             **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
+    runs = [points_of_run(d, grid_map.name, given.get(str(d), ())) for d in dirs]  # what each run is, first
     on_map = weights(args).weights_on(grid_map)
     planning = planning_of(args, grid_map)
     from smorphi_rl.search.config import SearchConfig
@@ -242,9 +245,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
             fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
             raise SmorphiError(f"{where}: its shapes were planned from {said}, the exact front here from "
                                f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
-    given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
-             **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
-    runs = [points_of_run(d, grid_map.name, given.get(str(d), ())) for d in dirs]  # all checked before any work
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
