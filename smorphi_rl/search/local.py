@@ -57,21 +57,18 @@ class _Budgeted:
             return self.seen[theta]
         if len(self.seen) >= self.budget:
             return None
-        return self._score(theta)
-
-    def _score(self, theta: Theta) -> float:
         scored = self.env.score(theta)
         self.metrics[theta] = (float(scored.P_c), int(scored.P_len), bool(scored.feasible))
         value = self.seen[theta] = float(scored.R1)
         return value
 
+    def moved(self, theta: Theta, move: tuple[int, ...]) -> Theta:
+        """`theta` moved by one lattice step per hinge as `move` says, held in [0, 180]."""
+        a, b, c = (min(max(t + d * self.step, 0.0), self.top) for t, d in zip(theta, move, strict=True))
+        return (a, b, c)
+
     def neighbours(self, theta: Theta) -> list[Theta]:
-        out = []
-        for m in MOVES:
-            t = tuple(min(max(a + d * self.step, 0.0), self.top) for a, d in zip(theta, m, strict=True))
-            if t != theta:
-                out.append(t)
-        return out  # type: ignore[return-value]
+        return [t for t in (self.moved(theta, m) for m in MOVES) if t != theta]
 
     def random_theta(self, rng: np.random.Generator) -> Theta:
         n = round(180 / self.step)
@@ -123,10 +120,10 @@ def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> The
     space.r1(start)
     for _ in range(space.env.config.max_steps):
         m = MOVES[int(rng.integers(len(MOVES)))] if rng.random() > 1 / 27 else (0, 0, 0)
-        theta = tuple(min(max(a + d * space.step, 0.0), 180.0) for a, d in zip(history[-1], m, strict=True))
-        if space.r1(theta) is None:  # type: ignore[arg-type]
+        theta = space.moved(history[-1], m)
+        if space.r1(theta) is None:
             break  # the budget of distinct shapes is spent: the walk ends where it stands
-        history.append(theta)  # type: ignore[arg-type]
+        history.append(theta)
     return settled_theta(history)
 
 
