@@ -97,12 +97,12 @@ def censored_ratio_interval(numerator: Bounds, denominator: Bounds, seed: int = 
                                             for x, y in (numerator, denominator))  # fmt: skip
     if a_least.size == 0 or b_least.size == 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    a_exact = float(np.median(a_least)) == float(np.median(a_most))
-    b_exact = float(np.median(b_least)) == float(np.median(b_most))
-    if not (a_exact or b_exact) or float(np.median(b_least)) <= 0:
+    a_lo, a_hi, b_lo, b_hi = (float(np.median(v)) for v in (a_least, a_most, b_least, b_most))
+    a_exact, b_exact = a_lo == a_hi, b_lo == b_hi
+    if not (a_exact or b_exact) or b_lo <= 0:
         return Interval(math.nan, math.nan, math.nan, 0)
-    least_ratio = float(np.median(a_least) / np.median(b_most))  # b exact here, or the ratio is only bounded above
-    most_ratio = float(np.median(a_most) / np.median(b_least))
+    least_ratio = a_lo / b_hi  # b exact here, or the ratio is only bounded above (x / inf = 0)
+    most_ratio = a_hi / b_lo
     point, bound = ((least_ratio, "") if a_exact and b_exact else (least_ratio, ">") if b_exact
                     else (most_ratio, "<"))  # fmt: skip
 
