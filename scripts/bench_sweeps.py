@@ -26,6 +26,7 @@ from pathlib import Path
 from _benchdocs import run_documented
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.training.run import fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
 from smorphi_rl.training.sweep_report import read_sweep, sweep_group_lines
 
@@ -34,11 +35,6 @@ CONFIGS = ROOT / "tune_configs"
 DEFAULT = ("paper-ppo-vs-impala.yaml", "pretrain-multimap.yaml")
 TARGET_MIN = 60.0
 """Issue 32: `sweep tune_configs/paper-ppo-vs-impala.yaml` within 60 minutes on 2 cores."""
-
-
-def _minutes(seconds: float) -> str:
-    tenths = round(seconds * 10)  # rounded once, so 119.97 s reads 2 min 00.0 s
-    return f"{tenths // 600} min {tenths % 600 / 10:04.1f} s"
 
 
 def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
@@ -57,7 +53,7 @@ def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
     wall = time.perf_counter() - t0
     if proc.returncode != 0:
         sys.stderr.write(out)
-        raise SmorphiError(f"{path.name}: `smorphi-rl sweep` exited {proc.returncode} after {_minutes(wall)}")
+        raise SmorphiError(f"{path.name}: `smorphi-rl sweep` exited {proc.returncode} after {fmt_duration(wall)}")
     rows = read_sweep(root / sweep.name)
     trained = sum(r.wall_s for r in rows)
     finished = sum(r.finished for r in rows)
@@ -66,8 +62,8 @@ def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
     seeds = " ".join(map(str, sweep.seeds))
     target = f" (target {TARGET_MIN:.0f} min: {'met' if wall <= TARGET_MIN * 60 else 'missed'})"
     print(f"{path.name}: {finished} of {len(sweep.trials())} trials finished ({algos} on {maps}; seeds {seeds}; "
-          f"{sweep.timesteps:,} env steps each) in {_minutes(wall)} end to end"
-          f"{target if path.name == DEFAULT[0] else ''}; the trials' own time {_minutes(trained)} = "
+          f"{sweep.timesteps:,} env steps each) in {fmt_duration(wall)} end to end"
+          f"{target if path.name == DEFAULT[0] else ''}; the trials' own time {fmt_duration(trained)} = "
           f"{trained / wall:.2f} of it")  # fmt: skip
     print("\n".join(sweep_group_lines(rows)[2:]))
     ranked = sorted((r for r in rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
@@ -75,7 +71,7 @@ def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
     for r in ranked:
         assert r.best is not None
         print(f"  {r.algo:<6} {r.maps:<14} seed {r.seed}  R1 {r.best.R1:.2f} {r.best.angles}  "
-              f"({r.env_steps:,} steps, {_minutes(r.wall_s)})")  # fmt: skip
+              f"({r.env_steps:,} steps, {fmt_duration(r.wall_s)})")  # fmt: skip
     print(f"trials: {root / sweep.name}")
     print()
 
@@ -104,7 +100,7 @@ def main() -> None:
     t0 = time.perf_counter()
     for path, sweep in zip(paths, sweeps, strict=True):
         bench(path, sweep, root)
-    print(f"{len(paths)} sweep(s) in {_minutes(time.perf_counter() - t0)}; experiments under {root}")
+    print(f"{len(paths)} sweep(s) in {fmt_duration(time.perf_counter() - t0)}; experiments under {root}")
 
 
 if __name__ == "__main__":
