@@ -200,6 +200,7 @@ FRACTIONS = ("gamma", "lambda_", "clip_param", "pg_lambda", "frozen_critic", "lr
 """Hyperparameters that must lie in [0, 1]."""
 USED_BY = {
     "clip_param": ("ppo", "appo"),
+    "kl_coeff": ("ppo", "appo"),
     "pg_lambda": ("impala", "appo"),
     "target_update_freq": ("appo",),
     "circular_buffer_batches": ("appo",),
@@ -423,6 +424,8 @@ def algorithm_config(
         training |= {"lambda_": hp.lambda_, "vf_clip_param": math.inf}
     if hp.clip_param is not None:  # PPO's and APPO's only (check_overrides)
         training["clip_param"] = hp.clip_param
+    if hp.kl_coeff is not None:  # PPO's and APPO's only
+        training |= {"use_kl_loss": hp.kl_coeff > 0, "kl_coeff": hp.kl_coeff}
     if hp.target_update_freq is not None:  # APPO's only
         training["target_network_update_freq"] = hp.target_update_freq
     if hp.circular_buffer_batches is not None:  # APPO's only

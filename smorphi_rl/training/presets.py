@@ -41,6 +41,9 @@ class Preset:
     """IMPALA/APPO: a multiple of `rollout_fragment_length` (RLlib's rule); None: the whole batch."""
     clip_param: float | None = None
     """PPO and APPO: the surrogate's clip on the probability ratio; None: RLlib's (PPO 0.3, APPO 0.4)."""
+    kl_coeff: float | None = None
+    """PPO and APPO: the starting weight of the KL penalty between the ratio's reference and the trained policy,
+    which RLlib adapts toward a KL of 0.01; 0: off; None: RLlib's (PPO on at 0.2, APPO off)."""
     target_update_freq: float | None = None
     """APPO: how often its target policy (the ratio's reference) is refreshed, in RLlib's unit (circular-buffer
     batches x passes x batch size of trained steps); None: RLlib's 2."""

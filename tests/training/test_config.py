@@ -189,3 +189,16 @@ def test_a_map_named_like_an_evaluation_figure_is_refused(tmp_path, stem):
     (tmp_path / "map-1.pgm").write_bytes((source / "map-1.pgm").read_bytes())
     with pytest.raises(TrainConfigError, match=f"a map named '{stem}' would be mistaken"):
         TrainConfig(env=EnvConfig.from_dict({"maps": [str(tmp_path / f"{stem}.yaml")]}))
+
+
+def test_the_kl_penalty_is_a_tunable_hyperparameter_of_ppo_and_appo():
+    from smorphi_rl.training.config import algorithm_config
+
+    on = algorithm_config(TrainConfig(algo="appo", overrides={"kl_coeff": 0.2}))
+    assert (on.use_kl_loss, on.kl_coeff) == (True, 0.2)
+    assert not algorithm_config(TrainConfig(algo="appo")).use_kl_loss  # RLlib's APPO: off
+    ppo = algorithm_config(TrainConfig())
+    assert (ppo.use_kl_loss, ppo.kl_coeff) == (True, 0.2)  # RLlib's PPO: on
+    assert not algorithm_config(TrainConfig(overrides={"kl_coeff": 0})).use_kl_loss
+    with pytest.raises(TrainConfigError, match="ppo and appo's; impala has none"):
+        TrainConfig(algo="impala", overrides={"kl_coeff": 0.2})
