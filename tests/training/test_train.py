@@ -337,8 +337,9 @@ def test_async_learners_train_and_report(algo, tmp_path):
     summary = train(cfg, name=algo, log_dir=tmp_path, out=open(os.devnull, "w"))  # noqa: SIM115
     assert summary.iterations >= 2 and not summary.interrupted and summary.env_steps >= 1000
     assert summary.best is not None and summary.checkpoint is not None
-    result = last_result(summary.run_dir)
-    assert math.isfinite(result["env_runners"]["smorphi"]["best_R1"])
+    # an iteration in which no episode ended reports NaN (a loaded machine makes the last one such an iteration)
+    rows = [json.loads(line) for line in (trial_dir(summary.run_dir) / "result.json").read_text().splitlines()]
+    assert any(math.isfinite(r["env_runners"].get("smorphi", {}).get("best_R1", math.nan)) for r in rows)
     assert not [t for t in OUR_TAGS if t not in tensorboard_tags(summary.run_dir)]
     # the learner thread steps on after the last evaluation unless the run's end holds its updates
     _checkpoint_holds_the_reported_policy(summary.run_dir)
