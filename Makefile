@@ -3,6 +3,7 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
+ARGS ?=
 
 .PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer bench-designer bench-search-ray bench-sweeps clean
 
@@ -36,28 +37,28 @@ type: setup
 	$(BIN)/mypy smorphi_rl
 
 bench: setup
-	$(BIN)/python scripts/bench_fbcpp.py
+	$(BIN)/python scripts/bench_fbcpp.py $(ARGS)
 
 bench-training: setup
-	$(BIN)/python scripts/bench_training.py
+	$(BIN)/python scripts/bench_training.py $(ARGS)
 
 bench-learning: setup
-	$(BIN)/python scripts/bench_learning.py
+	$(BIN)/python scripts/bench_learning.py $(ARGS)
 
 bench-exhaustive: setup
-	$(BIN)/python scripts/bench_exhaustive.py
+	$(BIN)/python scripts/bench_exhaustive.py $(ARGS)
 
 bench-transfer: setup
-	$(BIN)/python scripts/bench_transfer.py
+	$(BIN)/python scripts/bench_transfer.py $(ARGS)
 
 bench-designer: setup
-	$(BIN)/python scripts/bench_designer.py
+	$(BIN)/python scripts/bench_designer.py $(ARGS)
 
 bench-search-ray: setup  ## search exhaustive on a local Ray with 1 and 2 CPUs against the local pool
-	$(BIN)/python scripts/bench_search_ray.py
+	$(BIN)/python scripts/bench_search_ray.py $(ARGS)
 
 bench-sweeps: setup  ## the shipped sweep files through `smorphi-rl sweep`, timed, with their tables over seeds
-	$(BIN)/python scripts/bench_sweeps.py
+	$(BIN)/python scripts/bench_sweeps.py $(ARGS)
 
 clean:
 	rm -rf $(VENV) .pytest_cache .ruff_cache .mypy_cache .hypothesis

@@ -20,6 +20,9 @@ MAX_EPISODES = 10_000
 """evaluate-policy rolls out at most this many episodes or starts (each about 10-50 ms)."""
 
 
+CHECKPOINT_HELP = "a checkpoint, a trial or run directory (its newest checkpoint), or an exported policy folder"
+
+
 def register(sub: Any) -> None:
     """Add `replay` and `evaluate-policy` to the command line."""
     rl = sub.add_parser("replay", help="summarise, list or draw episodes recorded to MCAP")
@@ -30,7 +33,7 @@ def register(sub: Any) -> None:
     rl.set_defaults(func=cmd_replay)
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
-    ep.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
+    ep.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
     ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
     ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
@@ -45,7 +48,7 @@ def register(sub: Any) -> None:
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
     ex = sub.add_parser("export-policy", help="write a trained policy as plain files (policy.json, weights.npz)")
-    ex.add_argument("--checkpoint", required=True, help="a checkpoint, or a trial or run directory (newest checkpoint)")
+    ex.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     ex.add_argument("--out", type=nonempty, required=True, help="the folder to write (new, or empty)")
     ex.add_argument("--command", default="", help="the command that trained it, kept in policy.json")
     ex.set_defaults(func=cmd_export_policy)

@@ -71,7 +71,7 @@ class TransferJob:
     Checked when made (the training options as TrainConfig checks them, the seeds), before anything runs."""
 
     pretrained: str | Path
-    """Checkpoint, trial or run directory of the pretrained policy."""
+    """Checkpoint, trial or run directory (its newest checkpoint) or exported policy folder of the pretrained policy."""
     maps: tuple[str, ...]
     """Held-out maps (map_server YAML)."""
     seeds: tuple[int, ...] = (0, 1, 2)
