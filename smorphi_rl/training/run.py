@@ -205,6 +205,13 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
     return files
 
 
+def check_evaluation_maps(cfg: TrainConfig) -> None:
+    """Read every map the protocol evaluates on, so a missing or unreadable one is named before anything is written
+    or any exact optimum computed (MapError)."""
+    for path in cfg.evaluation_maps:
+        load_map(path)
+
+
 def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
     """The exact 1-degree optimum of every map the protocol evaluates on (about 10 s each the first time, then
     cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
@@ -299,6 +306,7 @@ def train(
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
+    check_evaluation_maps(cfg)
     callbacks, pretrained = None, None
     if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         pretrained, callbacks = fine_tune_from(cfg.pretrained, cfg.env.to_dict())

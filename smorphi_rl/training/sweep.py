@@ -37,7 +37,14 @@ from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
 from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_spec
-from smorphi_rl.training.run import RunSummary, TrainingError, fmt_duration, training_optima, trial_callbacks
+from smorphi_rl.training.run import (
+    RunSummary,
+    TrainingError,
+    check_evaluation_maps,
+    fmt_duration,
+    training_optima,
+    trial_callbacks,
+)
 from smorphi_rl.training.sweep_config import SweepConfig
 from smorphi_rl.training.sweep_report import (
     TrialRow,
@@ -240,7 +247,9 @@ def run_sweep(
     from smorphi_rl.env import MorphologyEnv
 
     for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
-        MorphologyEnv(sweep.base_config(sweep.algorithms[0], maps, 0, {}).env.to_dict())
+        base = sweep.base_config(sweep.algorithms[0], maps, 0, {})
+        MorphologyEnv(base.env.to_dict())
+        check_evaluation_maps(base)  # and every evaluated map, before any optimum is computed
     cluster.check_reachable(address)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever

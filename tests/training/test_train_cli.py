@@ -52,9 +52,10 @@ def run(capsys, *argv: str) -> tuple[int, str]:
     ],
 )
 def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
-    got, err = run(capsys, "train", "--log-dir", str(tmp_path), *argv)
+    logs = tmp_path / "logs"
+    got, err = run(capsys, "train", "--log-dir", str(logs), *argv)
     assert got == code and message in err and err.startswith("smorphi-rl")
-    assert not [p for p in tmp_path.rglob("*") if p.is_file()]  # nothing written by a refused run
+    assert not logs.exists()  # nothing written by a refused run, not even its folder
 
 
 def test_train_rejects_an_unwritable_log_dir(capsys, tmp_path):
@@ -113,6 +114,23 @@ def test_sweep_rejects_bad_input_before_anything_starts(capsys, tmp_path, sweep,
     code, err = run(capsys, "sweep", str(config), "--log-dir", str(logs), *extra)
     assert code == 1 and message in err and err.startswith("smorphi-rl: error: ")
     assert not logs.exists() or not list(logs.rglob("*"))
+
+
+@pytest.mark.parametrize("command", ["train", "sweep"])
+def test_a_missing_evaluated_map_is_named_before_any_optimum_is_computed(capsys, monkeypatch, tmp_path, command):
+    monkeypatch.delenv("SMORPHI_RL_CACHE_DIR")  # exact optima would be cached under the log folder
+    logs = tmp_path / "logs"
+    if command == "train":
+        argv = ["train", "--eval-maps", MAP_1, "/no/such/map.yaml"]
+    else:
+        config = tmp_path / "s.yaml"
+        config.write_text(
+            f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\nevaluation: {{maps: [{MAP_1}, /no/map.yaml]}}\n"
+        )
+        argv = ["sweep", str(config)]
+    code, err = run(capsys, *argv, "--log-dir", str(logs))
+    assert code == 1 and "not found" in err and "/no/" in err
+    assert not logs.exists()
 
 
 @pytest.mark.parametrize("extra", [[], ["--resume"]])
