@@ -197,10 +197,15 @@ def optimum_cache(log_dir: str | Path) -> Path:
     """Where every command caches exact optima: $SMORPHI_RL_CACHE_DIR, else LOG_DIR/.cache."""
     import os
 
+    if os.environ.get(CACHE_ENV):
+        return Path(os.environ[CACHE_ENV])
     try:
-        return Path(os.environ.get(CACHE_ENV) or Path(log_dir).resolve() / OPTIMUM_CACHE)
+        root = Path(log_dir).resolve()
     except (RuntimeError, OSError) as exc:  # a symlink loop, an unreadable folder (as rundir.check_run_dir says)
         raise SmorphiError(f"log directory {log_dir} cannot be used ({exc})") from None
+    if root.exists() and not root.is_dir():
+        raise SmorphiError(f"log directory {log_dir} is not a folder (exact optima are cached under it)")
+    return root / OPTIMUM_CACHE
 
 
 def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:

@@ -645,3 +645,16 @@ def test_a_crop_whose_islands_dropped_leave_no_robot_is_refused(tmp_path, capsys
     code, _, err = run(capsys, *argv)
     assert code == 1 and "nothing written, the crop holds no robot" in one_line(err)
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("command", ["design", "evaluate-policy"])
+def test_a_log_dir_that_is_a_file_is_named_by_every_command_that_caches_optima(capsys, monkeypatch, tmp_path, command):
+    monkeypatch.delenv("SMORPHI_RL_CACHE_DIR")  # exact optima are cached under --log-dir
+    blocker = tmp_path / "table.csv"
+    blocker.write_text("keep me")
+    designer = str(ROOT / "smorphi_rl" / "policies" / "designer")
+    argv = (["design", "--map", MAP_1, "--exact"] if command == "design" else
+            ["evaluate-policy", "--checkpoint", designer, "--map", MAP_1, "--starts", "2"])  # fmt: skip
+    code, _, err = run(capsys, *argv, "--log-dir", str(blocker))
+    assert code == 1 and f"log directory {blocker} is not a folder" in one_line(err)
+    assert blocker.read_text() == "keep me"

@@ -259,3 +259,17 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys):
     monkeypatch.setattr(builtins, "__import__", interrupted)
     assert entry.main() == 130
     assert capsys.readouterr().err == "smorphi-rl: interrupted\n"
+
+
+def test_evaluate_policy_takes_a_folder_of_maps_as_train_does(capsys, tmp_path):
+    import shutil
+
+    floors = tmp_path / "floors"
+    floors.mkdir()
+    for name in ("map-1.yaml", "map-1.pgm"):
+        shutil.copy(ROOT / "maps" / name, floors / name)
+    designer = str(ROOT / "smorphi_rl" / "policies" / "designer")
+    code, out, err = run(capsys, "evaluate-policy", "--checkpoint", designer, "--map", str(floors), "--json")
+    assert code == 0, err
+    (episode,) = [json.loads(line) for line in out.splitlines()]
+    assert episode["map"] == "map-1" and episode["settled"]["R1"] > 0

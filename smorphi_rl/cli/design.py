@@ -14,7 +14,6 @@ from typing import Any
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, rel
 from smorphi_rl.design import DEFAULT_BUDGET
-from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import output_file
 from smorphi_rl.maps import map_inputs
@@ -41,11 +40,11 @@ def register(sub: Any) -> None:
 def cmd_design(args: argparse.Namespace) -> int:
     from smorphi_rl.design import check_budget, run_design
     from smorphi_rl.designer import designer_env, load_designer
+    from smorphi_rl.protocol import optimum_cache
 
     t0 = time.perf_counter()
     check_budget(args.budget)
-    if args.exact and Path(args.log_dir).exists() and not Path(args.log_dir).is_dir():
-        raise SmorphiError(f"--log-dir {args.log_dir}: not a folder (--exact caches the optimum under it)")
+    cache = optimum_cache(args.log_dir) if args.exact else None  # a --log-dir that is a file: one line, before work
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(str(args.map)))
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
@@ -59,9 +58,8 @@ def cmd_design(args: argparse.Namespace) -> int:
         "budget": args.budget,
     }  # fmt: skip
     if args.exact:
-        from smorphi_rl.protocol import exact_optimum, optimum_cache
+        from smorphi_rl.protocol import exact_optimum
 
-        cache = optimum_cache(args.log_dir)
         opt = exact_optimum(str(Path(args.map).resolve()), env.floor.weights, env.config.planning, cache)
         gap = opt.R1 - best.R1
         record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,

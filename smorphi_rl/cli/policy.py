@@ -12,6 +12,7 @@ from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, rel, sco
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import MAX_SEED, output_file, resolved
+from smorphi_rl.map_sources import map_files, resolve
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 
@@ -187,11 +188,11 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.checkpoints import find_checkpoint
 
     checkpoint = find_checkpoint(args.checkpoint)
-    maps = map_paths(args.map) if args.map is not None else None
-    for path in maps or []:
+    maps = list(resolve(map_paths(args.map))) if args.map is not None else None  # folders and globs expanded
+    for path in map_files(tuple(maps or ())):
         load_map(path)
     if args.plot is not None:
-        inputs = tuple(p for m in maps or [] for p in map_inputs(m))
+        inputs = tuple(p for m in map_files(tuple(maps or ())) for p in map_inputs(m))
         output_file(args.plot, "--plot", (".png",), inputs)
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
