@@ -32,6 +32,18 @@ class RunDirError(SmorphiError):
     """The run directory cannot be used."""
 
 
+def rel(path: str | Path) -> str:
+    """`path` relative to the working directory when it lies below it, as given or with links resolved (as the
+    README shows it); else as given."""
+    for resolve in (False, True):
+        try:
+            here = Path(path).resolve() if resolve else Path(path).absolute()
+            return str(here.relative_to(Path.cwd().resolve() if resolve else Path.cwd()))
+        except (ValueError, OSError, RuntimeError):
+            continue
+    return str(path)
+
+
 def check_run_name(name: str, what: str = "run name") -> str:
     """`name` if it names one plain folder; RunDirError otherwise."""
     if not isinstance(name, str) or not RUN_NAME.fullmatch(name):

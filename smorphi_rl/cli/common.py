@@ -74,14 +74,6 @@ def number(text: str, what: str) -> float:
     return value
 
 
-def rel(path: Path) -> str:
-    """`path` relative to the working directory when it lies below it (as the README shows it)."""
-    try:
-        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
-    except ValueError:
-        return str(path)
-
-
 def map_paths(value: object) -> list[str]:
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 

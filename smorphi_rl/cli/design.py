@@ -12,12 +12,13 @@ import time
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, rel
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty
 from smorphi_rl.design import DEFAULT_BUDGET
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import output_file
 from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
+from smorphi_rl.rundir import rel
 
 
 def register(sub: Any) -> None:

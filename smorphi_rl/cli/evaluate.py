@@ -126,12 +126,16 @@ def _is_number(cell: str) -> bool:
     return True
 
 
+EMPTY_START = "--start: give tile:A,B or xy:X,Y (or leave the option out for the planner's default)"
+"""The line for an empty --start (checked before the map is read, and by `parse_start`)."""
+
+
 def parse_start(text: str | None, grid_map: Map) -> Start:
     """--start tile:A,B (a tile of the resized map) or xy:X,Y (a free point, metres)."""
     if text is None:
         return Start()
     if not text.strip():
-        raise SmorphiError("--start: give tile:A,B or xy:X,Y (or leave the option out for the planner's default)")
+        raise SmorphiError(EMPTY_START)
     kind, _, rest = text.partition(":")
     parts = rest.split(",")
     if kind not in ("tile", "xy") or len(parts) != 2:
@@ -160,7 +164,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if (args.angles is None) == (args.angles_file is None):
         raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
     if args.start is not None and not args.start.strip():
-        raise SmorphiError("--start: give tile:A,B or xy:X,Y (or leave the option out for the planner's default)")
+        raise SmorphiError(EMPTY_START)
     if args.angles_file is not None and args.plot is not None:
         raise SmorphiError("--plot draws one morphology: use it with --angles")
     if args.path and not (args.json and args.angles):

@@ -8,13 +8,14 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, rel, scored_text, seed_arg
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import MAX_SEED, output_file, resolved
 from smorphi_rl.map_sources import map_files, resolve
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
+from smorphi_rl.rundir import rel
 
 GIF_MAX_FRAMES = 120
 MAX_EPISODES = 10_000

@@ -16,7 +16,6 @@ from smorphi_rl.cli.common import (
     planner_option,
     planning_of,
     progress_line,
-    rel,
     run_options,
     seed_arg,
     weight_options,
@@ -26,6 +25,7 @@ from smorphi_rl.cli.fields import option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
+from smorphi_rl.rundir import rel
 from smorphi_rl.score import Weights
 
 

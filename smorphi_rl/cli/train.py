@@ -17,7 +17,6 @@ from smorphi_rl.cli.common import (
     nonempty,
     planner_option,
     record_option,
-    rel,
     run_options,
     seed_arg,
     weight_options,
@@ -25,6 +24,7 @@ from smorphi_rl.cli.common import (
 from smorphi_rl.cli.fields import option
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.maps import load_map
+from smorphi_rl.rundir import rel
 
 
 def register(sub: Any) -> None:

@@ -32,7 +32,7 @@ from smorphi_rl.protocol import (
     optimum_cache,
 )
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, write_text_atomic
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, rel, write_text_atomic
 from smorphi_rl.score import degenerate_warning
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -227,8 +227,7 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                       f"{OPTIMUM_MAX_CELLS:,}); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = NO_OPTIMUM
             continue
-        shown = cache.relative_to(Path.cwd()) if cache.is_relative_to(Path.cwd()) else cache
-        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {shown})\n")
+        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
         out.flush()
         optima[grid_map.name] = opt = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
         line = degenerate_warning(opt.R1, opt.P_c, cfg.env.path_term, grid_map.name)
@@ -359,16 +358,8 @@ def train(
     return summary
 
 
-def format_summary(s: RunSummary, cwd: Path | None = None) -> str:
+def format_summary(s: RunSummary) -> str:
     """The end-of-run text: best shape against the optimum, where everything is, how to look at it."""
-
-    def rel(p: Path) -> str:
-        base = cwd or Path.cwd()
-        try:
-            return str(p.relative_to(base))
-        except ValueError:
-            return str(p)
-
     state = "interrupted after" if s.interrupted else "trained for"
     lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} "
              f"({s.iterations} iterations)"]  # fmt: skip
