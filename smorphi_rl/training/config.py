@@ -37,7 +37,8 @@ CPUS_FOR_TRIAL = 1.0
 
 DEFAULT_RECORD_EVERY = 100
 """Record every 100th episode of each env by default: a vector env of 32 then writes about one file per
-3,200 episodes' worth of each env's share, and the run slows by about 1 % (measured in bench_training)."""
+3,200 episodes' worth of each env's share, and the run slows by about 0.5 % (a recorded episode's sampling costs
+54 % more; docs/decisions.md)."""
 
 
 MAX_EVAL_STARTS = 1000

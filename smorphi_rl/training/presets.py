@@ -81,8 +81,9 @@ _ASYNC_FAST = Preset(
     lr=1e-3, lr_final=5e-5, gamma=0.995, entropy_coeff=0.01, vf_loss_coeff=0.5, grad_clip=40.0, lambda_=1.0,
     train_batch_size=500, num_epochs=2, minibatch_size=250, rollout_fragment_length=50, min_time_s_per_iteration=0.4,
 )  # fmt: skip
-"""IMPALA/APPO, fast: the learner sees each sampled batch (32 envs x 50 steps) twice in minibatches of 250, about
-13 updates per 1,000 env steps; with one pass over whole batches it made 0.6, and after 150,000 env steps its
+"""IMPALA/APPO, fast: the learner trains on batches of 500 env steps (50-step fragments of the 32 envs), two passes in
+minibatches of 250: 8 updates per 1,000 env steps (APPO about 9: its circular buffer's replay trains 2.2 samples per
+env step, measured); with one pass over whole batches it made 0.6, and after 150,000 env steps its
 policy was still uniform (entropy 3.29 of 3.30). Discount, learning rate, its fall to 5e-5 and entropy as PPO's:
 at a constant 1e-3 and entropy 0.003 IMPALA settled 13 % of the 20 starts within 1 % on map-1 (median gap 3.25,
 seeds 0-2); with the rate falling, 40, 40 and 25 % (gaps 1.30, 2.99, 2.96); with entropy 0.01 too, 35, 55 and
@@ -90,7 +91,7 @@ seeds 0-2); with the rate falling, 40, 40 and 25 % (gaps 1.30, 2.99, 2.96); with
 Iterations of at least 0.4 s (about 4,000 env steps on 2 cores): the protocol, every 5 iterations, then evaluates
 about every 20,000 steps, some 20 times in the async budget as in PPO's, and the run ends on the best of as many
 policies; at 2 s it evaluated every 50,000 (8 times) and APPO settled 6 of 10 runs (map-1, map-2, seeds 0-4) at
-90 % of the starts within 1 %, at 0.4 s 18 of 24 (seeds 0-8; docs/decisions.md)."""
+90 % of the starts within 1 %, at 0.4 s 18 of 24 when adopted (seeds 0-8; docs/decisions.md has every tally since)."""
 PRESETS: dict[str, dict[str, Preset]] = {
     "fast": {
         # 2,000 steps an iteration, 4 epochs of 4 minibatches: about 0.25 s of learner time on 2 cores
@@ -142,8 +143,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
 DEFAULT_TIMESTEPS = 200_000
 """The main job's budget: 30-70 s of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At
 150,000 steps PPO settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2
-(seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 100 % on both maps for all three
-seeds."""
+(seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 20, 20, 20 of 20 on map-1 and 20, 18, 20
+on map-2 (100 and 97 %; docs/benchmarks.md)."""
 ENVS_PER_RUNNER = 16
 """Sub-envs each env runner steps together (one forward pass serves them all): on the default 2 runners, the 32
 envs in all the presets were tuned on, each fragment 62 steps of each env. With 2 x 32 (fragments of 31 steps) the
