@@ -341,6 +341,8 @@ def test_an_image_header_beyond_pillows_own_limit_is_one_line(tmp_path, capsys):
     (["search", "random", "--log-dir", "/dev/full"], "log directory /dev/full is not a folder"),
     (["evaluate", "--angles", "1", "2", "3", "--start", "tile:-1,-1"], "tile indices count from 0"),
     (["evaluate-policy", "--checkpoint", "{tmp}", "--starts", "2", "--episodes", "2"], "give one"),
+    (["evaluate-policy", "--checkpoint", "{tmp}", "--starts", "2", "--plot", "{tmp}/p.png"], "prints its table only"),
+    (["evaluate-policy", "--checkpoint", "{tmp}", "--starts", "2", "--record", "{tmp}/r"], "prints its table only"),
     (["evaluate-policy", "--checkpoint", str(ROOT / "smorphi_rl" / "policies" / "designer"), "--starts", "2",
       "--log-dir", "{tmp}/logs"], "trained on generated floors only (generate:mixed:0-900000), which have no exact"),
     (["train", "--address", "ray://127.0.0.1:1"], "cannot reach a Ray cluster at ray://127.0.0.1:1"),

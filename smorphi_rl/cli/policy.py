@@ -184,6 +184,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     if args.starts is not None and args.episodes != 1:
         raise SmorphiError("--episodes and --starts are two ways to evaluate: give one (--starts runs the protocol)")
+    if args.starts is not None and (args.plot is not None or args.record is not None):
+        raise SmorphiError("--plot and --record draw and record --episodes roll-outs: the protocol (--starts) prints "
+                           "its table only")  # fmt: skip
     if args.record is not None and Path(args.record).exists() and not Path(args.record).is_dir():
         raise SmorphiError(f"--record {args.record} is a file: give the folder the recordings go to")
     from smorphi_rl.training.checkpoints import find_checkpoint

@@ -13,7 +13,7 @@ import shutil
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from smorphi_rl.training.checkpoints import CheckpointError, checkpoints_under, read_module_files
+from smorphi_rl.training.checkpoints import STAGING_PREFIX, CheckpointError, checkpoints_under, read_module_files
 
 FULL_MARKERS = ("No space left on device", "Disk quota exceeded", f"[Errno {errno.ENOSPC}]", f"errno {errno.ENOSPC}")
 """How ENOSPC and EDQUOT read in an error's text (Python's OSError and pyarrow's status alike)."""
@@ -51,7 +51,10 @@ def disk_full(folder: Path, errors: list[str] | None) -> bool:
 
 
 def drop_incomplete_checkpoints(folder: Path) -> list[Path]:
-    """Remove every checkpoint under `folder` whose module cannot be read back (cut short); return them."""
+    """Remove every checkpoint under `folder` whose module cannot be read back (cut short); return them. Staging
+    folders a killed trial left are removed too (not counted: they were never checkpoints)."""
+    for staging in folder.rglob(f"{STAGING_PREFIX}*"):
+        shutil.rmtree(staging, ignore_errors=True)
     dropped = []
     for checkpoint in checkpoints_under(folder):
         try:

@@ -393,7 +393,8 @@ def format_summary(s: RunSummary) -> str:
         lines.append(f"fine-tuned from: {rel(s.pretrained)} (every env runner held its policy from the start: {held})")
     if s.checkpoint is not None:
         lines.append(f"checkpoint: {rel(s.checkpoint)}")
-    for key, label in (("top_md", "top morphologies"), ("top_png", "top morphologies plot"),
+    plots = [(k, f"top morphologies plot ({k.removeprefix('top_png_')})") for k in s.files if k.startswith("top_png_")]
+    for key, label in (("top_md", "top morphologies"), ("top_png", "top morphologies plot"), *plots,
                        ("curves_png", "learning curves"), ("summary", "summary")):  # fmt: skip
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")

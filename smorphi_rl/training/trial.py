@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl.training import result_keys as keys
+from smorphi_rl.training.checkpoints import STAGING_PREFIX
 from smorphi_rl.training.config import (
     CPUS_FOR_TRIAL,
     CPUS_PER_ENV_RUNNER,
@@ -87,7 +88,7 @@ def run_trial(
             metrics[keys.ALGO_ITERATION] = algo.iteration
             metrics[keys.TRIAL_DONE] = done
             if done or algo.iteration % cfg.checkpoint_every == 0:
-                with tempfile.TemporaryDirectory() as path:
+                with tempfile.TemporaryDirectory(prefix=STAGING_PREFIX, dir=trial_dir) as path:
                     algo.save_to_path(path)
                     if resumable:
                         save_state(algo, Path(path), elapsed, kept_policy(algo))
