@@ -127,6 +127,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     if args.json:
         for row in front_rows:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
+        print(f"results: {rel(run_dir)}", file=sys.stderr)  # stdout stays the front's JSON lines
         return 0
     said = "" if planning.is_paper_default else planning.describe(grid_map)
     print(format_search(result, front_rows, on_map, files, said, cover))

@@ -76,11 +76,12 @@ def test_results_round_trip(tmp_path):
 
 def test_exhaustive_command_prints_the_front_as_json(capsys, tmp_path):
     code = main(["search", "exhaustive", "--map", MAP_1, "--step", "10", "--json", "--log-dir", str(tmp_path)])
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
     rows = [json.loads(line) for line in out.splitlines()]
     assert code == 0 and rows and set(rows[0]) == {"theta", "P_c", "P_len"}
     assert [r["P_len"] for r in rows] == sorted(r["P_len"] for r in rows)
     run = tmp_path / "exhaustive-map-1-step10"
+    assert err.strip().splitlines()[-1] == f"results: {run}"  # where the rest is, on stderr
     assert {p.name for p in run.iterdir()} >= {"results.npz", "front.csv", "summary.json", "pareto.png"}
 
 
