@@ -51,7 +51,7 @@ def test_reproduce_refuses_an_unknown_budget_and_an_existing_run(capsys, tmp_pat
     assert (tmp_path / "taken" / "report.md").read_text() == "keep me"
 
 
-def test_a_stop_request_that_cuts_a_run_short_stops_the_job(monkeypatch, tmp_path):
+def test_a_stop_request_that_cuts_a_run_short_stops_the_job(capsys, monkeypatch, tmp_path):
     """A run cut short by Ctrl-C or SIGTERM returns (its handler took the signal): the job then stops with exit 130
     rather than train the next run, pretrain or report claims on a cut-short policy; what it wrote is kept."""
     import contextlib
@@ -70,6 +70,7 @@ def test_a_stop_request_that_cuts_a_run_short_stops_the_job(monkeypatch, tmp_pat
     monkeypatch.setattr(run, "train", cut_short)
     monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
     assert main(["reproduce", "--budget", "tiny", "--name", "r", "--log-dir", str(tmp_path)]) == 130
+    assert f"interrupted: what it wrote is kept in {tmp_path / 'r'}" in capsys.readouterr().err
     assert calls == ["ppo-map-1-seed0"] and (tmp_path / "r" / "ppo-map-1-seed0").is_dir()
     assert not (tmp_path / "r" / "report.md").exists()
 

@@ -6,6 +6,7 @@ import argparse
 import shlex
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 from smorphi_rl.cli.common import (
@@ -218,6 +219,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from smorphi_rl.reproduce import reproduce
 
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
-    report = reproduce(args.budget, name, args.log_dir)
+    try:
+        report = reproduce(args.budget, name, args.log_dir)
+    except KeyboardInterrupt:  # Ctrl-C, or a run a stop request cut short: what was written stays
+        root = Path(args.log_dir) / name
+        kept = f": what it wrote is kept in {rel(root)}" if root.is_dir() else ""
+        print(f"{PROG}: interrupted{kept}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     print(f"report: {rel(report)}")
     return 0
