@@ -52,10 +52,10 @@ def test_one_non_finite_entry_anywhere_is_seen():
 
 
 @contextmanager
-def _async_learner(algo: str) -> Iterator[tuple[Any, Any]]:
-    """(env runner, learner) of one real IMPALA or APPO config, in a Ray session (the learner thread puts its state in
-    Ray's object store); the learner's thread is stopped before Ray is: a live one would start another Ray at its
-    next put."""
+def _async_learner(algo: str, **overrides: float) -> Iterator[tuple[Any, Any]]:
+    """(env runner, learner) of one real IMPALA or APPO config (Preset `overrides` applied), in a Ray session (the
+    learner thread puts its state in Ray's object store); the learner's thread is stopped before Ray is: a live one
+    would start another Ray at its next put."""
     from ray.rllib.env.single_agent_env_runner import SingleAgentEnvRunner
 
     from smorphi_rl import cluster
@@ -63,7 +63,8 @@ def _async_learner(algo: str) -> Iterator[tuple[Any, Any]]:
     from smorphi_rl.training.config import TrainConfig, algorithm_config, register_env
 
     register_env()
-    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8)
+    cfg = TrainConfig(algo=algo, env=EnvConfig.from_dict({"max_steps": 20}), seed=3, envs_per_runner=8,
+                      overrides=overrides)  # fmt: skip
     config = algorithm_config(cfg)
     with cluster.ray_session(None):
         runner = SingleAgentEnvRunner(config=config)
@@ -314,7 +315,9 @@ def test_the_async_learners_hand_over_the_weights_of_the_update_they_waited_for(
 
     from smorphi_rl import rllib_compat
 
-    with _async_learner("appo") as (runner, learner):
+    # Each batch trained once: with the circular buffer's replays (RLlib's 8 batches, 2 passes) the thread may train
+    # again after the update returns, and the module read below would race it.
+    with _async_learner("appo", circular_buffer_batches=1, circular_buffer_passes=1) as (runner, learner):
         handed = []
         for _ in range(3):
             data = TrainingData(episodes=runner.sample(num_timesteps=400))
