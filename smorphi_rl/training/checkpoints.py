@@ -121,16 +121,52 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
         ("collections", "OrderedDict"): collections.OrderedDict,
         ("numpy", "dtype"): np.dtype,
         ("numpy", "ndarray"): np.ndarray,
-        ("gymnasium.spaces.box", "Box"): spaces.Box,
-        ("gymnasium.spaces.dict", "Dict"): spaces.Dict,
-        ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): spaces.MultiDiscrete,
-        ("numpy.random._pcg64", "PCG64"): PCG64,
-        ("numpy.random.bit_generator", "SeedSequence"): SeedSequence,
+        ("gymnasium.spaces.box", "Box"): _unbuilt(spaces.Box),
+        ("gymnasium.spaces.dict", "Dict"): _unbuilt(spaces.Dict),
+        ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): _unbuilt(spaces.MultiDiscrete),
         ("smorphi_rl.training.module", "MorphologyModule"): MODULE_CLASS,
     }
-    allowed |= rllib_compat.numpy_unpickle_helpers()  # numpy's own (private) helpers for arrays and Generators
+    # numpy's own (private) helpers for arrays and Generators; the two classes they rebuild are only ever their
+    # arguments, so the classes read as markers the helpers swap back (a pickle calling SeedSequence itself could
+    # ask for a pool of any size).
+    seeds, bits = _Marker(SeedSequence), _Marker(PCG64)
+    markers: dict[_Marker, type] = {seeds: SeedSequence, bits: PCG64}
+    allowed |= {key: _unmarking(helper, markers) for key, helper in rllib_compat.numpy_unpickle_helpers().items()}
+    allowed |= {("numpy.random.bit_generator", "SeedSequence"): seeds, ("numpy.random._pcg64", "PCG64"): bits}
     SAFE_GLOBALS.update(allowed)
     return SAFE_GLOBALS
+
+
+class _Marker:
+    """What a class that a pickle may only pass to numpy's helpers reads as: refused when the pickle calls it."""
+
+    def __init__(self, cls: type) -> None:
+        self.name = cls.__name__
+
+    def __call__(self, *args: Any, **kwargs: Any) -> Any:
+        raise Refused(f"it constructs a {self.name} itself, which a smorphi-rl checkpoint never does")
+
+
+def _unmarking(helper: Any, markers: dict[_Marker, type]) -> Any:
+    """`helper`, called with each marker among its arguments replaced by its class."""
+
+    def call(*args: Any) -> Any:
+        return helper(*(markers.get(a, a) if isinstance(a, _Marker) else a for a in args))
+
+    return call
+
+
+def _unbuilt(cls: type) -> type:
+    """A stand-in for a gymnasium space class that a pickle can only rebuild the way pickle writes it (an empty
+    instance whose state is then set, bounded by the file's size), never construct with arguments of its own
+    (`Box(0, 255, (30000, 30000))` would fill gigabytes before any check could run)."""
+
+    def __new__(stand_in: type, *args: Any, **kwargs: Any) -> Any:
+        if args or kwargs:
+            raise Refused(f"it constructs a {cls.__name__} with arguments, which a smorphi-rl checkpoint never does")
+        return object.__new__(cls)
+
+    return type(f"Unbuilt{cls.__name__}", (cls,), {"__new__": __new__})
 
 
 class Refused(pickle.UnpicklingError):

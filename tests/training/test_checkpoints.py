@@ -9,6 +9,7 @@ import pickle
 import shutil
 from pathlib import Path
 
+import gymnasium as gym
 import numpy as np
 import pytest
 import torch
@@ -134,6 +135,25 @@ def test_every_loader_refuses_every_payload_and_nothing_runs(genuine, tmp_path, 
     assert "refused" in lines[0] or "not a smorphi-rl policy" in lines[0], lines[0]
     assert not marker.exists()
     assert not (tmp_path / "logs").exists() or not [p for p in (tmp_path / "logs").rglob("*") if p.is_file()]
+
+
+@pytest.mark.parametrize(
+    "call",
+    [
+        Reduce(gym.spaces.Box, 0.0, 255.0, (2, 2)),  # at (30000, 30000): 7 GB of bounds, filled before any check
+        Reduce(gym.spaces.MultiDiscrete, [2, 2]),
+        Reduce(gym.spaces.Dict, {}),
+        Reduce(np.random.SeedSequence, 0, None, 8),  # at 10**9: a pool of 4 GB, mixed word by word
+        Reduce(np.random.PCG64, 0),
+    ],
+    ids=["Box", "MultiDiscrete", "Dict", "SeedSequence", "PCG64"],
+)
+def test_an_allowed_class_called_with_arguments_of_the_files_own_is_refused(genuine, tmp_path, call):
+    """The allowed classes are rebuilt only as pickle writes them (an empty instance, then its state): a file that
+    calls one itself is refused before the call allocates anything."""
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": call}))
+    with pytest.raises(CheckpointError, match="refused, it constructs"):
+        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
 
 
 @pytest.mark.parametrize("metadata", ["rllib_checkpoint.json", f"{MODULE_SUBDIR.as_posix()}/metadata.json"])
