@@ -123,6 +123,19 @@ def test_maps_generate_and_show(capsys, tmp_path):
     assert code != 0 and "--force" in err and out_yaml.read_bytes() == before  # nothing overwritten
 
 
+def test_maps_show_never_draws_over_the_map_s_own_image(capsys, tmp_path, monkeypatch):
+    """`maps show` draws to logs/maps/NAME.png by default, where `maps generate --format png` may have put the
+    map's own image."""
+    monkeypatch.chdir(tmp_path)
+    out_yaml = tmp_path / "logs" / "maps" / "gen.yaml"
+    assert run(capsys, "maps", "generate", "--out", str(out_yaml), "--format", "png")[0] == 0
+    image = (tmp_path / "logs" / "maps" / "gen.png").read_bytes()
+    code, _, err = run(capsys, "maps", "show", str(out_yaml))
+    assert code == 1 and "this map's own image: give --png" in err
+    assert (tmp_path / "logs" / "maps" / "gen.png").read_bytes() == image
+    assert run(capsys, "maps", "show", str(out_yaml), "--png", str(tmp_path / "drawn.png"))[0] == 0
+
+
 def _bad_files(tmp_path: Path) -> dict[str, Path]:
     files = {
         "malformed.yaml": "image: [oops",

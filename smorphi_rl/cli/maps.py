@@ -233,9 +233,13 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
     from smorphi_rl.plots import plot_map
 
     if args.png is not None:
-        output_file(args.png, "--png", (".png",), map_inputs(args.map))
+        png = output_file(args.png, "--png", (".png",), map_inputs(args.map))
+    else:  # the default too may be the map's own image (a map generated into logs/maps as PNG)
+        png = Path(DEFAULT_LOG_DIR) / "maps" / f"{Path(args.map).stem}.png"
+        if resolved(png, "--png") in {resolved(p, "map") for p in map_inputs(args.map)}:
+            raise SmorphiError(f"the default drawing {png} is this map's own image: give --png elsewhere")
+        output_file(str(png), "the default drawing", (".png",))
     grid_map = load_map(args.map)
-    png = Path(args.png) if args.png else Path(DEFAULT_LOG_DIR) / "maps" / f"{grid_map.name}.png"
     r = grid_map.resolution_m
     rows = [
         ("map", f"{args.map}"),
