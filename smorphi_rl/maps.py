@@ -304,13 +304,14 @@ def load_map(yaml_path: str | Path) -> Map:
 
 def map_inputs(yaml_path: str | Path) -> tuple[Path, ...]:
     """The files a map is read from: its YAML and (when the YAML names one) its image; what no output may replace."""
-    from smorphi_rl.inputs import strict_yaml
+    from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 
     path = Path(yaml_path)
-    try:
-        meta = strict_yaml(path.read_text())
+    try:  # only a plain file of a map YAML's size is read here (a FIFO would block): `load_map` names the others
+        plain = path.is_file() and path.stat().st_size <= MAX_YAML_BYTES
+        meta = strict_yaml(path.read_text()) if plain else None
         image = meta.get("image") if isinstance(meta, dict) else None
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+    except (OSError, UnicodeDecodeError, ValueError, yaml.YAMLError):
         image = None
     return (path, path.parent / image) if isinstance(image, str) and image else (path,)
 

@@ -590,14 +590,18 @@ def test_inputs_that_never_end_are_refused_before_reading(tmp_path, capsys):
     would block for ever."""
     import os
 
-    fifo, recording = tmp_path / "fifo.pgm", tmp_path / "r.mcap"
-    os.mkfifo(fifo)
-    os.mkfifo(recording)
+    fifo, recording, fifo_yaml = tmp_path / "fifo.pgm", tmp_path / "r.mcap", tmp_path / "fifo.yaml"
+    for path in (fifo, recording, fifo_yaml):
+        os.mkfifo(path)
     (tmp_path / "m.yaml").write_text("image: fifo.pgm\nresolution: 0.1\n")
     cases = [
         (["evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3"], "map image"),
         (["evaluate", "--map", str(fifo), "--angles", "1", "2", "3"], "is an image"),  # named by its suffix first
         (["evaluate", "--map", "/dev/zero", "--angles", "1", "2", "3"], "map YAML /dev/zero is not a regular file"),
+        # commands that keep their outputs off their inputs, which they read first
+        (["evaluate", "--map", str(fifo_yaml), "--angles", "1", "2", "3", "--plot", str(tmp_path / "p.png")], "FIFO"),
+        (["maps", "crop", str(fifo_yaml), "--out", str(tmp_path / "c.yaml")], "map YAML"),
+        (["maps", "show", str(fifo_yaml), "--png", str(tmp_path / "s.png")], "map YAML"),
         (["sweep", "/dev/zero", "--log-dir", str(tmp_path / "logs")], "sweep file /dev/zero is not a regular file"),
         (["replay", str(recording)], "recording " + str(recording) + " is not a regular file"),
     ]
