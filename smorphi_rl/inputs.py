@@ -66,8 +66,14 @@ _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _n
 
 def strict_yaml(text: str) -> Any:
     """A YAML document read strictly (no aliases, no duplicate keys, at most MAX_YAML_DEPTH levels); yaml.YAMLError
-    otherwise."""
-    return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
+    otherwise, also for what PyYAML itself raises as Python's errors (a mapping as a key, an integer of more digits
+    than Python converts)."""
+    try:
+        return yaml.load(text, Loader=_StrictLoader)  # a SafeLoader: no Python objects
+    except TypeError:  # PyYAML hashes every key
+        raise yaml.YAMLError("a mapping or a list used as a key") from None
+    except ValueError as exc:
+        raise yaml.YAMLError(str(exc).split(":")[0] or type(exc).__name__) from None
 
 
 def is_finite_number(value: Any) -> bool:
@@ -113,6 +119,8 @@ def check_not_special(path: Path, what: str, error: type[SmorphiError] = InputEr
         mode = path.stat().st_mode
     except OSError:
         return
+    except ValueError:  # a NUL byte, which no file name holds
+        raise error(f"{what} {path} holds a NUL byte, which no file name can") from None
     if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
         raise error(f"{what} {path} is not a regular file (a FIFO, socket or device is never read)")
 
@@ -156,7 +164,7 @@ def resolved(path: Path, what: str) -> Path:
     """`path.resolve()`, or one line naming it when it cannot be (a symlink loop, an unreadable folder)."""
     try:
         return path.resolve()
-    except (RuntimeError, OSError) as exc:
+    except (RuntimeError, OSError, ValueError) as exc:  # ValueError: a NUL byte
         raise InputError(f"{what} {path}: cannot be resolved ({exc})") from None
 
 

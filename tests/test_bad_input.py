@@ -664,3 +664,19 @@ def test_a_log_dir_that_is_a_file_is_named_by_every_command_that_caches_optima(c
     code, _, err = run(capsys, *argv, "--log-dir", str(blocker))
     assert code == 1 and f"log directory {blocker} is not a folder" in one_line(err)
     assert blocker.read_text() == "keep me"
+
+
+def test_yaml_that_pyyaml_reads_as_python_errors_is_one_line(tmp_path, capsys):
+    """A mapping as a key and an integer of 5,000 digits are valid YAML that PyYAML raises on as TypeError and
+    ValueError; a NUL byte in `image:` is a name no file can have."""
+    cases = {"key.yaml": "? {a: 1}\n: 1\n", "digits.yaml": f"image: m.pgm\nresolution: {'9' * 5000}\n"}
+    for name, text in cases.items():
+        (tmp_path / name).write_text(text)
+        code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / name), "--angles", "1", "2", "3")
+        assert code == 1 and "malformed YAML" in one_line(err), err
+        code, _, err = run(capsys, "sweep", str(tmp_path / name), "--log-dir", str(tmp_path / "logs"))
+        assert code == 1 and "not valid YAML" in one_line(err), err
+    (tmp_path / "nul.yaml").write_text('image: "a\\0b.pgm"\nresolution: 0.1\n')
+    code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "nul.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and "a\\x00b.pgm holds a NUL byte" in one_line(err), err
+    assert not (tmp_path / "logs").exists()

@@ -39,8 +39,9 @@ def build_parser(command: str | None = None) -> Parser:
 
 
 def one_line(message: str) -> str:
-    """An error as one line: a newline inside it (a path or a value holding one) is shown as \\n."""
-    return message.replace("\r", "\\r").replace("\n", "\\n")
+    """An error as one line: a newline or another control character inside it (a path or a value holding one) is
+    shown escaped, as \\n or \\x00."""
+    return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
