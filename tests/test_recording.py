@@ -191,6 +191,43 @@ def test_bad_recordings_give_one_line_and_exit_1(tmp_path, capsys, content, mess
     assert len(err.splitlines()) == 1 and message in err and "Traceback" not in err
 
 
+def _one_chunk_mcap(path: Path, data: bytes, declared: int) -> None:
+    """An MCAP file of a header and one zstd chunk that says it inflates to `declared` bytes."""
+    import struct
+
+    import zstandard
+    from mcap.opcode import Opcode
+
+    def record(opcode: int, body: bytes) -> bytes:
+        return struct.pack("<BQ", opcode, len(body)) + body
+
+    def text(value: str) -> bytes:
+        return struct.pack("<I", len(value)) + value.encode()
+
+    packed = zstandard.compress(data)
+    chunk = struct.pack("<QQQI", 0, 0, declared, 0) + text("zstd") + struct.pack("<Q", len(packed)) + packed
+    path.write_bytes(b"\x89MCAP0\r\n" + record(Opcode.HEADER, text("") + text("")) + record(Opcode.CHUNK, chunk))
+
+
+@pytest.mark.parametrize(
+    ("size", "declared", "message"),
+    [
+        (1 << 20, 3 << 30, "inflates to 3,221,225,472 bytes"),  # the frame holds 1 MiB, the chunk says 3 GiB
+        (65 << 20, 1 << 20, "inflates to 68,157,440 bytes"),  # the frame itself says 65 MiB: 20 KB on disk
+        (1 << 20, 1 << 20, "a record of opcode 0"),  # zeros read as a million empty records
+    ],
+)
+def test_a_chunk_that_inflates_beyond_any_recording_is_refused_before_it_is_read(tmp_path, capsys, size, declared,
+                                                                                 message):  # fmt: skip
+    """A few kilobytes of zstd can inflate to gigabytes: a 64 KB file once took 2.2 GB and over a minute."""
+    path = tmp_path / "bomb.mcap"
+    _one_chunk_mcap(path, bytes(size), declared)
+    assert path.stat().st_size < 100_000
+    assert main(["replay", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and message in err, err
+
+
 def test_replay_of_a_folder_without_recordings_and_of_a_missing_file(tmp_path, capsys):
     assert main(["replay", str(tmp_path)]) == 1
     assert "holds no MCAP recordings" in capsys.readouterr().err

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import base64
+import io
 import json
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -112,9 +114,47 @@ class Episode:
         return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
 
 
+MAX_CHUNK_BYTES = 64 << 20
+"""More than any chunk a recording holds (its chunks hold about 1 MiB; the map's grid of MAX_IMAGE_PIXELS cells,
+in base64, 33 MB): a chunk that says it inflates beyond is refused before it is decompressed."""
+MAX_RECORDING_BYTES = 512 << 20
+"""The most a whole recording may inflate to: a few kilobytes of zstd can declare gigabytes."""
+
+
+def _chunk_records(chunk: Any, budget: list[int], path: Path) -> Iterator[Any]:
+    """The channels and messages of one chunk, decompressed within MAX_CHUNK_BYTES and what is left of `budget`;
+    a record no chunk of ours holds ends the read in one line (a chunk of zeros would read as empty records)."""
+    import zstandard
+    from mcap.data_stream import ReadDataStream
+    from mcap.opcode import Opcode
+    from mcap.records import Channel, Message
+
+    if chunk.compression not in ("zstd", ""):
+        raise RecordingError(f"{path}: a chunk compressed with {chunk.compression[:20]!r}, which no recording is")
+    declared = zstandard.frame_content_size(chunk.data) if chunk.compression == "zstd" else len(chunk.data)
+    size = max(declared, chunk.uncompressed_size)
+    if size > min(MAX_CHUNK_BYTES, budget[0]):
+        raise RecordingError(f"{path}: a chunk that inflates to {size:,} bytes, beyond any recording's")
+    budget[0] -= size
+    data = chunk.data
+    if chunk.compression == "zstd":
+        data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    stream = ReadDataStream(io.BytesIO(data))
+    while stream.count < len(data):
+        opcode, length = stream.read1(), stream.read8()
+        if opcode == Opcode.CHANNEL:
+            yield Channel.read(stream)
+        elif opcode == Opcode.MESSAGE:
+            yield Message.read(stream, length)
+        elif opcode == Opcode.SCHEMA:
+            stream.read(length)
+        else:
+            raise RecordingError(f"{path}: a chunk holds a record of opcode {opcode}, which no recording's does")
+
+
 def read_episode(path: str | Path) -> Episode:
     """Read a recording, complete or cut short (every complete chunk is recovered; `truncated` says so)."""
-    from mcap.records import Channel, Footer, Message, Metadata
+    from mcap.records import Channel, Chunk, Footer, Message, Metadata
     from mcap.stream_reader import StreamReader
 
     file = Path(path)
@@ -134,9 +174,15 @@ def read_episode(path: str | Path) -> Episode:
     meta: dict[str, str] = {}
     by_topic: dict[str, list[dict[str, Any]]] = {t: [] for t in OUR_TOPICS}
     complete = False
+    budget = [MAX_RECORDING_BYTES]
+
+    def records(fh: Any) -> Iterator[Any]:
+        for record in StreamReader(fh, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES).records:
+            yield from _chunk_records(record, budget, file) if isinstance(record, Chunk) else (record,)
+
     with file.open("rb") as fh:
         try:
-            for record in StreamReader(fh).records:
+            for record in records(fh):
                 if isinstance(record, Channel):
                     topics[record.id] = record.topic
                 elif isinstance(record, Message) and topics.get(record.channel_id) in by_topic:
@@ -145,6 +191,8 @@ def read_episode(path: str | Path) -> Episode:
                     meta = dict(record.metadata)
                 elif isinstance(record, Footer):
                     complete = True
+        except RecordingError:
+            raise
         except Exception:  # a cut-short file ends in a partial record: keep what came before it
             complete = False
     if not topics or not any(t in OUR_TOPICS for t in topics.values()):
