@@ -113,6 +113,13 @@ class TrainConfig:
                 raise TrainConfigError(f"eval_maps: {exc}") from None
         from smorphi_rl.protocol import clashing_map_name
 
+        for group in (self.env.map_files, self.evaluation_maps):  # optima, figures and plots are keyed by the name
+            named: dict[str, Path] = {}
+            for path in map(Path, group):
+                other = named.setdefault(path.stem, path.resolve())
+                if other != path.resolve():
+                    raise TrainConfigError(f"maps {other} and {path} share the name {path.stem!r}, which keys each "
+                                           "map's optimum and figures: rename one")  # fmt: skip
         for path in self.evaluation_maps:
             if clashing_map_name(Path(path).stem):
                 raise TrainConfigError(f"{path}: a map named {Path(path).stem!r} would be mistaken for the "

@@ -191,6 +191,23 @@ def test_a_map_named_like_an_evaluation_figure_is_refused(tmp_path, stem):
         TrainConfig(env=EnvConfig.from_dict({"maps": [str(tmp_path / f"{stem}.yaml")]}))
 
 
+@pytest.mark.parametrize("where", ["maps", "eval_maps"])
+def test_two_maps_of_one_name_are_refused(tmp_path, where):
+    """Each map's optimum, evaluation and plots are keyed by its name: map-2 filed as map-1 replaced map-1's."""
+    from pathlib import Path
+
+    source = Path(__file__).resolve().parents[2] / "maps"
+    (tmp_path / "map-1.yaml").write_text((source / "map-2.yaml").read_text())
+    (tmp_path / "map-2.pgm").write_bytes((source / "map-2.pgm").read_bytes())
+    both = [str(source / "map-1.yaml"), str(tmp_path / "map-1.yaml")]
+    with pytest.raises(TrainConfigError, match="share the name 'map-1'"):
+        if where == "maps":
+            TrainConfig(env=EnvConfig.from_dict({"maps": both}))
+        else:
+            TrainConfig(env=EnvConfig.from_dict({"maps": both[:1]}), eval_maps=tuple(both))
+    TrainConfig(env=EnvConfig.from_dict({"maps": [both[0], both[0]]}))  # one map twice is one map
+
+
 def test_the_kl_penalty_is_a_tunable_hyperparameter_of_ppo_and_appo():
     from smorphi_rl.training.config import algorithm_config
 
