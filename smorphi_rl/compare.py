@@ -105,9 +105,16 @@ def feasible_of(result: SearchResult, run_dir: Path) -> np.ndarray:
     return result.feasible
 
 
-def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -> Points:
+def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), digest: str | None = None) -> Points:
     """What a training run directory or a search run directory found on `map_name`; `methods`: the search methods
-    the folder was given as (a `search nsga2` run given as random search is refused), empty for any."""
+    the folder was given as (a `search nsga2` run given as random search is refused), empty for any; `digest`: the
+    map's `Map.digest`, which a run that recorded its map's must match (another floor filed under the same name)."""
+
+    def check_digest(recorded: Any, where: Path) -> None:
+        if digest is not None and isinstance(recorded, str) and recorded != digest:
+            raise SmorphiError(f"{where}: its map '{map_name}' is another floor than --map's (the cells differ): "
+                               "compare runs of the same map file")  # fmt: skip
+
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")
     if (run_dir / FOUND_CSV).is_file():
@@ -120,6 +127,8 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -
         if not rows:
             raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
         summary = read_json_object(run_dir / "summary.json", "run summary")
+        digests = summary.get("map_digests")
+        check_digest(digests.get(map_name) if isinstance(digests, dict) else None, run_dir)
         steps = summary.get("env_steps", 0) if isinstance(summary.get("env_steps", 0), int) else 0
         thetas = np.array([f.theta for f in rows], dtype=float)
         label = f"{rows[0].algorithm.upper()} ({run_dir.name})"
@@ -153,6 +162,7 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = ()) -
                            f"with --{'local' if result.method in LOCAL_METHODS else result.method})")  # fmt: skip
     if result.map_name != map_name:
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
+    check_digest(result.map_digest, run_dir)
     ok = feasible_of(result, run_dir)
     return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
             result.P_c[ok], result.P_len[ok], result.params.get("settled_R1"))  # fmt: skip

@@ -88,6 +88,17 @@ class Map:
         return int(self.cells.shape[0])
 
     @property
+    def digest(self) -> str:
+        """A digest of the cells and the resolution: what tells two maps of one name apart (results name a map by
+        its file name, and ROS maps are often all `map.yaml`)."""
+        import hashlib
+
+        h = hashlib.blake2b(digest_size=12)
+        h.update(repr((self.cells.shape, self.resolution_m)).encode())
+        h.update(self.cells.tobytes())
+        return h.hexdigest()
+
+    @property
     def width(self) -> int:
         return int(self.cells.shape[1])
 

@@ -121,3 +121,38 @@ def test_compare_refuses_runs_planned_from_another_start(tmp_path, capsys):
     assert "planned from (1, 1) m, the exact front here from the planner's default start: pass --start-xy 1 1" in err
     assert err.count("\n") == 1 and not (tmp_path / "compare-map-1").exists()
     assert main([*compare, "--start-xy", "1.0", "1.0"]) == 0
+
+
+@pytest.mark.parametrize("kind", ["random", "exhaustive", "training"])
+def test_compare_refuses_runs_of_another_floor_with_the_same_name(searches, capsys, tmp_path, kind):
+    """ROS maps are often all `map.yaml`: map-2 filed as map-1 once read a random search of map-1 as beating the
+    exact optimum (gap -0.02)."""
+    import json
+
+    (tmp_path / "map-1.yaml").write_text((ROOT / "maps" / "map-2.yaml").read_text())
+    (tmp_path / "map-2.pgm").write_bytes((ROOT / "maps" / "map-2.pgm").read_bytes())
+    runs = ["--random", str(searches / "random-map-1-seed0")]
+    if kind == "exhaustive":  # a search of this floor, against the exact front of the other
+        other = ["search", "random", "--map", str(tmp_path / "map-1.yaml"), "--samples", "20", "--name", "here"]
+        assert main([*other, "--log-dir", str(tmp_path)]) == 0
+        (front,) = searches.glob("exhaustive-map-1*")
+        runs = ["--random", str(tmp_path / "here"), "--exhaustive", str(front)]
+    if kind == "training":  # what `train` writes beside its table: each map's digest by name
+        from smorphi_rl.maps import load_map
+
+        run = tmp_path / "ppo-map-1"
+        run.mkdir()
+        (run / "morphologies.csv").write_text("algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,"
+                                              "variants\nppo,map-1,95,59,103,90.0,100,80.0,10,1\n")  # fmt: skip
+        (run / "summary.json").write_text(
+            json.dumps({"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest}})
+        )
+        runs = ["--runs", str(run)]
+    capsys.readouterr()
+    step = [] if kind == "exhaustive" else ["--step", "30"]
+    code = main(["compare", "--map", str(tmp_path / "map-1.yaml"), *runs, *step, "--log-dir", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1 and "another floor" in err and "the cells differ" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+    if kind == "training":  # the same run against the floor it was trained on is compared
+        assert main(["compare", "--map", MAP_1, *runs, "--step", "30", "--log-dir", str(tmp_path / "out")]) == 0

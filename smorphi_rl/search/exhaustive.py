@@ -305,7 +305,7 @@ def run_exhaustive(
         p_c[rows], p_len[rows] = state.p_c[inverse], state.p_len[inverse]
         ok = np.zeros(n, dtype=bool)
         ok[rows] = state.feasible[inverse]
-        return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, ok, n, wall, params)
+        return SearchResult("exhaustive", grid_map.name, thetas, p_c, p_len, ok, n, wall, params, grid_map.digest)
     rep_of_row = np.full(n, -1, dtype=np.int64)
     rep_of_row[rows] = inverse
     kept = np.flatnonzero((rep_of_row >= 0) & ~state.pruned[np.maximum(rep_of_row, 0)])
@@ -313,7 +313,7 @@ def run_exhaustive(
     params |= {"planned_footprints": int(np.count_nonzero(~state.pruned)), "pruned_footprints":
                int(np.count_nonzero(state.pruned)), "weights": {"w1": best_for.w1, "w2": best_for.w2}}  # fmt: skip
     return SearchResult("optimum", grid_map.name, thetas[kept], state.p_c[idx], state.p_len[idx],
-                        state.feasible[idx], len(kept), wall, params)  # fmt: skip
+                        state.feasible[idx], len(kept), wall, params, grid_map.digest)  # fmt: skip
 
 
 def _two_passes(

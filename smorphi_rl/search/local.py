@@ -232,4 +232,5 @@ def run_local_search(
     evaluations = sum(len(space.seen) for space in spaces)
     params = {"budget_per_start": budget, "starts": starts, "seed": seed, "planner": env.config.planner,
               "settled_R1": [o.R1 for o in outcomes], "settled": [list(o.settled) for o in outcomes]}  # fmt: skip
-    return SearchResult(method, env.grid_map.name, thetas, p_c, p_len, feasible, evaluations, wall, params)
+    return SearchResult(method, env.grid_map.name, thetas, p_c, p_len, feasible, evaluations, wall, params,
+                        env.grid_map.digest)  # fmt: skip

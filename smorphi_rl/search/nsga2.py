@@ -90,4 +90,4 @@ def run_nsga2(
     if address is not None:
         params["address"] = address
     return SearchResult("nsga2", grid_map.name, seen[:, :3], seen[:, 3], seen[:, 4].astype(np.int64),
-                        seen[:, 5] > 0, len(seen), wall, params)  # fmt: skip
+                        seen[:, 5] > 0, len(seen), wall, params, grid_map.digest)  # fmt: skip

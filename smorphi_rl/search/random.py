@@ -38,4 +38,4 @@ def run_random(
     p_c, p_len, feasible = (np.concatenate([getattr(b, k) for b in parts]) for k in ("P_c", "P_len", "feasible"))
     if address is not None:
         params["address"] = address
-    return SearchResult("random", grid_map.name, thetas, p_c, p_len, feasible, samples, wall, params)
+    return SearchResult("random", grid_map.name, thetas, p_c, p_len, feasible, samples, wall, params, grid_map.digest)

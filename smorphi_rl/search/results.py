@@ -38,6 +38,8 @@ class SearchResult:
     """FBCPP evaluations the method asked for (repeats included)."""
     wall_s: float
     params: dict[str, Any] = field(default_factory=dict)
+    map_digest: str | None = None
+    """`Map.digest` of the map searched (None in runs written before it was recorded)."""
 
     def front(self) -> np.ndarray:
         """Indices of the non-dominated shapes (max P_c, min P_len), sorted by P_len."""
@@ -80,6 +82,7 @@ def save(result: SearchResult, run_dir: Path, weights: Weights, best_extra: dict
     summary = {
         "method": result.method,
         "map": result.map_name,
+        **({} if result.map_digest is None else {"map_digest": result.map_digest}),
         "params": result.params,
         "evaluations": result.evaluations,
         "distinct_shapes": len(result.thetas),
@@ -166,4 +169,5 @@ def load(run_dir: str | Path) -> SearchResult:
     return SearchResult(
         summary["method"], summary["map"], thetas.astype(np.float64), p_c.astype(np.float64), p_len.astype(np.int64),
         feasible.astype(bool), int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),
+        digest if isinstance(digest := summary.get("map_digest"), str) else None,
     )  # fmt: skip

@@ -115,10 +115,10 @@ class TrainConfig:
 
         for group in (self.env.map_files, self.evaluation_maps):  # optima, figures and plots are keyed by the name
             named: dict[str, Path] = {}
-            for path in map(Path, group):
-                other = named.setdefault(path.stem, path.resolve())
-                if other != path.resolve():
-                    raise TrainConfigError(f"maps {other} and {path} share the name {path.stem!r}, which keys each "
+            for file in map(Path, group):
+                other = named.setdefault(file.stem, file.resolve())
+                if other != file.resolve():
+                    raise TrainConfigError(f"maps {other} and {file} share the name {file.stem!r}, which keys each "
                                            "map's optimum and figures: rename one")  # fmt: skip
         for path in self.evaluation_maps:
             if clashing_map_name(Path(path).stem):

@@ -70,6 +70,8 @@ class RunSummary:
     pretrained_in_runners: bool | None = None
     evaluation: dict[str, Any] = field(default_factory=dict)
     """The last greedy evaluation (the protocol's eval/... figures), empty when evaluation was off."""
+    map_digests: dict[str, str] = field(default_factory=dict)
+    """`Map.digest` of every map file trained or evaluated on, by name: `compare` tells same-named maps apart."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -87,6 +89,7 @@ class RunSummary:
             "best": best,
             "exact_optimum": {m: asdict(o) for m, o in self.optimum.items()},
             "evaluation": self.evaluation,
+            "map_digests": self.map_digests,
             "checkpoint": None if self.checkpoint is None else str(self.checkpoint),
             "pretrained": None if self.pretrained is None else str(self.pretrained),
             "pretrained_in_runners": self.pretrained_in_runners,
@@ -350,6 +353,9 @@ def train(
         pretrained=pretrained,
         pretrained_in_runners=progress.pretrained_in_runners,
         evaluation=progress.last_eval,
+        map_digests={
+            m.name: m.digest for m in map(load_map, dict.fromkeys((*cfg.env.map_files, *cfg.evaluation_maps)))
+        },
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR

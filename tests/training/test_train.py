@@ -83,6 +83,10 @@ def test_train_prints_where_everything_is(ppo_run):
         assert (run_dir / name).is_file(), name
     config = json.loads((run_dir / "config.json").read_text())
     assert config["algo"] == "ppo" and config["env"]["maps"] == [MAP_1] and config["hyperparameters"]["lr"] > 0
+    from smorphi_rl.maps import load_map
+
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["map_digests"] == {"map-1": load_map(MAP_1).digest}  # what `compare` checks a map against
 
 
 def test_metrics_exist_and_are_finite(ppo_run):
