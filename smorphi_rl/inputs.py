@@ -168,10 +168,12 @@ def resolved(path: Path, what: str) -> Path:
         raise InputError(f"{what} {path}: cannot be resolved ({exc})") from None
 
 
-def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[Path | str, ...] = ()) -> Path:
+def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[Path | str, ...] = (),
+                force: bool = False) -> Path:  # fmt: skip
     """An output path used exactly as given: it ends in one of `suffixes`, is not a folder, its folder exists or
-    can be made (the nearest existing one is a writable folder; nothing is created here), and it is none of the
-    command's inputs (a plot never replaces the map it draws)."""
+    can be made (the nearest existing one is a writable folder; nothing is created here), it is none of the
+    command's inputs (a plot never replaces the map it draws), and an existing file is replaced only when `force`
+    (another map's image, another run's plot)."""
     if not value:
         raise InputError(f"{flag}: give a file name ending in {' or '.join(suffixes)}")
     path = Path(value)
@@ -190,7 +192,12 @@ def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[
     for item in inputs:
         if resolved(Path(item), "input") == target:
             raise InputError(f"{flag} {value} is one of this command's inputs: write it somewhere else")
+    if path.exists() and not force:
+        raise InputError(f"{flag} {value} exists; pass --force to replace it")
     return path
+
+
+FORCE_HELP = "replace an output file that exists (never one of the command's inputs)"
 
 
 def read_json_object(path: Path, what: str) -> dict[str, Any]:

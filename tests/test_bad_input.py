@@ -680,3 +680,24 @@ def test_yaml_that_pyyaml_reads_as_python_errors_is_one_line(tmp_path, capsys):
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "nul.yaml"), "--angles", "1", "2", "3")
     assert code == 1 and "a\\x00b.pgm holds a NUL byte" in one_line(err), err
     assert not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize(
+    "argv",
+    [
+        ["evaluate", "--map", MAP_1, "--angles", "95", "59", "103", "--plot", "{out}"],
+        ["design", "--map", MAP_1, "--budget", "10", "--plot", "{out}"],
+        ["maps", "show", MAP_1, "--png", "{out}"],
+    ],
+    ids=["evaluate", "design", "maps show"],
+)
+def test_an_output_file_that_exists_is_replaced_only_with_force(tmp_path, capsys, argv):
+    """`--plot other-map.png` once replaced another map's image, and then the map read as another floor."""
+    out = tmp_path / "taken.png"
+    out.write_bytes(b"someone's image")
+    argv = [a.replace("{out}", str(out)) for a in argv]
+    code, _, err = run(capsys, *argv)
+    assert code == 1 and f"{out} exists; pass --force to replace it" in one_line(err), err
+    assert out.read_bytes() == b"someone's image"
+    code, _, err = run(capsys, *argv, "--force")
+    assert code == 0 and out.read_bytes()[:4] == b"\x89PNG", err

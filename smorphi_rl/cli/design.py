@@ -15,7 +15,7 @@ from typing import Any
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty
 from smorphi_rl.design import DEFAULT_BUDGET
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import output_file
+from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
 from smorphi_rl.rundir import rel
@@ -33,6 +33,7 @@ def register(sub: Any) -> None:
                     "10-60 s the first time, cached under LOG_DIR/.cache) and report the gap")  # fmt: skip
     ds.add_argument("--json", action="store_true", help="print one JSON object")
     ds.add_argument("--plot", help="write a PNG of the proposed shape's coverage on the floor")
+    ds.add_argument("--force", action="store_true", help=FORCE_HELP)
     ds.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR, help=f"where --exact caches optima (default: "
                     f"{DEFAULT_LOG_DIR})")  # fmt: skip
     ds.set_defaults(func=cmd_design)
@@ -46,7 +47,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     check_budget(args.budget)
     cache = optimum_cache(args.log_dir) if args.exact else None  # a --log-dir that is a file: one line, before work
-    plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(str(args.map)))
+    inputs = map_inputs(str(args.map))
+    plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), inputs, args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
     result = run_design(env, designer.logits, args.budget)

@@ -21,7 +21,7 @@ from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text, check_block_side
-from smorphi_rl.inputs import output_file
+from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import Cell, Map, load_map, map_inputs
 
 
@@ -33,6 +33,7 @@ def register(sub: Any) -> None:
     ev.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
     ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
+    ev.add_argument("--force", action="store_true", help=FORCE_HELP)
     option(ev, EnvConfig, "block_side_m", "--block-side", metavar="M")
     ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
                     "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
@@ -173,7 +174,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--block-side must be > 0 m, got {args.block_side}")
     if args.plot is not None:
         inputs = map_inputs(args.map) + ((Path(args.angles_file),) if args.angles_file else ())
-        args.plot = str(output_file(args.plot, "--plot", (".png",), inputs))
+        args.plot = str(output_file(args.plot, "--plot", (".png",), inputs, args.force))
     if args.angles_file == "":
         raise SmorphiError("--angles-file: give the path of a CSV of t1,t2,t3 rows")
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None

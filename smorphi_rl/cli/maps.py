@@ -13,7 +13,7 @@ from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, seed_arg
 from smorphi_rl.cli.fields import param_default
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import FloorKind
-from smorphi_rl.inputs import MAX_SEED, finite, output_file, resolved
+from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, finite, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
 
 CROP_MARGIN_M = 0.2
@@ -42,7 +42,8 @@ def register(sub: Any) -> None:
     gen.set_defaults(func=cmd_maps_generate)
     show = maps_sub.add_parser("show", help="print a map's size and fractions and draw it")
     show.add_argument("map", help="map_server YAML")
-    show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png)")
+    show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png, redrawn each time)")
+    show.add_argument("--force", action="store_true", help=FORCE_HELP)
     show.set_defaults(func=cmd_maps_show)
     crop = maps_sub.add_parser("crop", help="cut a map to its recorded (known) area or to a rectangle")
     crop.add_argument(
@@ -233,12 +234,12 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
     from smorphi_rl.plots import plot_map
 
     if args.png is not None:
-        png = output_file(args.png, "--png", (".png",), map_inputs(args.map))
+        png = output_file(args.png, "--png", (".png",), map_inputs(args.map), args.force)
     else:  # the default too may be the map's own image (a map generated into logs/maps as PNG)
         png = Path(DEFAULT_LOG_DIR) / "maps" / f"{Path(args.map).stem}.png"
         if resolved(png, "--png") in {resolved(p, "map") for p in map_inputs(args.map)}:
             raise SmorphiError(f"the default drawing {png} is this map's own image: give --png elsewhere")
-        output_file(str(png), "the default drawing", (".png",))
+        output_file(str(png), "the default drawing", (".png",), force=True)  # redrawn each time
     grid_map = load_map(args.map)
     r = grid_map.resolution_m
     rows = [

@@ -11,7 +11,7 @@ from typing import Any
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import MAX_SEED, output_file, resolved
+from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
 from smorphi_rl.map_sources import map_files, resolve
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
@@ -32,6 +32,7 @@ def register(sub: Any) -> None:
     rl.add_argument("--steps", action="store_true", help="print every step")
     rl.add_argument("--png", help="write the start, best and final steps side by side (Figure 6 style)")
     rl.add_argument("--gif", help="write a GIF of the morphology changing over the episode")
+    rl.add_argument("--force", action="store_true", help=FORCE_HELP)
     rl.set_defaults(func=cmd_replay)
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
@@ -41,6 +42,7 @@ def register(sub: Any) -> None:
     ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
+    ep.add_argument("--force", action="store_true", help=FORCE_HELP)
     ep.add_argument("--record", type=nonempty, metavar="DIR", help="record every episode to MCAP in DIR (see `replay`)")
     ep.add_argument("--starts", type=int, default=None, metavar="N",
                     help=f"the evaluation protocol instead: greedy from N fixed seeded starts ({EVAL_STARTS} in "
@@ -121,7 +123,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
         return _replay_listing(target)
     for value, flag, suffix in ((args.png, "--png", ".png"), (args.gif, "--gif", ".gif")):
         if value is not None:
-            output_file(value, flag, (suffix,), (target,))
+            output_file(value, flag, (suffix,), (target,), args.force)
     ep = read_episode(target)
     meta, steps, best = ep.metadata, ep.steps, ep.best
     assert best is not None
@@ -197,7 +199,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         load_map(path)
     if args.plot is not None:
         inputs = tuple(p for m in map_files(tuple(maps or ())) for p in map_inputs(m))
-        output_file(args.plot, "--plot", (".png",), inputs)
+        output_file(args.plot, "--plot", (".png",), inputs, args.force)
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
     from smorphi_rl.training.policy import check_fits, env_config_of
