@@ -111,4 +111,8 @@ def designer_env(designer: Designer, map_path: str) -> Any:
     if want != have:
         raise SmorphiError(f"{designer.path}: the policy's observation {want} is not the env's {have} (another "
                            "observation layout)")  # fmt: skip
+    moves, env_moves = list(designer.policy.action_nvec), [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]
+    if moves != env_moves:
+        raise SmorphiError(f"{designer.path}: the policy chooses among {moves} moves a hinge, its env among "
+                           f"{env_moves} (another action layout)")  # fmt: skip
     return env

@@ -245,16 +245,28 @@ def read_module_files(checkpoint: Path) -> tuple[dict[str, Any], dict[str, np.nd
     return args[1], state
 
 
+def _plain_shape(space: Any) -> bool:
+    """Whether a space read from a file has a shape of whole, non-negative sizes (its state is the file's)."""
+    try:
+        shape = space.shape
+    except Exception:  # a property reading state the file left out
+        return False
+    return isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)
+
+
 def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict[str, Any]]:
     """(observation space, action space, model_config) of the constructor keywords, each of the kind ours is."""
     import gymnasium as gym
 
     obs, act, model = kwargs.get("observation_space"), kwargs.get("action_space"), kwargs.get("model_config")
-    if not (isinstance(obs, gym.spaces.Dict) and all(isinstance(s, gym.spaces.Box) for s in obs.spaces.values())):
+    boxes = getattr(obs, "spaces", None) if isinstance(obs, gym.spaces.Dict) else None
+    if not (isinstance(boxes, dict) and all(isinstance(s, gym.spaces.Box) and _plain_shape(s) for s in boxes.values())):
         raise CheckpointError(f"{where}: its observation space is not the env's (a Dict of Boxes)")
-    if not isinstance(act, gym.spaces.MultiDiscrete):
+    nvec = getattr(act, "nvec", None)
+    if not (isinstance(act, gym.spaces.MultiDiscrete) and _plain_shape(act) and isinstance(nvec, np.ndarray)
+            and nvec.dtype.kind in "iu" and nvec.shape == act.shape):  # fmt: skip
         raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
-    problem = policy_problem({k: list(s.shape or ()) for k, s in obs.spaces.items()}, model)
+    problem = policy_problem({k: list(s.shape or ()) for k, s in boxes.items()}, model)
     if problem or not isinstance(model, dict):
         raise CheckpointError(f"{where}: {problem}")
     return obs, act, model

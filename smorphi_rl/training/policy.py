@@ -32,23 +32,31 @@ class Rollout:
 
 def env_config_of(module: Any, maps: list[str] | None) -> EnvConfig:
     """The env the policy was trained for (carried in the checkpoint), on `maps` if given."""
-    raw = dict((module.model_config or {}).get("env_config") or {})
+    raw = (module.model_config or {}).get("env_config")
     if not raw:
         raise CheckpointError("the checkpoint carries no env configuration (not trained by smorphi-rl)")
-    cfg = EnvConfig.from_dict(raw)
+    if not isinstance(raw, dict):
+        raise CheckpointError(f"the checkpoint's env configuration is a {type(raw).__name__}, not a table")
+    cfg = EnvConfig.from_dict(dict(raw))
     if maps:
         cfg = replace(cfg, maps=EnvConfig.from_dict({"maps": maps}).maps)
     return cfg
 
 
 def check_fits(module: Any, env: MorphologyEnv) -> None:
-    """The policy's observation space must be the env's (same obs_size), else say so in one line."""
-    want = module.observation_space["map"].shape
-    have = env.observation_space["map"].shape  # type: ignore[index]  # a Dict space
-    if tuple(want) != tuple(have):
-        raise CheckpointError(
-            f"the policy expects map observations of shape {tuple(want)}, the env gives {tuple(have)}"
-        )
+    """The policy's observation and action spaces must be the env's (its obs_size, layout and moves), else say so
+    in one line: a policy of another layout fails inside torch, one of other moves walks the wrong hinge."""
+    want = {k: tuple(s.shape) for k, s in module.observation_space.spaces.items()}
+    have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}  # type: ignore[attr-defined]
+    if want.get("map") != have.get("map"):
+        raise CheckpointError(f"the policy expects map observations of shape {want.get('map')}, the env gives "
+                              f"{have.get('map')}")  # fmt: skip
+    if want != have:
+        raise CheckpointError(f"the policy's observation {want} is not the env's {have} (another observation layout)")
+    moves, env_moves = [int(n) for n in module.action_space.nvec], [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]
+    if moves != env_moves:
+        raise CheckpointError(f"the policy chooses among {moves} moves a hinge, its env among {env_moves} (another "
+                              "action layout)")  # fmt: skip
 
 
 def action_logits(module: Any, observations: list[dict[str, np.ndarray]]) -> torch.Tensor:

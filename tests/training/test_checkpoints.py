@@ -259,3 +259,40 @@ def test_a_folder_of_several_trials_names_them_instead_of_choosing_by_clock(genu
     shutil.copytree(genuine, tmp_path / "checkpoint_000009")  # one beside them, in no trial: never the hint
     with pytest.raises(CheckpointError, match=r"holds the checkpoints of 3 trials .* such as .*ppo-seed0_00000$"):
         find_checkpoint(tmp_path)
+
+
+def _ctor_with(genuine: Path, **changes: object) -> bytes:
+    ctor = pickle.loads((genuine / MODULE_SUBDIR / "class_and_ctor_args.pkl").read_bytes())  # our own test file
+    kwargs = dict(ctor["ctor_args_and_kwargs"][1])
+    for key, value in changes.items():
+        kwargs[key] = value(kwargs[key]) if callable(value) else value
+    return pickle.dumps(ctor | {"ctor_args_and_kwargs": ((), kwargs)})
+
+
+def _with_shape(space: gym.spaces.Dict, shape: object) -> gym.spaces.Dict:
+    box = space.spaces["angles"]
+    box._shape = shape  # what a crafted file's state can set
+    return space
+
+
+def _with_env(model_config: dict, **env: object) -> dict:
+    return model_config | {"env_config": model_config["env_config"] | env}
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"observation_space": lambda s: _with_shape(s, ("3",))}, "its observation space is not the env's"),
+        ({"observation_space": lambda s: _with_shape(s, 3)}, "its observation space is not the env's"),
+        ({"model_config": lambda m: m | {"env_config": "maps"}}, "env configuration is a str, not a table"),
+        ({"model_config": lambda m: _with_env(m, observation="floor")}, "is not the env's"),
+        ({"model_config": lambda m: _with_env(m, moves=[1, 2, 4])}, "the policy chooses among [3, 3, 3] moves"),
+    ],
+    ids=["a shape of strings", "a shape that is a number", "env_config a string", "another layout", "other moves"],
+)
+def test_a_policy_at_odds_with_itself_is_refused_in_one_line(genuine, tmp_path, capsys, changes, message):
+    """Spaces of the wrong types, an env configuration that is no table or builds an env of another observation or
+    action layout: each once failed inside torch or Python, or (other moves) walked the hinges wrongly."""
+    checkpoint = plant(genuine, tmp_path, "class_and_ctor_args.pkl", _ctor_with(genuine, **changes))
+    code, err = run(capsys, "evaluate-policy", "--checkpoint", str(checkpoint), "--episodes", "1")
+    assert code == 1 and len(err.strip().splitlines()) == 1 and message in err, err

@@ -134,6 +134,10 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
     (bad / "policy.json").write_text(json.dumps(meta))
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
     assert code == 1 and err.count("\n") == 1 and "'obs_size' must be in 4..512, got 10000000" in err
+    meta["model_config"]["env_config"] |= {"obs_size": 64, "moves": [1]}  # 3 moves a hinge to a head of 7: it
+    (bad / "policy.json").write_text(json.dumps(meta))  # designed (164, 95, 133) where the policy said (101, 87, 122)
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
+    assert code == 1 and err.count("\n") == 1 and "among [7, 7, 7] moves a hinge, its env among [3, 3, 3]" in err
 
 
 def test_the_shipped_designer_is_small_plain_and_designs(capsys):
