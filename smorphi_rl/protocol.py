@@ -208,6 +208,26 @@ def optimum_cache(log_dir: str | Path) -> Path:
     return root / OPTIMUM_CACHE
 
 
+def _cached_optimum(file: Path, weights: Weights) -> Optimum | None:
+    """The optimum a cache file holds, if it is one `exact_optimum` could have written: three angles in 0-180,
+    P_c in 0-100, a whole P_len not below 0 and the R1 `weights` give them (else None: a doctored entry would
+    print any gap)."""
+    from smorphi_rl.inputs import is_finite_number
+
+    try:
+        raw = json.loads(file.read_text()) if file.stat().st_size < 1 << 12 else None
+        theta, r1, p_c, p_len = raw["theta"], raw["R1"], raw["P_c"], raw["P_len"]  # type: ignore[index]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return None
+    angles = isinstance(theta, list) and len(theta) == 3 and all(is_finite_number(t) and 0 <= t <= 180 for t in theta)
+    if not (angles and is_finite_number(r1) and is_finite_number(p_c) and 0 <= p_c <= 100 and type(p_len) is int
+            and 0 <= p_len <= 2**53):  # fmt: skip
+        return None
+    if not math.isclose(float(weights.r1(p_c, p_len)), r1, rel_tol=1e-9, abs_tol=1e-9):
+        return None
+    return Optimum((float(theta[0]), float(theta[1]), float(theta[2])), float(r1), float(p_c), p_len)
+
+
 def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
@@ -217,11 +237,9 @@ def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir
     key = map_key(map_path, weights, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
-        try:
-            raw = json.loads(file.read_text())
-            return Optimum(tuple(raw["theta"]), float(raw["R1"]), float(raw["P_c"]), int(raw["P_len"]))  # type: ignore[arg-type]
-        except (OSError, ValueError, KeyError, TypeError):
-            pass  # a damaged cache entry is recomputed and rewritten
+        cached = _cached_optimum(file, weights)
+        if cached is not None:
+            return cached  # else a damaged or doctored entry: recomputed and rewritten
     optimum = _optimum_in_process(key, str(map_path), weights, planning)
     if file is not None:
         file.parent.mkdir(parents=True, exist_ok=True)

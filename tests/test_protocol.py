@@ -67,3 +67,9 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
     cached.write_text("{broken")  # a damaged entry is recomputed
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
+    entry = {"theta": [1, 2, 3], "R1": 80.0 - 10.0, "P_c": 80.0, "P_len": 100}
+    cached.write_text(json.dumps(entry))  # an entry that could be the optimum is what the cache is for: read
+    assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path).R1 == 70.0
+    for doctored in ({"R1": 1e308}, {"theta": [1]}, {"R1": math.nan}, {"P_len": 10**400}, {"P_c": 101.0}):
+        cached.write_text(json.dumps(entry | doctored))  # once printed as the optimum, or a traceback
+        assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt, doctored
