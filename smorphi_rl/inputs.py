@@ -127,11 +127,15 @@ def check_not_special(path: Path, what: str, error: type[SmorphiError] = InputEr
 
 def check_image_size(path: Path) -> None:
     """Refuse, before decoding, an image whose declared size exceeds MAX_IMAGE_PIXELS."""
+    import warnings
+
     from PIL import Image
 
     try:
-        with Image.open(path) as img:
-            width, height = img.size
+        with warnings.catch_warnings():  # Pillow's own warning: ours is the one line
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)
+            with Image.open(path) as img:
+                width, height = img.size
     except Image.DecompressionBombError:  # Pillow's own refusal, at twice its limit: far beyond ours
         raise MapError(f"{path}: an image of far more than {MAX_IMAGE_PIXELS:,} pixels, the most that are read "
                        "(crop the map first)") from None  # fmt: skip

@@ -329,6 +329,18 @@ def test_an_image_header_beyond_pillows_own_limit_is_one_line(tmp_path, capsys):
         assert code == 1 and "far more than 25,000,000 pixels" in one_line(err)
 
 
+def test_an_image_pillow_warns_about_is_refused_in_our_line_alone(tmp_path, capsys):
+    """Between 89 and 179 million pixels Pillow prints its own two-line warning before our refusal."""
+    import warnings
+
+    (tmp_path / "big.pgm").write_bytes(b"P5 10000 10000 255\n")
+    (tmp_path / "big.yaml").write_text("image: big.pgm\nresolution: 0.05\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a warning the command lets through fails it
+        code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "big.yaml"), "--angles", "1", "2", "3")
+    assert code == 1 and err.count("\n") == 1 and "a 10,000 x 10,000 image" in err, err
+
+
 @pytest.mark.parametrize(("argv", "message"), [
     (["maps", "resample", MAP_1, "--resolution", "1e30", "--out", "{tmp}/r.yaml"], "a cell larger than map map-1"),
     (["maps", "generate", "--kind", "rooms", "--count", "2", "--seed", "4294967295", "--out", "{tmp}/k"],
