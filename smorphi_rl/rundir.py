@@ -9,6 +9,7 @@ name exactly one wins, and the others are refused before they write anything.
 from __future__ import annotations
 
 import contextlib
+import errno
 import io
 import os
 import re
@@ -180,7 +181,7 @@ def atomic_text(path: Path) -> Iterator[io.StringIO]:
 def atomic_path(path: Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that needs a file name (a figure, an animation); renamed over
     `path` when the block ends without an error, removed otherwise: readers see the old file or the new one."""
-    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{path.suffix}")
+    tmp = _fresh_temporary(path, f".tmp{path.suffix}")  # the writer infers the format from the suffix
     try:
         yield tmp
         os.replace(tmp, path)
@@ -192,10 +193,28 @@ def atomic_path(path: Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
+def _fresh_temporary(path: Path, suffix: str) -> Path:
+    """A new, empty file of an unpredictable name beside `path`, created exclusively (never a name another process
+    or thread chose, nor a link planted in a shared folder), with the permissions the umask gives a new file (not
+    mkstemp's owner-only ones); a failure to create it names `path`."""
+    import secrets
+
+    for _ in range(100):
+        tmp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}{suffix}")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            return tmp
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+    raise FileExistsError(errno.EEXIST, "no fresh temporary name beside it", str(path))
+
+
 def write_atomic(path: Path, data: bytes) -> None:
     """Write `path` through a temporary file in the same folder and rename it: readers never see half a file.
     A failed write (a full disk) names `path` in its error."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp = _fresh_temporary(path, ".tmp")
     try:
         with open(tmp, "wb") as fh:
             fh.write(data)

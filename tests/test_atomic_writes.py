@@ -75,3 +75,27 @@ def test_the_scan_finds_a_plain_write(tmp_path, monkeypatch):
 def test_every_allowed_write_still_exists():
     """An allowance whose call is gone is stale and would hide a new write of the same text."""
     assert set(ALLOWED) <= direct_writes()
+
+
+def test_a_temporary_file_is_fresh_and_a_planted_link_is_never_followed(tmp_path):
+    """The temporary name was `.NAME.PID.tmp`: in a folder others can write to, a link planted there redirected the
+    write. Now each is created exclusively under a random name, with the permissions the umask gives."""
+    import os
+
+    from smorphi_rl.rundir import atomic_path, write_atomic
+
+    victim = tmp_path / "victim"
+    victim.write_text("kept")
+    target = tmp_path / "summary.json"
+    (tmp_path / f".{target.name}.{os.getpid()}.tmp").symlink_to(victim)  # the old name, planted
+    write_atomic(target, b"{}")
+    assert target.read_bytes() == b"{}" and victim.read_text() == "kept"
+    umask = os.umask(0)
+    os.umask(umask)
+    assert target.stat().st_mode & 0o777 == 0o666 & ~umask
+    with atomic_path(tmp_path / "a.png") as one, atomic_path(tmp_path / "a.png") as two:
+        assert one != two and one.suffix == ".png" and one.parent == tmp_path
+        one.write_bytes(b"1")
+        two.write_bytes(b"2")
+    assert (tmp_path / "a.png").read_bytes() == b"1"  # the outer block ends last
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == [f".{target.name}.{os.getpid()}.tmp"]
