@@ -146,6 +146,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         "empty.csv": "t1,t2,t3\n\n",
         "short.csv": "1,2,3\n4,5\n",
         "words.csv": "1,2,3\na,b,c\n",
+        "spaces.csv": "90 90 90\n",  # once read as a header, then "no angles in the file"
     }
     for name, text in files.items():
         (tmp_path / name).write_text(text)
@@ -170,6 +171,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["--angles-file", "{empty.csv}"], "no angles in the file"),
         (["--angles-file", "{short.csv}"], "line 2: expected three numbers"),
         (["--angles-file", "{words.csv}"], "line 2: expected three numbers"),
+        (["--angles-file", "{spaces.csv}"], "line 1: expected three numbers t1,t2,t3, got '90 90 90'"),
         (["--angles-file", "{nothere.csv}"], "angles file not found"),
         ([], "give either --angles"),
         (["--angles", "1", "2", "3", "--block-side", "0"], "--block-side must be > 0"),

@@ -96,8 +96,9 @@ def _read_angles_rows(path: Path) -> np.ndarray:
         raise SmorphiError(f"angles file not found: {path}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
-    if rows and not any(_is_number(c) for c in rows[0][1]):
-        rows = rows[1:]  # a header: no cell reads as a number (a row with a NaN is data, and named below)
+    first = rows[0][1] if rows else []
+    if not any(_is_number(c) for c in first) and any(ch.isalpha() for c in first for ch in c):
+        rows = rows[1:]  # a header: no number, and words (a row with a NaN, or `90;90;90`, is data named below)
     if not rows:
         raise SmorphiError(f"{path}: no angles in the file (expected rows of t1,t2,t3)")
     out = np.empty((len(rows), 3))

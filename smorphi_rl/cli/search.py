@@ -124,14 +124,15 @@ def cmd_search(args: argparse.Namespace) -> int:
         f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
         best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
     )
+    from smorphi_rl.score import degenerate_warning
+
     if args.json:
         for row in front_rows:
             print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         print(f"results: {rel(run_dir)}", file=sys.stderr)  # stdout stays the front's JSON lines
-        return 0
-    said = "" if planning.is_paper_default else planning.describe(grid_map)
-    print(format_search(result, front_rows, on_map, files, said, cover))
-    from smorphi_rl.score import degenerate_warning
+    else:
+        said = "" if planning.is_paper_default else planning.describe(grid_map)
+        print(format_search(result, front_rows, on_map, files, said, cover))
 
     line = planning.start_warning(grid_map) or degenerate_warning(
         float(on_map.r1(result.P_c[b], result.P_len[b])), float(result.P_c[b]), w.path_term, grid_map.name

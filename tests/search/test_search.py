@@ -212,6 +212,9 @@ def test_a_floor_too_large_for_the_weights_is_named_with_the_fix(tmp_path, capsy
     assert main(argv) == 0
     err = capsys.readouterr().err
     assert "the path term swamps coverage" in err and "--path-term per_area" in err
+    assert main([*argv, "--json", "--name", "j"]) == 0  # stdout is the front's JSON lines, the warning on stderr
+    captured = capsys.readouterr()
+    assert "swamps coverage" in captured.err and "swamps" not in captured.out
     assert main([*argv, "--path-term", "per_area", "--name", "b"]) == 0
     assert "swamps" not in capsys.readouterr().err
 
