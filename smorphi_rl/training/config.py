@@ -340,12 +340,14 @@ def recording_settings(cfg: TrainConfig, run_dir: Path, run: str) -> dict[str, A
 
 
 def default_run_name(cfg: TrainConfig, stamp: str) -> str:
-    """`<algo>-<first map>-<stamp>`, safe as a directory name."""
+    """`<algo>-<first map>-<stamp>`, or `<algo>-<first map>+<N more>-<stamp>` on several maps (a folder of them
+    named after its first alone looked like a run on that map), safe as a directory name."""
     from smorphi_rl.rundir import safe_name
 
     first = cfg.env.maps[0]
     label = first.split(":")[1] if first.startswith("generate:") else Path(first).name.removesuffix(".yaml")
-    return safe_name(f"{cfg.algo}-{label}-{stamp}")
+    more = f"+{len(cfg.env.maps) - 1}" if len(cfg.env.maps) > 1 else ""
+    return safe_name(f"{cfg.algo}-{label}{more}-{stamp}")
 
 
 def register_env() -> None:

@@ -48,6 +48,8 @@ def test_resolved_config_records_hyperparameters():
 def test_default_run_name_is_a_safe_directory_name():
     cfg = TrainConfig(env=EnvConfig(maps=("/x/my map (v2).yaml",)))
     assert default_run_name(cfg, "20260101-000000") == "ppo-my_map_v2_-20260101-000000"
+    several = TrainConfig(env=EnvConfig(maps=("/x/map-1.yaml", "/x/map-2.yaml", "/x/map-3.yaml")))
+    assert default_run_name(several, "20260101-000000") == "ppo-map-1+2-20260101-000000"
 
 
 def test_value_normalisation_brackets_random_returns():
