@@ -92,6 +92,12 @@ class TransferJob:
     def __post_init__(self) -> None:
         if not self.seeds:
             raise TrainConfigError("give at least one seed (--seeds)")
+        from smorphi_rl.map_sources import is_generator
+
+        for m in map(str, self.maps):
+            if is_generator(m):
+                raise TrainConfigError(f"--maps {m}: transfer is measured on map files (against each map's exact "
+                                       "optimum), not generated floors; write some with `maps generate`")  # fmt: skip
         for name, items in (("seeds", self.seeds), ("maps", tuple(str(Path(m).resolve()) for m in self.maps))):
             repeated = sorted({str(v) for v in items if items.count(v) > 1})
             if repeated:

@@ -108,6 +108,8 @@ def test_a_transfer_job_is_checked_when_made():
         TransferJob("ckpt", ("maps/val-1.yaml", "other/val-1.yaml"))
     with pytest.raises(TrainConfigError, match="share the name 'val_1'"):  # the runs' folders are named alike
         TransferJob("ckpt", ("maps/val 1.yaml", "maps/val_1.yaml"))
+    with pytest.raises(TrainConfigError, match="not generated floors"):  # was "map file not found: generate:mixed"
+        TransferJob("ckpt", ("generate:mixed",))
 
 
 def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
