@@ -10,6 +10,7 @@ import contextlib
 import enum
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -154,12 +155,14 @@ _PGM_FIELD = re.compile(rb"(?:\s|#[^\n]*\n)*(\d+)")
 def _pgm_samples(data: bytes) -> tuple[int, np.ndarray] | None:
     """(maxval, samples) of a PGM file's bytes; None when it is not a PGM or its header is malformed (Pillow
     names that)."""
-    if data[:2] == b"P2":
-        try:
-            numbers = [int(t) for t in re.sub(rb"#[^\n]*", b" ", data[2:]).split()]
-        except ValueError:
-            return None
-        return (numbers[2], np.asarray(numbers[3:])) if len(numbers) > 3 else None
+    if data[:2] == b"P2":  # parsed in C: a list of 25 million Python numbers once took a gigabyte
+        text = re.sub(rb"#[^\n]*", b" ", data[2:]).decode("ascii", "replace")
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # a token that is no number ends the parse: counted below
+            numbers = np.fromstring(text, dtype=np.int64, sep=" ")
+        if len(numbers) < 3 or min(numbers[:2]) < 1 or len(numbers) < 3 + int(numbers[0]) * int(numbers[1]):
+            return None  # malformed or cut short: Pillow names it
+        return int(numbers[2]), numbers[3 : 3 + int(numbers[0]) * int(numbers[1])]
     if data[:2] != b"P5":
         return None
     fields, pos = [], 2
@@ -179,8 +182,10 @@ def _pgm_samples(data: bytes) -> tuple[int, np.ndarray] | None:
 def _check_pgm_samples(path: Path) -> None:
     """Refuse a PGM holding a sample above its declared maxval: a corrupt file that Pillow reads without a word
     (samples of 254 under maxval 100 came out as free floor)."""
-    with path.open("rb") as fh:
-        read = _pgm_samples(fh.read())
+    from smorphi_rl.inputs import MAX_IMAGE_PIXELS
+
+    with path.open("rb") as fh:  # no more than the largest image read holds (what follows it is never read)
+        read = _pgm_samples(fh.read(8 * MAX_IMAGE_PIXELS + (1 << 16)))
     if read is not None and read[1].size and int(read[1].max()) > read[0]:
         raise MapError(f"{path}: a sample of {int(read[1].max())} above the PGM's maxval {read[0]} (a corrupt "
                        "image)")  # fmt: skip
