@@ -293,7 +293,8 @@ def test_a_recording_whose_steps_lack_fields_is_one_line(tmp_path, capsys):
 
 
 def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
-    """A copy of a real recording with every message on `topic` changed by `edit` (a dict in, a dict out)."""
+    """A copy of a real recording with every message on `topic` changed by `edit` (a dict in, a dict or the
+    message's bytes out)."""
     with source.open("rb") as fh, target.open("wb") as out:
         reader, writer = make_reader(fh), Writer(out)
         writer.start()
@@ -304,7 +305,8 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
                 channels[channel.id] = writer.register_channel(channel.topic, channel.message_encoding, sid)
             data = message.data
             if channel.topic == topic:
-                data = json.dumps(edit(json.loads(data))).encode()
+                edited = edit(json.loads(data))
+                data = edited if isinstance(edited, bytes) else json.dumps(edited).encode()
             writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
         writer.finish()
     return target
@@ -322,6 +324,7 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
     ("/smorphi/step", lambda m: m | {"step": 10**30}, "beyond any episode's 100,000"),
     ("/smorphi/step", lambda m: m | {"P_len": 10**30}, "beyond any coverage path's 250,000,000 tile moves"),
     ("/smorphi/step", lambda m: m | {"step": 0}, "step message 1 is damaged (step 0 does not follow step 0)"),
+    ("/smorphi/step", lambda m: b"[" * 5000 + b"]" * 5000, "a message on /smorphi/step is not the JSON smorphi"),
 ])  # fmt: skip
 def test_a_recording_whose_messages_are_damaged_is_one_line(tmp_path, capsys, topic, edit, message):
     env = recorded_env(tmp_path, max_steps=5)

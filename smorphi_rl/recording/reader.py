@@ -152,6 +152,14 @@ def _chunk_records(chunk: Any, budget: list[int], path: Path) -> Iterator[Any]:
             raise RecordingError(f"{path}: a chunk holds a record of opcode {opcode}, which no recording's does")
 
 
+def _message(data: bytes, topic: str, path: Path) -> Any:
+    """One message's JSON; one that is not JSON (or nested past Python's limit) is named, not read as a cut."""
+    try:
+        return json.loads(data)
+    except (ValueError, RecursionError):
+        raise RecordingError(f"{path}: a message on {topic} is not the JSON smorphi-rl writes") from None
+
+
 def read_episode(path: str | Path) -> Episode:
     """Read a recording, complete or cut short (every complete chunk is recovered; `truncated` says so)."""
     from mcap.records import Channel, Chunk, Footer, Message, Metadata
@@ -186,7 +194,7 @@ def read_episode(path: str | Path) -> Episode:
                 if isinstance(record, Channel):
                     topics[record.id] = record.topic
                 elif isinstance(record, Message) and topics.get(record.channel_id) in by_topic:
-                    by_topic[topics[record.channel_id]].append(json.loads(record.data))
+                    by_topic[topics[record.channel_id]].append(_message(record.data, topics[record.channel_id], file))
                 elif isinstance(record, Metadata) and record.name == METADATA_NAME:
                     meta = dict(record.metadata)
                 elif isinstance(record, Footer):
