@@ -242,6 +242,10 @@ def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir
             return cached  # else a damaged or doctored entry: recomputed and rewritten
     optimum = _optimum_in_process(key, str(map_path), weights, planning)
     if file is not None:
-        file.parent.mkdir(parents=True, exist_ok=True)
-        write_atomic(file, json.dumps(asdict(optimum)).encode())
+        try:
+            file.parent.mkdir(parents=True, exist_ok=True)
+            write_atomic(file, json.dumps(asdict(optimum)).encode())
+        except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
+            raise SmorphiError(f"cannot cache exact optima in {file.parent} ({exc.strerror or exc}): give --log-dir "
+                               "a folder this process can write into") from None  # fmt: skip
     return optimum

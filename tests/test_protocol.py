@@ -73,3 +73,13 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     for doctored in ({"R1": 1e308}, {"theta": [1]}, {"R1": math.nan}, {"P_len": 10**400}, {"P_c": 101.0}):
         cached.write_text(json.dumps(entry | doctored))  # once printed as the optimum, or a traceback
         assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt, doctored
+
+
+def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path):
+    """`design --exact` in a read-only working folder said only "Permission denied: .../logs"."""
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.planning import Planning
+
+    (tmp_path / "logs").write_text("a file where the folder would go")
+    with pytest.raises(SmorphiError, match=r"cannot cache exact optima in .*: give --log-dir a folder"):
+        exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
