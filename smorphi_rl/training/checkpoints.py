@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import io
 import json
+import math
 import pickle
 from pathlib import Path
 from typing import Any
@@ -120,19 +121,21 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     allowed: dict[tuple[str, str], Any] = {
         ("collections", "OrderedDict"): collections.OrderedDict,
         ("numpy", "dtype"): np.dtype,
-        ("numpy", "ndarray"): np.ndarray,
         ("gymnasium.spaces.box", "Box"): _unbuilt(spaces.Box),
         ("gymnasium.spaces.dict", "Dict"): _unbuilt(spaces.Dict),
         ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): _unbuilt(spaces.MultiDiscrete),
         ("smorphi_rl.training.module", "MorphologyModule"): MODULE_CLASS,
     }
-    # numpy's own (private) helpers for arrays and Generators; the two classes they rebuild are only ever their
-    # arguments, so the classes read as markers the helpers swap back (a pickle calling SeedSequence itself could
-    # ask for a pool of any size).
-    seeds, bits = _Marker(SeedSequence), _Marker(PCG64)
-    markers: dict[_Marker, type] = {seeds: SeedSequence, bits: PCG64}
-    allowed |= {key: _unmarking(helper, markers) for key, helper in rllib_compat.numpy_unpickle_helpers().items()}
-    allowed |= {("numpy.random.bit_generator", "SeedSequence"): seeds, ("numpy.random._pcg64", "PCG64"): bits}
+    # numpy's own (private) helpers for arrays and Generators; the three classes they rebuild are only ever their
+    # arguments, so the classes read as markers the helpers swap back (a pickle calling SeedSequence or ndarray
+    # itself could ask for gigabytes).
+    classes: tuple[type, ...] = (SeedSequence, PCG64, np.ndarray)
+    markers: dict[_Marker, type] = {_Marker(cls): cls for cls in classes}
+    for (module, name), helper in rllib_compat.numpy_unpickle_helpers().items():
+        allowed[(module, name)] = _unmarking(helper, markers, empty_first=name == "_reconstruct")
+    where: dict[type, str] = {SeedSequence: "numpy.random.bit_generator", PCG64: "numpy.random._pcg64",
+                              np.ndarray: "numpy"}  # fmt: skip
+    allowed |= {(where[cls], cls.__name__): marker for marker, cls in markers.items()}
     SAFE_GLOBALS.update(allowed)
     return SAFE_GLOBALS
 
@@ -147,26 +150,60 @@ class _Marker:
         raise Refused(f"it constructs a {self.name} itself, which a smorphi-rl checkpoint never does")
 
 
-def _unmarking(helper: Any, markers: dict[_Marker, type]) -> Any:
-    """`helper`, called with each marker among its arguments replaced by its class."""
+def _unmarking(helper: Any, markers: dict[_Marker, type], empty_first: bool = False) -> Any:
+    """`helper`, called with each marker among its arguments replaced by its class; `empty_first`: numpy's
+    `_reconstruct`, which its pickles call for an empty array whose state then holds the data (any other shape
+    would be allocated before the file's data is seen)."""
 
     def call(*args: Any) -> Any:
+        if empty_first and (len(args) < 2 or args[1] != (0,)):
+            raise Refused("it makes an array of its own shape before its data, which numpy's pickles never do")
         return helper(*(markers.get(a, a) if isinstance(a, _Marker) else a for a in args))
 
     return call
 
 
+MAX_SPACE_VALUES = 1 << 22
+"""More values than any space of ours holds (the largest observation, 2 x 512 x 512, holds 524,288)."""
+
+
 def _unbuilt(cls: type) -> type:
-    """A stand-in for a gymnasium space class that a pickle can only rebuild the way pickle writes it (an empty
-    instance whose state is then set, bounded by the file's size), never construct with arguments of its own
-    (`Box(0, 255, (30000, 30000))` would fill gigabytes before any check could run)."""
+    """A stand-in for a gymnasium space class that a pickle can only rebuild the way pickle writes it: an empty
+    instance whose state is then set. Never constructed with arguments of the file's own (`Box(0, 255, (30000,
+    30000))` would fill gigabytes before any check could run), and its state is checked before gymnasium's
+    `__setstate__` reads it (which, for a MultiDiscrete without `start`, allocates the state's shape)."""
 
     def __new__(stand_in: type, *args: Any, **kwargs: Any) -> Any:
         if args or kwargs:
             raise Refused(f"it constructs a {cls.__name__} with arguments, which a smorphi-rl checkpoint never does")
-        return object.__new__(cls)
+        space: Any = object.__new__(cls)
+
+        def checked(state: Any) -> None:  # pickle looks `__setstate__` up on the instance: this one runs first
+            del space.__dict__["__setstate__"]
+            problem = _space_state_problem(state)
+            if problem:
+                raise Refused(f"its {cls.__name__} {problem}")
+            cls.__setstate__(space, state)  # type: ignore[attr-defined]
+
+        space.__dict__["__setstate__"] = checked
+        return space
 
     return type(f"Unbuilt{cls.__name__}", (cls,), {"__new__": __new__})
+
+
+def _space_state_problem(state: Any) -> str:
+    """What is wrong with a space's pickled state (a dict whose shape is whole sizes of at most MAX_SPACE_VALUES
+    values, whose dtype is numeric), or ''."""
+    if not isinstance(state, dict):
+        return "state is not a table"
+    shape, dtype = state.get("_shape"), state.get("dtype")
+    if shape is not None and not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
+        return f"shape {str(shape)[:40]} is not whole sizes"
+    if shape is not None and math.prod(shape) > MAX_SPACE_VALUES:
+        return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
+    if dtype is not None and not (isinstance(dtype, np.dtype) and dtype.kind in "biuf"):
+        return f"dtype {str(dtype)[:40]} is not numeric"
+    return ""
 
 
 class Refused(pickle.UnpicklingError):
