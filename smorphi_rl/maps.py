@@ -157,9 +157,12 @@ def _pgm_samples(data: bytes) -> tuple[int, np.ndarray] | None:
     names that)."""
     if data[:2] == b"P2":  # parsed in C: a list of 25 million Python numbers once took a gigabyte
         text = re.sub(rb"#[^\n]*", b" ", data[2:]).decode("ascii", "replace")
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")  # a token that is no number ends the parse: counted below
-            numbers = np.fromstring(text, dtype=np.int64, sep=" ")
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # numpy before 2.3 ends the parse at a token that is no number
+                numbers = np.fromstring(text, dtype=np.int64, sep=" ")
+        except ValueError:  # numpy 2.3 on: such a token (a damaged sample, bytes after the raster): Pillow judges it
+            return None
         if len(numbers) < 3 or min(numbers[:2]) < 1 or len(numbers) < 3 + int(numbers[0]) * int(numbers[1]):
             return None  # malformed or cut short: Pillow names it
         return int(numbers[2]), numbers[3 : 3 + int(numbers[0]) * int(numbers[1])]

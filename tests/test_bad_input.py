@@ -713,3 +713,20 @@ def test_an_output_file_that_exists_is_replaced_only_with_force(tmp_path, capsys
     assert out.read_bytes() == b"someone's image"
     code, _, err = run(capsys, *argv, "--force")
     assert code == 0 and out.read_bytes()[:4] == b"\x89PNG", err
+
+
+def test_a_plain_pgm_with_a_stray_token_is_judged_as_before(tmp_path, capsys):
+    """A plain (P2) PGM's samples are parsed by numpy, which since 2.3 raises at a token that is no number: a
+    damaged sample or a file cut short is one line, bytes after the raster are left alone (as Pillow does)."""
+    cases = {"bad": (b"P2\n2 2\n255\n254 x\n254 254\n", "not a readable PGM/PNG image"),
+             "cut": (b"P2\n2 2\n255\n254 254\n254\n", "not a readable PGM/PNG image"),
+             "trail": (b"P2\n2 2\n255\n254 254\n254 254\n\x00junk", None)}  # fmt: skip
+    for name, (data, message) in cases.items():
+        (tmp_path / f"{name}.pgm").write_bytes(data)
+        (tmp_path / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.5\n")
+        code, out, err = run(capsys, "maps", "show", str(tmp_path / f"{name}.yaml"), "--png", str(tmp_path / "d.png"),
+                             "--force")  # fmt: skip
+        if message is None:
+            assert code == 0 and "2 x 2 cells" in out, err
+        else:
+            assert code == 1 and err.count("\n") == 1 and message in err, err
