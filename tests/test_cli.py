@@ -131,9 +131,15 @@ def test_maps_show_never_draws_over_the_map_s_own_image(capsys, tmp_path, monkey
     assert run(capsys, "maps", "generate", "--out", str(out_yaml), "--format", "png")[0] == 0
     image = (tmp_path / "logs" / "maps" / "gen.png").read_bytes()
     code, _, err = run(capsys, "maps", "show", str(out_yaml))
-    assert code == 1 and "this map's own image: give --png" in err
+    assert code == 1 and f"is the image of map {out_yaml}: give --png" in err
+    other = tmp_path / "other" / "gen.yaml"  # another floor of the same file name (ROS maps are often all map.yaml)
+    assert run(capsys, "maps", "generate", "--out", str(other), "--seed", "9")[0] == 0
+    code, _, err = run(capsys, "maps", "show", str(other))
+    assert code == 1 and "is the image of map logs/maps/gen.yaml: give --png" in err
     assert (tmp_path / "logs" / "maps" / "gen.png").read_bytes() == image
     assert run(capsys, "maps", "show", str(out_yaml), "--png", str(tmp_path / "drawn.png"))[0] == 0
+    for _ in range(2):  # a drawing that is no map's image is redrawn
+        assert run(capsys, "maps", "show", str(ROOT / "maps" / "map-1.yaml"))[0] == 0
 
 
 def _bad_files(tmp_path: Path) -> dict[str, Path]:

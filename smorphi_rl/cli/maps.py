@@ -235,11 +235,13 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
 
     if args.png is not None:
         png = output_file(args.png, "--png", (".png",), map_inputs(args.map), args.force)
-    else:  # the default too may be the map's own image (a map generated into logs/maps as PNG)
+    else:  # redrawn each time, but never over a map's image (maps generated into logs/maps as PNG, of any name)
         png = Path(DEFAULT_LOG_DIR) / "maps" / f"{Path(args.map).stem}.png"
-        if resolved(png, "--png") in {resolved(p, "map") for p in map_inputs(args.map)}:
-            raise SmorphiError(f"the default drawing {png} is this map's own image: give --png elsewhere")
-        output_file(str(png), "the default drawing", (".png",), force=True)  # redrawn each time
+        owner = next((m for m in (Path(args.map), *sorted(png.parent.glob("*.yaml")))
+                      if resolved(png, "--png") in {resolved(p, "map") for p in map_inputs(m)}), None)  # fmt: skip
+        if owner is not None:
+            raise SmorphiError(f"the default drawing {png} is the image of map {owner}: give --png elsewhere")
+        output_file(str(png), "the default drawing", (".png",), force=True)
     grid_map = load_map(args.map)
     r = grid_map.resolution_m
     rows = [
