@@ -14,6 +14,7 @@ Seed ranges keep training, validation and held-out floors apart: they never shar
 from __future__ import annotations
 
 import glob
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -113,3 +114,15 @@ def map_files(entries: tuple[str, ...]) -> tuple[str, ...]:
 
 def generators(entries: tuple[str, ...]) -> tuple[FloorSource, ...]:
     return tuple(parse_generator(e) for e in entries if is_generator(e))
+
+
+def name_clash(files: tuple[str, ...], key: Callable[[str], str] | None = None) -> tuple[str, str] | None:
+    """The first two different map files of one name (their stem, or `key` of the path), or None: results, runs and
+    optima are named by a map's name, so one would take the other's place."""
+    named: dict[str, str] = {}
+    for file in files:
+        name = key(file) if key is not None else Path(file).stem
+        other = named.setdefault(name, file)
+        if Path(other).resolve() != Path(file).resolve():
+            return other, file
+    return None

@@ -111,15 +111,13 @@ class TrainConfig:
                 object.__setattr__(self, "eval_maps", resolve([str(m) for m in self.eval_maps]))
             except MapSourceError as exc:
                 raise TrainConfigError(f"eval_maps: {exc}") from None
+        from smorphi_rl.map_sources import name_clash
         from smorphi_rl.protocol import clashing_map_name
 
-        for group in (self.env.map_files, self.evaluation_maps):  # optima, figures and plots are keyed by the name
-            named: dict[str, Path] = {}
-            for file in map(Path, group):
-                other = named.setdefault(file.stem, file.resolve())
-                if other != file.resolve():
-                    raise TrainConfigError(f"maps {other} and {file} share the name {file.stem!r}, which keys each "
-                                           "map's optimum and figures: rename one")  # fmt: skip
+        clash = name_clash((*self.env.map_files, *self.evaluation_maps))  # optima, figures, digests keyed by name
+        if clash is not None:
+            raise TrainConfigError(f"maps {clash[0]} and {clash[1]} share the name {Path(clash[1]).stem!r}, which "
+                                   "keys each map's optimum and figures: rename one")  # fmt: skip
         for path in self.evaluation_maps:
             if clashing_map_name(Path(path).stem):
                 raise TrainConfigError(f"{path}: a map named {Path(path).stem!r} would be mistaken for the "

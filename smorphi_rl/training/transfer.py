@@ -92,7 +92,7 @@ class TransferJob:
     def __post_init__(self) -> None:
         if not self.seeds:
             raise TrainConfigError("give at least one seed (--seeds)")
-        from smorphi_rl.map_sources import is_generator
+        from smorphi_rl.map_sources import is_generator, name_clash
 
         for m in map(str, self.maps):
             if is_generator(m):
@@ -102,12 +102,10 @@ class TransferJob:
             repeated = sorted({str(v) for v in items if items.count(v) > 1})
             if repeated:
                 raise TrainConfigError(f"--{name} names {repeated[0]} twice: each run would be trained twice")
-        named: dict[str, str] = {}  # a run, its folder and its table row are named by the map's name
-        for m in map(str, self.maps):
-            other = named.setdefault(safe_name(Path(m).stem), m)
-            if other != m:
-                raise TrainConfigError(f"--maps {other} and {m} share the name {safe_name(Path(m).stem)!r}, which "
-                                       "names the runs and the table's rows: rename one")  # fmt: skip
+        clash = name_clash(tuple(map(str, self.maps)), lambda m: safe_name(Path(m).stem))  # runs, folders, rows
+        if clash is not None:
+            raise TrainConfigError(f"--maps {clash[0]} and {clash[1]} share the name {safe_name(Path(clash[1]).stem)!r}"
+                                   ", which names the runs and the table's rows: rename one")  # fmt: skip
         for seed in self.seeds:
             if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
                 raise TrainConfigError(f"seeds must be non-negative integers, got {seed!r}")
