@@ -208,11 +208,11 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
     return files
 
 
-def check_evaluation_maps(cfg: TrainConfig) -> None:
-    """Read every map the protocol evaluates on, so a missing or unreadable one is named before anything is written
-    or any exact optimum computed (MapError)."""
-    for path in cfg.evaluation_maps:
-        load_map(path)
+def map_digests(cfg: TrainConfig) -> dict[str, str]:
+    """`Map.digest` of every map file the run trains or evaluates on, by name (what `compare` checks a run's map
+    against), read as the run starts: a missing or unreadable map is named before anything is written or any
+    exact optimum computed (MapError), and a map edited during the run does not change the record."""
+    return {m.name: m.digest for m in map(load_map, dict.fromkeys((*cfg.env.map_files, *cfg.evaluation_maps)))}
 
 
 def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
@@ -308,7 +308,7 @@ def train(
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
-    check_evaluation_maps(cfg)
+    digests = map_digests(cfg)
     callbacks, pretrained = None, None
     if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         pretrained, callbacks = fine_tune_from(cfg.pretrained, cfg.env.to_dict())
@@ -353,9 +353,7 @@ def train(
         pretrained=pretrained,
         pretrained_in_runners=progress.pretrained_in_runners,
         evaluation=progress.last_eval,
-        map_digests={
-            m.name: m.digest for m in map(load_map, dict.fromkeys((*cfg.env.map_files, *cfg.evaluation_maps)))
-        },
+        map_digests=digests,
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR

@@ -40,8 +40,8 @@ from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_
 from smorphi_rl.training.run import (
     RunSummary,
     TrainingError,
-    check_evaluation_maps,
     fmt_duration,
+    map_digests,
     training_optima,
     trial_callbacks,
 )
@@ -246,10 +246,11 @@ def run_sweep(
                                                           {}).env.to_dict())  # fmt: skip
     from smorphi_rl.env import MorphologyEnv
 
+    digests: dict[str, dict[str, str]] = {}  # each map set's digests, by its trials' `maps` label
     for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
         base = sweep.base_config(sweep.algorithms[0], maps, 0, {})
         MorphologyEnv(base.env.to_dict())
-        check_evaluation_maps(base)  # and every evaluated map, before any optimum is computed
+        digests["+".join(map(map_label, maps))] = map_digests(base)  # every evaluated map too, before any optimum
     cluster.check_reachable(address)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
@@ -281,7 +282,7 @@ def run_sweep(
     if failed and (failed.disk_full or results is None):
         raise TrainingError(failed.line)  # no tables either
     rows = read_sweep(exp)
-    write_trial_files(exp, rows, optima)
+    write_trial_files(exp, rows, optima, digests)
     files = write_sweep_outputs(exp, rows)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
@@ -342,10 +343,11 @@ def trial_dirname(trial: dict[str, Any]) -> str:
     return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
 
 
-def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum]) -> None:
+def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum],
+                      digests: dict[str, dict[str, str]] | None = None) -> None:  # fmt: skip
     """Each trial's summary.json, morphologies.csv and top-k tables in its folder, as `train` writes them for a run
-    (`RunSummary`): `compare` takes a sweep's trial as it takes a run. Written again from the results on every
-    call, so a resumed sweep's are those of all its rows."""
+    (`RunSummary`, with its map set's `digests`): `compare` takes a sweep's trial as it takes a run. Written again
+    from the results on every call, so a resumed sweep's are those of all its rows."""
     for r in rows:
         trial = exp / r.trial
         files = write_found(r.top, trial, TrainConfig.top_k)
@@ -355,7 +357,7 @@ def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum
                              wall_s=r.wall_s, interrupted=not r.finished, best=r.best,
                              optimum={m: o for m, o in optima.items() if m in r.evaluation},
                              checkpoint=checkpoints[-1] if checkpoints else None, files=files,
-                             evaluation=r.evaluation)  # fmt: skip
+                             evaluation=r.evaluation, map_digests=(digests or {}).get(r.maps, {}))  # fmt: skip
         write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
 
 

@@ -134,6 +134,9 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     summary = json.loads((first / "summary.json").read_text())
     assert summary["evaluation"]["starts"] == 20 and summary["env_steps"] >= 10_000 and not summary["interrupted"]
     assert Path(summary["checkpoint"]).parent == first and (first / "top_morphologies.md").is_file()
+    from smorphi_rl.maps import load_map
+
+    assert summary["map_digests"] == {"map-1": load_map(MAP_1).digest}  # `compare` refuses another floor by it
     compared = cli("compare", "--map", MAP_1, "--runs", str(first), "--step", "10", "--log-dir",
                    str(tmp_path / "compared"), cwd=tmp_path)  # fmt: skip
     assert compared.returncode == 0, compared.stderr[-3000:]
