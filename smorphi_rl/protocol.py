@@ -10,6 +10,7 @@ share of starts that end within 1 % of it.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -240,12 +241,17 @@ def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir
         cached = _cached_optimum(file, weights)
         if cached is not None:
             return cached  # else a damaged or doctored entry: recomputed and rewritten
-    optimum = _optimum_in_process(key, str(map_path), weights, planning)
-    if file is not None:
+    if file is not None:  # before the computation: a folder that cannot be made is named in seconds, not minutes
         try:
             file.parent.mkdir(parents=True, exist_ok=True)
-            write_atomic(file, json.dumps(asdict(optimum)).encode())
         except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
-            raise SmorphiError(f"cannot cache exact optima in {file.parent} ({exc.strerror or exc}): give --log-dir "
-                               "a folder this process can write into") from None  # fmt: skip
+            import os
+
+            fix = f"set {CACHE_ENV} to" if os.environ.get(CACHE_ENV) else "give --log-dir"
+            raise SmorphiError(f"cannot cache exact optima in {file.parent} ({exc.strerror or exc}): {fix} a folder "
+                               "this process can write into") from None  # fmt: skip
+    optimum = _optimum_in_process(key, str(map_path), weights, planning)
+    if file is not None:
+        with contextlib.suppress(OSError):  # a full disk: the optimum stands, the next call computes it again
+            write_atomic(file, json.dumps(asdict(optimum)).encode())
     return optimum
