@@ -75,11 +75,16 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
         assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt, doctored
 
 
-def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path):
+def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path, monkeypatch):
     """`design --exact` in a read-only working folder said only "Permission denied: .../logs"."""
     from smorphi_rl.errors import SmorphiError
     from smorphi_rl.planning import Planning
+    from smorphi_rl.protocol import CACHE_ENV
 
     (tmp_path / "logs").write_text("a file where the folder would go")
+    monkeypatch.delenv(CACHE_ENV, raising=False)
     with pytest.raises(SmorphiError, match=r"cannot cache exact optima in .*: give --log-dir a folder"):
+        exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "logs" / ".cache"))  # the cache the variable names: it is named
+    with pytest.raises(SmorphiError, match=f"set {CACHE_ENV} to a folder"):
         exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
