@@ -197,7 +197,9 @@ def output_file(value: str, flag: str, suffixes: tuple[str, ...], inputs: tuple[
         if resolved(Path(item), "input") == target:
             raise InputError(f"{flag} {value} is one of this command's inputs: write it somewhere else")
     if path.exists() and not force:
-        raise InputError(f"{flag} {value} exists; pass --force to replace it")
+        from smorphi_rl.rundir import FORCE_HINT
+
+        raise InputError(f"{flag} {value} exists; {FORCE_HINT}")
     return path
 
 

@@ -181,7 +181,8 @@ def atomic_text(path: Path) -> Iterator[io.StringIO]:
 def atomic_path(path: Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that needs a file name (a figure, an animation); renamed over
     `path` when the block ends without an error, removed otherwise: readers see the old file or the new one."""
-    tmp = _fresh_temporary(path, f".tmp{path.suffix}")  # the writer infers the format from the suffix
+    fd, tmp = _fresh_temporary(path, f".tmp{path.suffix}")  # the writer infers the format from the suffix
+    os.close(fd)  # the writer opens it by name
     try:
         yield tmp
         os.replace(tmp, path)
@@ -193,17 +194,16 @@ def atomic_path(path: Path) -> Iterator[Path]:
         tmp.unlink(missing_ok=True)
 
 
-def _fresh_temporary(path: Path, suffix: str) -> Path:
+def _fresh_temporary(path: Path, suffix: str) -> tuple[int, Path]:
     """A new, empty file of an unpredictable name beside `path`, created exclusively (never a name another process
     or thread chose, nor a link planted in a shared folder), with the permissions the umask gives a new file (not
-    mkstemp's owner-only ones); a failure to create it names `path`."""
+    mkstemp's owner-only ones), open for writing; a failure to create it names `path`."""
     import secrets
 
     for _ in range(100):
         tmp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}{suffix}")
         try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
-            return tmp
+            return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
         except FileExistsError:
             continue
         except OSError as exc:
@@ -214,9 +214,9 @@ def _fresh_temporary(path: Path, suffix: str) -> Path:
 def write_atomic(path: Path, data: bytes) -> None:
     """Write `path` through a temporary file in the same folder and rename it: readers never see half a file.
     A failed write (a full disk) names `path` in its error."""
-    tmp = _fresh_temporary(path, ".tmp")
+    fd, tmp = _fresh_temporary(path, ".tmp")
     try:
-        with open(tmp, "wb") as fh:
+        with os.fdopen(fd, "wb") as fh:  # the file created, never one a name might point to since
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())

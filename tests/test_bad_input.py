@@ -709,7 +709,7 @@ def test_an_output_file_that_exists_is_replaced_only_with_force(tmp_path, capsys
     out.write_bytes(b"someone's image")
     argv = [a.replace("{out}", str(out)) for a in argv]
     code, _, err = run(capsys, *argv)
-    assert code == 1 and f"{out} exists; pass --force to replace it" in one_line(err), err
+    assert code == 1 and f"{out} exists; pass --force to overwrite it" in one_line(err), err
     assert out.read_bytes() == b"someone's image"
     code, _, err = run(capsys, *argv, "--force")
     assert code == 0 and out.read_bytes()[:4] == b"\x89PNG", err
