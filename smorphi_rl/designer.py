@@ -18,7 +18,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
-from smorphi_rl.policy_file import PolicyFile, read_policy
+from smorphi_rl.policy_file import PolicyFile, layout_problem, read_policy
 
 ACCEPTS = {"max_side_m": 20.0, "min_cells_per_block": 1.0, "max_cells_per_block": 4.0, "max_free_m2": 200.0}
 """What the `floor` observation's scale features represent without saturating (`env.floor_scale`): a known area
@@ -106,13 +106,9 @@ def designer_env(designer: Designer, map_path: str) -> Any:
     accepts(designer, grid_map)
     config = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [map_path]}).maps, reward="paper")
     env = MorphologyEnv(config.to_dict())  # `paper`: no reward scales to compute, so no planner calls for them
-    want = designer.policy.observation_shapes
     have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}  # type: ignore[attr-defined]
-    if want != have:
-        raise SmorphiError(f"{designer.path}: the policy's observation {want} is not the env's {have} (another "
-                           "observation layout)")  # fmt: skip
-    moves, env_moves = list(designer.policy.action_nvec), [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]
-    if moves != env_moves:
-        raise SmorphiError(f"{designer.path}: the policy chooses among {moves} moves a hinge, its env among "
-                           f"{env_moves} (another action layout)")  # fmt: skip
+    env_moves = [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]
+    problem = layout_problem(designer.policy.observation_shapes, have, list(designer.policy.action_nvec), env_moves)
+    if problem:
+        raise SmorphiError(f"{designer.path}: {problem}")
     return env

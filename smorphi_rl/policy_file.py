@@ -174,6 +174,17 @@ MAX_WEIGHT = 1e6
 overflows float32."""
 
 
+def layout_problem(observation: dict[str, tuple[int, ...]], env_observation: dict[str, tuple[int, ...]],
+                   moves: list[int], env_moves: list[int]) -> str | None:  # fmt: skip
+    """What keeps a policy of these observation shapes and moves a hinge from the env's, or None: a policy of another
+    observation layout fails inside its first layer, one of other moves walks the wrong hinge."""
+    if observation != env_observation:
+        return f"the policy's observation {observation} is not the env's {env_observation} (another observation layout)"
+    if moves != env_moves:
+        return f"the policy chooses among {moves} moves a hinge, its env among {env_moves} (another action layout)"
+    return None
+
+
 def obs_size(observation: dict[str, list[int]]) -> int:
     """Values in an observation of these shapes."""
     return sum(math.prod(shape) for shape in observation.values())

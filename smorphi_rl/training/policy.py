@@ -11,6 +11,7 @@ import torch
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import EnvConfig, RewardMode
+from smorphi_rl.policy_file import layout_problem
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome, settled_theta
 from smorphi_rl.score import Scored
 from smorphi_rl.training.checkpoints import CheckpointError
@@ -51,12 +52,10 @@ def check_fits(module: Any, env: MorphologyEnv) -> None:
     if want.get("map") != have.get("map"):
         raise CheckpointError(f"the policy expects map observations of shape {want.get('map')}, the env gives "
                               f"{have.get('map')}")  # fmt: skip
-    if want != have:
-        raise CheckpointError(f"the policy's observation {want} is not the env's {have} (another observation layout)")
     moves, env_moves = [int(n) for n in module.action_space.nvec], [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]
-    if moves != env_moves:
-        raise CheckpointError(f"the policy chooses among {moves} moves a hinge, its env among {env_moves} (another "
-                              "action layout)")  # fmt: skip
+    problem = layout_problem(want, have, moves, env_moves)
+    if problem:
+        raise CheckpointError(problem)
 
 
 def action_logits(module: Any, observations: list[dict[str, np.ndarray]]) -> torch.Tensor:
