@@ -105,6 +105,12 @@ def feasible_of(result: SearchResult, run_dir: Path) -> np.ndarray:
     return result.feasible
 
 
+def another_floor(where: Path | str, map_name: str) -> SmorphiError:
+    """A run, or an exact front, of another floor than --map's under the same name (its recorded digest differs)."""
+    return SmorphiError(f"{where}: its map '{map_name}' is another floor than --map's (the cells differ): compare "
+                        "runs of the same map file")  # fmt: skip
+
+
 def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), digest: str | None = None) -> Points:
     """What a training run directory or a search run directory found on `map_name`; `methods`: the search methods
     the folder was given as (a `search nsga2` run given as random search is refused), empty for any; `digest`: the
@@ -112,8 +118,7 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
 
     def check_digest(recorded: Any, where: Path) -> None:
         if digest is not None and isinstance(recorded, str) and recorded != digest:
-            raise SmorphiError(f"{where}: its map '{map_name}' is another floor than --map's (the cells differ): "
-                               "compare runs of the same map file")  # fmt: skip
+            raise another_floor(where, map_name)
 
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")

@@ -189,6 +189,7 @@ def format_search(
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
+        another_floor,
         feasible_of,
         planner_of_run,
         points_of_run,
@@ -250,8 +251,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     if exact is not None and exact.map_digest not in (None, grid_map.digest):
-        raise SmorphiError(f"{args.exhaustive}: the exact front is for another floor named '{grid_map.name}' (the "
-                           "cells differ): compare runs of the same map file")  # fmt: skip
+        raise another_floor(args.exhaustive, grid_map.name)
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     try:
         if exact is None:
