@@ -157,6 +157,9 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert "map        map-1" in out and "run        unit (PPO, seed 7)" in out and "best       step" in out
     assert sum(1 for line in out.splitlines() if line[:5].strip().isdigit()) == 31  # the step table
     assert png.stat().st_size > 10_000 and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
+    assert main(["replay", str(first), "--png", str(png)]) == 1  # drawn already: replaced only with --force
+    assert "exists; pass --force" in capsys.readouterr().err
+    assert main(["replay", str(first), "--png", str(png), "--gif", str(gif), "--force"]) == 0
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     listing = capsys.readouterr().out
     assert first.name in listing and second.name in listing and "2 recordings" in listing

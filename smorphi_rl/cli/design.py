@@ -47,8 +47,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     check_budget(args.budget)
     cache = optimum_cache(args.log_dir) if args.exact else None  # a --log-dir that is a file: one line, before work
-    inputs = map_inputs(str(args.map))
-    plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), inputs, args.force)
+    plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
     result = run_design(env, designer.logits, args.budget)
