@@ -54,7 +54,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             args.map = default_map()
         return int(args.func(args))
     except SmorphiError as exc:
-        print(f"{PROG}: error: {one_line(str(exc))}", file=sys.stderr)
+        from smorphi_rl.cli.fields import flag_named
+
+        print(f"{PROG}: error: {one_line(flag_named(str(exc), list(argv or ())))}", file=sys.stderr)
         return EXIT_INPUT
     except BrokenPipeError:  # output piped into `head` and the like (an OSError: caught first)
         sys.stderr.close()

@@ -12,6 +12,9 @@ from typing import Any
 from smorphi_rl.config_fields import field_default, field_docs
 from smorphi_rl.inputs import finite
 
+FIELD_FLAGS: dict[str, str] = {}
+"""Each configuration field an option sets, and its flag: an error that names the field names the flag too."""
+
 UNSET: Any = None
 """What an option holds when the user did not give it and the field's default is applied later (by the
 configuration, a checkpoint's configuration or a preset), rather than by argparse."""
@@ -50,4 +53,16 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
     said = default_text if default_text is not None else shown(default)
     kwargs["help"] = f"{doc} (default: {said})".strip() if doc else f"default: {said}"
     kwargs["default"] = UNSET if unset else default
-    return parser.add_argument(*(flags or (f"--{name.replace('_', '-')}",)), **kwargs)
+    flags = flags or (f"--{name.replace('_', '-')}",)
+    FIELD_FLAGS[name] = flags[0]
+    return parser.add_argument(*flags, **kwargs)
+
+
+def flag_named(message: str, argv: list[str]) -> str:
+    """`message` led by the flag the user gave for the configuration field it names (`env_config 'w1' must be ...`
+    reads `--w1: env_config 'w1' must be ...`); as it was when it names no field, or one given by no flag."""
+    for name, flag in FIELD_FLAGS.items():
+        given = any(a == flag or a.startswith(f"{flag}=") for a in argv)
+        if given and (f"'{name}'" in message or message.startswith(f"{name} ")) and not message.startswith(flag):
+            return f"{flag}: {message}"
+    return message

@@ -45,3 +45,18 @@ def test_the_command_lines_defaults_are_the_configurations():
     assert (nsga2.pop, nsga2.generations, nsga2.seed) == (SearchConfig.pop, SearchConfig.generations, 0)
     assert parser.parse_args(["search", "exhaustive"]).step == SearchConfig.step
     assert parser.parse_args(["evaluate"]).block_side == EnvConfig.block_side_m
+
+
+def test_an_error_naming_a_field_names_the_flag_the_user_gave(capsys, tmp_path):
+    """`--w1 0` was refused as "env_config 'w1' must be ...": the user typed a flag, not a configuration key."""
+    from smorphi_rl.cli import main
+
+    cases = {
+        ("--w1", "0"): "--w1: env_config 'w1' must be",
+        ("--checkpoint-every", "0"): "--checkpoint-every: checkpoint_every must be",
+        ("--envs-per-runner", "0"): "--envs-per-runner: envs_per_runner must be",
+    }
+    for given, message in cases.items():
+        assert main(["train", *given, "--log-dir", str(tmp_path / "logs")]) == 1
+        assert message in capsys.readouterr().err
+    assert not (tmp_path / "logs").exists()
