@@ -4,14 +4,16 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 MAP ?= maps/map-1.yaml
 ARGS ?=
+TORCH_ARGS ?=
 
 .PHONY: setup run test lint format type bench bench-training bench-learning bench-exhaustive bench-transfer bench-designer bench-search-ray bench-sweeps clean
 
-# torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA.
+# torch first: 2.13.0 is a local CPU wheel; a bare `torch` requirement would pull GBs of CUDA. Where no CPU wheel is
+# at hand, TORCH_ARGS="--index-url https://download.pytorch.org/whl/cpu" takes PyTorch's CPU build.
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --upgrade pip
-	$(BIN)/python -m pip install -q torch==2.13.0
+	$(BIN)/python -m pip install -q torch==2.13.0 $(TORCH_ARGS)
 	$(BIN)/python -m pip install -q -e '.[dev]'
 	touch $@
 
