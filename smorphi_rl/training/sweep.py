@@ -94,12 +94,16 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
     read back safely here, before Ray starts, so a damaged or crafted one is refused in one line."""
     started: _Started = {}
     done: set[int] = set()
+    names = {trial_dirname(t) for t in trials}
     for d in sorted(p for p in exp.iterdir() if p.is_dir()):
         spec = trial_spec(d)
         if spec is None:
             if (d / "params.json").exists() or (d / "params.json").is_symlink():
                 raise RunDirError(f"{d}: its params.json is not a sweep trial's record; resume only sweeps you "
                                   "ran, or start this one under another `name`")  # fmt: skip
+            if d.name in names:  # a trial's folder whose record is gone: training it again would overwrite it
+                raise RunDirError(f"{d}: a trial's folder without its params.json (the trial's record); restore it, "
+                                  "or move the folder out of the sweep to train that trial again")  # fmt: skip
             continue
         index = spec["index"]
         ours = 0 <= index < len(trials) and {k: spec.get(k) for k in trials[index]} == trials[index]

@@ -181,7 +181,7 @@ def test_result_lines_that_are_no_rows_of_ours_are_skipped(tmp_path):
     assert [r[keys.ALGO_ITERATION] for r in result_rows(path)] == [1, 2]
 
 
-@pytest.mark.parametrize("damage", ["same index twice", "folder of another trial", "params not json"])
+@pytest.mark.parametrize("damage", ["same index twice", "folder of another trial", "params not json", "params gone"])
 def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_path, damage):
     trials = sweep.trials()
     exp = tmp_path / "exp"
@@ -192,10 +192,12 @@ def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_pa
         (exp / "extra" / "params.json").write_text(json.dumps(trials[1]))
     elif damage == "folder of another trial":
         (second / "params.json").write_text(json.dumps(trials[0]))
-    else:
+    elif damage == "params not json":
         (second / "params.json").write_text("{not json")
+    else:  # a finished trial whose record is gone was trained again over its own checkpoints
+        (second / "params.json").unlink()
     listing = sorted(exp.rglob("*"))
-    with pytest.raises(RunDirError, match="resume only sweeps you ran"):
+    with pytest.raises(RunDirError, match="resume only sweeps you ran|without its params.json"):
         plan_resume(exp, trials)
     assert sorted(exp.rglob("*")) == listing
 
