@@ -197,7 +197,7 @@ def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_pa
     else:  # a finished trial whose record is gone was trained again over its own checkpoints
         (second / "params.json").unlink()
     listing = sorted(exp.rglob("*"))
-    with pytest.raises(RunDirError, match="resume only sweeps you ran|without its params.json"):
+    with pytest.raises(RunDirError, match=r"resume only sweeps you ran|without its params\.json"):
         plan_resume(exp, trials)
     assert sorted(exp.rglob("*")) == listing
 
@@ -281,3 +281,28 @@ def test_a_kept_policy_of_a_real_module_round_trips_and_names_must_be_the_trial_
         table["extra"] = np.zeros(2, np.float32)
     with pytest.raises(CheckpointError, match=r"not this trial's module's \(missing \[\], extra \['extra'\]"):
         check_fits(loaded, ours, tmp_path)
+
+
+def test_a_resume_is_refused_while_the_sweep_still_runs(sweep, tmp_path):
+    """`sweep --resume` claimed nothing: a resume while the sweep (or another resume) ran would set aside the
+    checkpoints and results the other process was still writing."""
+    import os
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import MARKER
+    from smorphi_rl.training.sweep import SWEEP_COPY, prepare_experiment
+
+    exp = tmp_path / "logs" / sweep.name
+    exp.mkdir(parents=True)
+    (exp / SWEEP_COPY).write_bytes(sweep.path.read_bytes())
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        (exp / MARKER).write_text(f"pid {live.pid} at 2026-01-01T00:00:00\n")
+        with pytest.raises(RunDirError, match=f"is in use by process {live.pid}"):
+            prepare_experiment(sweep, tmp_path / "logs", resume=True)
+    finally:
+        live.kill()
+        live.wait()
+    assert prepare_experiment(sweep, tmp_path / "logs", resume=True) == exp.resolve()  # the process gone: claimed
+    assert f"pid {os.getpid()}" in (exp / MARKER).read_text()
