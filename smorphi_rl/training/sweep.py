@@ -267,6 +267,7 @@ def run_sweep(
     if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
         pending, started = read_resume(exp, trials)
+        read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
     else:
         _new_experiment(log_dir, sweep.name, check_run_dir)
     optima: dict[str, Optimum] = {}

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
@@ -172,9 +173,23 @@ def trial_done(rows: list[dict[str, Any]]) -> bool:
     return bool(rows and rows[-1].get(keys.TRIAL_DONE))
 
 
+class SweepReadError(SmorphiError):
+    """A trial's records could not be read back."""
+
+
 def read_sweep(experiment_dir: Path) -> list[TrialRow]:
-    """Every trial with at least one result, in folder order."""
-    rows = [read_trial(d) for d in sorted(experiment_dir.iterdir()) if d.is_dir()]
+    """Every trial with at least one result, in folder order; a trial whose records hold values of other types than
+    ours (a damaged or hand-edited result.json) is named in one line (SweepReadError)."""
+    rows = []
+    for d in sorted(experiment_dir.iterdir()):
+        if d.is_dir():
+            try:
+                rows.append(read_trial(d))
+            except (ValueError, TypeError, AttributeError, KeyError, OverflowError, RecursionError) as exc:
+                raise SweepReadError(
+                    f"{d}: its records are not what smorphi-rl writes ({type(exc).__name__}: "
+                    f"{str(exc)[:80]}); move the trial out of the sweep to train it again"
+                ) from None
     return [r for r in rows if r is not None]
 
 

@@ -306,3 +306,15 @@ def test_a_resume_is_refused_while_the_sweep_still_runs(sweep, tmp_path):
         live.wait()
     assert prepare_experiment(sweep, tmp_path / "logs", resume=True) == exp.resolve()  # the process gone: claimed
     assert f"pid {os.getpid()}" in (exp / MARKER).read_text()
+
+
+@pytest.mark.parametrize("damage", [{keys.STEPS: "abc"}, {keys.STEPS: float("inf")}, {keys.ENV_RUNNERS: []}],
+                         ids=["steps a string", "steps infinite", "env_runners a list"])  # fmt: skip
+def test_a_finished_trial_whose_records_are_damaged_is_named_in_one_line(sweep, tmp_path, damage):
+    """Each of these ended `sweep --resume` in a traceback, after the pending trials had trained."""
+    from smorphi_rl.training.sweep_report import SweepReadError, read_sweep
+
+    exp = tmp_path / "exp"
+    write_trial(exp, sweep.trials()[0], [row(1), row(2, done=True) | damage])
+    with pytest.raises(SweepReadError, match="its records are not what smorphi-rl writes"):
+        read_sweep(exp)
