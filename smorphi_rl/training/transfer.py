@@ -18,7 +18,7 @@ from typing import Any
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
-from smorphi_rl.training.config import TrainConfig, TrainConfigError
+from smorphi_rl.training.config import MAX_TIMESTEPS, TrainConfig, TrainConfigError
 from smorphi_rl.training.convergence import (
     at_steps,
     censored_steps,
@@ -263,12 +263,14 @@ def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: di
         best = summary.get("best") or {}
         steps, wall = summary["env_steps"], summary.get("wall_s", math.nan)
         held = summary.get("pretrained_in_runners")
-        if not isinstance(steps, int) or not isinstance(wall, int | float) or held not in (True, False, None):
+        if not (isinstance(steps, int) and 0 <= steps <= 2 * MAX_TIMESTEPS and isinstance(wall, int | float)
+                and held in (True, False, None)):  # fmt: skip
             raise TypeError("env_steps, wall_s or pretrained_in_runners")
         return TransferRun(map_name, seed, mode, steps, at, plateau, float(best.get("R1", math.nan)), held, run_dir,
                            curve, bool(summary.get("interrupted")), float(wall), reused)  # fmt: skip
-    except (KeyError, TypeError, ValueError, AttributeError) as exc:
-        raise InputError(f"{run_dir}: not a training run smorphi-rl wrote ({type(exc).__name__}: {exc})") from None
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:  # 10^400 as an int: Overflow
+        raise InputError(f"{run_dir}: not a training run smorphi-rl wrote ({type(exc).__name__}: "
+                         f"{str(exc)[:80]})") from None  # fmt: skip
 
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:

@@ -275,3 +275,24 @@ def test_a_run_that_fails_after_others_finished_names_the_resume(tmp_path, fake_
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "trial failed: boom; the 1 run(s) that finished are kept" in err
     assert "--name job --resume" in err and (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
+
+
+@pytest.mark.parametrize(
+    "damage",
+    [{"env_steps": 10**400}, {"env_steps": -5}, {"wall_s": 10**400}, {"best": {"R1": 10**400}}],
+    ids=["steps of 400 digits", "negative steps", "wall of 400 digits", "R1 of 400 digits"],
+)
+def test_a_damaged_run_summary_read_back_is_one_line(tmp_path, damage):
+    """Integers too large for a float ended `transfer --resume` in an OverflowError traceback."""
+    import json
+
+    from smorphi_rl.inputs import InputError
+    from smorphi_rl.training import result_keys as keys
+    from smorphi_rl.training.transfer import transfer_run
+
+    run = tmp_path / "val-1-scratch-seed0"
+    (run / "ppo-0").mkdir(parents=True)
+    (run / "ppo-0" / "result.json").write_text(json.dumps({keys.ALGO_ITERATION: 1, keys.STEPS: 1000}) + "\n")
+    summary = {"env_steps": 1000, "wall_s": 1.0, "interrupted": False, "best": {"R1": 80.0}} | damage
+    with pytest.raises(InputError, match="not a training run smorphi-rl wrote"):
+        transfer_run("val-1", 0, "scratch", run, summary)
