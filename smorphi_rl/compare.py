@@ -9,7 +9,6 @@ method's set is measured against the same point and the exact front scores 1.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -18,7 +17,7 @@ import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import read_json_object
+from smorphi_rl.inputs import is_finite_number, read_json_object
 from smorphi_rl.protocol import within_band
 from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
@@ -142,12 +141,7 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
         settled = evaluation.get(map_name)
         if settled is not None and not (
             isinstance(settled, dict)
-            and all(
-                isinstance(settled.get(k), int | float)
-                and not isinstance(settled.get(k), bool)
-                and math.isfinite(settled[k])
-                for k in ("median_gap", "share_within_1pct")
-            )
+            and all(is_finite_number(settled.get(k)) for k in ("median_gap", "share_within_1pct"))
         ):
             raise SmorphiError(f"{run_dir / 'summary.json'}: its evaluation on '{map_name}' is not what smorphi-rl "
                                "writes (median_gap and share_within_1pct as numbers)")  # fmt: skip
@@ -169,8 +163,12 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
     check_digest(result.map_digest, run_dir)
     ok = feasible_of(result, run_dir)
+    settled = result.params.get("settled_R1")
+    if settled is not None and not (isinstance(settled, list) and all(is_finite_number(v) for v in settled)):
+        raise SmorphiError(f"{run_dir / 'summary.json'}: its settled_R1 is not what smorphi-rl writes (a list of "
+                           "numbers, one a start)")  # fmt: skip
     return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
-            result.P_c[ok], result.P_len[ok], result.params.get("settled_R1"))  # fmt: skip
+            result.P_c[ok], result.P_len[ok], settled)  # fmt: skip
 
 
 def score_methods(exact: SearchResult, runs: list[Points], weights: Weights) -> tuple[MethodScore, list[MethodScore]]:

@@ -156,3 +156,20 @@ def test_compare_refuses_runs_of_another_floor_with_the_same_name(searches, caps
     assert not (tmp_path / "out").exists()
     if kind == "training":  # the same run against the floor it was trained on is compared
         assert main(["compare", "--map", MAP_1, *runs, "--step", "30", "--log-dir", str(tmp_path / "out")]) == 0
+
+
+@pytest.mark.parametrize("settled", [["abc"], [[1, 2], 3], {"median_gap": "x"}, [10**400]])
+def test_a_local_search_whose_settled_figures_are_damaged_is_one_line(tmp_path, capsys, settled):
+    """A hand-edited `settled_R1` ended `compare` in a ValueError or OverflowError traceback."""
+    import json
+
+    argv = ["search", "hillclimb", "--map", MAP_1, "--budget", "5", "--starts", "2", "--name", "hc"]
+    assert main([*argv, "--log-dir", str(tmp_path)]) == 0
+    summary = json.loads((tmp_path / "hc" / "summary.json").read_text())
+    summary["params"]["settled_R1"] = settled
+    (tmp_path / "hc" / "summary.json").write_text(json.dumps(summary))
+    capsys.readouterr()
+    code = main(["compare", "--local", str(tmp_path / "hc"), "--step", "30", "--log-dir", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1 and err.count("\n") == 1 and "its settled_R1 is not what smorphi-rl writes" in err, err
+    assert not (tmp_path / "out").exists()

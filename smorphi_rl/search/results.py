@@ -162,7 +162,7 @@ def load(run_dir: str | Path) -> SearchResult:
         step = params.get("step_deg")
         try:
             whole = isinstance(step, int | float) and check_step(float(step)) > 0
-        except SmorphiError:
+        except (SmorphiError, OverflowError):  # OverflowError: an integer of hundreds of digits
             whole = False
         if not whole or n != (round(180 / step) + 1) ** 3:
             raise bad(f"an exhaustive run whose step {step!r} does not divide 180 or does not match its {n:,} shapes")
