@@ -90,6 +90,27 @@ _Started = dict[int, tuple[Path, Path | None]]
 """A started trial's index -> (its folder, the checkpoint it continues from, if any)."""
 
 
+MAPS_RECORD = "maps.json"
+"""Each map set's `Map.digest`s as the sweep started: a resume on maps edited since is refused."""
+
+
+def check_maps_unchanged(exp: Path, digests: dict[str, dict[str, str]]) -> None:
+    """Refuse a resume whose maps are not the floors the sweep started on (a map file edited or replaced since, or
+    relative paths read from another folder): its finished trials would be reported against the new floors."""
+    from smorphi_rl.inputs import read_json_object
+
+    record = exp / MAPS_RECORD
+    if not record.exists():
+        return  # a sweep started before the record was kept
+    kept = read_json_object(record, "record of the sweep's maps")
+    for label, now in digests.items():
+        before = kept.get(label)
+        changed = sorted(m for m, d in now.items() if isinstance(before, dict) and before.get(m, d) != d)
+        if changed:
+            raise RunDirError(f"map {changed[0]} is not the floor sweep {exp.name} started on (its cells differ): "
+                              "restore it to resume, or give the sweep another `name`")  # fmt: skip
+
+
 def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], _Started]:
     """(the trials left to run, the started ones among them) of experiment `exp`, moving nothing. The state files are
     read back safely here, before Ray starts, so a damaged or crafted one is refused in one line."""
@@ -268,6 +289,7 @@ def run_sweep(
         exp = prepare_experiment(sweep, log_dir, resume)
         pending, started = read_resume(exp, trials)
         read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
+        check_maps_unchanged(exp, digests)
     else:
         _new_experiment(log_dir, sweep.name, check_run_dir)
     optima: dict[str, Optimum] = {}
@@ -277,6 +299,7 @@ def run_sweep(
         points = set_aside_started(started)
     else:
         exp, pending, points = prepare_experiment(sweep, log_dir, resume), trials, {}
+        write_text_atomic(exp / MAPS_RECORD, json.dumps(digests, indent=2))
     quiet()
     progress = _SweepProgress(sweep, len(trials), out)
     progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}

@@ -318,3 +318,17 @@ def test_a_finished_trial_whose_records_are_damaged_is_named_in_one_line(sweep, 
     write_trial(exp, sweep.trials()[0], [row(1), row(2, done=True) | damage])
     with pytest.raises(SweepReadError, match="its records are not what smorphi-rl writes"):
         read_sweep(exp)
+
+
+def test_a_resume_on_maps_edited_since_the_sweep_started_is_refused(tmp_path):
+    """A map file replaced between the start and the resume once had the finished trials' summaries report the new
+    floor's digest and optimum for shapes found on the old one (`compare` then read a gap of -0.40)."""
+    from smorphi_rl.training.sweep import MAPS_RECORD, check_maps_unchanged
+
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    check_maps_unchanged(exp, {"m1": {"m1": "aaa"}})  # a sweep started before the record: nothing to compare
+    (exp / MAPS_RECORD).write_text(json.dumps({"m1": {"m1": "aaa"}}))
+    check_maps_unchanged(exp, {"m1": {"m1": "aaa"}})
+    with pytest.raises(RunDirError, match="map m1 is not the floor sweep exp started on"):
+        check_maps_unchanged(exp, {"m1": {"m1": "bbb"}})

@@ -137,6 +137,7 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     from smorphi_rl.maps import load_map
 
     assert summary["map_digests"] == {"map-1": load_map(MAP_1).digest}  # `compare` refuses another floor by it
+    assert json.loads((exp / "maps.json").read_text()) == {"map-1": {"map-1": load_map(MAP_1).digest}}  # resume's
     compared = cli("compare", "--map", MAP_1, "--runs", str(first), "--step", "10", "--log-dir",
                    str(tmp_path / "compared"), cwd=tmp_path)  # fmt: skip
     assert compared.returncode == 0, compared.stderr[-3000:]
