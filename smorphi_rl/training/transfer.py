@@ -247,6 +247,14 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
     if not (run_dir / "summary.json").is_file():
         return None
     summary = read_json_object(run_dir / "summary.json", "run summary")
+    recorded = summary.get("map_digests")
+    if isinstance(recorded, dict):  # runs written before digests were kept: the settings alone
+        from smorphi_rl.training.run import map_digests
+
+        changed = sorted(m for m, d in map_digests(cfg).items() if recorded.get(m, d) != d)
+        if changed:
+            raise TrainConfigError(f"--resume: {run_dir} was trained on another floor named {changed[0]!r} (the map "
+                                   "file changed since); restore it, or start a job with another --name")  # fmt: skip
     return None if summary.get("interrupted", True) is not False else summary
 
 

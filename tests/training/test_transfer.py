@@ -296,3 +296,26 @@ def test_a_damaged_run_summary_read_back_is_one_line(tmp_path, damage):
     summary = {"env_steps": 1000, "wall_s": 1.0, "interrupted": False, "best": {"R1": 80.0}} | damage
     with pytest.raises(InputError, match="not a training run smorphi-rl wrote"):
         transfer_run("val-1", 0, "scratch", run, summary)
+
+
+def test_a_finished_run_of_a_map_file_changed_since_stops_the_resume(tmp_path):
+    """Its figures were measured on the old floor: read back, they would stand beside runs on the new one."""
+    import json
+    from pathlib import Path
+
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.training.config import TrainConfig, TrainConfigError
+    from smorphi_rl.training.transfer import finished_run
+
+    val_1 = str(Path(__file__).resolve().parents[2] / "maps" / "val-1.yaml")
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [val_1]}))
+    run = tmp_path / "val-1-scratch-seed0"
+    run.mkdir()
+    (run / "config.json").write_text(json.dumps(cfg.to_dict()))
+    summary = {"interrupted": False, "map_digests": {"val-1": load_map(val_1).digest}}
+    (run / "summary.json").write_text(json.dumps(summary))
+    assert finished_run(run, cfg) == summary
+    (run / "summary.json").write_text(json.dumps(summary | {"map_digests": {"val-1": "another floor"}}))
+    with pytest.raises(TrainConfigError, match="was trained on another floor named 'val-1'"):
+        finished_run(run, cfg)
