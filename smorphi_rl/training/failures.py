@@ -50,11 +50,17 @@ def disk_full(folder: Path, errors: list[str] | None) -> bool:
     return errors is None and free is not None and free < LOW_FREE_BYTES
 
 
+def drop_staging(folder: Path) -> None:
+    """Remove the staging folders under `folder` that trials left (a trial Tune stops as it reports its last
+    checkpoint never leaves its `with`): they were never checkpoints, only their copies are."""
+    for staging in folder.rglob(f"{STAGING_PREFIX}*"):
+        shutil.rmtree(staging, ignore_errors=True)
+
+
 def drop_incomplete_checkpoints(folder: Path) -> list[Path]:
     """Remove every checkpoint under `folder` whose module cannot be read back (cut short); return them. Staging
     folders a killed trial left are removed too (not counted: they were never checkpoints)."""
-    for staging in folder.rglob(f"{STAGING_PREFIX}*"):
-        shutil.rmtree(staging, ignore_errors=True)
+    drop_staging(folder)
     dropped = []
     for checkpoint in checkpoints_under(folder):
         try:
@@ -105,9 +111,14 @@ def fit(tuner: Any, folder: Path, what: str = "training") -> tuple[Any, Failure 
     try:
         results = tuner.fit()
     except Exception as exc:  # KeyboardInterrupt passes: the caller keeps what finished
+        drop_staging(folder)
         if disk_full(folder, [str(exc)]) or disk_full(folder, None):
             return None, _disk_full_failure(folder, what)
         said = (str(exc).strip().splitlines() or [""])[0]
         return None, Failure(f"{what} failed: {type(exc).__name__}{': ' + said if said else ''} (see the trial "
                              f"folders under {folder})", False)  # fmt: skip
+    except BaseException:
+        drop_staging(folder)
+        raise
+    drop_staging(folder)  # every trial has ended: a staging folder left now is one Tune stopped mid-report
     return results, failure(results, folder, what)

@@ -102,3 +102,19 @@ def test_sweep_onto_a_full_disk_ends_in_one_line(small_disk, tmp_path):
     assert line.startswith(f"smorphi-rl: error: the sweep stopped: the disk holding {small_disk / 'full'} is full")
     for checkpoint in checkpoints_under(small_disk / "full"):
         load_module(checkpoint)
+
+
+def test_a_staging_folder_a_stopped_trial_left_is_removed_when_the_run_ends(tmp_path):
+    """Tune stops a trial as it reports its last checkpoint, before the trial leaves its `with`: the staged copy
+    (1.5 MB a checkpoint) stayed in the trial's folder of a finished sweep."""
+    from smorphi_rl.training.checkpoints import STAGING_PREFIX
+
+    class Tuner:
+        def fit(self) -> _Results:
+            (tmp_path / "ppo-1" / f"{STAGING_PREFIX}abc" / "learner_group").mkdir(parents=True)
+            (tmp_path / "ppo-1" / "checkpoint_000000").mkdir()
+            return _Results([])
+
+    _, failed = fit(Tuner(), tmp_path)
+    assert failed is None and not list(tmp_path.rglob(f"{STAGING_PREFIX}*"))
+    assert (tmp_path / "ppo-1" / "checkpoint_000000").is_dir()  # the checkpoint itself stays
