@@ -173,3 +173,20 @@ def test_a_local_search_whose_settled_figures_are_damaged_is_one_line(tmp_path, 
     err = capsys.readouterr().err
     assert code == 1 and err.count("\n") == 1 and "its settled_R1 is not what smorphi-rl writes" in err, err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_results_archive_larger_than_its_summary_says_is_refused_before_it_is_read(searches, tmp_path, capsys):
+    """A 487 KB crafted results.npz of 20 million rows, under a summary of 200 shapes, took `compare` to 2.2 GB."""
+    import json
+    import shutil
+
+    run = tmp_path / "random"
+    shutil.copytree(searches / "random-map-1-seed0", run)
+    n = 1_000_000
+    np.savez_compressed(run / "results.npz", thetas=np.zeros((n, 3), np.float32), P_c=np.zeros(n),
+                        P_len=np.zeros(n, np.int32), feasible=np.zeros(n, bool))  # fmt: skip
+    assert json.loads((run / "summary.json").read_text())["distinct_shapes"] <= 200
+    capsys.readouterr()
+    code = main(["compare", "--random", str(run), "--step", "30", "--log-dir", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1 and "more than its summary's" in err and err.count("\n") == 1, err

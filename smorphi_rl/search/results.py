@@ -120,6 +120,11 @@ def load(run_dir: str | Path) -> SearchResult:
 
     try:
         summary = read_json_object(root / "summary.json", "search summary")
+        rows = summary.get("distinct_shapes", summary.get("evaluations"))
+        with zipfile.ZipFile(root / RESULTS_FILE) as archive:  # what the arrays unpack to, before they are read
+            inflated = sum(info.file_size for info in archive.infolist())
+        if not (isinstance(rows, int) and 0 <= rows <= MAX_EVALUATIONS and inflated <= 32 * rows + (1 << 16)):
+            raise ValueError(f"its arrays unpack to {inflated:,} bytes, more than its summary's {rows!r} shapes hold")
         with np.load(root / RESULTS_FILE, allow_pickle=False) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
     except SmorphiError as exc:
