@@ -118,6 +118,8 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
     done: set[int] = set()
     names = {trial_dirname(t) for t in trials}
     for d in sorted(p for p in exp.iterdir() if p.is_dir()):
+        if d.is_symlink():  # the resume would write the trial's tables wherever the link points
+            raise RunDirError(f"{d}: a link, where the sweep keeps its trials' folders; resume only sweeps you ran")
         spec = trial_spec(d)
         if spec is None:
             if (d / "params.json").exists() or (d / "params.json").is_symlink():

@@ -181,7 +181,9 @@ def test_result_lines_that_are_no_rows_of_ours_are_skipped(tmp_path):
     assert [r[keys.ALGO_ITERATION] for r in result_rows(path)] == [1, 2]
 
 
-@pytest.mark.parametrize("damage", ["same index twice", "folder of another trial", "params not json", "params gone"])
+@pytest.mark.parametrize(
+    "damage", ["same index twice", "folder of another trial", "params not json", "params gone", "a link"]
+)
 def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_path, damage):
     trials = sweep.trials()
     exp = tmp_path / "exp"
@@ -194,8 +196,12 @@ def test_resume_refuses_a_folder_whose_trial_records_do_not_add_up(sweep, tmp_pa
         (second / "params.json").write_text(json.dumps(trials[0]))
     elif damage == "params not json":
         (second / "params.json").write_text("{not json")
-    else:  # a finished trial whose record is gone was trained again over its own checkpoints
+    elif damage == "params gone":  # a finished trial whose record is gone was trained again over its checkpoints
         (second / "params.json").unlink()
+    else:  # the resume wrote the trial's tables into the folder a link pointed to
+        elsewhere = tmp_path / "elsewhere"
+        second.rename(elsewhere)
+        second.symlink_to(elsewhere, target_is_directory=True)
     listing = sorted(exp.rglob("*"))
     with pytest.raises(RunDirError, match=r"resume only sweeps you ran|without its params\.json"):
         plan_resume(exp, trials)
