@@ -42,7 +42,8 @@ TARGET_PREFIX = "_target_pi."
 """APPO's target policy network (`MorphologyModule.make_target_networks`)."""
 STAGING_PREFIX = ".checkpoint-staging-"
 """A trial writes each checkpoint into such a folder in its own trial folder (so on the disk it names, never
-$TMPDIR) before Tune copies it to `checkpoint_NNNNNN`; one left behind by a killed run is removed on failure."""
+$TMPDIR) before Tune copies it to `checkpoint_NNNNNN`; one a stopped or killed trial left is removed when the run
+ends (`failures.fit`)."""
 MAX_PICKLE_BYTES = 64 << 20
 """A module's files are a few hundred KB; anything larger is not one of ours (and is not read)."""
 

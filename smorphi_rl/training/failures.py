@@ -58,9 +58,7 @@ def drop_staging(folder: Path) -> None:
 
 
 def drop_incomplete_checkpoints(folder: Path) -> list[Path]:
-    """Remove every checkpoint under `folder` whose module cannot be read back (cut short); return them. Staging
-    folders a killed trial left are removed too (not counted: they were never checkpoints)."""
-    drop_staging(folder)
+    """Remove every checkpoint under `folder` whose module cannot be read back (cut short); return them."""
     dropped = []
     for checkpoint in checkpoints_under(folder):
         try:
@@ -111,14 +109,11 @@ def fit(tuner: Any, folder: Path, what: str = "training") -> tuple[Any, Failure 
     try:
         results = tuner.fit()
     except Exception as exc:  # KeyboardInterrupt passes: the caller keeps what finished
-        drop_staging(folder)
         if disk_full(folder, [str(exc)]) or disk_full(folder, None):
             return None, _disk_full_failure(folder, what)
         said = (str(exc).strip().splitlines() or [""])[0]
         return None, Failure(f"{what} failed: {type(exc).__name__}{': ' + said if said else ''} (see the trial "
                              f"folders under {folder})", False)  # fmt: skip
-    except BaseException:
+    finally:  # every trial has ended, however: a staging folder left now is one Tune stopped mid-report or killed
         drop_staging(folder)
-        raise
-    drop_staging(folder)  # every trial has ended: a staging folder left now is one Tune stopped mid-report
     return results, failure(results, folder, what)
