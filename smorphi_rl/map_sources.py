@@ -14,7 +14,7 @@ Seed ranges keep training, validation and held-out floors apart: they never shar
 from __future__ import annotations
 
 import glob
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -105,6 +105,11 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
 def map_label(entry: str) -> str:
     """A short name of a map entry for folder names and tables: a file's stem, a generator's kind."""
     return parse_generator(entry).kind.value if is_generator(entry) else Path(entry).stem
+
+
+def map_set_label(entries: Iterable[str]) -> str:
+    """A set of maps as sweep folders, tables and records name it: their labels joined by `+`."""
+    return "+".join(map_label(e) for e in entries)
 
 
 def map_files(entries: tuple[str, ...]) -> tuple[str, ...]:

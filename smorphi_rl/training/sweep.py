@@ -20,7 +20,7 @@ import yaml
 
 from smorphi_rl import cluster
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
-from smorphi_rl.map_sources import map_label
+from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import (
@@ -179,7 +179,7 @@ class _SweepProgress:
             if self.best[0] < b.R1:
                 self.best = (b.R1, f"{b.angles} on {b.map}")
         steps = int(result.get(keys.STEPS) or 0)
-        maps = "+".join(map_label(m) for m in config.get("maps", []))
+        maps = map_set_label(config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
                    f"{steps:,}/{self.sweep.timesteps:,} steps")  # fmt: skip
 
@@ -279,7 +279,7 @@ def run_sweep(
     for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
         base = sweep.base_config(sweep.algorithms[0], maps, 0, {})
         MorphologyEnv(base.env.to_dict())
-        digests["+".join(map(map_label, maps))] = map_digests(base)  # every evaluated map too, before any optimum
+        digests[map_set_label(maps)] = map_digests(base)  # every evaluated map too, before any optimum
     cluster.check_reachable(address)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
@@ -371,7 +371,7 @@ _TRIAL_FIELDS = ("algo", "maps", "seed", "hp")
 def trial_dirname(trial: dict[str, Any]) -> str:
     """A trial's folder, from its fields and sweep index (the same folder when a resumed sweep runs it again;
     Tune's own config still holds placeholders for the fields when it names the folder)."""
-    maps = "+".join(map_label(m) for m in trial["maps"])
+    maps = map_set_label(trial["maps"])
     return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
 
 

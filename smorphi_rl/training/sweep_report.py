@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.map_sources import map_label
+from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
 from smorphi_rl.stats import band, censored_median_interval, median_interval
@@ -150,7 +150,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
     return TrialRow(
         trial=trial_dir.name,
         algo=spec["algo"],
-        maps="+".join(map_label(m) for m in spec["maps"]),
+        maps=map_set_label(spec["maps"]),
         seed=int(spec["seed"]),
         hyperparameters=dict(spec.get("hp") or {}),
         env_steps=int(curve["env_steps"][-1]),
