@@ -213,7 +213,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
     grid_map = load_map(args.map)
     given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
              **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
-    runs = [points_of_run(d, grid_map.name, given.get(str(d), ()), grid_map.digest) for d in dirs]  # each run, first
+    digest = grid_map.digest  # hashed once, for every run and the exact front
+    runs = [points_of_run(d, grid_map.name, given.get(str(d), ()), digest) for d in dirs]  # what each run is, first
     on_map = weights(args).weights_on(grid_map)
     planning = planning_of(args, grid_map)
     from smorphi_rl.search.config import SearchConfig
@@ -250,7 +251,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
-    if exact is not None and exact.map_digest not in (None, grid_map.digest):
+    if exact is not None and exact.map_digest not in (None, digest):
         raise another_floor(args.exhaustive, grid_map.name)
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     try:
