@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
+
+if TYPE_CHECKING:
+    from smorphi_rl.planning import Evaluator
 
 
 @dataclass(frozen=True)
@@ -169,6 +172,28 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
                            "numbers, one a start)")  # fmt: skip
     return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
             result.P_c[ok], result.P_len[ok], settled)  # fmt: skip
+
+
+PC_TOLERANCE = 1e-4
+"""How far a recorded P_c may lie from the planner's: morphologies.csv writes it to 4 decimals."""
+
+
+def check_best_as_planned(points: Points, evaluator: Evaluator, weights: Weights, where: Path | str) -> None:
+    """A run's best shape (by `weights`), planned again here, must score what the run recorded: a row edited by
+    hand, or written by another version of the planner, would otherwise be set against the exact front (a
+    hand-edited row read as beating the optimum). One plan a run."""
+    thetas, p_c, p_len = points[2], points[3], points[4]
+    b = int(np.argmax(weights.r1(p_c, p_len)))
+    again = evaluator.evaluate_many(np.asarray(thetas[b : b + 1], dtype=float))
+    recorded = f"P_c {float(p_c[b]):.4f} %, P_len {int(p_len[b])}"
+    why = "a table edited by hand, or made by another version of the planner"
+    if not again.feasible[0]:
+        raise SmorphiError(f"{where}: its best shape {angles_text(thetas[b])} ({recorded}) is infeasible on this map "
+                           f"as planned here: {why}")  # fmt: skip
+    planned = f"P_c {float(again.P_c[0]):.4f} %, P_len {int(again.P_len[0])}"
+    if abs(float(again.P_c[0]) - float(p_c[b])) > PC_TOLERANCE or int(again.P_len[0]) != int(p_len[b]):
+        raise SmorphiError(f"{where}: its best shape {angles_text(thetas[b])} is recorded at {recorded} but plans at "
+                           f"{planned} here: {why}")  # fmt: skip
 
 
 def score_methods(exact: SearchResult, runs: list[Points], weights: Weights) -> tuple[MethodScore, list[MethodScore]]:

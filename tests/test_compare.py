@@ -143,7 +143,7 @@ def test_compare_refuses_runs_of_another_floor_with_the_same_name(searches, caps
         run = tmp_path / "ppo-map-1"
         run.mkdir()
         (run / "morphologies.csv").write_text("algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,"
-                                              "variants\nppo,map-1,95,59,103,90.0,100,80.0,10,1\n")  # fmt: skip
+                                              "variants\nppo,map-1,95,59,103,97.2400,90,80.0,10,1\n")  # fmt: skip
         (run / "summary.json").write_text(
             json.dumps({"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest}})
         )
@@ -190,3 +190,37 @@ def test_a_results_archive_larger_than_its_summary_says_is_refused_before_it_is_
     code = main(["compare", "--random", str(run), "--step", "30", "--log-dir", str(tmp_path / "out")])
     err = capsys.readouterr().err
     assert code == 1 and "more than its summary's" in err and err.count("\n") == 1, err
+
+
+@pytest.mark.parametrize("kind", ["training", "exhaustive"])
+def test_a_best_shape_whose_recorded_figures_the_planner_does_not_give_is_refused(searches, capsys, tmp_path, kind):
+    """compare read P_c and P_len from a run's files: a hand-edited row (here 100 % coverage on a path of 1)
+    "beat" the exact optimum. Each run's best shape is planned again."""
+    import json
+    import shutil
+
+    from smorphi_rl.maps import load_map
+
+    run = tmp_path / "ppo-map-1"
+    run.mkdir()
+    header = "algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,variants\n"
+    (run / "summary.json").write_text(json.dumps({"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest}}))
+    (run / "morphologies.csv").write_text(header + "ppo,map-1,95,59,103,97.2400,90,80.0,10,1\n")
+    argv = ["compare", "--map", MAP_1, "--runs", str(run), "--step", "30"]
+    if kind == "exhaustive":
+        front = tmp_path / "front"
+        shutil.copytree(next(searches.glob("exhaustive-map-1*")), front)
+        with np.load(front / "results.npz") as z:
+            arrays = dict(z)
+        r1 = np.where(arrays["feasible"], arrays["P_c"] - 0.1 * arrays["P_len"], -np.inf)
+        arrays["P_c"][np.argmax(r1)] = 100.0  # its best shape, now covering all
+        np.savez_compressed(front / "results.npz", **arrays)
+        argv = ["compare", "--map", MAP_1, "--runs", str(run), "--exhaustive", str(front)]
+    else:
+        assert main([*argv, "--log-dir", str(tmp_path / "ok")]) == 0  # the planner's own figures pass
+        (run / "morphologies.csv").write_text(header + "ppo,map-1,95,59,103,100.0000,1,99.9,10,1\n")
+    capsys.readouterr()
+    assert main([*argv, "--log-dir", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "is recorded at P_c 100.0000 %" in err and "another version of the planner" in err, err
+    assert err.count("\n") == 1 and not (tmp_path / "out").exists()

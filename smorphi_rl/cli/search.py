@@ -190,6 +190,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
         another_floor,
+        check_best_as_planned,
         feasible_of,
         planner_of_run,
         points_of_run,
@@ -253,6 +254,13 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     if exact is not None and exact.map_digest not in (None, digest):
         raise another_floor(args.exhaustive, grid_map.name)
+    evaluator = planning.evaluator(grid_map)  # each run's best shape planned again: the figures are the planner's
+    for d, points in zip(dirs, runs, strict=True):
+        check_best_as_planned(points, evaluator, on_map, d)
+    if exact is not None:
+        ok = exact.feasible
+        check_best_as_planned(("", "", exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], None), evaluator, on_map,
+                              args.exhaustive)  # fmt: skip
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     try:
         if exact is None:
