@@ -252,6 +252,8 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
         if copy.stat().st_size > MAX_YAML_BYTES:
             raise ValueError("too large")
         kept = strict_yaml(copy.read_text())
+        if not isinstance(kept, dict):  # emptied or overwritten: no sweep to restore the user's file from
+            raise ValueError("not a mapping")
     except (OSError, ValueError, yaml.YAMLError, RecursionError):  # UnicodeDecodeError is a ValueError
         raise RunDirError(f"{copy}: not the sweep file smorphi-rl copied there (unreadable); resume only sweeps "
                           "you ran") from None  # fmt: skip

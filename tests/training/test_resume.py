@@ -242,8 +242,9 @@ def test_set_aside_numbers_after_the_highest_folder(sweep, tmp_path):
     assert set_aside(d) == d / "before-resume-3"
 
 
-@pytest.mark.parametrize("copy", [b"[" * 20000 + b"]" * 20000, b"\xff\xfe", b"a: *x"])
+@pytest.mark.parametrize("copy", [b"[" * 20000 + b"]" * 20000, b"\xff\xfe", b"a: *x", b"", b"- 1\n"])
 def test_a_damaged_copy_of_the_sweep_file_is_one_line(sweep, tmp_path, copy):
+    """An emptied copy was reported as "the sweep file has changed: restore it from" that empty copy."""
     from smorphi_rl.training.sweep import SWEEP_COPY, prepare_experiment
 
     exp = tmp_path / "logs" / sweep.name
