@@ -89,12 +89,15 @@ def start_of_run(run_dir: Path) -> tuple[float, float] | None:
         raw = env.get("start_xy") if isinstance(env, dict) else None
     elif (run_dir / "results.npz").is_file():
         raw = load(run_dir).params.get("start_xy")
-    return start_from(raw)
+    return start_from(raw, run_dir)
 
 
-def start_from(raw: Any) -> tuple[float, float] | None:
-    """A start point as a run records it ([x, y] in metres), or None where it records none (or not one of ours)."""
+def start_from(raw: Any, where: Path | str) -> tuple[float, float] | None:
+    """A start point as a run records it ([x, y] in metres), or None where it records none (or not one of ours);
+    two numbers of which one is not finite (1e400 in JSON) are refused: no hint could name that start."""
     ok = isinstance(raw, list | tuple) and len(raw) == 2 and all(isinstance(v, int | float) for v in raw)
+    if ok and not all(is_finite_number(v) for v in raw):
+        raise SmorphiError(f"{where}: its start_xy {raw} is not a point (two finite numbers, in metres)")
     return (float(raw[0]), float(raw[1])) if ok else None
 
 

@@ -121,6 +121,17 @@ def test_compare_refuses_runs_planned_from_another_start(tmp_path, capsys):
     assert "planned from (1, 1) m, the exact front here from the planner's default start: pass --start-xy 1 1" in err
     assert err.count("\n") == 1 and not (tmp_path / "compare-map-1").exists()
     assert main([*compare, "--start-xy", "1.0", "1.0"]) == 0
+    import json
+
+    for damaged in ("[1e400, 1.0]", "[1" + "0" * 400 + ", 1]"):  # a hint of `--start-xy inf 1`, or a traceback
+        summary = tmp_path / "r" / "summary.json"
+        record = json.loads(summary.read_text())
+        summary.write_text(json.dumps(record).replace(json.dumps(record["params"]["start_xy"]), damaged))
+        capsys.readouterr()
+        assert main([*compare, "--name", "again"]) == 1
+        err = capsys.readouterr().err
+        assert "its start_xy" in err and "is not a point (two finite numbers, in metres)" in err, err
+        assert err.count("\n") == 1 and not (tmp_path / "again").exists()
 
 
 @pytest.mark.parametrize("kind", ["random", "exhaustive", "training"])

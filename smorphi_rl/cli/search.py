@@ -243,7 +243,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                                f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
     starts = {str(d): start_of_run(d) for d in dirs}
     if exact is not None:
-        starts[str(args.exhaustive)] = start_from(exact.params.get("start_xy"))
+        starts[str(args.exhaustive)] = start_from(exact.params.get("start_xy"), args.exhaustive)
     for where, start in starts.items():  # shapes planned from another start cannot be set against this front
         if start != planning.start_xy:
             said = start_text(start)
