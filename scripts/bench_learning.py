@@ -40,7 +40,7 @@ from smorphi_rl.rundir import RunDirError, prepare_run_dir
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values, stay_move_costs
 from smorphi_rl.search.local import run_local
-from smorphi_rl.stats import censored_median_interval, mean_interval
+from smorphi_rl.stats import FEW_SEEDS_NOTE, censored_median_interval, mean_interval
 from smorphi_rl.training.checkpoints import load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.convergence import censored_steps, converged_text, convergence
@@ -239,7 +239,7 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
              f"{args.timesteps:,} env steps per PPO run and {args.async_timesteps:,} per IMPALA or APPO run, 20 fixed "
              "starts; mean over seeds [95 % bootstrap interval]. Converged: runs that converged (from some "
              "evaluation on, at least 90 % of the starts within 1 %), and the median env steps to it over the runs, "
-             "one that did not converge counting past its budget."
+             f"one that did not converge counting past its budget. {FEW_SEEDS_NOTE}"
              + changed, "",
              "| map | method | median gap (R1) | share of starts within 1 % | settled R1 | FBCPP evaluations a start "
              "| converged |",

@@ -75,3 +75,31 @@ def test_a_ratio_past_the_budget_is_a_bound_in_the_right_direction():
     exact = censored_ratio_interval(_bounds([110_000, 90_000, 110_000], 200_000), _bounds([50_000, 50_000, 80_000],
                                                                                           200_000))  # fmt: skip
     assert exact.bound == "" and exact.mean == 2.2 and exact.lo < exact.mean
+
+
+def test_a_seed_without_a_figure_is_named_as_left_out():
+    """A NaN (a trial never evaluated) was dropped without a word: 3.50 [3.00, 4.00] under a "3 seeds" heading."""
+    from smorphi_rl.stats import median_interval
+
+    assert median_interval([math.nan, 3.0, 4.0]).text() == "3.50 [3.00, 4.00] (2 of 3 seeds)"
+    assert median_interval([math.nan, 3.0]).text() == "3.00 (1 of 2 seeds)"
+    assert median_interval([math.nan, math.nan]).text() == "-"
+
+
+def test_the_few_seeds_note_says_what_the_interval_is():
+    """FEW_SEEDS_NOTE, under every table over seeds: with 3-5 seeds the median's interval is the seeds' range (and
+    the mean's with 3), which holds the true median with probability 1 - 2^(1 - n)."""
+    import numpy as np
+
+    from smorphi_rl.stats import FEW_SEEDS_NOTE, median_interval
+
+    rng = np.random.default_rng(5)
+    for n in (3, 4, 5):
+        x = rng.normal(size=n)
+        got = median_interval(list(x))
+        assert (got.lo, got.hi) == (x.min(), x.max())
+    got = mean_interval([1.0, 2.0, 9.0])
+    assert (got.lo, got.hi) == (1.0, 9.0)
+    samples = rng.normal(size=(20_000, 3))
+    held = np.mean((samples.min(axis=1) < 0) & (samples.max(axis=1) > 0))  # the true median is 0
+    assert abs(held - 0.75) < 0.02 and "75 %" in FEW_SEEDS_NOTE and f"{100 * (1 - 2**-4):.0f} %" in FEW_SEEDS_NOTE

@@ -19,7 +19,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
-from smorphi_rl.stats import band, censored_median_interval, median_interval
+from smorphi_rl.stats import FEW_SEEDS_NOTE, band, censored_median_interval, median_interval
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import (
     PLATEAU_KEY,
@@ -240,16 +240,16 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
              "protocol's starts settle within 1 % of the optimum; a trial that never converged counts as "
              "converging past its budget, so a median that depends on it reads \"> x\" (at least x) and an "
-             f"interval's end past the budget \"inf\".{left_out}", "",
+             f"interval's end past the budget \"inf\". {FEW_SEEDS_NOTE}{left_out}", "",
              "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     for (maps, label), trials in _groups(rows).items():
         steps = censored_steps([(t.converged_at, t.env_steps) for t in trials if measured(t.curve)])
-        gap = median_interval([t.median_gap for t in trials if math.isfinite(t.median_gap)])
-        within = median_interval([t.share_within_1pct for t in trials if math.isfinite(t.share_within_1pct)])
-        plateau = median_interval([t.settled_R1_plateau for t in trials if math.isfinite(t.settled_R1_plateau)])
-        best = median_interval([t.best.R1 for t in trials if t.best is not None])
+        gap = median_interval([t.median_gap for t in trials])  # a trial never evaluated: "(2 of 3 seeds)"
+        within = median_interval([t.share_within_1pct for t in trials])
+        plateau = median_interval([t.settled_R1_plateau for t in trials])
+        best = median_interval([math.nan if t.best is None else t.best.R1 for t in trials])
         to_converge = censored_median_interval(*steps).text(",.0f")
         count = converged_count(sum(t.converged_at is not None for t in trials), [t.curve for t in trials])
         lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "

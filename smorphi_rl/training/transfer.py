@@ -17,7 +17,13 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
-from smorphi_rl.stats import Interval, censored_median_interval, censored_ratio_interval, median_interval
+from smorphi_rl.stats import (
+    FEW_SEEDS_NOTE,
+    Interval,
+    censored_median_interval,
+    censored_ratio_interval,
+    median_interval,
+)
 from smorphi_rl.training.config import MAX_TIMESTEPS, TrainConfig, TrainConfigError
 from smorphi_rl.training.convergence import (
     at_steps,
@@ -312,7 +318,8 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         "not as a number: its env steps to converge lie past its budget, so a median that depends on it reads "
         '"> x" (at least x), a ratio of the medians bounded by it "> x" (at least) or "< x" (at most), and an '
         'interval\'s end past the budget "inf". At equal env steps (a tenth of the budget, or the first evaluation '
-        "if later): each run's greedy median gap to the optimum's R1 at its last evaluation by then."
+        "if later): each run's greedy median gap to the optimum's R1 at its last evaluation by then. "
+        + FEW_SEEDS_NOTE
         + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
