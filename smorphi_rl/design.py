@@ -68,6 +68,12 @@ def design_starts(n: int = DESIGN_STARTS, step_deg: float = 1.0) -> np.ndarray:
     return eval_starts(n, step_deg, DESIGN_SEED)
 
 
+def design_rng(seed: int = DESIGN_SEED) -> np.random.Generator:
+    """The stream a design draws its sampled moves and compass restarts from: a child of the seed's sequence, so
+    not the numbers `design_starts` drew the starts from (`default_rng(DESIGN_SEED)` was that very stream)."""
+    return np.random.default_rng(np.random.SeedSequence(seed, spawn_key=(0,)))
+
+
 MAX_BUDGET = 100_000
 """A design's budget is at most this: the designer is for a few hundred evaluations; beyond this, the exhaustive
 search (5.9 million shapes, seconds to minutes) answers exactly."""
@@ -106,7 +112,7 @@ def run_design(
     policy_budget = max(1, budget - int(REFINE_SHARE * budget))
     starts = design_starts(step_deg=env.config.angle_step_deg) if starts is None else starts
     nvec = [int(n) for n in env.action_space.nvec]
-    rng = np.random.default_rng(seed)
+    rng = design_rng(seed)
     t0 = time.perf_counter()
     calls0 = env.planner_calls
     scored: dict[tuple[float, float, float], Scored] = {}

@@ -150,3 +150,14 @@ def test_the_shipped_designer_is_small_plain_and_designs(capsys):
     code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--json")
     record = json.loads(out)
     assert code == 0 and record["evaluations"] == 200 and record["policy"].endswith("policies/designer")
+
+
+def test_the_moves_stream_is_not_the_starts_stream():
+    """Both were `default_rng(7)`: the sampled moves reused the numbers the start shapes were drawn from."""
+    from smorphi_rl.design import DESIGN_SEED, design_rng, design_starts
+
+    starts = design_starts(20)
+    same_stream = np.random.default_rng(DESIGN_SEED).integers(0, 181, size=(20, 3)).astype(float)
+    assert np.array_equal(starts, same_stream)  # the starts' stream, as the moves' stream was before
+    assert not np.array_equal(design_rng().integers(0, 181, size=(20, 3)).astype(float), starts)
+    assert design_rng(1).random() != design_rng(2).random() and design_rng(3).random() == design_rng(3).random()
