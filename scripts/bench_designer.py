@@ -3,10 +3,11 @@
 On the held-out floors (`maps/designer/held-out`, seeds 1,000,000 and up, which training never draws) and the
 shipped `val-*` maps, each at its exact 1-degree optimum: the designer's gap (per cent of the optimum's R1)
 with B planner evaluations, against random search, hill climbing, simulated annealing, compass (pattern)
-search and NSGA-II given the same B (5 seeds each, the median per floor), at several budgets. Per-map PPO
+search and NSGA-II given the same B (5 seeds each, the designer too, the median per floor; NSGA-II's whole
+generations cut to the first B shapes), at several budgets. Per-map PPO
 trained from scratch and fine-tuned from the designer, at equal env steps, on a few floors; the real maps of
 `../shared/realmaps` (cropped and resampled as a user would) reported apart. Intervals: 95 % bootstrap
-across floors; the designer against each method by the median of the per-floor differences.
+across floors; each designer against each method by the median of the per-floor differences.
 
 Targets (issue 31): median gap <= 1 %, 90th percentile <= 3 %, at most 200 evaluations, and a lower median
 gap than random search, hill climbing and NSGA-II with the difference's interval excluding 0.
@@ -69,9 +70,9 @@ def baseline_gaps(method: str, path: str, env_config: dict, budget: int, seeds: 
         cfg = MorphologyEnv({**env_config, "maps": [path]}).config
         weights = cfg.weights_on(load_map(path))
         values = []
-        for s in range(seeds):
-            result = run_nsga2(path, NSGA_POP, max(1, budget // NSGA_POP), s, cfg.planning)
-            values.append(float(np.max(weights.r1(result.P_c, result.P_len))))
+        for s in range(seeds):  # whole generations, then the first `budget` shapes it scored: the same budget
+            result = run_nsga2(path, NSGA_POP, math.ceil(budget / NSGA_POP), s, cfg.planning)
+            values.append(float(np.max(weights.r1(result.P_c[:budget], result.P_len[:budget]))))
         return float(np.median([gap_pct(optimum, v) for v in values]))
     env = MorphologyEnv({**env_config, "maps": [path]})
     outcomes = run_local(method, env, eval_starts(seeds, env.config.angle_step_deg), budget, seed=11)
@@ -186,7 +187,8 @@ def main() -> None:
         cfg = replace(env_config, maps=(str(Path(path).resolve()),))
         optima[grid_map.name] = exact_optimum(path, cfg.weights_on(grid_map), cfg.planning, cache).R1
         progress("exact optima", i + 1, len(floors) + len(real), t0)
-    methods = [f"designer {i + 1}" for i in range(len(designers))] + list(LOCAL) + ([] if args.no_nsga2 else ["nsga2"])
+    designer_names = [f"designer {i + 1}" for i in range(len(designers))]
+    methods = designer_names + list(LOCAL) + ([] if args.no_nsga2 else ["nsga2"])
     raw = env_config.to_dict() | {"maps": None}
     gaps: dict[str, dict[int, dict[str, float]]] = {m: {b: {} for b in budgets} for m in methods}
     timing: dict[str, float] = {m: 0.0 for m in methods}
@@ -194,10 +196,11 @@ def main() -> None:
         name = load_map(path).name
         for i, d in enumerate(designers):
             env = designer_env(d, path)
-            for b in budgets:
+            for b in budgets:  # like every search: the median of `--seeds` seeded designs (moves drawn, restarts)
                 t = time.perf_counter()
-                gaps[f"designer {i + 1}"][b][name] = gap_pct(optima[name], run_design(env, d.logits, b).best.R1)
-                timing[f"designer {i + 1}"] += time.perf_counter() - t
+                runs = [run_design(env, d.logits, b, seed=s).best.R1 for s in range(args.seeds)]
+                gaps[f"designer {i + 1}"][b][name] = float(np.median([gap_pct(optima[name], r) for r in runs]))
+                timing[f"designer {i + 1}"] += (time.perf_counter() - t) / args.seeds
         for m in methods[len(designers) :]:
             for b in budgets:
                 t = time.perf_counter()
@@ -213,16 +216,19 @@ def main() -> None:
              f"draws, and the {len(SHIPPED_VAL)} shipped val-* maps); each search's gap is its median over "
              f"{args.seeds} seeded runs on a floor; [95 % bootstrap interval] across floors.", "",
              f"| method ({args.budget} planner evaluations) | median gap | 90th percentile | within 1 % | "
-             "designer 1 better by (median of per-floor differences) |", "|---|---:|---:|---:|---:|"]  # fmt: skip
-    ref = np.array([gaps["designer 1"][args.budget][n] for n in held])
+             + " | ".join(f"{d} better by (median of per-floor differences)" for d in designer_names) + " |",
+             "|---|---:|---:|---:|" + "---:|" * len(designer_names)]  # fmt: skip
     for m in methods:
         g = np.array([gaps[m][args.budget][n] for n in held])
         s = summarise(g)
-        diff = median_interval(g - ref) if m != "designer 1" else (math.nan, math.nan, math.nan)
-        report["methods"][m] = {"at_budget": s, "difference_vs_designer_1": diff,
+        diffs = {d: median_interval(g - np.array([gaps[d][args.budget][n] for n in held])) if m != d
+                 else (math.nan, math.nan, math.nan) for d in designer_names}  # fmt: skip
+        report["methods"][m] = {"at_budget": s, "difference_vs_designer_1": diffs["designer 1"],
+                                "differences": {d: diffs[d] for d in designer_names if d != m},
                                 "curve": {b: summarise(np.array([gaps[m][b][n] for n in held])) for b in budgets},
                                 "per_floor": gaps[m][args.budget], "seconds": timing[m]}  # fmt: skip
-        dtext = "-" if m == "designer 1" else f"{diff[0]:+.3f} [{diff[1]:+.3f}, {diff[2]:+.3f}] %"
+        dtext = " | ".join("-" if m == d else f"{diff[0]:+.3f} [{diff[1]:+.3f}, {diff[2]:+.3f}] %"
+                           for d, diff in diffs.items())  # fmt: skip
         lines.append(f"| {LABELS.get(m, m)} | {s['median']:.3f} [{s['lo']:.3f}, {s['hi']:.3f}] % | {s['p90']:.2f} % | "
                      f"{100 * s['within']:.0f} % | {dtext} |")  # fmt: skip
     lines += ["", "Median gap (per cent of R1*) by budget:", "",
