@@ -143,17 +143,17 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
                     run = train(cfg, name=f"{algo}-{map_name}-seed{seed}", log_dir=root, out=out,
                                 label=f"{algo.upper()} {map_name} seed {seed}")  # fmt: skip
                     training.setdefault((algo, map_name), []).append(_whole(run).run_dir)
-        searches: dict[tuple[str, str], SearchResult] = {}
-        for map_name in b.train_maps:
-            say(f"[reproduce] random, NSGA-II and the exhaustive front on {map_name}")
-            for result in (
-                run_random(_map(map_name), b.random_samples, seed=0),
-                run_nsga2(_map(map_name), b.nsga2_pop, b.nsga2_generations, seed=0),
-                run_exhaustive(_map(map_name), b.exhaustive_step),
-            ):
-                run_dir = prepare_run_dir(root, safe_name(f"{result.method}-{map_name}"))
-                save(result, run_dir, weights[map_name])
-                searches[(result.method, map_name)] = result
+        exact: dict[str, SearchResult] = {}
+        for map_name in b.train_maps:  # the searches with the training seeds: the claims compare seed by seed
+            say(f"[reproduce] random search and NSGA-II (seeds {', '.join(map(str, b.train_seeds))}) and the "
+                f"exhaustive front on {map_name}")  # fmt: skip
+            for seed in b.train_seeds:
+                for result in (run_random(_map(map_name), b.random_samples, seed=seed),
+                               run_nsga2(_map(map_name), b.nsga2_pop, b.nsga2_generations, seed=seed)):  # fmt: skip
+                    save(result, prepare_run_dir(root, search_dirname(result.method, map_name, seed)),
+                         weights[map_name])  # fmt: skip
+            exact[map_name] = run_exhaustive(_map(map_name), b.exhaustive_step)
+            save(exact[map_name], prepare_run_dir(root, safe_name(f"exhaustive-{map_name}")), weights[map_name])
         say(f"[reproduce] pretraining PPO on {' + '.join(TRAIN_MAPS)}, {b.pretrain_steps:,} env steps")
         pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
         pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
@@ -181,16 +181,20 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     ]
     claims: list[str] = []
     for map_name in b.train_maps:
-        exact = searches[("exhaustive", map_name)]
-        runs = [points_of_run(training[(a, map_name)][0], map_name) for a in b.algorithms]
-        runs += [points_of_run(root / f"{m}-{map_name}", map_name) for m in ("nsga2", "random")]
-        exact_score, scores = score_methods(exact, runs, weights[map_name])
+        keys = [(a, i) for a in b.algorithms for i in range(len(b.train_seeds))]
+        dirs = [training[(a, map_name)][i] for a, i in keys]
+        keys += [(m, i) for m in ("nsga2", "random") for i in range(len(b.train_seeds))]
+        dirs += [root / search_dirname(m, map_name, b.train_seeds[i]) for m, i in keys[len(dirs) :]]
+        exact_score, every = score_methods(exact[map_name], [points_of_run(d, map_name) for d in dirs],
+                                           weights[map_name])  # fmt: skip
+        by_seed = dict(zip(keys, every, strict=True))
+        scores = [by_seed[(m, 0)] for m in (*b.algorithms, "nsga2", "random")]  # the tables: the first seed's
         cmp_dir = prepare_run_dir(root, safe_name(f"compare-{map_name}"))
         files = write_report(exact_score, scores, map_name, weights[map_name], cmp_dir)
         curves = {a.upper(): summary_curve(training[(a, map_name)][0]) for a in b.algorithms}
         sections += _map_section(map_name, training, b, exact_score, scores, files, curves, root)
         seeds = {a: [_seed_figures(d) for d in training[(a, map_name)]] for a in b.algorithms}
-        claims += _claims(map_name, b, scores, seeds)
+        claims += _claims(map_name, b, by_seed, seeds)
     sections += ["", "## Transfer to unseen maps (Table 5)", "",
                  transfer_files["md"].read_text().rstrip(), "",
                  f"![transfer curves]({transfer_files['png'].relative_to(root)})"]  # fmt: skip
@@ -259,12 +263,17 @@ def above(a: Interval, b: Interval | float) -> str:
     return "**agrees**" if a.lo > high else "**does not agree**" if a.hi < low else "**undecided**"
 
 
-def _claims(map_name: str, b: Budget, scores: list[MethodScore], seeds: dict[str, list[SeedFigures]]) -> list[str]:
-    """Claim by claim, on one map: agree, disagree or undecided over the seeds, with the numbers."""
-    by_label = {s.label.split(" (")[0].lower(): s for s in scores}
-    rl = {a: median_interval([f.best_R1 for f in seeds[a]]) for a in b.algorithms}
-    best_algo = max(rl, key=lambda a: rl[a].mean)
-    n = f"{len(b.train_seeds)} seed{'s' if len(b.train_seeds) > 1 else ''}"
+def _claims(map_name: str, b: Budget, by_seed: dict[tuple[str, int], MethodScore],
+            seeds: dict[str, list[SeedFigures]]) -> list[str]:  # fmt: skip
+    """Claim by claim, on one map: agree, disagree or undecided over the seeds, with the numbers. `by_seed`: every
+    training run and search by (algorithm or search method, seed index); each search ran with the training seeds,
+    so RL and the searches are compared over the same number of seeds, and each algorithm on its own."""
+    count = len(b.train_seeds)
+    n = f"{count} seed{'s' if count > 1 else ''}"
+
+    def over_seeds(method: str, figure: str) -> Interval:
+        return median_interval([float(getattr(by_seed[(method, i)], figure)) for i in range(count)])
+
     out = []
     if "ppo" in seeds and "impala" in seeds:
         ppo, imp = (median_interval([f.final_return for f in seeds[a]]) for a in ("ppo", "impala"))
@@ -274,25 +283,42 @@ def _claims(map_name: str, b: Budget, scores: list[MethodScore], seeds: dict[str
         out.append(f"- {map_name}: *The same on the evaluation protocol (beyond the paper).* Share of the protocol's "
                    f"starts the final policy settles within 1 % of the exact optimum, over {n}, PPO {ppo.text()}, "
                    f"IMPALA {imp.text()}: {above(ppo, imp)}.")  # fmt: skip
-    rnd = by_label["random"]
-    out.append(f"- {map_name}: *RL finds better shapes than random shapes.* Best R1 over {n}, {best_algo.upper()} "
-               f"{rl[best_algo].text()} vs random {rnd.best_R1:.2f} ({rnd.budget}, one run): "
-               f"{above(rl[best_algo], float(rnd.best_R1))}.")  # fmt: skip
-    best_rl = by_label[best_algo]
-    nsga = by_label["nsga2"]
-    better_pc, shorter = nsga.front_pc >= best_rl.best_P_c, nsga.front_len <= best_rl.best_P_len
-    strictly = (nsga.front_pc > best_rl.best_P_c) | (nsga.front_len < best_rl.best_P_len)
-    dominated = bool(np.any(better_pc & shorter & strictly))
-    verdict = "**does not agree**" if dominated else "**agrees**"
-    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {best_rl.label}'s best "
-               f"(P_c {best_rl.best_P_c:.2f} %, P_len {best_rl.best_P_len}) is "
-               f"{'dominated by' if dominated else 'not dominated by'} a NSGA-II shape; NSGA-II's best R1 "
-               f"{nsga.best_R1:.2f} vs RL {best_rl.best_R1:.2f}: {verdict} (strictly dominating a whole front "
-               "is more than either can show; we test the weaker, checkable form).")  # fmt: skip
-    out.append(f"- {map_name}: *Beyond the paper: gap to the exact optimum.* RL {best_rl.gap_R1:.2f}, NSGA-II "
-               f"{nsga.gap_R1:.2f}, random {rnd.gap_R1:.2f} (R1 points); hypervolume fractions "
-               f"{best_rl.hv_fraction:.4f} / {nsga.hv_fraction:.4f} / {rnd.hv_fraction:.4f}.")  # fmt: skip
+    rnd = over_seeds("random", "best_R1")
+    each = "; ".join(f"{a.upper()} {over_seeds(a, 'best_R1').text()}: {above(over_seeds(a, 'best_R1'), rnd)}"
+                     for a in b.algorithms)  # fmt: skip
+    out.append(f"- {map_name}: *RL finds better shapes than random shapes.* Best R1 over {n}, random search "
+               f"{rnd.text()} ({by_seed[('random', 0)].budget} a seed) against {each}.")  # fmt: skip
+    verdicts = []
+    for a in b.algorithms:
+        dominated = [_dominated(by_seed[(a, i)], by_seed[("nsga2", i)]) for i in range(count)]
+        verdict = ("**undecided** (1 seed)" if count < 2 else "**agrees**" if not any(dominated)
+                   else "**does not agree**" if all(dominated) else "**undecided**")  # fmt: skip
+        verdicts.append(f"{a.upper()}'s best is dominated by a shape of NSGA-II's front (same seed) on "
+                        f"{sum(dominated)} of {count}: {verdict}")  # fmt: skip
+    out.append(f"- {map_name}: *The RL shape dominates NSGA-II's Pareto front.* {'; '.join(verdicts)} "
+               "(strictly dominating a whole front is more than either can show; we test the weaker, checkable "
+               "form).")  # fmt: skip
+    gaps = ", ".join(f"{label} {over_seeds(m, 'gap_R1').text()}" for m, label in
+                     [*((a, a.upper()) for a in b.algorithms), ("nsga2", "NSGA-II"), ("random", "random")])  # fmt: skip
+    fractions = " / ".join(over_seeds(m, "hv_fraction").text(".4f") for m in (*b.algorithms, "nsga2", "random"))
+    out.append(f"- {map_name}: *Beyond the paper: gap to the exact optimum.* Over {n}: {gaps} (R1 points); "
+               f"hypervolume fractions {fractions}.")  # fmt: skip
     return out
+
+
+def _dominated(rl: MethodScore, nsga: MethodScore) -> bool:
+    """Whether some shape of NSGA-II's front is at least as good as RL's best shape in P_c and P_len, and better in
+    one."""
+    better_pc, shorter = nsga.front_pc >= rl.best_P_c, nsga.front_len <= rl.best_P_len
+    strictly = (nsga.front_pc > rl.best_P_c) | (nsga.front_len < rl.best_P_len)
+    return bool(np.any(better_pc & shorter & strictly))
+
+
+def search_dirname(method: str, map_name: str, seed: int) -> str:
+    """A reproduction's search run folder: `random-map-1-seed0`."""
+    from smorphi_rl.rundir import safe_name
+
+    return safe_name(f"{method}-{map_name}-seed{seed}")
 
 
 def _transfer_claims(runs: list[Any]) -> list[str]:

@@ -6,7 +6,9 @@ import os
 import re
 import subprocess
 import sys
+from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
@@ -34,8 +36,10 @@ def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
     assert "gap to the exact optimum" in report
     for link in re.findall(r"!\[[^\]]*\]\(([^)]+)\)", report):
         assert (root / link).is_file(), link
-    for method in ("ppo-map-1-seed0", "impala-map-1-seed0", "random-map-1", "nsga2-map-1", "exhaustive-map-1",
-                   "pretrain"):  # fmt: skip
+    (searched,) = [c for c in claims if "better shapes than random" in c]  # each algorithm on its own
+    assert "PPO" in searched and "IMPALA" in searched and "random search" in searched, searched
+    for method in ("ppo-map-1-seed0", "impala-map-1-seed0", "random-map-1-seed0", "nsga2-map-1-seed0",
+                   "exhaustive-map-1", "pretrain"):  # fmt: skip
         assert (root / method).is_dir(), method
     assert "| val-1 |" in report
 
@@ -84,3 +88,31 @@ def test_a_claim_over_seeds_is_decided_by_its_intervals_and_one_seed_decides_not
     assert above(high, median_interval([9.0, 11.0, 13.0])) == "**undecided**"  # the intervals overlap
     assert above(high, 5.0) == "**agrees**" and above(low, 2.5) == "**undecided**"  # against one fixed run
     assert above(median_interval([10.0]), low) == "**undecided** (1 seed)"
+
+
+def test_the_search_claims_compare_seed_by_seed_and_each_algorithm_on_its_own():
+    """RL's best over seeds was set against one random search and one NSGA-II front (seed 0's), and the better
+    algorithm was picked on the data it was then tested with."""
+    from smorphi_rl.compare import MethodScore
+    from smorphi_rl.reproduce import BUDGETS, _claims
+
+    def score(r1: float, p_c: float, p_len: int, front: list[tuple[int, float]] = ()) -> MethodScore:
+        lens, pcs = (np.array([f[i] for f in front], dtype=float) for i in (0, 1))
+        return MethodScore("x", "100 FBCPP evaluations", (0, 0, 0), p_c, p_len, r1, 90.0 - r1, 0.5, lens, pcs)
+
+    b = replace(BUDGETS["tiny"], train_seeds=(0, 1, 2), algorithms=("ppo", "impala"))
+    by_seed = {}
+    for i in range(3):
+        by_seed[("ppo", i)] = score(89.0 + 0.1 * i, 97.0, 80)
+        by_seed[("impala", i)] = score(80.0 + 0.1 * i, 90.0, 100)
+        by_seed[("random", i)] = score(85.0 + 0.1 * i, 95.0, 100)
+        by_seed[("nsga2", i)] = score(86.0, 96.0, 90, [(90, 96.0), (95, 92.0) if i else (99, 99.0)])
+    claims = _claims("map-1", b, by_seed, {})
+    (random,) = [c for c in claims if "better shapes than random" in c]
+    assert "PPO 89.10 [89.00, 89.20]: **agrees**" in random
+    assert "IMPALA 80.10 [80.00, 80.20]: **does not agree**" in random
+    (front,) = [c for c in claims if "dominates NSGA-II" in c]
+    assert "PPO's best is dominated by a shape of NSGA-II's front (same seed) on 0 of 3: **agrees**" in front
+    assert "IMPALA's best is dominated by a shape of NSGA-II's front (same seed) on 3 of 3: **does not agree**" in front
+    (gap,) = [c for c in claims if "gap to the exact optimum" in c]
+    assert "PPO 0.90 [0.80, 1.00]" in gap and "NSGA-II 4.00" in gap
