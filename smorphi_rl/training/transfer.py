@@ -320,7 +320,8 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         'interval\'s end past the budget "inf". At equal env steps (a tenth of the budget, or the first evaluation '
         "if later): each run's greedy median gap to the optimum's R1 at its last evaluation by then. Every seed "
         "fine-tunes from the one pretrained checkpoint: the intervals are over the seeds of fine-tuning and of "
-        "scratch, not over pretrainings. " + FEW_SEEDS_NOTE
+        "scratch, not over pretrainings. "
+        + FEW_SEEDS_NOTE
         + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
