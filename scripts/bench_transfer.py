@@ -62,7 +62,7 @@ def ratio_verdict(ratio: Interval, unmeasured: bool = False) -> tuple[str, bool,
         return "no ratio: both medians lie past the budget, or the fine-tuned one is 0", False, False
     met = ratio.bound != "<" and ratio.mean >= TARGET_RATIO  # "> x": at least x, a measured bound
     missed = ratio.bound != ">" and ratio.mean < TARGET_RATIO
-    whole = met and ratio.lo >= TARGET_RATIO
+    whole = met and ratio.n >= 2 and ratio.lo >= TARGET_RATIO  # one seed has no interval to agree
     kind = {">": " (at least: the scratch median lies past the budget)",
             "<": " (at most: the fine-tuned median lies past the budget)"}.get(ratio.bound, "")  # fmt: skip
     outcome = ("meets target" + ("" if whole else ", its interval reaching below") if met

@@ -92,6 +92,20 @@ def start_of_run(run_dir: Path) -> tuple[float, float] | None:
     return start_from(raw, run_dir)
 
 
+def block_of_run(run_dir: Path) -> float:
+    """The block side (metres) a training run planned its shapes with (an env setting; the searches and `compare`
+    plan with the default)."""
+    from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M
+
+    config = run_dir / "config.json"
+    if config.is_file():
+        env = read_json_object(config, "run configuration").get("env") or {}
+        raw: Any = env.get("block_side_m") if isinstance(env, dict) else None
+        if is_finite_number(raw):
+            return float(raw)
+    return DEFAULT_BLOCK_SIDE_M
+
+
 def start_from(raw: Any, where: Path | str) -> tuple[float, float] | None:
     """A start point as a run records it ([x, y] in metres), or None where it records none (or not one of ours);
     two numbers of which one is not finite (1e400 in JSON) are refused: no hint could name that start."""
@@ -133,9 +147,9 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
         every = read_csv(run_dir / FOUND_CSV)
         if not every:
             raise SmorphiError(f"{run_dir / FOUND_CSV}: holds no rows of the table smorphi-rl writes")
-        rows = [f for f in every if f.map == map_name]
-        if not rows:
-            raise SmorphiError(f"{run_dir}: found no morphologies on map '{map_name}'")
+        rows = [f for f in every if f.map == map_name and f.P_c > 0]  # an episode that met only infeasible shapes
+        if not rows:  # records its best as P_c = P_len = 0: no shape to put on a front
+            raise SmorphiError(f"{run_dir}: found no feasible morphologies on map '{map_name}'")
         summary = read_json_object(run_dir / "summary.json", "run summary")
         digests = summary.get("map_digests")
         check_digest(digests.get(map_name) if isinstance(digests, dict) else None, run_dir)

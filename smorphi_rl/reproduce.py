@@ -315,10 +315,10 @@ def _dominated(rl: MethodScore, nsga: MethodScore) -> bool:
 
 
 def search_dirname(method: str, map_name: str, seed: int) -> str:
-    """A reproduction's search run folder: `random-map-1-seed0`."""
-    from smorphi_rl.rundir import safe_name
+    """A reproduction's search run folder, named as `search` names it: `random-map-1-seed0`."""
+    from smorphi_rl.search.config import SearchConfig
 
-    return safe_name(f"{method}-{map_name}-seed{seed}")
+    return SearchConfig(method=method, map_path=_map(map_name), seed=seed).run_name
 
 
 def _transfer_claims(runs: list[Any]) -> list[str]:

@@ -235,3 +235,43 @@ def test_a_best_shape_whose_recorded_figures_the_planner_does_not_give_is_refuse
     err = capsys.readouterr().err
     assert "is recorded at P_c 100.0000 %" in err and "another version of the planner" in err, err
     assert err.count("\n") == 1 and not (tmp_path / "out").exists()
+
+
+def test_a_training_run_of_another_block_size_is_refused_by_its_block(tmp_path, capsys):
+    """Its right figures read as "edited by hand": compare plans the default block, the run planned a 0.2 m one."""
+    import json
+
+    from smorphi_rl.maps import load_map
+
+    run = tmp_path / "ppo-map-1"
+    run.mkdir()
+    header = "algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,variants\n"
+    (run / "morphologies.csv").write_text(header + "ppo,map-1,95,59,103,90.8000,49,80.0,10,1\n")
+    (run / "summary.json").write_text(json.dumps({"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest}}))
+    (run / "config.json").write_text(json.dumps({"env": {"block_side_m": 0.2}}))
+    capsys.readouterr()
+    argv = ["compare", "--map", MAP_1, "--runs", str(run), "--step", "30", "--log-dir", str(tmp_path / "out")]
+    assert main(argv) == 1
+    err = capsys.readouterr().err
+    assert "planned with a 0.2 m block, the exact front here with 0.17 m" in err and err.count("\n") == 1, err
+
+
+def test_an_episode_best_that_was_infeasible_is_no_shape_on_the_front(tmp_path, capsys):
+    """An episode that met only infeasible shapes records P_c = P_len = 0 (R1 0): under weights where every
+    feasible R1 is negative it was the run's "best" shape."""
+    import json
+
+    from smorphi_rl.maps import load_map
+
+    run = tmp_path / "ppo-map-1"
+    run.mkdir()
+    header = "algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,variants\n"
+    (run / "summary.json").write_text(json.dumps({"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest}}))
+    argv = ["compare", "--map", MAP_1, "--runs", str(run), "--step", "30", "--w2", "5"]
+    (run / "morphologies.csv").write_text(header + "ppo,map-1,0,180,0,0.0000,0,0.0,10,1\n")
+    assert main([*argv, "--log-dir", str(tmp_path / "none")]) == 1
+    assert "found no feasible morphologies on map 'map-1'" in capsys.readouterr().err
+    (run / "morphologies.csv").write_text(header + "ppo,map-1,0,180,0,0.0000,0,0.0,10,1\n"
+                                          "ppo,map-1,95,59,103,97.2400,90,-352.8,10,1\n")  # fmt: skip
+    assert main([*argv, "--log-dir", str(tmp_path / "out")]) == 0
+    assert "| PPO (ppo-map-1) | 10 env steps | (95, 59, 103) |" in capsys.readouterr().out

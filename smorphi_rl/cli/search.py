@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -190,6 +191,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
         another_floor,
+        block_of_run,
         check_best_as_planned,
         feasible_of,
         planner_of_run,
@@ -250,6 +252,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
             fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
             raise SmorphiError(f"{where}: its shapes were planned from {said}, the exact front here from "
                                f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
+    for d in dirs:  # shapes planned with another block cannot be set against this front
+        if not math.isclose(block := block_of_run(d), planning.block_side_m):
+            raise SmorphiError(f"{d}: its shapes were planned with a {block:g} m block, the exact front here with "
+                               f"{planning.block_side_m:g} m (`search` and `compare` plan the default block): compare "
+                               "runs of the default block")  # fmt: skip
     if exact is not None and exact.map_name != grid_map.name:
         raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
     if exact is not None and exact.map_digest not in (None, digest):

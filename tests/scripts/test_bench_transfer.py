@@ -22,3 +22,7 @@ def test_a_ratio_met_by_the_medians_only_says_its_interval_reaches_below():
     assert "cannot tell" in ratio_verdict(Interval(2.0, 1.0, math.inf, 3, ">"))[0]
     assert "no exact optimum" in ratio_verdict(Interval(2.0, 1.0, 3.0, 3), unmeasured=True)[0]
     assert "past the budget" in ratio_verdict(Interval(math.nan, math.nan, math.nan, 0))[0]
+
+
+def test_one_seed_has_no_interval_to_agree():
+    assert ratio_verdict(Interval(6.0, 6.0, 6.0, 1))[1:] == (True, False)

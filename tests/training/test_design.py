@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from smorphi_rl.cli import main
-from smorphi_rl.design import run_design
+from smorphi_rl.design import design_rng, run_design
 from smorphi_rl.designer import designer_env, load_designer
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.training.checkpoints import MODULE_SUBDIR, build_module
@@ -154,10 +154,21 @@ def test_the_shipped_designer_is_small_plain_and_designs(capsys):
 
 def test_the_moves_stream_is_not_the_starts_stream():
     """Both were `default_rng(7)`: the sampled moves reused the numbers the start shapes were drawn from."""
-    from smorphi_rl.design import DESIGN_SEED, design_rng, design_starts
+    from smorphi_rl.design import DESIGN_SEED, design_starts
 
     starts = design_starts(20)
     same_stream = np.random.default_rng(DESIGN_SEED).integers(0, 181, size=(20, 3)).astype(float)
     assert np.array_equal(starts, same_stream)  # the starts' stream, as the moves' stream was before
     assert not np.array_equal(design_rng().integers(0, 181, size=(20, 3)).astype(float), starts)
-    assert design_rng(1).random() != design_rng(2).random() and design_rng(3).random() == design_rng(3).random()
+    assert design_rng(1).random() != design_rng(2).random()
+
+
+def test_a_design_draws_from_the_design_stream(policy, monkeypatch):
+    """run_design takes its moves and restarts from `design_rng(seed)`, not from a generator of its own."""
+    from smorphi_rl import design
+
+    seen = []
+    monkeypatch.setattr(design, "design_rng", lambda seed=design.DESIGN_SEED: seen.append(seed) or design_rng(seed))
+    d = load_designer(policy)
+    run_design(designer_env(d, str(FLOOR)), d.logits, 30, seed=5)
+    assert seen == [5]

@@ -74,3 +74,16 @@ def test_an_interrupted_sweep_counts_the_trials_that_finished_apart_from_those_c
     head = format_sweep_summary(SweepSummary(tmp_path / "s", rows, 3, 60.0, True, {})).splitlines()[0]
     assert "interrupted after 1 of 3 trials finished (1 cut short)" in head
     assert "ran 2 of 3 trials" in format_sweep_summary(SweepSummary(tmp_path / "s", rows, 3, 60.0, False, {}))
+
+
+def test_a_trial_without_an_evaluation_is_named_in_its_groups_figures(tmp_path):
+    """Its NaN figures were filtered out before the median: "1.50 [1.00, 2.00]" under a group of 3 seeds."""
+    from dataclasses import replace
+
+    rows = [_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, 6_000),
+            replace(_trial(2, 1e-3, 87.1, None), median_gap=np.nan, share_within_1pct=np.nan, best=None)]  # fmt: skip
+    write_sweep_groups(rows, tmp_path / "groups.md")
+    line = next(line for line in (tmp_path / "groups.md").read_text().splitlines() if "lr=0.001" in line)
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[3] == "1.50 [1.00, 2.00] (2 of 3 seeds)" and cells[4].endswith("(2 of 3 seeds)"), cells
+    assert cells[-1].endswith("(2 of 3 seeds)"), cells
