@@ -195,11 +195,11 @@ PC_TOLERANCE = 1e-4
 """How far a recorded P_c may lie from the planner's: morphologies.csv writes it to 4 decimals."""
 
 
-def check_best_as_planned(points: Points, evaluator: Evaluator, weights: Weights, where: Path | str) -> None:
-    """A run's best shape (by `weights`), planned again here, must score what the run recorded: a row edited by
-    hand, or written by another version of the planner, would otherwise be set against the exact front (a
-    hand-edited row read as beating the optimum). One plan a run."""
-    thetas, p_c, p_len = points[2], points[3], points[4]
+def check_best_as_planned(thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray, evaluator: Evaluator,
+                          weights: Weights, where: Path | str) -> None:  # fmt: skip
+    """A run's best shape (by `weights`) among the shapes it recorded, planned again here, must score what the run
+    recorded: a row edited by hand, or written by another version of the planner, would otherwise be set against
+    the exact front (a hand-edited row read as beating the optimum). One plan a run."""
     b = int(np.argmax(weights.r1(p_c, p_len)))
     again = evaluator.evaluate_many(np.asarray(thetas[b : b + 1], dtype=float))
     recorded = f"P_c {float(p_c[b]):.4f} %, P_len {int(p_len[b])}"

@@ -262,12 +262,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if exact is not None and exact.map_digest not in (None, digest):
         raise another_floor(args.exhaustive, grid_map.name)
     evaluator = planning.evaluator(grid_map)  # each run's best shape planned again: the figures are the planner's
-    for d, points in zip(dirs, runs, strict=True):
-        check_best_as_planned(points, evaluator, on_map, d)
+    for d, (_, _, thetas, p_c, p_len, _) in zip(dirs, runs, strict=True):
+        check_best_as_planned(thetas, p_c, p_len, evaluator, on_map, d)
     if exact is not None:
         ok = exact.feasible
-        check_best_as_planned(("", "", exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], None), evaluator, on_map,
-                              args.exhaustive)  # fmt: skip
+        check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, args.exhaustive)
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
     try:
         if exact is None:
