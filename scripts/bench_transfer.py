@@ -31,43 +31,26 @@ from _benchdocs import run_documented
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.maps import load_map
 from smorphi_rl.rundir import rename_cut_run
-from smorphi_rl.stats import Interval
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import DEFAULT_TIMESTEPS
 from smorphi_rl.training.run import train
 from smorphi_rl.training.transfer import (
+    SPEEDUP_TARGET,
     TransferJob,
     TransferRun,
     by_map,
     finished_run,
     run_transfer,
+    speedup,
     write_transfer_report,
 )
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 HELD_OUT = MAPS / "designer" / "held-out"
-TARGET_RATIO = 5.0
 TARGET_SHARE = 4 / 6
 """Issue 32: the speed-up on at least 4 of 6 held-out maps."""
 MAX_FLOOR_CELLS = 6_000
 """Generated floors up to about twice a shipped map's cells (50 x 50), so a run costs what a shipped map's does."""
-
-
-def ratio_verdict(ratio: Interval, unmeasured: bool = False) -> tuple[str, bool, bool]:
-    """What a map's ratio of medians (scratch / fine-tuned; `Interval.mean` holds it, or the bound on it) says of the
-    target: (the verdict, met by the medians, met by the whole interval too)."""
-    if unmeasured:
-        return "no ratio: the map has no exact optimum (not measured)", False, False
-    if not ratio.n:
-        return "no ratio: both medians lie past the budget, or the fine-tuned one is 0", False, False
-    met = ratio.bound != "<" and ratio.mean >= TARGET_RATIO  # "> x": at least x, a measured bound
-    missed = ratio.bound != ">" and ratio.mean < TARGET_RATIO
-    whole = met and ratio.n >= 2 and ratio.lo >= TARGET_RATIO  # one seed has no interval to agree
-    kind = {">": " (at least: the scratch median lies past the budget)",
-            "<": " (at most: the fine-tuned median lies past the budget)"}.get(ratio.bound, "")  # fmt: skip
-    outcome = ("meets target" + ("" if whole else ", its interval reaching below") if met
-               else "misses target" if missed else "the budget cannot tell")  # fmt: skip
-    return f"ratio of medians {ratio.text()}{kind} ({outcome})", met, whole
 
 
 def held_out_floors(count: int) -> list[str]:
@@ -127,16 +110,16 @@ def main() -> None:
     print(files["md"].read_text().rstrip())
     meets = firm = 0
     for m in by_map(runs):
-        verdict, met, whole = ratio_verdict(m.ratio, "not measured" in m.counts)
-        meets, firm = meets + met, firm + whole
+        verdict = speedup(m.ratio, "not measured" in m.counts)
+        meets, firm = meets + verdict.met, firm + verdict.whole
         print(f"{m.map_name}: env steps to converge, seed by seed: fine-tuned {_steps(m.tuned)}; scratch "
-              f"{_steps(m.scratch)}: {verdict}; pretrained policy in every runner: "
+              f"{_steps(m.scratch)}: {verdict.text}; pretrained policy in every runner: "
               f"{all(r.pretrained_in_runners for r in m.tuned)}")  # fmt: skip
     maps = len(dict.fromkeys(r.map_name for r in runs))
     target = math.ceil(TARGET_SHARE * maps)
     reused = sum(r.reused for r in runs)
     trained_min = sum(r.wall_s for r in runs) / 60
-    print(f"fine-tuning {TARGET_RATIO:g}x faster on {meets} of {maps} maps by the medians, {firm} by the whole "
+    print(f"fine-tuning {SPEEDUP_TARGET:g}x faster on {meets} of {maps} maps by the medians, {firm} by the whole "
           f"interval (target: {target} of {maps}); "
           f"{len(runs)} runs of {args.steps:,} env steps, seeds {' '.join(map(str, args.seeds))}; "
           f"{trained_min:.1f} min of training in the runs"

@@ -403,6 +403,48 @@ class MapTransfer:
         return tuned, scratch
 
 
+SPEEDUP_TARGET = 5.0
+"""Table 5's claim: fine-tuning converges in at most a fifth of the scratch run's env steps (the paper: 5 x 10^4
+against 2.7 x 10^5)."""
+
+
+@dataclass(frozen=True)
+class Speedup:
+    """What a map's ratio of medians says of the five-fold claim, read two ways: by the medians, and by the whole
+    95 % interval over seeds (one seed has none). `reproduce` and `bench_transfer.py` both say it this way."""
+
+    text: str
+    met: bool
+    """The ratio of the medians (or the bound on it) reaches the target."""
+    whole: bool
+    """So does the whole interval, over at least 2 seeds."""
+    below: bool
+    """The whole interval lies under the target, over at least 2 seeds."""
+
+    @property
+    def word(self) -> str:
+        """The claim's verdict over seeds: agrees only when the whole interval does."""
+        return "**agrees**" if self.whole else "**does not agree**" if self.below else "**undecided**"
+
+
+def speedup(ratio: Interval, unmeasured: bool = False) -> Speedup:
+    """The five-fold verdict on a map's ratio of medians, scratch / fine-tuned (`MapTransfer.ratio`)."""
+    if unmeasured:
+        return Speedup("no ratio: the map has no exact optimum (not measured)", False, False, False)
+    if not ratio.n:
+        return Speedup("no ratio: both medians lie past the budget, or the fine-tuned one is 0", False, False, False)
+    met = ratio.bound != "<" and ratio.mean >= SPEEDUP_TARGET  # "> x": at least x, a measured bound
+    missed = ratio.bound != ">" and ratio.mean < SPEEDUP_TARGET
+    whole = met and ratio.n >= 2 and ratio.lo >= SPEEDUP_TARGET  # one seed has no interval to agree
+    below = missed and ratio.n >= 2 and ratio.hi < SPEEDUP_TARGET
+    kind = {">": " (at least: the scratch median lies past the budget)",
+            "<": " (at most: the fine-tuned median lies past the budget)"}.get(ratio.bound, "")  # fmt: skip
+    outcome = ("meets target" + ("" if whole else ", its interval reaching below") if met
+               else "misses target" + ("" if below or ratio.n < 2 else ", its interval reaching above") if missed
+               else "the budget cannot tell")  # fmt: skip
+    return Speedup(f"ratio of medians {ratio.text()}{kind} ({outcome})", met, whole, below)
+
+
 def _best_text(runs: list[Any]) -> str:
     """The best R1 any of `runs` visited; "-" when none finished an episode."""
     found = [r.best_R1 for r in runs if math.isfinite(r.best_R1)]

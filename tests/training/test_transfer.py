@@ -118,15 +118,41 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     runs = [_run("fine-tune", s, 1_000, 88.0) for s in range(3)]
     runs += [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, 6_000, 20_000))]
     adapts, line = _transfer_claims(runs)
-    assert "ratio 6.00" in line and "**agrees**" in line  # medians 6,000 / 1,000 (the means would give 10.7)
+    assert "ratio of medians 6.00" in line and "**agrees**" in line  # medians 6,000 / 1,000 (the means would give 10.7)
     assert "adapts faster" in adapts and "at 2,000 env steps" in adapts and "**undecided**" in adapts  # equal gaps
     runs[3:] = [_run("scratch", s, at, 88.0) for s, at in enumerate((6_000, None, None))]
     _, bound = _transfer_claims(runs)  # the scratch median lies past the 20,000-step budget: at least 20x
-    assert "ratio > 20.00" in bound and "scratch 1 of 3" in bound and "**agrees**" in bound
+    assert "ratio of medians > 20.00" in bound and "scratch 1 of 3" in bound and "**agrees**" in bound
     _, none = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, None, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
     _, lone = _transfer_claims([_run("fine-tune", 0, 1_000, 88.0), _run("scratch", 0, 6_000, 88.0)])
-    assert "ratio 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
+    assert "ratio of medians 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
+
+    runs[3:] = [_run("scratch", s, at, 88.0) for s, at in enumerate((5_000, 5_000, 5_000))]
+    _, edge = _transfer_claims(runs)  # exactly five-fold: bench_transfer.py's verdict and reproduce's are one
+    assert "(meets target)" in edge and "**agrees**" in edge
+
+
+def test_the_speedup_verdict_reads_the_medians_and_the_whole_interval():
+    """mixed-1000001's `> 5.00 [1.50, inf]` counted as meeting the target with nothing said of its interval."""
+    import math
+
+    from smorphi_rl.stats import Interval
+    from smorphi_rl.training.transfer import speedup
+
+    v = speedup(Interval(5.0, 1.5, math.inf, 3, ">"))
+    assert (v.met, v.whole, v.word) == (True, False, "**undecided**") and "its interval reaching below" in v.text
+    v = speedup(Interval(6.0, 5.5, 8.0, 3))
+    assert (v.met, v.whole, v.word) == (True, True, "**agrees**") and v.text.endswith("(meets target)")
+    v = speedup(Interval(2.0, 1.0, 3.0, 3))
+    assert (v.met, v.below, v.word) == (False, True, "**does not agree**") and v.text.endswith("(misses target)")
+    v = speedup(Interval(2.0, 1.0, 8.0, 3))
+    assert (v.below, v.word) == (False, "**undecided**") and "its interval reaching above" in v.text
+    assert "cannot tell" in speedup(Interval(2.0, 1.0, math.inf, 3, ">")).text
+    assert "no exact optimum" in speedup(Interval(2.0, 1.0, 3.0, 3), unmeasured=True).text
+    assert "past the budget" in speedup(Interval(math.nan, math.nan, math.nan, 0)).text
+    one = speedup(Interval(6.0, 6.0, 6.0, 1))  # one seed has no interval to agree
+    assert (one.met, one.whole, one.word) == (True, False, "**undecided**")
 
 
 def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path):
