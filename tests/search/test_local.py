@@ -45,3 +45,17 @@ def test_bad_method_and_budget():
         run_local("tabu", env, eval_starts(1), 10, 0)
     with pytest.raises(ValueError, match="budget"):
         run_local("hillclimb", env, eval_starts(1), 0, 0)
+
+
+def test_a_designs_compass_search_restarts_in_the_best_region_not_yet_climbed():
+    """A climb that ends restarts from the best scored shape far from it (the policy's next region), not a random
+    shape: `near` scores higher but lies within 16 degrees of the first climb."""
+    from smorphi_rl.search.local import compass_refine
+
+    env = MorphologyEnv()
+    start, near, far = (90.0, 90.0, 90.0), (100.0, 90.0, 90.0), (20.0, 150.0, 40.0)
+    seen = {start: 1e9, near: 2e8, far: 1e8}  # no neighbour beats `start`: its climb ends after 6 sizes x 6 moves
+    refined = compass_refine(env, seen, start, len(seen) + 36 + 6, np.random.default_rng(0))
+    first, second = refined[:36], refined[36:]
+    assert all(sum(a != b for a, b in zip(t, start, strict=True)) == 1 for t in first)
+    assert len(second) == 6 and all(sum(a != b for a, b in zip(t, far, strict=True)) == 1 for t in second)
