@@ -11,7 +11,7 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala appo] [--rewards peak] [--seeds 0 1 2] [--timesteps 200000]
+        [--algos ppo impala appo] [--rewards peak] [--seeds 100 101 102] [--timesteps 200000]
         [--async-timesteps 400000] [--no-ideal]
         [--set NAME=VALUE ...] [--env-runners N] [--envs-per-runner N] [--out NAME]
 
@@ -51,6 +51,9 @@ from smorphi_rl.training.transfer import summary_curve
 
 ROOT = Path(__file__).resolve().parent.parent
 BASELINES = ("random_walk", "hillclimb", "anneal", "random_search")
+HEADLINE_SEEDS = (100, 101, 102)
+"""The headline's training seeds: the presets' settings were screened with seeds 0-5 (docs/decisions.md), so figures
+on those would flatter them."""
 
 
 @dataclass
@@ -97,7 +100,8 @@ def main() -> None:
     parser.add_argument("--algos", nargs="+", default=["ppo", "impala", "appo"])
     parser.add_argument("--rewards", nargs="+", default=["peak"], help="reward modes (default: train's; the "
                         "paper's R1 + R2 settles no policy, docs/decisions.md)")  # fmt: skip
-    parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1, 2])
+    parser.add_argument("--seeds", nargs="+", type=int, default=list(HEADLINE_SEEDS),
+                        help="training seeds (default: none the presets were screened on)")  # fmt: skip
     parser.add_argument("--timesteps", type=int, default=DEFAULT_TIMESTEPS, help="PPO's budget (the main job's)")
     parser.add_argument("--async-timesteps", type=int, default=2 * DEFAULT_TIMESTEPS,
                         help="IMPALA's and APPO's budget (the target: at most twice PPO's env steps)")  # fmt: skip
