@@ -7,8 +7,8 @@ the shape alone, so it stops at its first revisit (from there it would repeat a 
 the env's `max_steps`. Then roll-outs sample each move from the policy's own distribution (seeded), which
 explore around the regions the greedy walks lead to. The policy spends 60 % of the budget; the last 40 % goes
 to compass search from the best shape it found (`search/local.py`: +-32 down to +-1 degree per
-hinge), which climbs the peak the policy's walks came near, and then restarts from the best shape of a region
-not yet climbed. The answer is the best shape scored within
+hinge), which climbs the peak the policy's walks came near, then restarts from the best shape scored far from
+every earlier climb. The answer is the best shape scored within
 `budget` distinct shapes. The same procedure runs with the torch module (training's evaluation, the
 benchmarks) and with the NumPy copy of its policy net (`smorphi-rl design`).
 """

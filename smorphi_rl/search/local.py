@@ -15,7 +15,10 @@ evaluations (distinct shapes scored), so every method is compared at equal cost:
 - `pattern`: compass search with shrinking steps: from the start, each hinge tries +-32 lattice steps, taking
   every move that improves R1 until none does, then +-16, ... down to +-1 (sizes only shrink); when the +-1 pass
   improves nothing, it restarts from a uniformly random shape (seeded), ending on the best. Unlike the one-step
-  moves, it jumps the plateaus and ripples of the R1 landscape at a few degrees.
+  moves, it jumps the plateaus and ripples of the R1 landscape at a few degrees. A design's compass search
+  (`compass_refine`) restarts instead from the best shape already scored far from its earlier climbs.
+
+Every method stops once the whole lattice is scored, whatever budget is left.
 """
 
 from __future__ import annotations
@@ -46,13 +49,16 @@ class _Budgeted:
     """R1 of shapes on one env's map, counting distinct shapes scored; stops answering past the budget."""
 
     def __init__(self, env: MorphologyEnv, budget: int) -> None:
-        self.env, self.budget = env, budget
+        self.step = env.config.angle_step_deg
+        self.lattice = (round(180 / self.step) + 1) ** 3
+        self.env, self.budget = env, min(budget, self.lattice)
         self.seen: dict[Theta, float] = {}
         self.metrics: dict[Theta, tuple[float, int, bool]] = {}
-        self.step = env.config.angle_step_deg
         self.top = 180.0
 
     def r1(self, theta: Theta) -> float | None:
+        if len(self.seen) >= self.lattice:  # every shape is scored: a search that restarts would spin forever
+            return None
         if theta in self.seen:
             return self.seen[theta]
         if len(self.seen) >= self.budget:
@@ -166,9 +172,39 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: R
     return space.best()
 
 
-def _apart(a: Theta, b: Theta) -> bool:
-    """Two shapes differ by more than `RESTART_SEPARATION_DEG` on some hinge."""
-    return max(abs(x - y) for x, y in zip(a, b, strict=True)) > RESTART_SEPARATION_DEG
+class _Regions:
+    """`compass_refine`'s restarts: the best shape scored more than `RESTART_SEPARATION_DEG` on some hinge from every
+    mark (each climb's end and each restart), the earliest scored among equals; a random shape when none is left.
+    Each shape is checked against the marks once, and each new mark against the shapes once (large budgets)."""
+
+    def __init__(self, space: _Budgeted) -> None:
+        self.space = space
+        self.marks = np.empty((0, 3))
+        self.thetas = np.empty((0, 3))
+        self.r1 = np.empty(0)
+        self.open = np.empty(0, dtype=bool)
+
+    def _mark(self, theta: Theta) -> None:
+        mark = np.asarray(theta, dtype=float)
+        self.open &= np.abs(self.thetas - mark).max(axis=1) > RESTART_SEPARATION_DEG
+        self.marks = np.vstack([self.marks, mark])
+
+    def __call__(self, end: Theta, rng: np.random.Generator) -> Theta:
+        new = list(itertools.islice(self.space.seen.items(), len(self.r1), None))  # scored since the last call
+        if new:
+            thetas = np.array([t for t, _ in new], dtype=float)
+            far = np.abs(thetas[:, None, :] - self.marks[None, :, :]).max(axis=2) > RESTART_SEPARATION_DEG
+            self.thetas = np.vstack([self.thetas, thetas])
+            self.r1 = np.concatenate([self.r1, [v for _, v in new]])
+            self.open = np.concatenate([self.open, far.all(axis=1)])
+        self._mark(end)
+        if self.open.any():
+            i = int(np.argmax(np.where(self.open, self.r1, -np.inf)))
+            choice: Theta = (float(self.thetas[i, 0]), float(self.thetas[i, 1]), float(self.thetas[i, 2]))
+        else:
+            choice = self.space.random_theta(rng)
+        self._mark(choice)
+        return choice
 
 
 def compass_refine(
@@ -176,22 +212,11 @@ def compass_refine(
 ) -> list[Theta]:
     """Compass search (`pattern`) on `env` from `start`, the shapes of `seen` (with their R1) counted as scored,
     until `budget` shapes are scored in all; the shapes it scored, in order (what a design spends its last
-    evaluations on). A climb that ends restarts from the best shape scored in a region not yet climbed
-    (`RESTART_SEPARATION_DEG`), or a random shape when every scored shape lies near one."""
+    evaluations on). A climb that ends restarts from the best shape scored far from every earlier climb's end and
+    restart (`_Regions`): where the policy's walks rated the floor well, not a random shape."""
     space = _Budgeted(env, budget)
     space.seen.update(seen)
-    marks: list[Theta] = []
-
-    def next_region(end: Theta, rng: np.random.Generator) -> Theta:
-        marks.append(end)
-        by_r1 = sorted(space.seen, key=space.seen.__getitem__, reverse=True)
-        far = (t for t in by_r1 if all(_apart(t, m) for m in marks))
-        choice = next(far, None)
-        choice = space.random_theta(rng) if choice is None else choice
-        marks.append(choice)
-        return choice
-
-    pattern(space, start, rng, next_region)
+    pattern(space, start, rng, _Regions(space))
     return [t for t in space.seen if t not in seen]
 
 

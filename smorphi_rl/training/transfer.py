@@ -439,7 +439,7 @@ def speedup(ratio: Interval, unmeasured: bool = False) -> Speedup:
     below = missed and ratio.n >= 2 and ratio.hi < SPEEDUP_TARGET
     kind = {">": " (at least: the scratch median lies past the budget)",
             "<": " (at most: the fine-tuned median lies past the budget)"}.get(ratio.bound, "")  # fmt: skip
-    outcome = ("meets target" + ("" if whole else ", its interval reaching below") if met
+    outcome = ("meets target" + ("" if whole or ratio.n < 2 else ", its interval reaching below") if met
                else "misses target" + ("" if below or ratio.n < 2 else ", its interval reaching above") if missed
                else "the budget cannot tell")  # fmt: skip
     return Speedup(f"ratio of medians {ratio.text()}{kind} ({outcome})", met, whole, below)

@@ -59,3 +59,50 @@ def test_a_designs_compass_search_restarts_in_the_best_region_not_yet_climbed():
     first, second = refined[:36], refined[36:]
     assert all(sum(a != b for a, b in zip(t, start, strict=True)) == 1 for t in first)
     assert len(second) == 6 and all(sum(a != b for a, b in zip(t, far, strict=True)) == 1 for t in second)
+
+
+def test_each_restart_is_a_mark_and_the_next_is_the_best_shape_far_from_every_mark():
+    """The second restart skips `far` (climbed) for `other`; the third takes the best shape the climbs scored that
+    lies more than 16 degrees from every end and restart (a probe of 32 degrees, here)."""
+    from smorphi_rl.search.local import RESTART_SEPARATION_DEG, compass_refine
+
+    env = MorphologyEnv()
+    start, far, other = (90.0, 90.0, 90.0), (20.0, 150.0, 40.0), (150.0, 40.0, 140.0)
+    seen = {start: 1e9, far: 2e8, other: 1e8}  # no neighbour beats any of them: every climb ends after 36 shapes
+    refined = compass_refine(env, seen, start, len(seen) + 3 * 36 + 6, np.random.default_rng(0))
+
+    def probes(t, centre):
+        return sum(a != b for a, b in zip(t, centre, strict=True)) == 1
+
+    for i, centre in enumerate((start, far, other)):
+        assert all(probes(t, centre) for t in refined[36 * i : 36 * (i + 1)])
+    marks = (start, far, other)
+    open_ = [t for t in refined[:108] if all(max(abs(a - b) for a, b in zip(t, m, strict=True)) > RESTART_SEPARATION_DEG
+                                              for m in marks)]  # fmt: skip
+    best = max(open_, key=lambda t: env.score(t).R1)
+    assert refined[108] == (best[0] - 32.0, best[1], best[2])  # its climb's first probe: -32 on the first hinge
+
+
+def test_a_restart_with_every_scored_shape_near_a_mark_draws_a_random_shape():
+    from smorphi_rl.search.local import _Budgeted, _Regions
+
+    space = _Budgeted(MorphologyEnv(), 100)
+    space.seen.update({(90.0, 90.0, 90.0): 1.0, (100.0, 80.0, 95.0): 2.0})
+    regions = _Regions(space)
+    assert regions((90.0, 90.0, 90.0), np.random.default_rng(0)) == space.random_theta(np.random.default_rng(0))
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_a_budget_past_the_lattice_ends_once_every_shape_is_scored(method):
+    """On a 45-degree lattice (125 shapes) a budget of 1,000 used to spin for ever in the searches that restart."""
+    env = MorphologyEnv({"angle_step_deg": 45.0})
+    (outcome,) = run_local(method, env, np.array([[90.0, 90.0, 90.0]]), budget=1_000, seed=0)
+    assert outcome.evaluations <= 125
+
+
+def test_a_designs_compass_search_ends_when_the_lattice_is_scored():
+    from smorphi_rl.search.local import compass_refine
+
+    env = MorphologyEnv({"angle_step_deg": 45.0})
+    refined = compass_refine(env, {}, (90.0, 90.0, 90.0), 1_000, np.random.default_rng(0))
+    assert len(refined) == 125
