@@ -140,16 +140,17 @@ def random_search(space: _Budgeted, start: Theta, rng: np.random.Generator) -> T
     return space.best()
 
 
-Restart = Callable[[Theta, np.random.Generator], Theta]
-"""Where compass search climbs next once a climb ends (given that climb's end)."""
+Restart = Callable[[list[Theta], np.random.Generator], Theta]
+"""Where compass search climbs next once a climb ends (given that climb's path: its start, each shape it moved to)."""
 RESTART_SEPARATION_DEG = 16.0
 """A design's compass search restarts from the best shape scored more than this many degrees (on some hinge) from
-every earlier climb's end and restart: the next region the policy's walks rated well, where the search baseline
-draws a random shape. Measured on 40 validation floors (docs/decisions.md)."""
+every shape an earlier climb started from or moved to: the next region the policy's walks rated well, where the
+search baseline draws a random shape. Measured on 40 validation floors (docs/decisions.md)."""
 
 
 def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: Restart | None = None) -> Theta:
     current: Theta = start
+    path = [current]
     while True:
         value = space.r1(current)
         if value is None:
@@ -167,14 +168,17 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: R
                         return space.best()
                     if v > value:
                         current, value, improved = candidate, v, True
+                        path.append(current)
         # the +-1 pass improves nothing: restart
-        current = space.random_theta(rng) if restart is None else restart(current, rng)
+        current = space.random_theta(rng) if restart is None else restart(path, rng)
+        path = [current]
     return space.best()
 
 
 class _Regions:
     """`compass_refine`'s restarts: the best shape scored more than `RESTART_SEPARATION_DEG` on some hinge from every
-    mark (each climb's end and each restart), the earliest scored among equals; a random shape when none is left.
+    mark (each shape a climb started from or moved to), the earliest scored among equals; a random shape when none
+    is left.
     Each shape is checked against the marks once, and each new mark against the shapes once (large budgets)."""
 
     def __init__(self, space: _Budgeted) -> None:
@@ -189,7 +193,7 @@ class _Regions:
         self.open &= np.abs(self.thetas - mark).max(axis=1) > RESTART_SEPARATION_DEG
         self.marks = np.vstack([self.marks, mark])
 
-    def __call__(self, end: Theta, rng: np.random.Generator) -> Theta:
+    def __call__(self, path: list[Theta], rng: np.random.Generator) -> Theta:
         new = list(itertools.islice(self.space.seen.items(), len(self.r1), None))  # scored since the last call
         if new:
             thetas = np.array([t for t, _ in new], dtype=float)
@@ -197,7 +201,8 @@ class _Regions:
             self.thetas = np.vstack([self.thetas, thetas])
             self.r1 = np.concatenate([self.r1, [v for _, v in new]])
             self.open = np.concatenate([self.open, far.all(axis=1)])
-        self._mark(end)
+        for theta in path:
+            self._mark(theta)
         if self.open.any():
             i = int(np.argmax(np.where(self.open, self.r1, -np.inf)))
             choice: Theta = (float(self.thetas[i, 0]), float(self.thetas[i, 1]), float(self.thetas[i, 2]))
@@ -212,8 +217,8 @@ def compass_refine(
 ) -> list[Theta]:
     """Compass search (`pattern`) on `env` from `start`, the shapes of `seen` (with their R1) counted as scored,
     until `budget` shapes are scored in all; the shapes it scored, in order (what a design spends its last
-    evaluations on). A climb that ends restarts from the best shape scored far from every earlier climb's end and
-    restart (`_Regions`): where the policy's walks rated the floor well, not a random shape."""
+    evaluations on). A climb that ends restarts from the best shape scored far from every shape a climb started
+    from or moved to (`_Regions`): where the policy's walks rated the floor well, not a random shape."""
     space = _Budgeted(env, budget)
     space.seen.update(seen)
     pattern(space, start, rng, _Regions(space))

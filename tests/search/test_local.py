@@ -89,7 +89,18 @@ def test_a_restart_with_every_scored_shape_near_a_mark_draws_a_random_shape():
     space = _Budgeted(MorphologyEnv(), 100)
     space.seen.update({(90.0, 90.0, 90.0): 1.0, (100.0, 80.0, 95.0): 2.0})
     regions = _Regions(space)
-    assert regions((90.0, 90.0, 90.0), np.random.default_rng(0)) == space.random_theta(np.random.default_rng(0))
+    assert regions([(90.0, 90.0, 90.0)], np.random.default_rng(0)) == space.random_theta(np.random.default_rng(0))
+
+
+def test_a_restart_keeps_off_the_whole_path_of_a_climb_not_only_its_end():
+    """`near_start` outscores `elsewhere` but lies near where the climb began: that region is climbed."""
+    from smorphi_rl.search.local import _Budgeted, _Regions
+
+    space = _Budgeted(MorphologyEnv(), 100)
+    near_start, elsewhere = (30.0, 30.0, 35.0), (150.0, 150.0, 150.0)
+    space.seen.update({(30.0, 30.0, 30.0): 1.0, (90.0, 90.0, 90.0): 2.0, near_start: 5.0, elsewhere: 3.0})
+    path = [(30.0, 30.0, 30.0), (62.0, 30.0, 30.0), (90.0, 90.0, 90.0)]  # the climb moved from 30s to 90s
+    assert _Regions(space)(path, np.random.default_rng(0)) == elsewhere
 
 
 @pytest.mark.parametrize("method", METHODS)
