@@ -18,11 +18,14 @@ evaluations (distinct shapes scored), so every method is compared at equal cost:
   moves, it jumps the plateaus and ripples of the R1 landscape at a few degrees. A design's compass search
   (`compass_refine`) restarts instead from the best shape already scored far from its earlier climbs.
 
-Every method stops once the whole lattice is scored, whatever budget is left.
+No method scores past the lattice: a budget past it counts as the lattice, and the methods that restart stop once
+every shape is scored (annealing and the walk stop as they would; revisiting a scored shape costs nothing). Moves
+land on the lattice (`i * step`), so each shape has one key whatever the step.
 """
 
 from __future__ import annotations
 
+import heapq
 import itertools
 import math
 import time
@@ -50,15 +53,22 @@ class _Budgeted:
 
     def __init__(self, env: MorphologyEnv, budget: int) -> None:
         self.step = env.config.angle_step_deg
-        self.lattice = (round(180 / self.step) + 1) ** 3
-        self.env, self.budget = env, min(budget, self.lattice)
+        self.n = round(180 / self.step)
+        self.lattice = (self.n + 1) ** 3
+        self.env, self.budget = env, min(budget, self.lattice)  # a budget past the lattice counts as the lattice
         self.seen: dict[Theta, float] = {}
         self.metrics: dict[Theta, tuple[float, int, bool]] = {}
-        self.top = 180.0
+
+    @property
+    def scored_all(self) -> bool:
+        """Every shape of the lattice is scored: a search that restarts would spin for ever."""
+        return len(self.seen) >= self.lattice
+
+    def snap(self, angle: float) -> float:
+        """The lattice angle nearest `angle`, held in [0, 180]: one key per shape, whatever the step."""
+        return min(max(round(angle / self.step), 0), self.n) * self.step
 
     def r1(self, theta: Theta) -> float | None:
-        if len(self.seen) >= self.lattice:  # every shape is scored: a search that restarts would spin forever
-            return None
         if theta in self.seen:
             return self.seen[theta]
         if len(self.seen) >= self.budget:
@@ -70,15 +80,14 @@ class _Budgeted:
 
     def moved(self, theta: Theta, move: tuple[int, ...]) -> Theta:
         """`theta` moved by one lattice step per hinge as `move` says, held in [0, 180]."""
-        a, b, c = (min(max(t + d * self.step, 0.0), self.top) for t, d in zip(theta, move, strict=True))
+        a, b, c = (self.snap(t + d * self.step) for t, d in zip(theta, move, strict=True))
         return (a, b, c)
 
     def neighbours(self, theta: Theta) -> list[Theta]:
         return [t for t in (self.moved(theta, m) for m in MOVES) if t != theta]
 
     def random_theta(self, rng: np.random.Generator) -> Theta:
-        n = round(180 / self.step)
-        i, j, k = (int(v) for v in rng.integers(0, n + 1, size=3))
+        i, j, k = (int(v) for v in rng.integers(0, self.n + 1, size=3))
         return (i * self.step, j * self.step, k * self.step)
 
     def best(self) -> Theta:
@@ -98,6 +107,8 @@ def hill_climb(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Thet
                 return space.best()
             if v > best_value:
                 best, best_value = t, v
+        if best == current and space.scored_all:
+            break
         current = best if best != current else space.random_theta(rng)  # a local maximum: restart
     return space.best()
 
@@ -161,7 +172,7 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: R
                 improved = False
                 for hinge, sign in itertools.product(range(3), (-1, 1)):
                     moved = list(current)
-                    moved[hinge] = min(max(moved[hinge] + sign * size * space.step, 0.0), space.top)
+                    moved[hinge] = space.snap(moved[hinge] + sign * size * space.step)
                     candidate: Theta = (moved[0], moved[1], moved[2])
                     v = space.r1(candidate)
                     if v is None:
@@ -169,6 +180,8 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: R
                     if v > value:
                         current, value, improved = candidate, v, True
                         path.append(current)
+        if space.scored_all:
+            break
         # the +-1 pass improves nothing: restart
         current = space.random_theta(rng) if restart is None else restart(path, rng)
         path = [current]
@@ -178,37 +191,29 @@ def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: R
 class _Regions:
     """`compass_refine`'s restarts: the best shape scored more than `RESTART_SEPARATION_DEG` on some hinge from every
     mark (each shape a climb started from or moved to), the earliest scored among equals; a random shape when none
-    is left.
-    Each shape is checked against the marks once, and each new mark against the shapes once (large budgets)."""
+    is left. Shapes wait in a heap by R1; one found near a mark stays near it (marks only grow) and leaves the heap,
+    so each shape is checked once however large the budget."""
 
     def __init__(self, space: _Budgeted) -> None:
         self.space = space
-        self.marks = np.empty((0, 3))
-        self.thetas = np.empty((0, 3))
-        self.r1 = np.empty(0)
-        self.open = np.empty(0, dtype=bool)
-
-    def _mark(self, theta: Theta) -> None:
-        mark = np.asarray(theta, dtype=float)
-        self.open &= np.abs(self.thetas - mark).max(axis=1) > RESTART_SEPARATION_DEG
-        self.marks = np.vstack([self.marks, mark])
+        self.heap: list[tuple[float, int, Theta]] = []
+        self.known = 0
+        self.marks: list[Theta] = []
 
     def __call__(self, path: list[Theta], rng: np.random.Generator) -> Theta:
-        new = list(itertools.islice(self.space.seen.items(), len(self.r1), None))  # scored since the last call
-        if new:
-            thetas = np.array([t for t, _ in new], dtype=float)
-            far = np.abs(thetas[:, None, :] - self.marks[None, :, :]).max(axis=2) > RESTART_SEPARATION_DEG
-            self.thetas = np.vstack([self.thetas, thetas])
-            self.r1 = np.concatenate([self.r1, [v for _, v in new]])
-            self.open = np.concatenate([self.open, far.all(axis=1)])
-        for theta in path:
-            self._mark(theta)
-        if self.open.any():
-            i = int(np.argmax(np.where(self.open, self.r1, -np.inf)))
-            choice: Theta = (float(self.thetas[i, 0]), float(self.thetas[i, 1]), float(self.thetas[i, 2]))
-        else:
-            choice = self.space.random_theta(rng)
-        self._mark(choice)
+        fresh = len(self.space.seen) - self.known  # scored since the last call: the newest entries of `seen`
+        for theta, value in reversed(list(itertools.islice(reversed(self.space.seen.items()), fresh))):
+            heapq.heappush(self.heap, (-value, self.known, theta))
+            self.known += 1
+        self.marks.extend(path)
+        marks = np.asarray(self.marks, dtype=float)
+        choice: Theta | None = None
+        while self.heap and choice is None:
+            _, _, theta = heapq.heappop(self.heap)
+            if bool((np.abs(marks - np.asarray(theta)).max(axis=1) > RESTART_SEPARATION_DEG).all()):
+                choice = theta
+        choice = self.space.random_theta(rng) if choice is None else choice
+        self.marks.append(choice)
         return choice
 
 

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
+import itertools
+import signal
+
 import numpy as np
 import pytest
 
@@ -103,17 +107,77 @@ def test_a_restart_keeps_off_the_whole_path_of_a_climb_not_only_its_end():
     assert _Regions(space)(path, np.random.default_rng(0)) == elsewhere
 
 
+@contextlib.contextmanager
+def _deadline(seconds: int):
+    """A search that spins for ever fails here instead of stalling the suite."""
+
+    def expired(*_):
+        raise TimeoutError(f"still searching after {seconds} s")
+
+    previous = signal.signal(signal.SIGALRM, expired)
+    signal.alarm(seconds)
+    try:
+        yield
+    finally:
+        signal.alarm(0)
+        signal.signal(signal.SIGALRM, previous)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_a_budget_past_the_lattice_ends_once_every_shape_is_scored(method):
-    """On a 45-degree lattice (125 shapes) a budget of 1,000 used to spin for ever in the searches that restart."""
+    """On a 45-degree lattice (125 shapes) a budget of 1,000 spun for ever in the searches that restart."""
     env = MorphologyEnv({"angle_step_deg": 45.0})
-    (outcome,) = run_local(method, env, np.array([[90.0, 90.0, 90.0]]), budget=1_000, seed=0)
-    assert outcome.evaluations <= 125
+    with _deadline(60):
+        (outcome,) = run_local(method, env, np.array([[90.0, 90.0, 90.0]]), budget=1_000, seed=0)
+    if method in ("hillclimb", "random_search", "pattern"):
+        assert outcome.evaluations == 125
+
+
+def test_a_random_walk_on_a_scored_lattice_walks_its_whole_episode():
+    """Revisiting a scored shape costs nothing: a full lattice does not cut the walk short."""
+    from smorphi_rl.search.local import _Budgeted, random_walk
+
+    env = MorphologyEnv({"angle_step_deg": 90.0})  # 27 shapes
+    space = _Budgeted(env, 1_000)
+    space.seen.update({t: 0.0 for t in itertools.product((0.0, 90.0, 180.0), repeat=3)})
+    calls: list = []
+    scored = space.r1
+    space.r1 = lambda theta: calls.append(theta) or scored(theta)  # type: ignore[method-assign]
+    random_walk(space, (90.0, 90.0, 90.0), np.random.default_rng(0))
+    assert len(calls) == env.config.max_steps + 1
 
 
 def test_a_designs_compass_search_ends_when_the_lattice_is_scored():
     from smorphi_rl.search.local import compass_refine
 
     env = MorphologyEnv({"angle_step_deg": 45.0})
-    refined = compass_refine(env, {}, (90.0, 90.0, 90.0), 1_000, np.random.default_rng(0))
+    with _deadline(60):
+        refined = compass_refine(env, {}, (90.0, 90.0, 90.0), 1_000, np.random.default_rng(0))
     assert len(refined) == 125
+
+
+def test_moves_land_on_the_lattice_whatever_the_step():
+    """At a step of 180/7 degrees, t + d * step drifted off i * step: one shape under two keys, and the lattice
+    never counted as scored."""
+    from smorphi_rl.search.local import _Budgeted
+
+    step = 180 / 7
+    space = _Budgeted(MorphologyEnv({"angle_step_deg": step}), 10)
+    theta = (3 * step, 5 * step, 6 * step)
+    assert space.moved(theta, (-1, 1, -1)) == (2 * step, 6 * step, 5 * step)
+
+
+def test_pattern_hands_the_climbs_whole_path_to_its_restart():
+    from smorphi_rl.search.local import _Budgeted, pattern
+
+    space = _Budgeted(MorphologyEnv(), 60)
+    start, probe = (90.0, 90.0, 90.0), (58.0, 90.0, 90.0)  # the first probe: -32 on the first hinge
+    space.seen.update({start: 0.0, probe: 1e9})
+    paths = []
+
+    def restart(path, rng):
+        paths.append(list(path))
+        return (10.0, 10.0, 10.0)
+
+    pattern(space, start, np.random.default_rng(0), restart)
+    assert paths[0] == [start, probe]
