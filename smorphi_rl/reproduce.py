@@ -335,11 +335,12 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
         out.append(f"- {m.map_name}: *A pretrained policy adapts faster.* Greedy median gap at {equal:,} env steps "
                    f"fine-tuned {tuned.text()} vs scratch {scratch.text()}: {above(scratch, tuned)}.")  # fmt: skip
         counts = f"converged: fine-tuned {m.counts[0]}, scratch {m.counts[1]}"
-        if not m.ratio.n:  # no ratio where both medians lie past the budget (MapTransfer.ratio)
+        ratio = m.ratio  # a bootstrap: computed once
+        if not ratio.n:  # no ratio where both medians lie past the budget (MapTransfer.ratio)
             out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue
-        verdict = speedup(m.ratio)
-        seeds = " (1 seed)" if m.ratio.n < 2 else ""
+        verdict = speedup(ratio)
+        seeds = " (1 seed)" if ratio.n < 2 else ""
         out.append(f"- {m.map_name}: {claim} Fine-tuned {m.tuned_steps.text(',.0f')} vs scratch "
                    f"{m.scratch_steps.text(',.0f')} env steps to converge (medians; {counts}), {verdict.text}: "
                    f"{verdict.word}{seeds}.")  # fmt: skip
