@@ -67,13 +67,22 @@ Points = tuple[str, str, np.ndarray, np.ndarray, np.ndarray, Any]
 trained policy (dict), the settled R1 of each start of a local search (list), or None."""
 
 
+def _env_of_run(run_dir: Path) -> dict[str, Any] | None:
+    """A training run's env settings as its config.json records them ({} where they are not an object); None for a
+    folder without one (a search run, or not a run)."""
+    config = run_dir / "config.json"
+    if not config.is_file():
+        return None
+    env = read_json_object(config, "run configuration").get("env")
+    return env if isinstance(env, dict) else {}
+
+
 def planner_of_run(run_dir: Path) -> str:
     """The coverage planner a training or search run scored its shapes with ("paper" for runs from before
     there was a choice)."""
-    config = run_dir / "config.json"
-    if config.is_file():
-        env = read_json_object(config, "run configuration").get("env") or {}
-        return str(env.get("planner", "paper") if isinstance(env, dict) else "paper")
+    env = _env_of_run(run_dir)
+    if env is not None:
+        return str(env.get("planner", "paper"))
     if (run_dir / "results.npz").is_file():
         return str(load(run_dir).params.get("planner", "paper"))
     return "paper"
@@ -83,10 +92,9 @@ def start_of_run(run_dir: Path) -> tuple[float, float] | None:
     """The point (metres) a training or search run's plans started from; None: the planner's default start (and
     for runs from before a start could be given)."""
     raw: Any = None
-    config = run_dir / "config.json"
-    if config.is_file():
-        env = read_json_object(config, "run configuration").get("env") or {}
-        raw = env.get("start_xy") if isinstance(env, dict) else None
+    env = _env_of_run(run_dir)
+    if env is not None:
+        raw = env.get("start_xy")
     elif (run_dir / "results.npz").is_file():
         raw = load(run_dir).params.get("start_xy")
     return start_from(raw, run_dir)
@@ -97,13 +105,8 @@ def block_of_run(run_dir: Path) -> float:
     plan with the default)."""
     from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M
 
-    config = run_dir / "config.json"
-    if config.is_file():
-        env = read_json_object(config, "run configuration").get("env") or {}
-        raw: Any = env.get("block_side_m") if isinstance(env, dict) else None
-        if is_finite_number(raw):
-            return float(raw)
-    return DEFAULT_BLOCK_SIDE_M
+    raw: Any = (_env_of_run(run_dir) or {}).get("block_side_m")
+    return float(raw) if is_finite_number(raw) else DEFAULT_BLOCK_SIDE_M
 
 
 def start_from(raw: Any, where: Path | str) -> tuple[float, float] | None:
