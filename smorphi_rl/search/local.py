@@ -291,7 +291,8 @@ def run_local_search(
     p_len = np.array([m[1] for m in shapes.values()], dtype=np.int64)
     feasible = np.array([m[2] for m in shapes.values()], dtype=bool)
     evaluations = sum(len(space.seen) for space in spaces)
-    params = {"budget_per_start": budget, "starts": starts, "seed": seed, "planner": env.config.planner,
+    ran = spaces[0].budget if spaces else budget  # a budget past the lattice ran as the lattice
+    params = {"budget_per_start": ran, "starts": starts, "seed": seed, "planner": env.config.planner,
               "settled_R1": [o.R1 for o in outcomes], "settled": [list(o.settled) for o in outcomes]}  # fmt: skip
     return SearchResult(method, env.grid_map.name, thetas, p_c, p_len, feasible, evaluations, wall, params,
                         env.grid_map.digest)  # fmt: skip

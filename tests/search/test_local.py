@@ -181,3 +181,11 @@ def test_pattern_hands_the_climbs_whole_path_to_its_restart():
 
     pattern(space, start, np.random.default_rng(0), restart)
     assert paths[0] == [start, probe]
+
+
+def test_a_search_records_the_budget_it_ran_with():
+    """A budget past the lattice runs as the lattice, and the result says so rather than what was asked."""
+    from smorphi_rl.search.local import run_local_search
+
+    result = run_local_search("hillclimb", "maps/map-1.yaml", 1_000, 0, starts=1, env_config={"angle_step_deg": 45.0})
+    assert result.params["budget_per_start"] == 125
