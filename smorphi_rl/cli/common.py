@@ -142,7 +142,8 @@ def record_option(p: argparse.ArgumentParser) -> None:
 
 
 ETA_AFTER_S = 3.0
-"""The time left is estimated from the rate once the work has run this long (its first seconds warm caches up)."""
+"""The time left is estimated from the rate since the first count reported, once that has run this long (the wait
+for the first count holds the work's start-up, such as compiling the planner, and says nothing of its rate)."""
 
 
 def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int, int], None]:
@@ -155,16 +156,21 @@ def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int
     last = [-math.inf]
     warned = [False]
     stage = [0, 0]  # pass, last count
+    first: list[tuple[float, int] | None] = [None]  # (time, count) of the pass's first count above 0
 
     def show(done: int, total: int) -> None:
         now = time.monotonic()
         if done < stage[1] and stage[0] + 1 < len(labels):
             stage[0] += 1
-            t0[0], last[0], warned[0] = now, -math.inf, False
+            t0[0], last[0], warned[0], first[0] = now, -math.inf, False, None
         stage[1] = done
         name = labels[stage[0]]
         elapsed = now - t0[0]
-        left = elapsed * (total - done) / done if done and elapsed >= ETA_AFTER_S else math.inf
+        if first[0] is None and done:
+            first[0] = (now, done)
+        left = math.inf
+        if first[0] is not None and done > first[0][1] and now - first[0][0] >= ETA_AFTER_S:
+            left = (now - first[0][0]) * (total - done) / (done - first[0][1])
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
             sys.stderr.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"

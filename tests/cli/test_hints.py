@@ -74,3 +74,18 @@ def test_a_progress_line_of_two_passes_names_each(capsys):
     lines = capsys.readouterr().err.splitlines()
     assert lines[0].startswith("x: keyed [") and lines[0].count("#") == 30
     assert all(line.startswith("x: settled [") for line in lines[1:]) and len(lines) == 3
+
+
+def test_the_time_left_leaves_out_the_wait_for_the_first_count(capsys, monkeypatch):
+    """The first count of `search optimum` comes after the planner compiles (about 35 s): at the rate from the
+    start it read "about 34 min more" for a search that had seconds left."""
+    from smorphi_rl.cli import common
+
+    clock = iter([0.0, 35.0, 41.0])
+    monkeypatch.setattr(common.time, "monotonic", lambda: next(clock))
+    show = common.progress_line("x")
+    show(100_000, 6_000_000)  # 35 s to the first count: compiling
+    show(3_100_000, 6_000_000)  # 3,000,000 in 6 s: 2,900,000 left in about 6 s
+    err = capsys.readouterr().err
+    assert "min more" not in err
+    assert err.splitlines()[-1].endswith(", 6 s left")
