@@ -160,3 +160,11 @@ def test_a_run_cut_short_is_renamed_beside_itself_never_deleted(tmp_path):
         (tmp_path / "run" / "summary.json").write_text(str(k))
         assert rename_cut_run(tmp_path / "run") == tmp_path / f"run.cut-{k}"
     assert [(tmp_path / f"run.cut-{k}" / "summary.json").read_text() for k in (1, 2)] == ["1", "2"]
+
+
+def test_a_taken_name_is_refused_with_the_folder_as_the_user_named_it(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    prepare_run_dir("logs", "run")
+    with pytest.raises(RunDirError) as refused:
+        prepare_run_dir("logs", "run")
+    assert str(refused.value) == "run directory logs/run already exists: choose another --name"
