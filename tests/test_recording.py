@@ -165,6 +165,22 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert first.name in listing and second.name in listing and "2 recordings" in listing
 
 
+def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):
+    """A designer's env (moves 1, 4, 16) records actions 0..6 per hinge; replay read only 0..2 as moves."""
+    rec = RecordingConfig(str(tmp_path / "episodes"), every=1, metadata=META)
+    env = make_env({"maps": [MAP_1], "max_steps": 20, "moves": [1, 4, 16], "recording": rec.to_dict()})
+    env.reset(seed=0)
+    for _ in range(20):
+        env.step(np.array([6, 0, 5]))
+    env.close()
+    (path,) = episode_files(tmp_path / "episodes")
+    assert read_episode(path).steps[1]["action"] == [6, 0, 5]
+    assert main(["replay", str(path)]) == 0, capsys.readouterr().err
+    beyond = _tampered(path, tmp_path / "beyond.mcap", "/smorphi/step", lambda m: m | {"action": [7, 0, 0]})
+    assert main(["replay", str(beyond)]) == 1
+    assert "action [7, 0, 0] is not three moves in 0..6" in capsys.readouterr().err
+
+
 def _foreign_mcap(path: Path) -> None:
     with path.open("wb") as fh:
         writer = Writer(fh)
@@ -311,6 +327,9 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
                 edited = edit(json.loads(data))
                 data = edited if isinstance(edited, bytes) else json.dumps(edited).encode()
             writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        with source.open("rb") as again:  # the run's and the env's metadata, as recorded
+            for record in make_reader(again).iter_metadata():
+                writer.add_metadata(record.name, record.metadata)
         writer.finish()
     return target
 

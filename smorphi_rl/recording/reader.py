@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.env_config import MAX_EPISODE_STEPS
+from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import Cell, Map
@@ -32,6 +32,9 @@ from smorphi_rl.recording.messages import (
     RecordingError,
 )
 from smorphi_rl.score import MAX_P_LEN
+
+MAX_MOVE = 2 * MAX_MOVE_SIZES
+"""The largest move index any step can record: a hinge picks one of 2 K + 1 moves, K step sizes (env `moves`)."""
 
 
 @dataclass
@@ -211,11 +214,12 @@ def read_episode(path: str | Path) -> Episode:
     if not steps:
         raise RecordingError(f"{path}: no step could be recovered" + ("" if complete else " (the file is cut short)"))
     required = STEP_SCHEMA["required"]
+    largest = _largest_move(meta)
     for i, st in enumerate(steps):  # a step another writer made, or damaged: named, never a KeyError later
         missing = [k for k in required if k not in st] if isinstance(st, dict) else required
         if missing:
             raise RecordingError(f"{path}: step message {i} lacks {', '.join(missing[:3])} (not a smorphi-rl step)")
-        problem = _step_problem(st)
+        problem = _step_problem(st, largest)
         if problem:
             raise RecordingError(f"{path}: step message {i} is damaged ({problem})")
         if i and st["step"] <= steps[i - 1]["step"]:  # an episode's steps are numbered 0, 1, 2, ... as they ran
@@ -237,8 +241,20 @@ def read_episode(path: str | Path) -> Episode:
     )
 
 
-def _step_problem(st: dict[str, Any]) -> str | None:
-    """What is wrong with a step message's values (types and ranges `replay` relies on), or None."""
+def _largest_move(meta: dict[str, str]) -> int:
+    """The largest move index the recorded env could take: 2 K for its K step sizes (a designer's 1, 4, 16: 6);
+    MAX_MOVE where the metadata does not say (a file cut short before it)."""
+    try:
+        moves = json.loads(meta["env_config"]).get("moves", [1])
+    except (KeyError, ValueError, AttributeError, RecursionError):
+        return MAX_MOVE
+    sizes = len(moves) if isinstance(moves, list) else 0
+    return 2 * sizes if 1 <= sizes <= MAX_MOVE_SIZES else MAX_MOVE
+
+
+def _step_problem(st: dict[str, Any], largest: int = MAX_MOVE) -> str | None:
+    """What is wrong with a step message's values (types and ranges `replay` relies on), or None; an action's
+    moves are indices 0..`largest`."""
     theta = st["theta"]
     if not (isinstance(theta, list) and len(theta) == 3 and all(is_finite_number(t) and 0 <= t <= 180 for t in theta)):
         return f"theta {str(theta)[:40]} is not three hinge angles in [0, 180]"
@@ -258,8 +274,8 @@ def _step_problem(st: dict[str, Any]) -> str | None:
         return f"step {str(st['step'])[:24]} beyond any episode's {MAX_EPISODE_STEPS:,}"
     action = st["action"]
     if action is not None and not (isinstance(action, list) and len(action) == 3
-                                   and all(type(a) is int and 0 <= a <= 2 for a in action)):  # fmt: skip
-        return f"action {str(action)[:20]} is not three moves in 0..2"
+                                   and all(type(a) is int and 0 <= a <= largest for a in action)):  # fmt: skip
+        return f"action {str(action)[:20]} is not three moves in 0..{largest}"
     if not isinstance(st["map"], str) or not isinstance(st["feasible"], bool):
         return "map is not a name or feasible is not true or false"
     return None
