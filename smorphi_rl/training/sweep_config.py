@@ -326,7 +326,8 @@ def _first_problem(exc: ValidationError, fail: Any) -> SweepConfigError:
     key = "".join(f"[{p}]" if isinstance(p, int) else f".{p}" for p in error["loc"]).lstrip(".")
     top = str(error["loc"][0]) if error["loc"] else ""
     if error["type"] == "extra_forbidden":
-        known = KEYS if len(error["loc"]) == 1 else _Checkpoint.model_fields
+        nested = {"checkpoint": _Checkpoint.model_fields, "evaluation": _Evaluation.model_fields}
+        known = KEYS if len(error["loc"]) == 1 else nested.get(top, {})
         return fail(key, f"unknown key (known: {', '.join(known)})")
     if error["type"] == "missing":
         return fail(key, f"missing ({KEYS.get(top, '')})")

@@ -116,6 +116,10 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (base("checkpoint: {every: 0}\n"), "key 'checkpoint.every': input should be greater than or equal to 1, got 0"),
         (base("evaluation: {every: 0}\n"), "key 'evaluation.every': input should be greater than or equal to 1, got 0"),
         (base("checkpoint: {often: 1}\n"), "key 'checkpoint.often': unknown key (known: every, keep)"),
+        (
+            base("evaluation: {bogus: 1}\n"),
+            "key 'evaluation.bogus': unknown key (known: every, starts, select_starts, maps, design_budget)",
+        ),
         (base("name: 'a b'\n"), "key 'name': expected a plain folder name"),
         (base("name: '..'\n"), "key 'name': expected a plain folder name"),
         (base("name: ../../etc\n"), "key 'name': expected a plain folder name"),
