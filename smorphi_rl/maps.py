@@ -139,11 +139,23 @@ def _require(meta: dict[str, Any], key: str, path: Path) -> Any:
     return meta[key]
 
 
-def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
-    value = meta.get(key, default) if default is not None else _require(meta, key, path)
-    if isinstance(value, str):  # YAML 1.1 reads 1e-9 (no dot) as a string; a number is a number
+def _shown(value: Any, limit: int = 40) -> str:
+    """A YAML value as a message shows it: its repr, cut at `limit` characters (a crafted file's value can be
+    megabytes long)."""
+    text = repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
+def _as_number(value: Any) -> Any:
+    """YAML 1.1 reads 1e-9 or 1e3 (no dot) as a string; a string that is a number is that number."""
+    if isinstance(value, str):
         with contextlib.suppress(ValueError):
-            value = float(value)
+            return float(value)
+    return value
+
+
+def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
+    value = _as_number(meta.get(key, default) if default is not None else _require(meta, key, path))
     if not is_finite_number(value):
         raise MapError(f"{path}: '{key}' must be a number, got {str(value)[:40]}")
     return float(value)
@@ -282,21 +294,22 @@ def load_map(yaml_path: str | Path) -> Map:
         raise MapError(f"{path}: not a map_server YAML (expected a mapping with 'image' and 'resolution')")
     image = _require(meta, "image", path)
     if not isinstance(image, str) or not image:
-        raise MapError(f"{path}: 'image' must be a file name, got {image!r}")
+        raise MapError(f"{path}: 'image' must be a file name, got {_shown(image)}")
     if Path(image).suffix.lower() not in READ_IMAGE_SUFFIXES:
-        raise MapError(f"{path}: 'image' {image!r} is not an image file name (give one ending in "
+        raise MapError(f"{path}: 'image' {_shown(image)} is not an image file name (give one ending in "
                        f"{', '.join(READ_IMAGE_SUFFIXES)})")  # fmt: skip
     resolution = _number(meta, "resolution", path)
     if not MIN_RESOLUTION_M <= resolution <= MAX_RESOLUTION_M:
         raise MapError(f"{path}: 'resolution' must be {MIN_RESOLUTION_M:g}-{MAX_RESOLUTION_M:g} m a cell, got "
                        f"{resolution:g}")  # fmt: skip
     origin = meta.get("origin", [0.0, 0.0, 0.0])
+    origin = [_as_number(v) for v in origin] if isinstance(origin, list) and len(origin) == 3 else origin
     if (
         not isinstance(origin, list)
         or len(origin) != 3
         or not all(isinstance(v, int | float) and not isinstance(v, bool) for v in origin)
     ):
-        raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {origin!r}")
+        raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {_shown(origin)}")
     if not all(is_finite_number(v) for v in origin):
         raise MapError(f"{path}: 'origin' must be three finite numbers, got {str(origin)[:80]}")
     if max(abs(origin[0]), abs(origin[1])) > MAX_ORIGIN_M:  # a robot's map, not a planet's: no plot or plan is sane
@@ -306,10 +319,10 @@ def load_map(yaml_path: str | Path) -> Map:
     try:
         mode = MapMode(mode_name)
     except ValueError:
-        raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {mode_name!r}") from None
+        raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {_shown(mode_name)}") from None
     negate = meta.get("negate", 0)
     if negate not in (0, 1, True, False):
-        raise MapError(f"{path}: 'negate' must be 0 or 1, got {negate!r}")
+        raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
     occupied_thresh = _number(meta, "occupied_thresh", path, 0.65)
     free_thresh = _number(meta, "free_thresh", path, 0.25)
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:

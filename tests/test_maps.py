@@ -143,6 +143,24 @@ def test_bad_maps_raise_one_clear_error(tmp_path, yaml_text, message):
         load_map(path)
 
 
+@pytest.mark.parametrize("key", ["origin", "mode", "negate", "image"])
+def test_a_huge_bad_value_is_named_in_a_short_line(tmp_path, key):
+    """A crafted YAML's value can be a megabyte long: the message shows its start."""
+    Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
+    doc = {"image": "m.pgm", "resolution": 0.1, key: list(range(5_000))}
+    (tmp_path / "x.yaml").write_text(yaml.safe_dump(doc))
+    with pytest.raises(MapError, match=f"'{key}'") as refused:
+        load_map(tmp_path / "x.yaml")
+    assert len(str(refused.value)) < len(str(tmp_path)) + 200
+
+
+def test_an_origin_in_exponent_notation_is_a_number(tmp_path):
+    """YAML 1.1 reads 1e3 (no dot) as a string, as `resolution` already allowed for."""
+    Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
+    (tmp_path / "x.yaml").write_text("image: m.pgm\nresolution: 1e-1\norigin: [1e3, -2e1, 0]\n")
+    assert load_map(tmp_path / "x.yaml").origin == (1000.0, -20.0, 0.0)
+
+
 def test_missing_yaml(tmp_path):
     with pytest.raises(MapError, match="map file not found"):
         load_map(tmp_path / "nope.yaml")
