@@ -236,6 +236,7 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     (["search", "nsga2", "--pop", "100000", "--generations", "1000"], "would score 100,000,000 shapes"),
     (["search", "hillclimb", "--budget", "1000000000000"], "at most 50,000,000"),
     (["search", "exhaustive", "--step", "0.25"], "would score 374,805,361 shapes"),
+    (["search", "exhaustive", "--step", "1e-300"], "would score over 10^906 shapes"),  # not a 906-digit count
     (["evaluate-policy", "--checkpoint", ".", "--episodes", str(10**20)], "--episodes must be in 1..10,000"),
     (["evaluate-policy", "--checkpoint", ".", "--seed", "4294967294", "--episodes", "3"], "passes 2^32-1"),
     (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),

@@ -102,7 +102,8 @@ class SearchConfig:
             raise SearchConfigError(f"--pop must be >= 2 and --generations >= 1, got {self.pop} and {self.generations}")
         total = self.evaluations
         if total > MAX_EVALUATIONS:
-            raise SearchConfigError(f"{self.method} would score {total:,} shapes; at most {MAX_EVALUATIONS:,} "
+            shown = f"{total:,}" if total < 10**15 else f"over 10^{len(str(total)) - 1}"  # a step of 1e-300
+            raise SearchConfigError(f"{self.method} would score {shown} shapes; at most {MAX_EVALUATIONS:,} "
                                     f"({CUTS[self.method]})")  # fmt: skip
 
     @property
