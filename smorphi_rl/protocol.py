@@ -209,6 +209,19 @@ def optimum_cache(log_dir: str | Path) -> Path:
     return root / OPTIMUM_CACHE
 
 
+def make_cache(folder: Path) -> Path:
+    """The optimum cache `folder`, made if need be; one line naming the option to change where it cannot be."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
+        import os
+
+        fix = f"set {CACHE_ENV} to" if os.environ.get(CACHE_ENV) else "give --log-dir"
+        raise SmorphiError(f"cannot cache exact optima in {folder} ({exc.strerror or exc}): {fix} a folder this "
+                           "process can write into") from None  # fmt: skip
+    return folder
+
+
 def _cached_optimum(file: Path, weights: Weights) -> Optimum | None:
     """The optimum a cache file holds, if it is one `exact_optimum` could have written: three angles in 0-180,
     P_c in 0-100, a whole P_len not below 0 and the R1 `weights` give them (else None: a doctored entry would
@@ -242,14 +255,7 @@ def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir
         if cached is not None:
             return cached  # else a damaged or doctored entry: recomputed and rewritten
     if file is not None:  # before the computation: a folder that cannot be made is named in seconds, not minutes
-        try:
-            file.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
-            import os
-
-            fix = f"set {CACHE_ENV} to" if os.environ.get(CACHE_ENV) else "give --log-dir"
-            raise SmorphiError(f"cannot cache exact optima in {file.parent} ({exc.strerror or exc}): {fix} a folder "
-                               "this process can write into") from None  # fmt: skip
+        make_cache(file.parent)
     optimum = _optimum_in_process(key, str(map_path), weights, planning)
     if file is not None:
         with contextlib.suppress(OSError):  # a full disk: the optimum stands, the next call computes it again

@@ -29,6 +29,7 @@ from smorphi_rl.protocol import (
     Optimum,
     eval_starts,
     exact_optimum,
+    make_cache,
     optimum_cache,
 )
 from smorphi_rl.quiet import quiet
@@ -220,6 +221,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
     longer."""
     cache = optimum_cache(log_dir)
+    if cfg.evaluation_maps:
+        make_cache(cache)  # a folder that cannot be made: one line, before any line saying an optimum is computed
     optima: dict[str, Optimum] = {}
     for path in cfg.evaluation_maps:
         grid_map = load_map(path)

@@ -1,10 +1,17 @@
-"""`training/run.py` without a run: the end-of-run text names every file a run wrote."""
+"""`training/run.py` without a run: the end-of-run text names every file a run wrote; the optima are checked first."""
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
-from smorphi_rl.training.run import RunSummary, format_summary
+import pytest
+
+from smorphi_rl.env_config import EnvConfig
+from smorphi_rl.errors import SmorphiError
+from smorphi_rl.protocol import CACHE_ENV
+from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.run import RunSummary, format_summary, training_optima
 
 
 def test_the_summary_names_the_top_plot_of_every_map(tmp_path, monkeypatch):
@@ -17,3 +24,14 @@ def test_the_summary_names_the_top_plot_of_every_map(tmp_path, monkeypatch):
     assert "top morphologies plot (map-1): logs/two-maps/top_morphologies_map-1.png" in text
     assert "top morphologies plot (map-2): logs/two-maps/top_morphologies_map-2.png" in text
     assert "learning curves: logs/two-maps/learning_curves.png" in text and "logs: logs/two-maps" in text
+
+
+def test_an_optimum_cache_that_cannot_be_made_is_named_before_any_optimum_line(tmp_path, monkeypatch):
+    """`sweep --log-dir` under a file printed "exact optimum of map-1 ..." and then the refusal: two lines."""
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    (tmp_path / "a-file").write_text("not a folder")
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [str(Path(__file__).parents[2] / "maps" / "map-1.yaml")]}))
+    out = io.StringIO()
+    with pytest.raises(SmorphiError, match="cannot cache exact optima"):
+        training_optima(cfg, tmp_path / "a-file" / "logs", out)
+    assert out.getvalue() == ""
