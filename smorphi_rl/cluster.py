@@ -149,9 +149,9 @@ def local_cpus() -> int:
     return max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
 
 
-def check_capacity(cpus: float, env_runners: int, address: str | None) -> None:
-    """Refuse, before any trial starts, a layout the Ray in use cannot place (it would wait forever). For a
-    local Ray this needs no Ray at all; for a cluster, call it once connected."""
+def check_capacity(cpus: float, env_runners: int, address: str | None, fix: str = "use fewer --env-runners") -> None:
+    """Refuse, before any trial starts, a layout the Ray in use cannot place (it would wait forever), saying `fix`.
+    For a local Ray this needs no Ray at all; for a cluster, call it once connected."""
     if address is None:
         have = float(local_cpus())
     else:
@@ -162,5 +162,5 @@ def check_capacity(cpus: float, env_runners: int, address: str | None) -> None:
         where = "this machine's local Ray" if address is None else f"the Ray cluster at {address}"
         raise ClusterError(
             f"{env_runners} env runner(s) need {cpus:g} CPUs (1 for the trial, 0.5 per runner) and {where} has "
-            f"{have:g}: use fewer --env-runners"
+            f"{have:g}: {fix}"
         )

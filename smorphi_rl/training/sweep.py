@@ -286,7 +286,7 @@ def run_sweep(
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
     if address is None:
-        cluster.check_capacity(widest.cpus, widest.env_runners, address)
+        cluster.check_capacity(widest.cpus, widest.env_runners, address, f"set fewer `env_runners` in {sweep.path}")
     out = out or sys.stderr
     trials = sweep.trials()
     if resume:  # the folder's checks first: they are instant, the optima are not
@@ -339,7 +339,7 @@ def _fit(
 
     with cluster.ray_session(address):
         if address is not None:
-            cluster.check_capacity(widest.cpus, widest.env_runners, address)
+            cluster.check_capacity(widest.cpus, widest.env_runners, address, f"set fewer `env_runners` in {sweep.path}")
         from ray import tune
 
         from smorphi_rl.training.tensorboard import TensorBoardLogger

@@ -172,6 +172,8 @@ def run_transfer(
             if earlier is not None:
                 finished[run_name] = transfer_run(map_name, seed, mode, job_dir / run_name, earlier, reused=True)
     cluster.check_reachable(address)  # no cluster there: one line, no folder
+    if address is None:  # a layout this machine cannot place: one line, no folder (a cluster's is checked attached)
+        cluster.check_capacity(configs[0].cpus, configs[0].env_runners, None)
     if job_dir is None:
         job_dir = prepare_run_dir(log_dir, name)
     else:

@@ -345,3 +345,13 @@ def test_a_finished_run_of_a_map_file_changed_since_stops_the_resume(tmp_path):
     (run / "summary.json").write_text(json.dumps(summary | {"map_digests": {"val-1": "another floor"}}))
     with pytest.raises(TrainConfigError, match="was trained on another floor named 'val-1'"):
         finished_run(run, cfg)
+
+
+def test_a_layout_this_machine_cannot_place_leaves_no_folder(tmp_path, fake_runs, capsys):
+    """The capacity refusal came from the first run, after the job had made --log-dir: an empty folder stayed."""
+    from smorphi_rl.cli import main
+
+    argv, calls, _stops, _algos = fake_runs
+    assert main([*argv, "--seeds", "0", "--env-runners", "1000"]) == 1
+    assert "use fewer --env-runners" in capsys.readouterr().err
+    assert calls == [] and not (tmp_path / "logs").exists()
