@@ -248,6 +248,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     unknown_stop = sorted(k for k in doc.stop if k not in STOP_METRICS)
     if unknown_stop:
         raise fail("stop", f"unknown metric '{unknown_stop[0]}' (known: {', '.join(STOP_METRICS)})")
+    spent = next((k for k, v in sorted(doc.stop.items()) if not v > 0), None)
+    if spent is not None:  # every metric starts at 0: a trial would stop before it trained
+        raise fail(f"stop.{spent}", f"must be above 0 (a trial would stop before it trained), got {doc.stop[spent]}")
     if "maps" in doc.env:
         raise fail("env.maps", "give maps at the top level ('maps')")
     try:

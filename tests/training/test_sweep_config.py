@@ -149,6 +149,8 @@ def test_missing_file(tmp_path):
     [
         (base("seeds: [1]\n"), "duplicate key 'seeds'"),
         (base("stop: {time_total: 60}\n"), "key 'stop': unknown metric 'time_total'"),
+        (base("stop: {training_iteration: -1}\n"), "key 'stop.training_iteration': must be above 0"),
+        (base("stop: {time_total_s: 0}\n"), "key 'stop.time_total_s': must be above 0"),
         (base("num_samples: 1000000000\nsearch: {lr: {uniform: [0.001, 0.01]}}\n"), "key 'num_samples'"),
     ],
 )
