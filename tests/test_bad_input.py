@@ -414,6 +414,12 @@ def test_compare_refuses_an_exact_front_of_another_planner(tmp_path, capsys):
     code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
                        str(tmp_path / "e"), "--step", "10", "--planner", "fit", "--log-dir", str(tmp_path))  # fmt: skip
     assert code == 1 and "--step: the exact front is computed here only without --exhaustive" in one_line(err)
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--exhaustive",
+                       str(tmp_path / "e"), "--step", "1", "--planner", "fit", "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "--step: the exact front is computed here only" in one_line(err)  # even the default's value
+    code, _, err = run(capsys, "compare", "--map", MAP_1, "--random", str(tmp_path / "r"), "--runs",
+                       str(tmp_path / "r"), "--log-dir", str(tmp_path))  # fmt: skip
+    assert code == 1 and "is given twice" in one_line(err)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["e", "r"]  # nothing claimed by the refused compares
 
 

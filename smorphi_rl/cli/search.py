@@ -22,7 +22,7 @@ from smorphi_rl.cli.common import (
     weight_options,
     weights,
 )
-from smorphi_rl.cli.fields import option
+from smorphi_rl.cli.fields import UNSET, option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
@@ -57,7 +57,7 @@ def register(sub: Any) -> None:
     co.add_argument("--random", nargs="+", help="`search random` run directories")
     co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
     co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
-    option(co, SearchConfig, "step", default_text=f"{SearchConfig.step:g}, when the front is computed here")
+    option(co, SearchConfig, "step", unset=True, default_text=f"{SearchConfig.step:g}, when the front is computed here")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     weight_options(co)
     planner_option(co)  # the exact front's planner: compare runs made with the same one
@@ -210,9 +210,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
     dirs = [Path(d) for d in [*(args.runs or []), *(args.nsga2 or []), *(args.random or []), *(args.local or [])]]
     if not dirs:
         raise SmorphiError("give at least one run to compare: --runs, --nsga2, --random or --local")
-    for d in dirs:
+    for i, d in enumerate(dirs):
         if not d.is_dir():
             raise SmorphiError(f"{d}: not a run folder (give the folder a `train` or `search` run wrote)")
+        if any(d.resolve() == earlier.resolve() for earlier in dirs[:i]):
+            raise SmorphiError(f"{d} is given twice: the report would list it twice")
     grid_map = load_map(args.map)
     given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
              **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
@@ -223,14 +225,15 @@ def cmd_compare(args: argparse.Namespace) -> int:
     from smorphi_rl.search.config import SearchConfig
     from smorphi_rl.search.exhaustive import check_step
 
-    check_step(args.step)
+    step = SearchConfig.step if args.step is UNSET else args.step
+    check_step(step)
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None:
         feasible_of(exact, args.exhaustive)
     if exact is not None and exact.method != "exhaustive":
         raise SmorphiError(f"{args.exhaustive}: a `search {exact.method}` run, not an exact front (give a `search "
                            "exhaustive` run)")  # fmt: skip
-    if exact is not None and args.step != SearchConfig.step:
+    if exact is not None and args.step is not UNSET:
         raise SmorphiError("--step: the exact front is computed here only without --exhaustive (its lattice is the "
                            "run's own)")  # fmt: skip
     planners = {str(d): planner_of_run(d) for d in dirs}
@@ -272,7 +275,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if exact is None:
             exact = run_exhaustive(
                 str(args.map),
-                args.step,
+                step,
                 planning,
                 progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
             )
