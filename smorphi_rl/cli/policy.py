@@ -73,6 +73,9 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.checkpoints import load_module
 
     module = load_module(checkpoint)  # a checkpoint that is refused is refused before --out is made
+    from smorphi_rl.training.policy import env_config_of
+
+    env_config_of(module, None)  # an env configuration every reader of the export would refuse: refused here
     about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
     from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
     from smorphi_rl.rundir import claimed_files

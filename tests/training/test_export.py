@@ -186,3 +186,19 @@ def test_weights_too_large_for_float32_arithmetic_are_refused(exported, tmp_path
     bad = _with_weights(out, tmp_path / "huge", huge)
     with pytest.raises(PolicyFileError, match=r"holds values beyond 1e\+06"):
         read_policy(bad)
+
+
+def test_an_export_every_reader_would_refuse_is_refused(exported, tmp_path, capsys):
+    """A source whose env configuration is not one (maps: 5) exported with exit 0; every reader then refused it."""
+    from smorphi_rl.cli import main
+
+    _, _, out = exported
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "weights.npz").write_bytes((out / "weights.npz").read_bytes())
+    doc = json.loads((out / "policy.json").read_text())
+    doc["model_config"]["env_config"]["maps"] = 5
+    (bad / "policy.json").write_text(json.dumps(doc))
+    assert main(["export-policy", "--checkpoint", str(bad), "--out", str(tmp_path / "p")]) == 1
+    assert "env_config 'maps': bad value 5" in capsys.readouterr().err
+    assert not (tmp_path / "p").exists()
