@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.coverage import CoverageResult, path_points_m
+from smorphi_rl.env_config import MAX_MOVE_SIZES
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, block_corners, block_poses
 from smorphi_rl.maps import Cell, Map
@@ -31,6 +32,9 @@ BLOCK_HEIGHT_M = 0.02
 JSON_SEPARATORS = (",", ":")
 PATH_PLACEHOLDER = "@coverage-path@"
 PATH_CACHE_SIZE = 2048
+MAX_MOVE = 2 * MAX_MOVE_SIZES
+"""The largest move index a step can record: a hinge picks one of 2 K + 1 moves, K step sizes (env `moves`)."""
+
 STEP_SCHEMA: dict[str, Any] = {
     "title": "smorphi_rl.Step",
     "description": "One env step of a morphology-design episode (step 0 is the reset state: no action or reward)",
@@ -38,7 +42,7 @@ STEP_SCHEMA: dict[str, Any] = {
     "properties": {
         "step": {"type": "integer", "minimum": 0},
         "theta": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
-        "action": {"type": ["array", "null"], "items": {"type": "integer", "minimum": 0, "maximum": 2}},
+        "action": {"type": ["array", "null"], "items": {"type": "integer", "minimum": 0, "maximum": MAX_MOVE}},
         "reward": {"type": ["number", "null"], "description": "R1 + R2"},
         "R1": {"type": "number", "description": "w1 * P_c - w2 * P_len"},
         "R2": {"type": ["number", "null"], "description": "-beta when the action left the shape unchanged, else 0"},

@@ -18,6 +18,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.recording.messages import (
+    MAX_MOVE,
     MCAP_MAGIC,
     METADATA_NAME,
     OCCUPANCY,
@@ -32,9 +33,6 @@ from smorphi_rl.recording.messages import (
     RecordingError,
 )
 from smorphi_rl.score import MAX_P_LEN
-
-MAX_MOVE = 2 * MAX_MOVE_SIZES
-"""The largest move index any step can record: a hinge picks one of 2 K + 1 moves, K step sizes (env `moves`)."""
 
 
 @dataclass
