@@ -73,9 +73,16 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     from smorphi_rl.training.checkpoints import load_module
 
     module = load_module(checkpoint)  # a checkpoint that is refused is refused before --out is made
-    from smorphi_rl.training.policy import env_config_of
+    from smorphi_rl.env_config import EnvConfig
 
-    env_config_of(module, None)  # an env configuration every reader of the export would refuse: refused here
+    raw = (module.model_config or {}).get("env_config")
+    if raw:  # one that is not a configuration (evaluate-policy and design would refuse it): refused here
+        if not isinstance(raw, dict):
+            raise SmorphiError(f"{checkpoint}: its env configuration is a {type(raw).__name__}, not a table")
+        try:
+            EnvConfig.from_dict(dict(raw))
+        except SmorphiError as exc:
+            raise SmorphiError(f"{checkpoint}: {exc}") from None
     about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
     from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
     from smorphi_rl.rundir import claimed_files

@@ -188,8 +188,8 @@ def test_weights_too_large_for_float32_arithmetic_are_refused(exported, tmp_path
         read_policy(bad)
 
 
-def test_an_export_every_reader_would_refuse_is_refused(exported, tmp_path, capsys):
-    """A source whose env configuration is not one (maps: 5) exported with exit 0; every reader then refused it."""
+def test_a_source_whose_env_configuration_is_not_one_is_refused(exported, tmp_path, capsys):
+    """A source whose env configuration is not one (maps: 5) exported with exit 0; evaluate-policy then refused it."""
     from smorphi_rl.cli import main
 
     _, _, out = exported
@@ -200,5 +200,8 @@ def test_an_export_every_reader_would_refuse_is_refused(exported, tmp_path, caps
     doc["model_config"]["env_config"]["maps"] = 5
     (bad / "policy.json").write_text(json.dumps(doc))
     assert main(["export-policy", "--checkpoint", str(bad), "--out", str(tmp_path / "p")]) == 1
-    assert "env_config 'maps': bad value 5" in capsys.readouterr().err
+    assert f"{bad}: env_config 'maps': bad value 5" in capsys.readouterr().err
     assert not (tmp_path / "p").exists()
+    del doc["model_config"]["env_config"]  # a policy written before policies carried one: still exported
+    (bad / "policy.json").write_text(json.dumps(doc))
+    assert main(["export-policy", "--checkpoint", str(bad), "--out", str(tmp_path / "p")]) == 0
