@@ -176,7 +176,7 @@ def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):
     (path,) = episode_files(tmp_path / "episodes")
     assert read_episode(path).steps[1]["action"] == [6, 0, 5]
     with path.open("rb") as fh:  # and each step holds to the schema the file carries
-        for schema, channel, message in make_reader(fh).iter_messages(topics=["/smorphi/step"]):
+        for schema, _channel, message in make_reader(fh).iter_messages(topics=["/smorphi/step"]):
             jsonschema.validate(json.loads(message.data), json.loads(schema.data))
     assert main(["replay", str(path)]) == 0, capsys.readouterr().err
     beyond = _tampered(path, tmp_path / "beyond.mcap", "/smorphi/step", lambda m: m | {"action": [7, 0, 0]})
