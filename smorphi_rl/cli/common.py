@@ -168,9 +168,13 @@ def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int
         elapsed = now - t0[0]
         if first[0] is None and done:
             first[0] = (now, done)
-        left = math.inf
-        if first[0] is not None and done > first[0][1] and now - first[0][0] >= ETA_AFTER_S:
-            left = (now - first[0][0]) * (total - done) / (done - first[0][1])
+        since_t, since_n = first[0] if first[0] is not None else (t0[0], 0)
+        if done > since_n and now > since_t:  # the pace since the first count: start-up (compiling) is not the work's
+            per_s = (done - since_n) / (now - since_t)
+        else:
+            per_s = done / elapsed if done and elapsed > 0 else math.nan
+        timed = done > since_n and now - since_t >= ETA_AFTER_S
+        left = (total - done) / per_s if timed and per_s > 0 else math.inf
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
             sys.stderr.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
@@ -180,7 +184,6 @@ def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int
         last[0] = now
         frac = done / total
         bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
-        per_s = done / elapsed if elapsed > 0 else math.nan
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
         line = f"{name} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"

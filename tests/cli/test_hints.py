@@ -88,4 +88,16 @@ def test_the_time_left_leaves_out_the_wait_for_the_first_count(capsys, monkeypat
     show(3_100_000, 6_000_000)  # 3,000,000 in 6 s: 2,900,000 left in about 6 s
     err = capsys.readouterr().err
     assert "min more" not in err
-    assert err.splitlines()[-1].endswith(", 6 s left")
+    assert err.splitlines()[-1].endswith(" 500,000/s, 6 s left")  # the rate the time left is read from
+
+
+def test_a_long_time_left_is_said_once_with_the_hint(capsys, monkeypatch):
+    from smorphi_rl.cli import common
+
+    clock = iter([0.0, 1.0, 5.0, 9.0])
+    monkeypatch.setattr(common.time, "monotonic", lambda: next(clock))
+    show = common.progress_line("x", hint="a coarser --step")
+    for done in (10, 20, 30):  # 10 shapes in 4 s: a million takes days
+        show(done, 1_000_000)
+    warned = [line for line in capsys.readouterr().err.splitlines() if "min more" in line]
+    assert warned == ["x: about 6667 min more at this rate; a coarser --step"]
