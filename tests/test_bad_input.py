@@ -237,6 +237,8 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     (["search", "hillclimb", "--budget", "1000000000000"], "at most 50,000,000"),
     (["search", "exhaustive", "--step", "0.25"], "would score 374,805,361 shapes"),
     (["search", "exhaustive", "--step", "1e-300"], "would score over 10^906 shapes"),  # not a 906-digit count
+    (["search", "exhaustive", "--step", "5e-324"], "does not divide 180"),  # 180 / step overflowed
+    (["search", "hillclimb", "--budget", "9" * 4290], "would score over 10^4291 shapes"),  # past str()'s digits
     (["evaluate-policy", "--checkpoint", ".", "--episodes", str(10**20)], "--episodes must be in 1..10,000"),
     (["evaluate-policy", "--checkpoint", ".", "--seed", "4294967294", "--episodes", "3"], "passes 2^32-1"),
     (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -102,7 +103,8 @@ class SearchConfig:
             raise SearchConfigError(f"--pop must be >= 2 and --generations >= 1, got {self.pop} and {self.generations}")
         total = self.evaluations
         if total > MAX_EVALUATIONS:
-            shown = f"{total:,}" if total < 10**15 else f"over 10^{len(str(total)) - 1}"  # a step of 1e-300
+            digits = int((total.bit_length() - 1) * math.log10(2))  # str() of a 5,000-digit count raises
+            shown = f"{total:,}" if total < 10**15 else f"over 10^{digits}"  # a step of 1e-300
             raise SearchConfigError(f"{self.method} would score {shown} shapes; at most {MAX_EVALUATIONS:,} "
                                     f"({CUTS[self.method]})")  # fmt: skip
 

@@ -45,7 +45,7 @@ def check_step(step_deg: float) -> float:
     if not (math.isfinite(step_deg) and 0 < step_deg <= 180):
         raise SmorphiError(f"--step must be in (0, 180], got {step_deg:g}")
     n = 180 / step_deg
-    if not math.isclose(n, round(n), abs_tol=1e-9):
+    if not math.isfinite(n) or not math.isclose(n, round(n), abs_tol=1e-9):  # 5e-324: 180 / step overflows
         raise SmorphiError(f"--step {step_deg:g} does not divide 180")
     return float(step_deg)
 

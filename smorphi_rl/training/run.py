@@ -221,11 +221,11 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
     longer."""
     cache = optimum_cache(log_dir)
-    if cfg.evaluation_maps:
+    maps = {path: load_map(path) for path in cfg.evaluation_maps}
+    if any(m.cells.size <= OPTIMUM_MAX_CELLS for m in maps.values()):
         make_cache(cache)  # a folder that cannot be made: one line, before any line saying an optimum is computed
     optima: dict[str, Optimum] = {}
-    for path in cfg.evaluation_maps:
-        grid_map = load_map(path)
+    for path, grid_map in maps.items():
         if not cfg.env.planning.is_paper_default:
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
