@@ -101,7 +101,7 @@ def claim_again(run_dir: Path) -> None:
     with _write_lock(run_dir / MARKER):
         pid = _claimant(run_dir)
         if _alive(pid):
-            raise RunDirError(f"{run_dir} is in use by process {pid}: stop it first, or wait for it to finish")
+            raise RunDirError(f"{rel(run_dir)} is in use by process {pid}: stop it first, or wait for it to finish")
         write_text_atomic(run_dir / MARKER, f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
 
 
@@ -114,7 +114,7 @@ def rename_cut_run(run_dir: Path) -> Path:
     try:
         return run_dir.rename(run_dir.with_name(f"{run_dir.name}.cut-{k}"))
     except OSError as exc:
-        raise RunDirError(f"cannot set {run_dir} aside ({exc.strerror or exc})") from None
+        raise RunDirError(f"cannot set {rel(run_dir)} aside ({exc.strerror or exc})") from None
 
 
 def check_run_dir(log_dir: str | Path, name: str) -> Path:
@@ -130,7 +130,7 @@ def check_run_dir(log_dir: str | Path, name: str) -> Path:
         import sys
 
         (run_dir / MARKER).unlink(missing_ok=True)
-        print(f"smorphi-rl: {run_dir} held only the claim of a run that died before writing anything: reusing it",
+        print(f"smorphi-rl: {rel(run_dir)} held only the claim of a run that died before writing anything: reusing it",
               file=sys.stderr)  # fmt: skip
     if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
         raise RunDirError(_taken(log_dir, name))
@@ -154,7 +154,7 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     except FileExistsError:
         raise RunDirError(_taken(log_dir, name)) from None
     except OSError as exc:
-        raise RunDirError(f"log directory {root} is not writable ({exc.strerror or exc})") from None
+        raise RunDirError(f"log directory {rel(root)} is not writable ({exc.strerror or exc})") from None
     with os.fdopen(fd, "w") as fh:
         fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
     if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:  # a user's folder that filled meanwhile
