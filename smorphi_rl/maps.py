@@ -157,7 +157,7 @@ def _as_number(value: Any) -> Any:
 def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
     value = _as_number(meta.get(key, default) if default is not None else _require(meta, key, path))
     if not is_finite_number(value):
-        raise MapError(f"{path}: '{key}' must be a number, got {str(value)[:40]}")
+        raise MapError(f"{path}: '{key}' must be a number, got {_shown(value)}")
     return float(value)
 
 
@@ -311,10 +311,10 @@ def load_map(yaml_path: str | Path) -> Map:
     ):
         raise MapError(f"{path}: 'origin' must be [x, y, yaw], got {_shown(origin)}")
     if not all(is_finite_number(v) for v in origin):
-        raise MapError(f"{path}: 'origin' must be three finite numbers, got {str(origin)[:80]}")
+        raise MapError(f"{path}: 'origin' must be three finite numbers, got {_shown(origin, 80)}")
     if max(abs(origin[0]), abs(origin[1])) > MAX_ORIGIN_M:  # a robot's map, not a planet's: no plot or plan is sane
         raise MapError(f"{path}: 'origin' x and y must lie within {MAX_ORIGIN_M:,.0f} m of the map frame's zero, got "
-                       f"{str(origin)[:80]}")  # fmt: skip
+                       f"{_shown(origin, 80)}")  # fmt: skip
     mode_name = meta.get("mode", MapMode.TRINARY.value)
     try:
         mode = MapMode(mode_name)

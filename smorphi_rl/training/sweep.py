@@ -264,6 +264,11 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
     return exp
 
 
+def _fewer_runners(sweep: SweepConfig) -> str:
+    """How to fit a sweep's trials on the Ray in use: the file's key, not a flag the sweep command has not."""
+    return f"set fewer `env_runners` in {sweep.path}"
+
+
 def run_sweep(
     sweep: SweepConfig,
     log_dir: str | Path = DEFAULT_LOG_DIR,
@@ -286,7 +291,7 @@ def run_sweep(
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
     if address is None:
-        cluster.check_capacity(widest.cpus, widest.env_runners, address, f"set fewer `env_runners` in {sweep.path}")
+        cluster.check_capacity(widest.cpus, widest.env_runners, address, _fewer_runners(sweep))
     out = out or sys.stderr
     trials = sweep.trials()
     if resume:  # the folder's checks first: they are instant, the optima are not
@@ -339,7 +344,7 @@ def _fit(
 
     with cluster.ray_session(address):
         if address is not None:
-            cluster.check_capacity(widest.cpus, widest.env_runners, address, f"set fewer `env_runners` in {sweep.path}")
+            cluster.check_capacity(widest.cpus, widest.env_runners, address, _fewer_runners(sweep))
         from ray import tune
 
         from smorphi_rl.training.tensorboard import TensorBoardLogger
