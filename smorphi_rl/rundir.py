@@ -133,13 +133,13 @@ def check_run_dir(log_dir: str | Path, name: str) -> Path:
         print(f"smorphi-rl: {rel(run_dir)} held only the claim of a run that died before writing anything: reusing it",
               file=sys.stderr)  # fmt: skip
     if run_dir.exists() and (not run_dir.is_dir() or any(run_dir.iterdir())):
-        raise RunDirError(_taken(log_dir, name))
+        raise RunDirError(_taken(run_dir))
     return run_dir
 
 
-def _taken(log_dir: str | Path, name: str) -> str:
-    """The refusal of a taken name, with the folder as the user named it (not resolved to an absolute path)."""
-    return f"run directory {Path(log_dir) / name} already exists: choose another --name"
+def _taken(run_dir: Path) -> str:
+    """The refusal of a taken name, the folder named as every message names it (`rel`)."""
+    return f"run directory {rel(run_dir)} already exists: choose another --name"
 
 
 def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
@@ -152,14 +152,14 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
         run_dir.mkdir(exist_ok=True)
         fd = os.open(run_dir / MARKER, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
     except FileExistsError:
-        raise RunDirError(_taken(log_dir, name)) from None
+        raise RunDirError(_taken(run_dir)) from None
     except OSError as exc:
         raise RunDirError(f"log directory {rel(root)} is not writable ({exc.strerror or exc})") from None
     with os.fdopen(fd, "w") as fh:
         fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
     if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:  # a user's folder that filled meanwhile
         (run_dir / MARKER).unlink(missing_ok=True)
-        raise RunDirError(_taken(log_dir, name))
+        raise RunDirError(_taken(run_dir))
     return run_dir
 
 
