@@ -335,7 +335,7 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
         out.append(f"- {m.map_name}: *A pretrained policy adapts faster.* Greedy median gap at {equal:,} env steps "
                    f"fine-tuned {tuned.text()} vs scratch {scratch.text()}: {above(scratch, tuned)}.")  # fmt: skip
         counts = f"converged: fine-tuned {m.counts[0]}, scratch {m.counts[1]}"
-        ratio = m.ratio  # a bootstrap: computed once
+        ratio = m.ratio
         if not ratio.n:  # no ratio where both medians lie past the budget (MapTransfer.ratio)
             out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue

@@ -12,6 +12,7 @@ import json
 import math
 import sys
 from dataclasses import dataclass, replace
+from functools import cached_property
 from pathlib import Path
 from typing import Any
 
@@ -370,21 +371,21 @@ class MapTransfer:
     """One held-out map's runs over seeds and Table 5's figures: env steps to converge fine-tuned and from scratch
     (median [95 %] over every run, beside how many converged) and the ratio of the medians, scratch / fine-tuned.
     A run that did not converge counts as past its budget (`stats.censored_median_interval`): leaving it out
-    would flatter its mode."""
+    would flatter its mode. Each figure is a bootstrap, computed once however often the reports read it."""
 
     map_name: str
     tuned: list[TransferRun]
     scratch: list[TransferRun]
 
-    @property
+    @cached_property
     def tuned_steps(self) -> Interval:
         return censored_median_interval(*converged_steps(self.tuned))
 
-    @property
+    @cached_property
     def scratch_steps(self) -> Interval:
         return censored_median_interval(*converged_steps(self.scratch))
 
-    @property
+    @cached_property
     def ratio(self) -> Interval:
         """The ratio of the medians, scratch / fine-tuned, with its interval: a lower bound (`bound` ">") where the
         scratch median depends on runs that did not converge, an upper bound ("<") where the fine-tuned one does,
