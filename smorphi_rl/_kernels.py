@@ -1035,7 +1035,9 @@ def plan_any(
     padded: np.ndarray,
     prefix: np.ndarray,
     fit: np.ndarray,
-    f: np.ndarray,
+    fbuf: np.ndarray,
+    l: int,
+    w: int,
     start_kind: int,
     sp: int,
     sq: int,
@@ -1045,7 +1047,10 @@ def plan_any(
 ) -> tuple[int, int, int, int, int, int, int, int, int]:
     """Either planner, with the fit planner's returns (the paper's coverable bound is its own coverage, as
     it covers every reachable tile; its start placement is not reported: -1, -1). `fit` is the map's `fit_bits`
-    (empty for the paper planner). `prune` bounds the fit planner only (`plan_fit_into`)."""
+    (empty for the paper planner). `prune` bounds the fit planner only (`plan_fit_into`). F is `fbuf[:l, :w]`,
+    cut here: a view cut by the caller is typed by its layout (C when whole, A when not), and each layout would
+    compile this kernel again (about 25 s)."""
+    f = fbuf[:l, :w]
     if planner == PLANNER_FIT:
         return plan_fit_into(padded, prefix, fit, f, start_kind, sp, sq, covered, path, prune)
     status, n_cov, p_len, n_ew, n_ns, n_path = plan_into(padded, prefix, f, start_kind, sp, sq, covered, path)
@@ -1079,7 +1084,7 @@ def evaluate_batch(
         out[i, COL_FEASIBLE], out[i, COL_L], out[i, COL_W] = feasible, l, w
         out[i, COL_W_M], out[i, COL_L_M] = w_m, l_m
         if feasible and l > 0:
-            res = plan_any(planner, padded, prefix, fit, buf[:l, :w], start_kind, sp, sq, no_covered, no_path, prune)
+            res = plan_any(planner, padded, prefix, fit, buf, l, w, start_kind, sp, sq, no_covered, no_path, prune)
             out[i, COL_STATUS] = res[0]
             out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
             out[i, COL_BOUND] = res[6]
@@ -1120,10 +1125,11 @@ def plan_batch(
     out = np.zeros((bits.shape[0], N_COLS))
     no_covered = np.zeros((0, 0), np.uint8)
     no_path = np.zeros((0, 2), np.int32)
+    no_prune = np.zeros(0)  # not the global NO_PRUNE: a global is a read-only constant here, another signature
     for i in range(bits.shape[0]):
         l, w = shapes[i, 0], shapes[i, 1]
-        f = bits[i].reshape((side, side))[:l, :w]
-        res = plan_any(planner, padded, prefix, fit, f, start_kind, sp, sq, no_covered, no_path, NO_PRUNE)
+        f = bits[i].reshape((side, side))
+        res = plan_any(planner, padded, prefix, fit, f, l, w, start_kind, sp, sq, no_covered, no_path, no_prune)
         out[i, COL_STATUS] = res[0]
         out[i, COL_COVERED], out[i, COL_PLEN], out[i, COL_EW], out[i, COL_NS] = res[1], res[2], res[3], res[4]
         out[i, COL_BOUND] = res[6]

@@ -273,7 +273,7 @@ def plan_coverage(
     grid_map = prepared.grid_map
     covered = np.zeros(grid_map.cells.shape, dtype=np.uint8)
     l, w = footprint.cells
-    f = footprint.matrix.astype(np.uint8)
+    f = np.ascontiguousarray(footprint.matrix, dtype=np.uint8)  # the kernel's one signature takes C order
     if not footprint.feasible:
         return CoverageResult(
             theta, False, 0.0, 0.0, 0, 0.0, 0, (footprint.width_m, footprint.length_m), (l, w),
@@ -284,7 +284,7 @@ def plan_coverage(
     while True:
         path = np.zeros((capacity, 2), dtype=np.int32)
         status, n_cov, p_len, n_ew, n_ns, n_path, n_bound, _, _ = k.plan_any(
-            prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, f, int(start.kind),
+            prepared.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, f, l, w, int(start.kind),
             start.row, start.col, covered, path, k.NO_PRUNE,
         )  # fmt: skip
         raise_for_status(status, start, (l, w), grid_map)

@@ -171,7 +171,7 @@ class Evaluator:
             self.misses += 1
             prepared = self.prepared
             status, *plan = k.plan_any(
-                self.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, self._buf[:l, :w],
+                self.planner.code, prepared.padded, prepared.free_prefix, prepared.fit_bits, self._buf, l, w,
                 int(self.start.kind), self.start.row, self.start.col, self._no_covered, self._no_path, k.NO_PRUNE,
             )  # fmt: skip
             raise_for_status(status, self.start, (l, w), self.grid_map)

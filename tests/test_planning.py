@@ -64,6 +64,19 @@ def test_single_equals_batch(map_1, thetas):
             assert single.path_length_cells == row.path_length_cells
 
 
+def test_the_planner_kernel_is_compiled_once_for_every_caller(map_1, thetas):
+    """`plan_any` is most of the first run's 35 s compile: every caller (the batch kernels, a single evaluation,
+    a full plan for plots and replays) must reach it with one signature, not each with a variant of its own."""
+    from smorphi_rl import _kernels as k
+
+    Evaluator(map_1).evaluate_many(thetas[:5])  # plan_batch
+    Evaluator(map_1, cache=False).evaluate_many(thetas[:5])  # evaluate_batch
+    one = Evaluator(map_1)
+    one.evaluate(Morphology.of(thetas[0]))  # from Python, a view of the evaluator's buffer
+    one.plan(Morphology.of((0, 0, 0)))  # from Python, a whole footprint (a view of it would be contiguous)
+    assert len(k.plan_any.signatures) == 1, k.plan_any.signatures
+
+
 def test_plan_agrees_with_evaluate(map_1):
     ev = Evaluator(map_1)
     m = Morphology.of((95, 59, 103))
