@@ -73,6 +73,8 @@ class RunSummary:
     """The last greedy evaluation (the protocol's eval/... figures), empty when evaluation was off."""
     map_digests: dict[str, str] = field(default_factory=dict)
     """`Map.digest` of every map file trained or evaluated on, by name: `compare` tells same-named maps apart."""
+    budget: int | None = None
+    """The env steps asked for (`--timesteps`): a run stops after the iteration that reaches them."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -84,6 +86,7 @@ class RunSummary:
             "run_dir": str(self.run_dir),
             "algorithm": self.algorithm,
             "env_steps": self.env_steps,
+            "budget": self.budget,
             "iterations": self.iterations,
             "wall_s": round(self.wall_s, 2),
             "interrupted": self.interrupted,
@@ -357,6 +360,7 @@ def train(
         pretrained_in_runners=progress.pretrained_in_runners,
         evaluation=progress.last_eval,
         map_digests=digests,
+        budget=cfg.timesteps,
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
@@ -368,8 +372,10 @@ def train(
 def format_summary(s: RunSummary) -> str:
     """The end-of-run text: best shape against the optimum, where everything is, how to look at it."""
     state = "interrupted after" if s.interrupted else "trained for"
-    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} "
-             f"({s.iterations} iterations)"]  # fmt: skip
+    iterations = f"{s.iterations} iteration{'' if s.iterations == 1 else 's'}"
+    if s.budget is not None and s.env_steps > s.budget:  # whole iterations: the last one runs past the budget
+        iterations += f", the last ending past the {s.budget:,} asked"
+    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} ({iterations})"]
     if s.best is not None:
         b = s.best
         lines.append(f"best morphology: {b.angles} on {b.map}: P_c {b.P_c:.2f} %, P_len {b.P_len}, R1 {b.R1:.2f} "

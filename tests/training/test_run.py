@@ -26,6 +26,20 @@ def test_the_summary_names_the_top_plot_of_every_map(tmp_path, monkeypatch):
     assert "learning curves: logs/two-maps/learning_curves.png" in text and "logs: logs/two-maps" in text
 
 
+@pytest.mark.parametrize(
+    ("steps", "budget", "said"),
+    [
+        (2000, 1, "(1 iteration, the last ending past the 1 asked)"),  # `--timesteps 1` trains a whole iteration
+        (201_334, 200_000, "(50 iterations, the last ending past the 200,000 asked)"),
+        (200_000, 200_000, "(50 iterations)"),
+    ],
+)
+def test_the_summary_says_when_whole_iterations_ran_past_the_budget(steps, budget, said):
+    iterations = 1 if steps == 2000 else 50
+    summary = RunSummary(Path("r"), "ppo", steps, iterations, 8.0, False, None, {}, None, {}, budget=budget)
+    assert format_summary(summary).splitlines()[0] == f"PPO trained for {steps:,} env steps in 8s {said}"
+
+
 def test_an_optimum_cache_that_cannot_be_made_is_named_before_any_optimum_line(tmp_path, monkeypatch):
     """`sweep --log-dir` under a file printed "exact optimum of map-1 ..." and then the refusal: two lines."""
     monkeypatch.delenv(CACHE_ENV, raising=False)
