@@ -233,7 +233,7 @@ class Evaluator:
         self.misses += len(missing)
         if missing:
             rows = np.flatnonzero(feasible)[first[missing]]
-            shapes = out[rows][:, [k.COL_L, k.COL_W]].astype(np.int64)
+            shapes = np.ascontiguousarray(out[rows][:, [k.COL_L, k.COL_W]], dtype=np.int64)  # one kernel signature
             fresh = k.plan_batch(bits[rows], shapes, padded, prefix, kind, sp, sq, self.footprint_side, code, fit)
             fresh[:, [k.COL_L, k.COL_W]] = shapes
             self._check_statuses(fresh)
