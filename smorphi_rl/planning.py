@@ -95,7 +95,8 @@ class BatchResult:
 
 
 def validate_thetas(thetas: np.ndarray) -> np.ndarray:
-    """(N, 3) float64 array of finite angles in [0, 180], or a MorphologyError naming row and value."""
+    """(N, 3) float64 array of finite angles in [0, 180], or a MorphologyError naming row and value. It is
+    C-contiguous and writeable whatever came in (Ray hands out read-only arrays): the kernels compile once."""
     arr = np.asarray(thetas, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != 3:
         raise MorphologyError(f"expected an (N, 3) array of hinge angles, got shape {arr.shape}")
@@ -103,7 +104,7 @@ def validate_thetas(thetas: np.ndarray) -> np.ndarray:
     if bad.any():
         i, j = (int(v) for v in np.argwhere(bad)[0])
         raise MorphologyError(f"row {i}: hinge angle t{j + 1}={arr[i, j]} is outside [0, 180] degrees")
-    return np.ascontiguousarray(arr)
+    return np.require(arr, requirements=("C", "W"))
 
 
 class Evaluator:

@@ -71,12 +71,17 @@ def test_the_planner_kernel_is_compiled_once_for_every_caller(map_1, thetas):
 
     Evaluator(map_1).evaluate_many(thetas[:5])  # plan_batch
     Evaluator(map_1).evaluate_many(thetas[:1])  # plan_batch of one footprint (its rows are C and F order at once)
+    frozen = thetas[5:9].copy()
+    frozen.flags.writeable = False  # as Ray hands arrays out
+    Evaluator(map_1).evaluate_many(frozen)
+    Evaluator(map_1, cache=False).evaluate_many(frozen)
     Evaluator(map_1, cache=False).evaluate_many(thetas[:5])  # evaluate_batch
     one = Evaluator(map_1)
     one.evaluate(Morphology.of(thetas[0]))  # from Python, a view of the evaluator's buffer
     one.plan(Morphology.of((0, 0, 0)))  # from Python, a whole footprint (a view of it would be contiguous)
     assert len(k.plan_any.signatures) == 1, k.plan_any.signatures
-    assert len(k.plan_batch.signatures) == 1, k.plan_batch.signatures
+    for kernel in (k.plan_batch, k.footprints_batch, k.evaluate_batch):
+        assert len(kernel.signatures) == 1, kernel.signatures
 
 
 def test_plan_agrees_with_evaluate(map_1):
