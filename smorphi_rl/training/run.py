@@ -386,6 +386,12 @@ def format_summary(s: RunSummary) -> str:
             pct = 100 * b.R1 / opt.R1 if opt.R1 else math.nan
             lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
+    else:  # the best shape is an episode's final one: a budget shorter than an episode finishes none
+        lines.append(f"best morphology: none (no episode finished within {s.env_steps:,} env steps: raise --timesteps)")
+        for name, opt in s.optimum.items():
+            if math.isfinite(opt.R1):
+                lines.append(f"exact optimum of {name} on the {opt.step_deg:g}-degree lattice: "
+                             f"{angles_text(opt.theta)} R1 {opt.R1:.2f}")  # fmt: skip
     ev = s.evaluation
     if ev:
         chosen = ev.get("policy_env_steps")

@@ -49,3 +49,14 @@ def test_an_optimum_cache_that_cannot_be_made_is_named_before_any_optimum_line(t
     with pytest.raises(SmorphiError, match="cannot cache exact optima"):
         training_optima(cfg, tmp_path / "a-file" / "logs", out)
     assert out.getvalue() == ""
+
+
+def test_a_run_that_finished_no_episode_says_so_and_still_names_the_optimum():
+    """A budget shorter than an episode finishes none: the summary went from the step count to the policy."""
+    from smorphi_rl.protocol import Optimum
+
+    optimum = {"tb3_world": Optimum((85.0, 50.0, 12.0), 89.9, 97.0, 71)}
+    summary = RunSummary(Path("r"), "ppo", 4000, 2, 15.0, False, None, optimum, None, {}, budget=4000)
+    lines = format_summary(summary).splitlines()
+    assert lines[1] == "best morphology: none (no episode finished within 4,000 env steps: raise --timesteps)"
+    assert lines[2] == "exact optimum of tb3_world on the 1-degree lattice: (85, 50, 12) R1 89.90"
