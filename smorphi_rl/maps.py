@@ -50,6 +50,10 @@ class MapMode(enum.Enum):
 SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
+CLASSIFYING_KEYS = ("negate", "occupied_thresh", "free_thresh")
+"""The keys that say which grey is free, occupied or unknown: required, as ROS's map_server and nav2 require them."""
+CLASSIFYING_HINT = (f"map_saver writes negate: 0, occupied_thresh: {SAVED_OCCUPIED_THRESH}, "
+                    f"free_thresh: {SAVED_FREE_THRESH}")  # fmt: skip
 IMAGE_SUFFIXES = (".pgm", ".png")
 MAX_ORIGIN_M = 1_000_000.0
 """A map frame's origin lies within 1,000 km of its zero (ROS maps: metres to a few km)."""
@@ -133,9 +137,9 @@ class Map:
         return cls(np.array(rows[::-1], dtype=np.uint8), resolution_m, name=name)
 
 
-def _require(meta: dict[str, Any], key: str, path: Path) -> Any:
+def _require(meta: dict[str, Any], key: str, path: Path, hint: str = "") -> Any:
     if key not in meta:
-        raise MapError(f"{path}: missing key '{key}'")
+        raise MapError(f"{path}: missing key '{key}'" + (f" ({hint})" if hint else ""))
     return meta[key]
 
 
@@ -154,8 +158,8 @@ def _as_number(value: Any) -> Any:
     return value
 
 
-def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None) -> float:
-    value = _as_number(meta.get(key, default) if default is not None else _require(meta, key, path))
+def _number(meta: dict[str, Any], key: str, path: Path, default: float | None = None, hint: str = "") -> float:
+    value = _as_number(meta.get(key, default) if default is not None else _require(meta, key, path, hint))
     if not is_finite_number(value):
         raise MapError(f"{path}: '{key}' must be a number, got {_shown(value)}")
     return float(value)
@@ -320,11 +324,12 @@ def load_map(yaml_path: str | Path) -> Map:
         mode = MapMode(mode_name)
     except ValueError:
         raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {_shown(mode_name)}") from None
-    negate = meta.get("negate", 0)
+    # CLASSIFYING_KEYS decide which cell is floor: a default would guess it (ROS refuses too)
+    negate = _require(meta, "negate", path, CLASSIFYING_HINT)
     if negate not in (0, 1, True, False):
         raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
-    occupied_thresh = _number(meta, "occupied_thresh", path, 0.65)
-    free_thresh = _number(meta, "free_thresh", path, 0.25)
+    occupied_thresh = _number(meta, "occupied_thresh", path, hint=CLASSIFYING_HINT)
+    free_thresh = _number(meta, "free_thresh", path, hint=CLASSIFYING_HINT)
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
         raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
     check_not_special(path.parent / image, "map image", MapError)

@@ -337,7 +337,9 @@ def test_an_image_pillow_warns_about_is_refused_in_our_line_alone(tmp_path, caps
     import warnings
 
     (tmp_path / "big.pgm").write_bytes(b"P5 10000 10000 255\n")
-    (tmp_path / "big.yaml").write_text("image: big.pgm\nresolution: 0.05\n")
+    (tmp_path / "big.yaml").write_text(
+        "image: big.pgm\nresolution: 0.05\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # a warning the command lets through fails it
         code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "big.yaml"), "--angles", "1", "2", "3")
@@ -516,7 +518,9 @@ def test_a_sweep_whose_trials_need_more_cpus_than_there_are_is_refused_before_ra
 def test_a_sweep_whose_evaluation_map_cannot_be_read_leaves_no_folder(tmp_path, capsys):
     """The evaluated maps are read (and their optima computed) before the experiment's folder is made, so the same
     command runs again once the map is mended, with no --resume."""
-    (tmp_path / "broken.yaml").write_text("image: missing.pgm\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    (tmp_path / "broken.yaml").write_text(
+        "image: missing.pgm\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     sweep = tmp_path / "s.yaml"
     sweep.write_text(f"name: s\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\n"
                      "evaluation: {maps: [broken.yaml]}\n")  # fmt: skip
@@ -615,7 +619,9 @@ def test_inputs_that_never_end_are_refused_before_reading(tmp_path, capsys):
     fifo, recording, fifo_yaml = tmp_path / "fifo.pgm", tmp_path / "r.mcap", tmp_path / "fifo.yaml"
     for path in (fifo, recording, fifo_yaml):
         os.mkfifo(path)
-    (tmp_path / "m.yaml").write_text("image: fifo.pgm\nresolution: 0.1\n")
+    (tmp_path / "m.yaml").write_text(
+        "image: fifo.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     cases = [
         (["evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3"], "map image"),
         (["evaluate", "--map", str(fifo), "--angles", "1", "2", "3"], "is an image"),  # named by its suffix first
@@ -638,11 +644,15 @@ def test_a_pgm_sample_above_its_maxval_is_refused(tmp_path, capsys):
     for name, header, body in (("p5", b"P5\n# a comment\n50 50\n100\n", bytes([254]) * 2500),
                                ("p2", b"P2\n2 2\n100\n0 200\n100 100\n", b"")):  # fmt: skip
         (tmp_path / f"{name}.pgm").write_bytes(header + body)
-        (tmp_path / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.1\n")
+        (tmp_path / f"{name}.yaml").write_text(
+            f"image: {name}.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+        )
         code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / f"{name}.yaml"), "--angles", "1", "2", "3")
         assert code == 1 and "above the PGM's maxval 100 (a corrupt image)" in one_line(err), err
     (tmp_path / "ok.pgm").write_bytes(b"P5 50 50 100\n" + bytes([100]) * 2500)  # maxval 100 within range: a map
-    (tmp_path / "ok.yaml").write_text("image: ok.pgm\nresolution: 0.1\nfree_thresh: 0.196\n")
+    (tmp_path / "ok.yaml").write_text(
+        "image: ok.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     code, out, err = run(capsys, "evaluate", "--map", str(tmp_path / "ok.yaml"), "--angles", "95", "59", "103")
     assert code == 0 and "free 100.0 %" in out, err
 
@@ -658,7 +668,9 @@ def test_numbers_too_large_for_a_float_are_one_line(tmp_path, capsys):
     (tmp_path / "m.yaml").write_text(f"image: {image}\nresolution: 0.1\norigin: [{10**400}, 0, 0]\n")
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "m.yaml"), "--angles", "1", "2", "3")
     assert code == 1 and "'origin' must be three finite numbers" in one_line(err)
-    (tmp_path / "r.yaml").write_text(f"image: {image}\nresolution: {10**400}\n")
+    (tmp_path / "r.yaml").write_text(
+        f"image: {image}\nresolution: {10**400}\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "r.yaml"), "--angles", "1", "2", "3")
     assert code == 1 and "'resolution' must be a number" in one_line(err)
 
@@ -698,7 +710,9 @@ def test_yaml_that_pyyaml_reads_as_python_errors_is_one_line(tmp_path, capsys):
         assert code == 1 and "malformed YAML" in one_line(err), err
         code, _, err = run(capsys, "sweep", str(tmp_path / name), "--log-dir", str(tmp_path / "logs"))
         assert code == 1 and "not valid YAML" in one_line(err), err
-    (tmp_path / "nul.yaml").write_text('image: "a\\0b.pgm"\nresolution: 0.1\n')
+    (tmp_path / "nul.yaml").write_text(
+        'image: "a\\0b.pgm"\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n'
+    )
     code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / "nul.yaml"), "--angles", "1", "2", "3")
     assert code == 1 and "a\\x00b.pgm holds a NUL byte" in one_line(err), err
     assert not (tmp_path / "logs").exists()
@@ -733,7 +747,9 @@ def test_a_plain_pgm_with_a_stray_token_is_judged_as_before(tmp_path, capsys):
              "trail": (b"P2\n2 2\n255\n254 254\n254 254\n\x00junk", None)}  # fmt: skip
     for name, (data, message) in cases.items():
         (tmp_path / f"{name}.pgm").write_bytes(data)
-        (tmp_path / f"{name}.yaml").write_text(f"image: {name}.pgm\nresolution: 0.5\n")
+        (tmp_path / f"{name}.yaml").write_text(
+            f"image: {name}.pgm\nresolution: 0.5\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+        )
         code, out, err = run(capsys, "maps", "show", str(tmp_path / f"{name}.yaml"), "--png", str(tmp_path / "d.png"),
                              "--force")  # fmt: skip
         if message is None:

@@ -146,9 +146,9 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
     files = {
         "malformed.yaml": "image: [oops",
         "nores.yaml": "image: m.pgm\n",
-        "zero.yaml": "image: m.pgm\nresolution: 0\n",
-        "noimage.yaml": "image: gone.pgm\nresolution: 0.1\n",
-        "black.yaml": "image: black.pgm\nresolution: 0.1\n",
+        "zero.yaml": "image: m.pgm\nresolution: 0\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+        "noimage.yaml": "image: gone.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+        "black.yaml": "image: black.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
         "empty.csv": "t1,t2,t3\n\n",
         "short.csv": "1,2,3\n4,5\n",
         "words.csv": "1,2,3\na,b,c\n",

@@ -13,12 +13,13 @@ from smorphi_rl.errors import MapError
 from smorphi_rl.maps import Cell, Map, check_fits, generate_map, load_map, save_map
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
+THRESHOLDS = {"negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.25}
 
 
 def write_map(tmp_path: Path, pixels: np.ndarray, name: str = "m", suffix: str = "pgm", **meta) -> Path:
     mode = "LA" if pixels.ndim == 3 and pixels.shape[2] == 2 else None
     Image.fromarray(pixels.astype(np.uint8), mode=mode).save(tmp_path / f"{name}.{suffix}")
-    doc = {"image": f"{name}.{suffix}", "resolution": 0.05, "origin": [1.0, -2.0, 0.0]} | meta
+    doc = {"image": f"{name}.{suffix}", "resolution": 0.05, "origin": [1.0, -2.0, 0.0]} | THRESHOLDS | meta
     path = tmp_path / f"{name}.yaml"
     path.write_text(yaml.safe_dump(doc))
     return path
@@ -72,7 +73,9 @@ def test_rgb_png_averages_channels(tmp_path):
     rgb[0, 0] = (255, 255, 255)
     rgb[0, 1] = (255, 0, 0)  # mean 85 -> p = 0.667 -> occupied
     Image.fromarray(rgb).save(tmp_path / "c.png")
-    (tmp_path / "c.yaml").write_text("image: c.png\nresolution: 0.1\norigin: [0, 0, 0]\n")
+    (tmp_path / "c.yaml").write_text(
+        "image: c.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     assert load_map(tmp_path / "c.yaml").cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
 
 
@@ -127,10 +130,24 @@ def test_map_from_text_orientation(room12):
         ("image: m.pgm\nresolution: fine\n", "'resolution' must be a number"),
         ("image: m.pgm\nresolution: 0.1\nmode: fancy\n", "'mode' must be trinary"),
         ("image: m.pgm\nresolution: 0.1\norigin: [0, 0]\n", "'origin' must be"),
-        ("image: m.pgm\nresolution: 0.1\nfree_thresh: 0.9\n", "free_thresh < occupied_thresh"),
-        ("image: missing.pgm\nresolution: 0.1\n", "map image not found"),
-        ("image: bad.pgm\nresolution: 0.1\n", "not a readable PGM/PNG image"),
-        ("image: black.pgm\nresolution: 0.1\n", "has no free cell"),
+        ("image: m.pgm\nresolution: 0.1\n", r"missing key 'negate' \(map_saver writes negate: 0, occupied_thresh"),
+        ("image: m.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\n", "missing key 'free_thresh'"),
+        (
+            "image: m.pgm\nresolution: 0.1\nfree_thresh: 0.9\nnegate: 0\noccupied_thresh: 0.65\n",
+            "free_thresh < occupied_thresh",
+        ),
+        (
+            "image: missing.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+            "map image not found",
+        ),
+        (
+            "image: bad.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+            "not a readable PGM/PNG image",
+        ),
+        (
+            "image: black.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+            "has no free cell",
+        ),
     ],
 )
 def test_bad_maps_raise_one_clear_error(tmp_path, yaml_text, message):
@@ -147,7 +164,7 @@ def test_bad_maps_raise_one_clear_error(tmp_path, yaml_text, message):
 def test_a_huge_bad_value_is_named_in_a_short_line(tmp_path, key):
     """A crafted YAML's value can be a megabyte long: the message shows its start."""
     Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
-    doc = {"image": "m.pgm", "resolution": 0.1, key: list(range(5_000))}
+    doc = {"image": "m.pgm", "resolution": 0.1} | THRESHOLDS | {key: list(range(5_000))}
     (tmp_path / "x.yaml").write_text(yaml.safe_dump(doc))
     with pytest.raises(MapError, match=f"'{key}'") as refused:
         load_map(tmp_path / "x.yaml")
@@ -157,7 +174,9 @@ def test_a_huge_bad_value_is_named_in_a_short_line(tmp_path, key):
 def test_an_origin_in_exponent_notation_is_a_number(tmp_path):
     """YAML 1.1 reads 1e3 (no dot) as a string, as `resolution` already allowed for."""
     Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
-    (tmp_path / "x.yaml").write_text("image: m.pgm\nresolution: 1e-1\norigin: [1e3, -2e1, 0]\n")
+    (tmp_path / "x.yaml").write_text(
+        "image: m.pgm\nresolution: 1e-1\norigin: [1e3, -2e1, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
     assert load_map(tmp_path / "x.yaml").origin == (1000.0, -20.0, 0.0)
 
 

@@ -187,8 +187,8 @@ def test_a_sweep_whose_trials_could_not_be_evaluated_is_refused_before_anything_
     pixels = np.full((side, side), 254, dtype=np.uint8)
     pixels[0, :] = 0
     Image.fromarray(pixels).save(tmp_path / "large.pgm")
-    (tmp_path / "large.yaml").write_text(yaml.safe_dump({"image": "large.pgm", "resolution": 0.05,
-                                                          "origin": [0.0, 0.0, 0.0]}))  # fmt: skip
+    doc = {"image": "large.pgm", "resolution": 0.05, "negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.196}
+    (tmp_path / "large.yaml").write_text(yaml.safe_dump(doc))
     large = "algorithms: [ppo]\nmaps: [large.yaml]\nseeds: [0]\n"
     with pytest.raises(SweepConfigError, match=rf"key 'maps\[0\]': .*large.yaml: {side * side:,} cells, over the"):
         load_sweep(write(tmp_path, large))
