@@ -78,14 +78,22 @@ INFO_FIELDS = ("theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "f
 BEST_FIELDS = ("theta", "P_c", "P_len", "R1", "coverage_free_pct", "path_length_m")
 
 
-def degenerate_warning(r1: float, p_c: float, path_term: str, map_name: str) -> str | None:
-    """One line when the weights make the ranking degenerate on a floor (the best R1 negative, or the best shape
-    covering under half of it: the path term swamps coverage), naming the option that fixes it; None otherwise."""
+PATH_SHARE_WARNED = 0.5
+"""The best shape's path term (w2 P_len) above this share of its coverage term (w1 P_c): the path, not coverage,
+ranks the shapes."""
+
+
+def degenerate_warning(weights: Weights, p_c: float, p_len: float, path_term: str, map_name: str) -> str | None:
+    """One line when the weights make the ranking degenerate on a floor (the best shape covering under half of it,
+    or its path term over half its coverage term: the path term swamps coverage), naming the option that fixes it;
+    None otherwise."""
     if p_c <= 0:
         return f"warning: on {map_name} no shape covers any of the floor (best P_c 0 %): is it narrower than a block?"
-    if path_term == "per_area" or (r1 >= 0 and p_c >= 50):
+    coverage, path = weights.w1 * p_c, weights.w2 * p_len
+    if path_term == "per_area" or (p_c >= 50 and path <= PATH_SHARE_WARNED * coverage):
         return None
     return (
-        f"warning: on {map_name} the path term swamps coverage (best R1 {r1:.2f}, P_c {p_c:.1f} %): the floor is "
-        "larger than the weights were meant for; --path-term per_area states w2 per 25 m^2 of free floor"
+        f"warning: on {map_name} the path term swamps coverage (best R1 {coverage - path:.2f}: P_c {p_c:.1f} %, the "
+        f"path term {path:.2f} against coverage's {coverage:.2f}): the floor is larger than the weights were meant "
+        "for; --path-term per_area states w2 per 25 m^2 of free floor"
     )

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from smorphi_rl.score import Weights
+from smorphi_rl.score import Weights, degenerate_warning
 
 
 def test_r1_of_one_result_and_of_arrays():
@@ -36,3 +36,18 @@ def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
     assert env.config.weights_on(env.grid_map) == Weights(1.0, pytest.approx(0.1 * 25.0 / free_m2))
     with pytest.raises(EnvConfigError, match="env_config 'path_term': unknown path term 'metres'"):
         MorphologyEnv({"path_term": "metres"})
+
+
+@pytest.mark.parametrize(
+    ("p_c", "p_len", "path_term", "warned"),
+    [
+        (97.32, 69, "moves", False),  # map-1's optimum: the path term is 7 % of coverage's
+        (99.28, 967, "moves", True),  # depot's best: R1 2.58, positive, yet the path ranks the shapes
+        (99.0, 1500, "moves", True),  # R1 negative
+        (40.0, 10, "moves", True),  # the best covers under half the floor
+        (99.28, 967, "per_area", False),  # the path charged per area: the fix itself
+    ],
+)
+def test_the_path_term_is_said_to_swamp_coverage_when_it_outweighs_half_of_it(p_c, p_len, path_term, warned):
+    line = degenerate_warning(Weights(1.0, 0.1), p_c, p_len, path_term, "depot")
+    assert (line is not None and "the path term swamps coverage" in line and "--path-term per_area" in line) == warned

@@ -136,7 +136,7 @@ def cmd_search(args: argparse.Namespace) -> int:
         print(format_search(result, front_rows, on_map, files, said, cover))
 
     line = planning.start_warning(grid_map) or degenerate_warning(
-        float(on_map.r1(result.P_c[b], result.P_len[b])), float(result.P_c[b]), w.path_term, grid_map.name
+        on_map, float(result.P_c[b]), float(result.P_len[b]), w.path_term, grid_map.name
     )  # a start on a speck explains a small coverage first
     if line:
         print(line, file=sys.stderr)

@@ -238,8 +238,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             continue
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
         out.flush()
-        optima[grid_map.name] = opt = exact_optimum(path, cfg.env.weights_on(grid_map), cfg.env.planning, cache)
-        line = degenerate_warning(opt.R1, opt.P_c, cfg.env.path_term, grid_map.name)
+        weights = cfg.env.weights_on(grid_map)
+        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache)
+        line = degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
         if line:
             out.write(line + "\n")
     return optima
