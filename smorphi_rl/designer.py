@@ -89,7 +89,8 @@ def accepts(designer: Designer, grid_map: Map) -> None:
         raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell{fix}")
     if max(sides) > limits["max_side_m"]:
         raise SmorphiError(f"{name}: its known area is {max(sides):.1f} m across; this designer takes floors up to "
-                           f"{limits['max_side_m']:g} m (crop it with `maps crop`)")  # fmt: skip
+                           f"{limits['max_side_m']:g} m (cut a part of it with `maps crop --rect X0 Y0 X1 Y1`, "
+                           "metres in the map frame)")  # fmt: skip
     if free_m2 > limits["max_free_m2"]:
         raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
                            f"{limits['max_free_m2']:g} m^2")  # fmt: skip

@@ -138,12 +138,12 @@ def check_image_size(path: Path) -> None:
                 width, height = img.size
     except Image.DecompressionBombError:  # Pillow's own refusal, at twice its limit: far beyond ours
         raise MapError(f"{path}: an image of far more than {MAX_IMAGE_PIXELS:,} pixels, the most that are read "
-                       "(crop the map first)") from None  # fmt: skip
+                       "(cut it down with an image editor: no command here reads it)") from None  # fmt: skip
     except Exception:  # a missing or unreadable image: the decoder says so, with the file's name
         return
     if width * height > MAX_IMAGE_PIXELS:
         raise MapError(f"{path}: a {width:,} x {height:,} image; at most {MAX_IMAGE_PIXELS:,} pixels are read "
-                         "(crop the map first)")  # fmt: skip
+                         "(cut it down with an image editor: no command here reads it)")  # fmt: skip
 
 
 def finite(text: str) -> float:

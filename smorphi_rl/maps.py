@@ -333,6 +333,12 @@ def load_map(yaml_path: str | Path) -> Map:
     if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
         raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
     check_not_special(path.parent / image, "map image", MapError)
+    try:
+        (path.parent / image).stat()
+    except FileNotFoundError:
+        pass  # named by the reader, with the path it looked at
+    except OSError as exc:  # a name too long, a folder that cannot be entered: the OS's words alone name neither
+        raise MapError(f"{path}: its 'image' {_shown(str(image))} cannot be read ({exc.strerror})") from None
     check_image_size(path.parent / image)  # a declared size too large for memory fails before decoding
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)

@@ -232,3 +232,11 @@ def test_a_floor_must_hold_as_many_free_cells_as_the_robots_smallest_footprint()
         check_fits(Map(cells.copy(), 0.1, name="room"), 0.17)
     cells[5, 5] = Cell.FREE
     assert check_fits(Map(cells, 0.1, name="room"), 0.17) == 0.17
+
+
+def test_an_image_name_too_long_for_the_os_names_the_yaml_and_its_key(tmp_path):
+    """The OS's own words ("File name too long: aaaa...", 5,000 characters) named neither the file nor the key."""
+    (tmp_path / "long.yaml").write_text(yaml.safe_dump({"image": "a" * 5000 + ".pgm", "resolution": 0.1} | THRESHOLDS))
+    with pytest.raises(MapError, match=r"long\.yaml: its 'image' 'aaa.* cannot be read \(File name too long\)") as e:
+        load_map(tmp_path / "long.yaml")
+    assert len(str(e.value)) < len(str(tmp_path)) + 120

@@ -102,7 +102,10 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
 
     big = save_map(Map(np.zeros((260, 260), dtype=np.uint8), 0.1, name="big"), tmp_path / "big.yaml")
     code, _, err = run(capsys, "design", "--map", str(big), "--policy", str(policy))
-    assert code == 1 and "takes floors up to 20 m" in err
+    assert code == 1 and "takes floors up to 20 m" in err and "maps crop --rect X0 Y0 X1 Y1" in err
+    part = tmp_path / "part.yaml"  # the fix it names (a plain crop keeps a floor that has no unknown margin whole)
+    assert run(capsys, "maps", "crop", str(big), "--rect", "0", "0", "12", "12", "--out", str(part))[0] == 0
+    assert run(capsys, "design", "--map", str(part), "--policy", str(policy), "--log-dir", str(tmp_path / "l"))[0] == 0
     fine = save_map(Map(np.zeros((100, 100), dtype=np.uint8), 0.02, name="fine"), tmp_path / "fine.yaml")
     code, _, err = run(capsys, "design", "--map", str(fine), "--policy", str(policy))
     assert code == 1 and "resolution 0.02 m" in err and "maps resample" in err
