@@ -14,9 +14,8 @@ import contextlib
 import hashlib
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
-from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -180,12 +179,22 @@ def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
     return h.hexdigest()
 
 
-@lru_cache(maxsize=32)
-def _optimum_in_process(key: str, map_path: str, weights: Weights, planning: Planning) -> Optimum:
+_IN_PROCESS: dict[str, Optimum] = {}
+"""Optima found in this process, by `map_key` (the map's content, the weights, the planning)."""
+IN_PROCESS_KEPT = 32
+
+
+def _optimum_in_process(
+    key: str, map_path: str, weights: Weights, planning: Planning, progress: Callable[[int, int], None] | None = None
+) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
-    result = run_exhaustive(map_path, 1.0, planning, best_for=weights)  # branch and bound: the best R1 alone
-    return Optimum.of(result.thetas, result.P_c, result.P_len, weights)
+    if key not in _IN_PROCESS:
+        result = run_exhaustive(map_path, 1.0, planning, best_for=weights, progress=progress)  # the best R1 alone
+        if len(_IN_PROCESS) >= IN_PROCESS_KEPT:
+            del _IN_PROCESS[next(iter(_IN_PROCESS))]  # the oldest
+        _IN_PROCESS[key] = Optimum.of(result.thetas, result.P_c, result.P_len, weights)
+    return _IN_PROCESS[key]
 
 
 OPTIMUM_CACHE = ".cache"
@@ -242,12 +251,16 @@ def _cached_optimum(file: Path, weights: Weights) -> Optimum | None:
     return Optimum((float(theta[0]), float(theta[1]), float(theta[2])), float(r1), float(p_c), p_len)
 
 
-def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path | None = None) -> Optimum:
+def exact_optimum(
+    map_path: str,
+    weights: Weights,
+    planning: Planning,
+    cache_dir: Path | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> Optimum:
     """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
-    the planning."""
-    from smorphi_rl.rundir import write_atomic
-
+    the planning. `progress(done, total)` is called as the search goes (two passes: shapes keyed, settled)."""
     key = map_key(map_path, weights, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
@@ -256,8 +269,22 @@ def exact_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir
             return cached  # else a damaged or doctored entry: recomputed and rewritten
     if file is not None:  # before the computation: a folder that cannot be made is named in seconds, not minutes
         make_cache(file.parent)
-    optimum = _optimum_in_process(key, str(map_path), weights, planning)
+    optimum = _optimum_in_process(key, str(map_path), weights, planning, progress)
     if file is not None:
-        with contextlib.suppress(OSError):  # a full disk: the optimum stands, the next call computes it again
-            write_atomic(file, json.dumps(asdict(optimum)).encode())
+        _write_entry(file, optimum)
     return optimum
+
+
+def remember_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path, optimum: Optimum) -> None:
+    """Cache an optimum found elsewhere (`search optimum` at 1 degree), so `train` on the map need not search it."""
+    file = Path(cache_dir) / f"optimum-{map_key(map_path, weights, planning)}.json"
+    with contextlib.suppress(SmorphiError):  # the search's own results stand; the cache is a convenience
+        make_cache(file.parent)
+        _write_entry(file, optimum)
+
+
+def _write_entry(file: Path, optimum: Optimum) -> None:
+    from smorphi_rl.rundir import write_atomic
+
+    with contextlib.suppress(OSError):  # a full disk: the optimum stands, the next call computes it again
+        write_atomic(file, json.dumps(asdict(optimum)).encode())

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -88,3 +89,31 @@ def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path, monkeypat
     monkeypatch.setenv(CACHE_ENV, str(tmp_path / "logs" / ".cache"))  # the cache the variable names: it is named
     with pytest.raises(SmorphiError, match=f"set {CACHE_ENV} to a folder"):
         exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
+
+
+def test_train_reads_the_optimum_search_optimum_found_and_shows_its_own_search(tmp_path, monkeypatch, capsys):
+    """`train` searched again, silently (five minutes on depot), an optimum `search optimum` had just found."""
+    from conftest import ROOM12
+
+    from smorphi_rl.cli import main
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import Map, save_map
+    from smorphi_rl.protocol import CACHE_ENV
+    from smorphi_rl.search import exhaustive
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.run import training_optima
+
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    room = save_map(Map.from_text(ROOM12, 0.1, name="room"), tmp_path / "room.yaml")
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [str(room)]}))
+    fresh = training_optima(cfg, tmp_path / "first", open(os.devnull, "w"))["room"]  # noqa: SIM115
+    passes = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines()]
+    assert passes[0] == "exact optimum of room: shapes keyed by footprint"
+    assert passes[-1] == "exact optimum of room: shapes settled"
+
+    assert main(["search", "optimum", "--map", str(room), "--log-dir", str(tmp_path / "logs")]) == 0
+    monkeypatch.setattr(exhaustive, "run_exhaustive", lambda *a, **k: pytest.fail("searched again"))
+    from smorphi_rl import protocol
+
+    monkeypatch.setattr(protocol, "_IN_PROCESS", {})
+    assert training_optima(cfg, tmp_path / "logs", open(os.devnull, "w"))["room"] == fresh  # noqa: SIM115

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, progress_line
+from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -23,6 +23,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text, check_block_side
 from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import Cell, Map, load_map, map_inputs
+from smorphi_rl.progress import progress_line
 
 
 def register(sub: Any) -> None:

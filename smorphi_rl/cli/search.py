@@ -16,7 +16,6 @@ from smorphi_rl.cli.common import (
     Parser,
     planner_option,
     planning_of,
-    progress_line,
     run_options,
     seed_arg,
     weight_options,
@@ -26,6 +25,7 @@ from smorphi_rl.cli.fields import UNSET, option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.maps import load_map
+from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
 from smorphi_rl.score import Weights
 
@@ -112,6 +112,11 @@ def cmd_search(args: argparse.Namespace) -> int:
         raise
     if planning.start_xy is not None:
         result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
+    if cfg.method == "optimum" and cfg.step == 1.0:  # what `train` searches first: cached for it, as it caches
+        from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum
+
+        found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
+        remember_optimum(str(args.map), on_map, planning, optimum_cache(args.log_dir), found)
     b = result.best(on_map)
     from smorphi_rl.geometry import Morphology
 

@@ -21,6 +21,7 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
+from smorphi_rl.progress import progress_line
 from smorphi_rl.protocol import (
     EVAL_KEY,
     NO_OPTIMUM,
@@ -239,7 +240,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
         out.flush()
         weights = cfg.env.weights_on(grid_map)
-        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache)
+        passes = (f"exact optimum of {grid_map.name}: shapes keyed by footprint",
+                  f"exact optimum of {grid_map.name}: shapes settled")  # fmt: skip
+        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache, progress_line(passes))
         line = degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
         if line:
             out.write(line + "\n")

@@ -1,0 +1,37 @@
+"""`progress.py`: the progress bar names its pass and reads the time left from the work's own pace."""
+
+from smorphi_rl import progress
+
+
+def test_a_progress_line_of_two_passes_names_each(capsys):
+    """A count that goes back down starts the next pass under its own label, with its own clock."""
+    show = progress.progress_line(("x: keyed", "x: settled"))
+    show(10, 10)
+    show(3, 10)
+    show(10, 10)
+    lines = capsys.readouterr().err.splitlines()
+    assert lines[0].startswith("x: keyed [") and lines[0].count("#") == 30
+    assert all(line.startswith("x: settled [") for line in lines[1:]) and len(lines) == 3
+
+
+def test_the_time_left_leaves_out_the_wait_for_the_first_count(capsys, monkeypatch):
+    """The first count of `search optimum` comes after the planner compiles (about 35 s): at the rate from the
+    start it read "about 34 min more" for a search that had seconds left."""
+    clock = iter([0.0, 35.0, 41.0])
+    monkeypatch.setattr(progress.time, "monotonic", lambda: next(clock))
+    show = progress.progress_line("x")
+    show(100_000, 6_000_000)  # 35 s to the first count: compiling
+    show(3_100_000, 6_000_000)  # 3,000,000 in 6 s: 2,900,000 left in about 6 s
+    err = capsys.readouterr().err
+    assert "min more" not in err
+    assert err.splitlines()[-1].endswith(" 500,000/s, 6 s left")  # the rate the time left is read from
+
+
+def test_a_long_time_left_is_said_once_with_the_hint(capsys, monkeypatch):
+    clock = iter([0.0, 1.0, 5.0, 9.0])
+    monkeypatch.setattr(progress.time, "monotonic", lambda: next(clock))
+    show = progress.progress_line("x", hint="a coarser --step")
+    for done in (10, 20, 30):  # 10 shapes in 4 s: a million takes days
+        show(done, 1_000_000)
+    warned = [line for line in capsys.readouterr().err.splitlines() if "min more" in line]
+    assert warned == ["x: about 6667 min more at this rate; a coarser --step"]
