@@ -181,6 +181,8 @@ def format_search(
         for row in front_rows:
             theta, p_c, p_len, r1 = angles_text(row["theta"]), row["P_c"], row["P_len"], row["R1"]
             lines.append(f"  {theta:<17} P_c {p_c:7.2f} %  P_len {p_len:4d}  R1 {r1:7.2f}")
+    if result.params.get("address") is not None:  # said, as the summary records it: the run was not this machine's
+        lines.insert(1, f"on the Ray cluster at {result.params['address']}")
     b = result.best(weights)
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "

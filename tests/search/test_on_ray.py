@@ -38,6 +38,7 @@ def test_the_searches_on_a_ray_cluster_equal_the_local_ones(tmp_path):
         for method in RUNS:
             there = search(method, tmp_path, "--name", f"{method}-there", "--address", address)
             assert there.returncode == 0 and "Traceback" not in there.stderr, there.stderr[-3000:]
+            assert there.stdout.splitlines()[1] == f"on the Ray cluster at {address}"
     for method in RUNS:
         here, there = load(tmp_path / "logs" / f"{method}-here"), load(tmp_path / "logs" / f"{method}-there")
         if method == "optimum":  # which footprints are pruned depends on when each worker hears of a better R1
