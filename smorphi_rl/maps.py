@@ -338,7 +338,7 @@ def load_map(yaml_path: str | Path) -> Map:
     except FileNotFoundError:
         pass  # named by the reader, with the path it looked at
     except OSError as exc:  # a name too long, a folder that cannot be entered: the OS's words alone name neither
-        raise MapError(f"{path}: its 'image' {_shown(str(image))} cannot be read ({exc.strerror})") from None
+        raise MapError(f"{path}: its 'image' {_shown(str(image))} cannot be read ({exc.strerror or exc})") from None
     check_image_size(path.parent / image)  # a declared size too large for memory fails before decoding
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)

@@ -6,18 +6,22 @@ import math
 import sys
 import time
 from collections.abc import Callable
+from typing import TextIO
 
 ETA_AFTER_S = 3.0
 """The time left is estimated from the rate since the first count reported, once that has run this long (the wait
 for the first count holds the work's start-up, such as compiling the planner, and says nothing of its rate)."""
 
 
-def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int, int], None]:
-    """A progress bar on stderr with the rate and the time left: rewritten in place on a terminal, every 5 s
-    otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it).
+def progress_line(
+    label: str | tuple[str, ...], hint: str = "", stream: TextIO | None = None
+) -> Callable[[int, int], None]:
+    """A progress bar on `stream` (stderr) with the rate and the time left: rewritten in place on a terminal, every
+    5 s otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it).
     Given several labels, a count that goes back down starts the next pass, under the next label."""
     labels = (label,) if isinstance(label, str) else label
-    tty = sys.stderr.isatty()
+    out = stream or sys.stderr
+    tty = out.isatty()
     t0 = [time.monotonic()]
     last = [-math.inf]
     warned = [False]
@@ -43,7 +47,7 @@ def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int
         left = (total - done) / per_s if timed and per_s > 0 else math.inf
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
-            sys.stderr.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
+            out.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
                              + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
         if not tty and done < total and now - last[0] < 5:
             return
@@ -53,7 +57,13 @@ def progress_line(label: str | tuple[str, ...], hint: str = "") -> Callable[[int
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
         line = f"{name} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
-        sys.stderr.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
-        sys.stderr.flush()
+        out.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
+        out.flush()
 
     return show
+
+
+def optimum_progress(map_name: str, stream: TextIO | None = None) -> Callable[[int, int], None]:
+    """The bar of an exact optimum's two passes on one map (`protocol.exact_optimum`'s `progress`)."""
+    return progress_line((f"exact optimum of {map_name}: shapes keyed by footprint",
+                          f"exact optimum of {map_name}: shapes settled"), stream=stream)  # fmt: skip

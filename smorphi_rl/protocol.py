@@ -25,6 +25,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
+    from smorphi_rl.maps import Map
     from smorphi_rl.planning import Planning
 
 EVAL_KEY = "eval"
@@ -170,7 +171,11 @@ def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
     (the paper planner's default keys are those from before there was a choice: their cached optima stay)."""
     from smorphi_rl.maps import load_map
 
-    grid_map = load_map(map_path)
+    return key_of(load_map(map_path), weights, planning)
+
+
+def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
+    """`map_key` of a map already loaded."""
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
     h.update(
@@ -275,9 +280,17 @@ def exact_optimum(
     return optimum
 
 
-def remember_optimum(map_path: str, weights: Weights, planning: Planning, cache_dir: Path, optimum: Optimum) -> None:
-    """Cache an optimum found elsewhere (`search optimum` at 1 degree), so `train` on the map need not search it."""
-    file = Path(cache_dir) / f"optimum-{map_key(map_path, weights, planning)}.json"
+def cached_optimum(grid_map: Map, weights: Weights, planning: Planning, cache_dir: Path) -> Optimum | None:
+    """The optimum cached for `grid_map` under `cache_dir`, or None: how `train` reads, on a map too large for it to
+    search, the one a `search optimum` run found."""
+    file = Path(cache_dir) / f"optimum-{key_of(grid_map, weights, planning)}.json"
+    return _cached_optimum(file, weights) if file.is_file() else None
+
+
+def remember_optimum(grid_map: Map, weights: Weights, planning: Planning, cache_dir: Path, optimum: Optimum) -> None:
+    """Cache an optimum found elsewhere (`search optimum` at 1 degree) on `grid_map`, the map as it was searched, so
+    `train` on it need not search again."""
+    file = Path(cache_dir) / f"optimum-{key_of(grid_map, weights, planning)}.json"
     with contextlib.suppress(SmorphiError):  # the search's own results stand; the cache is a convenience
         make_cache(file.parent)
         _write_entry(file, optimum)

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+import io
 import json
 import math
-import os
 from pathlib import Path
 
 import numpy as np
@@ -91,29 +91,53 @@ def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path, monkeypat
         exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
 
 
-def test_train_reads_the_optimum_search_optimum_found_and_shows_its_own_search(tmp_path, monkeypatch, capsys):
+def test_train_reads_the_optimum_search_optimum_found_and_shows_its_own_search(tmp_path, monkeypatch):
     """`train` searched again, silently (five minutes on depot), an optimum `search optimum` had just found."""
     from conftest import ROOM12
 
+    from smorphi_rl import protocol
     from smorphi_rl.cli import main
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import Map, save_map
-    from smorphi_rl.protocol import CACHE_ENV
     from smorphi_rl.search import exhaustive
     from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.run import training_optima
 
-    monkeypatch.delenv(CACHE_ENV, raising=False)
+    monkeypatch.delenv(protocol.CACHE_ENV, raising=False)
+    monkeypatch.setattr(protocol, "_IN_PROCESS", {})  # whatever ran before in this process: searched here
     room = save_map(Map.from_text(ROOM12, 0.1, name="room"), tmp_path / "room.yaml")
     cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [str(room)]}))
-    fresh = training_optima(cfg, tmp_path / "first", open(os.devnull, "w"))["room"]  # noqa: SIM115
-    passes = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines()]
+    out = io.StringIO()
+    fresh = training_optima(cfg, tmp_path / "first", out)["room"]
+    passes = [line.split(" [")[0] for line in out.getvalue().splitlines()[1:]]  # on train's own stream
     assert passes[0] == "exact optimum of room: shapes keyed by footprint"
     assert passes[-1] == "exact optimum of room: shapes settled"
 
     assert main(["search", "optimum", "--map", str(room), "--log-dir", str(tmp_path / "logs")]) == 0
     monkeypatch.setattr(exhaustive, "run_exhaustive", lambda *a, **k: pytest.fail("searched again"))
-    from smorphi_rl import protocol
-
     monkeypatch.setattr(protocol, "_IN_PROCESS", {})
-    assert training_optima(cfg, tmp_path / "logs", open(os.devnull, "w"))["room"] == fresh  # noqa: SIM115
+    assert training_optima(cfg, tmp_path / "logs", io.StringIO())["room"] == fresh
+
+
+def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, monkeypatch):
+    """Over OPTIMUM_MAX_CELLS train searches no optimum: the one a `search optimum` run cached is what it has."""
+    from smorphi_rl import protocol
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import Map, load_map, save_map
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.run import training_optima
+
+    monkeypatch.delenv(protocol.CACHE_ENV, raising=False)
+    side = int(protocol.OPTIMUM_MAX_CELLS**0.5) + 1
+    hall = save_map(Map(np.zeros((side, side), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")
+    cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [str(hall)]}))
+    out = io.StringIO()
+    assert math.isnan(training_optima(cfg, tmp_path / "logs", out)["hall"].R1)
+    assert "not computed" in out.getvalue() and "search optimum --map" in out.getvalue()
+    grid_map = load_map(hall)
+    weights = cfg.env.weights_on(grid_map)
+    found = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, 400)), 99.0, 400)
+    protocol.remember_optimum(grid_map, weights, cfg.env.planning, tmp_path / "logs" / ".cache", found)
+    out = io.StringIO()
+    assert training_optima(cfg, tmp_path / "logs", out)["hall"] == found
+    assert "read from" in out.getvalue()

@@ -267,6 +267,7 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
 
 def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -> int:
     """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
+    from smorphi_rl.progress import optimum_progress
     from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache
     from smorphi_rl.training.policy import evaluate_policy
 
@@ -276,7 +277,8 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
                            "optimum to measure against: give fixed floors with --map")  # fmt: skip
     env_config = replace(env_config, maps=env_config.map_files)  # a generated floor has no optimum: files only
     cache = optimum_cache(args.log_dir)
-    optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache)
+    optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
+                                                     optimum_progress(m.name))
               for p in env_config.maps}  # fmt: skip
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
         if args.json:

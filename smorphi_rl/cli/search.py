@@ -112,17 +112,17 @@ def cmd_search(args: argparse.Namespace) -> int:
         raise
     if planning.start_xy is not None:
         result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
-    if cfg.method == "optimum" and cfg.step == 1.0:  # what `train` searches first: cached for it, as it caches
-        from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum
-
-        found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
-        remember_optimum(str(args.map), on_map, planning, optimum_cache(args.log_dir), found)
     b = result.best(on_map)
     from smorphi_rl.geometry import Morphology
 
     best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
     cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
     files = save(result, run_dir, on_map, cover)
+    if cfg.method == "optimum" and cfg.step == 1.0 and result.map_digest == grid_map.digest:  # the map unchanged
+        from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum  # what `train` searches first
+
+        found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
+        remember_optimum(grid_map, on_map, planning, optimum_cache(args.log_dir), found)
     front_rows = result.front_records(on_map)
     files["plot"] = plot_pareto(
         {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
@@ -182,7 +182,9 @@ def format_search(
             theta, p_c, p_len, r1 = angles_text(row["theta"]), row["P_c"], row["P_len"], row["R1"]
             lines.append(f"  {theta:<17} P_c {p_c:7.2f} %  P_len {p_len:4d}  R1 {r1:7.2f}")
     if result.params.get("address") is not None:  # said, as the summary records it: the run was not this machine's
-        lines.insert(1, f"on the Ray cluster at {result.params['address']}")
+        address = result.params["address"]
+        lines.insert(1, "on the running Ray cluster (--address auto)" if address == "auto" else
+                     f"on the Ray cluster at {address}")  # fmt: skip
     b = result.best(weights)
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "

@@ -21,13 +21,14 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
-from smorphi_rl.progress import progress_line
+from smorphi_rl.progress import optimum_progress
 from smorphi_rl.protocol import (
     EVAL_KEY,
     NO_OPTIMUM,
     OPTIMUM_MAX_CELLS,
     SELECT_SEED,
     Optimum,
+    cached_optimum,
     eval_starts,
     exact_optimum,
     make_cache,
@@ -232,17 +233,21 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     for path, grid_map in maps.items():
         if not cfg.env.planning.is_paper_default:
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
+        weights = cfg.env.weights_on(grid_map)
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
-            out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
-                      f"{OPTIMUM_MAX_CELLS:,}); gaps are not reported\n")  # fmt: skip
-            optima[grid_map.name] = NO_OPTIMUM
+            found = cached_optimum(grid_map, weights, cfg.env.planning, cache)
+            if found is not None:
+                out.write(f"exact optimum of {grid_map.name}: read from {rel(cache)} (a `search optimum` run's)\n")
+            else:
+                out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
+                          f"{OPTIMUM_MAX_CELLS:,}; `search optimum --map ... --log-dir {rel(Path(log_dir))}` finds "
+                          "it for train); gaps are not reported\n")  # fmt: skip
+            optima[grid_map.name] = found or NO_OPTIMUM
             continue
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
         out.flush()
-        weights = cfg.env.weights_on(grid_map)
-        passes = (f"exact optimum of {grid_map.name}: shapes keyed by footprint",
-                  f"exact optimum of {grid_map.name}: shapes settled")  # fmt: skip
-        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache, progress_line(passes))
+        show = optimum_progress(grid_map.name, out)
+        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache, show)
         line = degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
         if line:
             out.write(line + "\n")
@@ -391,7 +396,9 @@ def format_summary(s: RunSummary) -> str:
             lines.append(f"exact optimum on the {opt.step_deg:g}-degree lattice: {t} R1 {opt.R1:.2f} "
                          f"(best found is {pct:.2f} % of it)")  # fmt: skip
     else:  # the best shape is an episode's final one: a budget shorter than an episode finishes none
-        lines.append(f"best morphology: none (no episode finished within {s.env_steps:,} env steps: raise --timesteps)")
+        why = ("the run stopped before any episode finished" if s.interrupted else
+               f"no episode finished within {s.env_steps:,} env steps: raise --timesteps")  # fmt: skip
+        lines.append(f"best morphology: none ({why})")
         for name, opt in s.optimum.items():
             if math.isfinite(opt.R1):
                 lines.append(f"exact optimum of {name} on the {opt.step_deg:g}-degree lattice: "

@@ -60,3 +60,7 @@ def test_a_run_that_finished_no_episode_says_so_and_still_names_the_optimum():
     lines = format_summary(summary).splitlines()
     assert lines[1] == "best morphology: none (no episode finished within 4,000 env steps: raise --timesteps)"
     assert lines[2] == "exact optimum of tb3_world on the 1-degree lattice: (85, 50, 12) R1 89.90"
+    stopped = RunSummary(Path("r"), "ppo", 2000, 1, 15.0, True, None, optimum, None, {}, budget=200_000)
+    assert (
+        format_summary(stopped).splitlines()[1] == "best morphology: none (the run stopped before any episode finished)"
+    )
