@@ -321,7 +321,7 @@ def run_sweep(
     if failed and (failed.disk_full or results is None):
         raise TrainingError(failed.line)  # no tables either
     rows = read_sweep(exp)
-    write_trial_files(exp, rows, optima, digests)
+    write_trial_files(exp, rows, optima, digests, sweep.timesteps)
     files = write_sweep_outputs(exp, rows)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
@@ -383,7 +383,7 @@ def trial_dirname(trial: dict[str, Any]) -> str:
 
 
 def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum],
-                      digests: dict[str, dict[str, str]] | None = None) -> None:  # fmt: skip
+                      digests: dict[str, dict[str, str]] | None = None, budget: int | None = None) -> None:  # fmt: skip
     """Each trial's summary.json, morphologies.csv and top-k tables in its folder, as `train` writes them for a run
     (`RunSummary`, with its map set's `digests`): `compare` takes a sweep's trial as it takes a run. Written again
     from the results on every call, so a resumed sweep's are those of all its rows."""
@@ -396,7 +396,8 @@ def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum
                              wall_s=r.wall_s, interrupted=not r.finished, best=r.best,
                              optimum={m: o for m, o in optima.items() if m in r.evaluation},
                              checkpoint=checkpoints[-1] if checkpoints else None, files=files,
-                             evaluation=r.evaluation, map_digests=(digests or {}).get(r.maps, {}))  # fmt: skip
+                             evaluation=r.evaluation, map_digests=(digests or {}).get(r.maps, {}),
+                             budget=budget)  # fmt: skip
         write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
 
 
