@@ -50,10 +50,10 @@ class MapMode(enum.Enum):
 SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
-CLASSIFYING_KEYS = ("negate", "occupied_thresh", "free_thresh")
-"""The keys that say which grey is free, occupied or unknown: required, as ROS's map_server and nav2 require them."""
 CLASSIFYING_HINT = (f"map_saver writes negate: 0, occupied_thresh: {SAVED_OCCUPIED_THRESH}, "
                     f"free_thresh: {SAVED_FREE_THRESH}")  # fmt: skip
+"""Said when `negate`, `occupied_thresh` or `free_thresh` is missing: they decide which grey is free, occupied or
+unknown, so they are required, as ROS's map_server and nav2 require them."""
 IMAGE_SUFFIXES = (".pgm", ".png")
 MAX_ORIGIN_M = 1_000_000.0
 """A map frame's origin lies within 1,000 km of its zero (ROS maps: metres to a few km)."""
@@ -324,7 +324,7 @@ def load_map(yaml_path: str | Path) -> Map:
         mode = MapMode(mode_name)
     except ValueError:
         raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {_shown(mode_name)}") from None
-    # CLASSIFYING_KEYS decide which cell is floor: a default would guess it (ROS refuses too)
+    # negate and the thresholds decide which cell is floor: a default would guess it (ROS refuses too)
     negate = _require(meta, "negate", path, CLASSIFYING_HINT)
     if negate not in (0, 1, True, False):
         raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
