@@ -48,7 +48,7 @@ def progress_line(
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
             out.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
-                             + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
+                      + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
         if not tty and done < total and now - last[0] < 5:
             return
         last[0] = now
