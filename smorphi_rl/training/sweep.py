@@ -125,6 +125,8 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
             if (d / "params.json").exists() or (d / "params.json").is_symlink():
                 raise RunDirError(f"{d}: its params.json is not a sweep trial's record; resume only sweeps you "
                                   "ran, or start this one under another `name`")  # fmt: skip
+            if d.name in names and not any(d.iterdir()):  # made by Tune, stopped before the trial began
+                continue  # a trial that never started: `drop_unstarted` removes the folder, and it trains
             if d.name in names:  # a trial's folder whose record is gone: training it again would overwrite it
                 raise RunDirError(f"{d}: a trial's folder without its params.json (the trial's record); restore it, "
                                   "or move the folder out of the sweep to train that trial again")  # fmt: skip
@@ -141,6 +143,15 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
         else:
             started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
     return [t for t in trials if t["index"] not in done], started
+
+
+def drop_unstarted(exp: Path, pending: list[dict[str, Any]]) -> None:
+    """Remove the empty folders Tune made for pending trials before a stop: a sweep stopped between two trials left
+    one, and its trial then trains as if it had none."""
+    for trial in pending:
+        d = exp / trial_dirname(trial)
+        if d.is_dir() and not d.is_symlink() and not any(d.iterdir()):
+            d.rmdir()
 
 
 def set_aside_started(started: _Started) -> dict[int, Path]:
@@ -306,6 +317,7 @@ def run_sweep(
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     if resume:
         points = set_aside_started(started)
+        drop_unstarted(exp, pending)
     else:
         exp, pending, points = prepare_experiment(sweep, log_dir, resume), trials, {}
         write_text_atomic(exp / MAPS_RECORD, json.dumps(digests, indent=2))

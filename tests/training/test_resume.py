@@ -14,7 +14,7 @@ from smorphi_rl.rundir import RunDirError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import MODULE_SUBDIR, CheckpointError
 from smorphi_rl.training.resume import KEPT, STATE_FILE, finished, load_state, resume_point, set_aside
-from smorphi_rl.training.sweep import read_resume, set_aside_started, trial_dirname
+from smorphi_rl.training.sweep import drop_unstarted, read_resume, set_aside_started, trial_dirname
 from smorphi_rl.training.sweep_config import STOP_METRICS, load_sweep
 from smorphi_rl.training.sweep_report import result_files, result_rows
 from smorphi_rl.training.trial import stop_reached
@@ -339,3 +339,18 @@ def test_a_resume_on_maps_edited_since_the_sweep_started_is_refused(tmp_path):
     check_maps_unchanged(exp, {"m1": {"m1": "aaa"}})
     with pytest.raises(RunDirError, match="map m1 is not the floor sweep exp started on"):
         check_maps_unchanged(exp, {"m1": {"m1": "bbb"}})
+
+
+def test_an_empty_folder_tune_made_before_a_stop_is_a_trial_that_never_started(sweep, tmp_path):
+    """Stopped between two trials, a sweep left the second's folder empty, and its own resume command refused it."""
+    trials = sweep.trials()
+    exp = tmp_path / "exp"
+    (exp / trial_dirname(trials[1])).mkdir(parents=True)
+    pending, started = read_resume(exp, trials)
+    assert trials[1] in pending and not started and (exp / trial_dirname(trials[1])).is_dir()  # nothing moved yet
+    drop_unstarted(exp, pending)
+    assert not (exp / trial_dirname(trials[1])).exists()
+    (exp / trial_dirname(trials[2])).mkdir()
+    (exp / trial_dirname(trials[2]) / "result.json").write_text("")  # not empty: its record is what is missing
+    with pytest.raises(RunDirError, match=r"without its params\.json"):
+        read_resume(exp, trials)
