@@ -133,7 +133,8 @@ def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, mon
     cfg = TrainConfig(env=EnvConfig.from_dict({"maps": [str(hall)]}))
     out = io.StringIO()
     assert math.isnan(training_optima(cfg, tmp_path / "logs", out)["hall"].R1)
-    assert "not computed" in out.getvalue() and "search optimum --map" in out.getvalue()
+    assert "not computed" in out.getvalue()
+    assert f"`smorphi-rl search optimum --map {hall} --log-dir {tmp_path / 'logs'}`" in out.getvalue()  # runnable
     grid_map = load_map(hall)
     weights = cfg.env.weights_on(grid_map)
     found = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, 400)), 99.0, 400)

@@ -240,8 +240,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                 out.write(f"exact optimum of {grid_map.name}: read from {rel(cache)} (a `search optimum` run's)\n")
             else:
                 out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
-                          f"{OPTIMUM_MAX_CELLS:,}; `search optimum --map ... --log-dir {rel(Path(log_dir))}` finds "
-                          "it for train); gaps are not reported\n")  # fmt: skip
+                          f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {rel(Path(path))} --log-dir "
+                          f"{rel(Path(log_dir))}` finds it for train); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = found or NO_OPTIMUM
             continue
         out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
