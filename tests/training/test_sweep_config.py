@@ -25,12 +25,13 @@ def base(extra: str = "") -> str:
 
 
 @pytest.mark.parametrize("name", ["paper-ppo-vs-impala", "hparams", "pretrain-multimap"])
-def test_shipped_sweeps_load(name, monkeypatch):
-    monkeypatch.chdir(ROOT)
+def test_shipped_sweeps_load(name, monkeypatch, tmp_path):
+    monkeypatch.chdir(tmp_path)  # from anywhere: their maps are named relative to the file
     cfg = load_sweep(ROOT / "tune_configs" / f"{name}.yaml")
     assert cfg.name == name
     expected = {"paper-ppo-vs-impala": 12, "hparams": 27, "pretrain-multimap": 3}[name]
     assert cfg.num_grid_trials == expected
+    assert all(Path(m).parent == ROOT / "maps" for s in cfg.map_sets for m in s)
     assert len(cfg.seeds) >= 3  # every group of seeds gets its median with an interval
 
 
