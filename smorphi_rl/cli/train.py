@@ -24,8 +24,21 @@ from smorphi_rl.cli.common import (
 )
 from smorphi_rl.cli.fields import option
 from smorphi_rl.config_fields import field_docs
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map
 from smorphi_rl.rundir import rel
+
+
+def held_out_files(entries: list[str]) -> tuple[str, ...]:
+    """`transfer --maps`: map files, folders of them and globs, as `train --map` takes them; a generated floor has
+    no exact optimum to converge to, so none is held out."""
+    from smorphi_rl.map_sources import is_generator, resolve
+
+    generated = [e for e in entries if is_generator(str(e))]
+    if generated:
+        raise SmorphiError(f"--maps {generated[0]}: a generated floor has no exact optimum to converge to; hold "
+                           "out map files, folders or globs")  # fmt: skip
+    return resolve([str(e) for e in entries])
 
 
 def register(sub: Any) -> None:
@@ -158,9 +171,10 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     from smorphi_rl.training.transfer import TransferInterrupted, TransferJob, run_transfer, write_transfer_report
 
     # the options and maps are checked before anything runs
-    job = TransferJob(args.pretrained, tuple(str(m) for m in args.maps), tuple(args.seeds), args.timesteps,
+    maps = held_out_files(args.maps)
+    job = TransferJob(args.pretrained, maps, tuple(args.seeds), args.timesteps,
                       args.algo, args.preset, args.record_every, args.envs_per_runner, args.env_runners)  # fmt: skip
-    for path in args.maps:
+    for path in maps:
         load_map(path)
     if args.resume and not args.name:
         raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")

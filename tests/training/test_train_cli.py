@@ -90,6 +90,9 @@ def test_evaluate_policy_rejects_bad_checkpoints(capsys, tmp_path):
         (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--timesteps", "0"], 1, "timesteps must be a positive integer"),
         (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--algo", "a3c"], 2, "invalid choice: 'a3c'"),
         (["--pretrained", "/no/ckpt", "--maps", MAP_1, "--seeds", "-1"], 2, "expected a non-negative integer"),
+        (["--pretrained", "/no/ckpt", "--maps", str(Path(MAP_1).parent)], 1, "checkpoint not found"),  # a folder: read
+        (["--pretrained", "/no/ckpt", "--maps", "generate:mixed"], 1, "a generated floor has no exact optimum"),
+        (["--pretrained", "/no/ckpt", "--maps", str(Path(MAP_1).parent / "designer")], 1, "holds no map YAML"),
     ],
 )
 def test_transfer_rejects_bad_input(capsys, tmp_path, argv, code, message):
