@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.score import Weights
 
@@ -300,4 +301,4 @@ def _write_entry(file: Path, optimum: Optimum) -> None:
     from smorphi_rl.rundir import write_atomic
 
     with contextlib.suppress(OSError):  # a full disk: the optimum stands, the next call computes it again
-        write_atomic(file, json.dumps(asdict(optimum)).encode())
+        write_atomic(file, jsontext.dumps(asdict(optimum)).encode())

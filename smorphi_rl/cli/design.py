@@ -7,11 +7,11 @@ answer comes in about a second.
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl import jsontext
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty
 from smorphi_rl.design import DEFAULT_BUDGET
 from smorphi_rl.geometry import angles_text
@@ -76,7 +76,7 @@ def cmd_design(args: argparse.Namespace) -> int:
                                            env.config.block_side_m, plot))  # fmt: skip
     record["wall_s"] = round(time.perf_counter() - t0, 3)
     if args.json:
-        print(json.dumps(record))
+        print(jsontext.dumps(record))
         return 0
     grid_map = env.grid_map
     lines = [

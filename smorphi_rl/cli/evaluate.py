@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import json
 import math
 import stat
 import sys
@@ -15,6 +14,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl import jsontext
 from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
@@ -195,7 +195,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
         for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
             batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
-            lines = [json.dumps(r) for r in batch.records()] if args.json else [_csv_row(r) for r in batch]
+            lines = [jsontext.dumps(r) for r in batch.records()] if args.json else [_csv_row(r) for r in batch]
             sys.stdout.write("\n".join(lines) + "\n")
             if show is not None:
                 show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
@@ -241,7 +241,7 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology) 
         if args.path:
             record["footprint"] = [] if result.footprint is None else result.footprint.astype(int).tolist()
             record["placements"] = [] if result.placements is None else result.placements.tolist()
-        print(json.dumps(record))
+        print(jsontext.dumps(record))
         return 0
     print(format_result(result, grid_map, start_text(start, area_pct, result), plot_path))
     return 0

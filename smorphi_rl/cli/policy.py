@@ -8,6 +8,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl import jsontext
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
@@ -225,7 +226,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
             record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
                       "return": r.episode_return, "start": r.start, "settled": r.settled.info,
                       "best": r.best}  # fmt: skip
-            print(json.dumps(record, default=float))
+            print(jsontext.dumps(record, default=float))
     else:
         print(f"policy      {checkpoint}")
         for i, r in enumerate(rollouts):
@@ -283,7 +284,7 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
         if args.json:
             for o in ev.outcomes:
-                print(json.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
+                print(jsontext.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
                                   "settled": {"theta": list(o.settled), "R1": o.R1, "P_c": o.P_c, "P_len": o.P_len,
                                               "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
             continue

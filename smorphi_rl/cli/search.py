@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import sys
 from pathlib import Path
@@ -11,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl import jsontext
 from smorphi_rl.cli.common import (
     DEFAULT_MAP,
     Parser,
@@ -134,7 +134,7 @@ def cmd_search(args: argparse.Namespace) -> int:
 
     if args.json:
         for row in front_rows:
-            print(json.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
+            print(jsontext.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         print(f"results: {rel(run_dir)}", file=sys.stderr)  # stdout stays the front's JSON lines
     else:
         said = "" if planning.is_paper_default else planning.describe(grid_map)

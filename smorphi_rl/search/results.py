@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import csv
 import io
-import json
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -12,6 +11,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import MAX_P_LEN, Weights
@@ -93,7 +93,7 @@ def save(result: SearchResult, run_dir: Path, weights: Weights, best_extra: dict
                  **(best_extra or {})},
         "front_size": len(front),
     }  # fmt: skip
-    write_text_atomic(files["summary"], json.dumps(summary, indent=2))
+    write_text_atomic(files["summary"], jsontext.dumps(summary, indent=2))
     return files
 
 

@@ -7,7 +7,6 @@ Everything lands under `logs/<run>/`: the resolved configuration, Tune's trial d
 
 from __future__ import annotations
 
-import json
 import math
 import sys
 import time
@@ -16,7 +15,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl import cluster
+from smorphi_rl import cluster, jsontext
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
@@ -101,6 +100,10 @@ class RunSummary:
             "pretrained_in_runners": self.pretrained_in_runners,
             "files": {k: str(v) for k, v in self.files.items()},
         }
+
+    def to_json(self) -> str:
+        """summary.json's text: strict JSON, a figure with no value (no optimum on a map too large) written null."""
+        return jsontext.dumps(self.to_dict(), indent=2)
 
 
 def fmt_duration(seconds: float) -> str:
@@ -338,8 +341,8 @@ def train(
         quiet()
         with cluster.ray_session(address):
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
-            write_text_atomic(run_dir / "config.json", json.dumps(cfg.to_dict() | {"name": name, "address": address},
-                                                            indent=2))  # fmt: skip
+            config = cfg.to_dict() | {"name": name, "address": address}
+            write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
             progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
@@ -374,7 +377,7 @@ def train(
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
     files["summary"] = run_dir / "summary.json"
-    write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
+    write_text_atomic(files["summary"], summary.to_json())
     return summary
 
 

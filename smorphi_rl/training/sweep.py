@@ -9,7 +9,6 @@ did not finish, each in its own folder again, continuing from our state file of 
 
 from __future__ import annotations
 
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -18,7 +17,7 @@ from typing import Any
 
 import yaml
 
-from smorphi_rl import cluster
+from smorphi_rl import cluster, jsontext
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import Optimum
@@ -320,7 +319,7 @@ def run_sweep(
         drop_unstarted(exp, pending)
     else:
         exp, pending, points = prepare_experiment(sweep, log_dir, resume), trials, {}
-        write_text_atomic(exp / MAPS_RECORD, json.dumps(digests, indent=2))
+        write_text_atomic(exp / MAPS_RECORD, jsontext.dumps(digests, indent=2))
     quiet()
     progress = _SweepProgress(sweep, len(trials), out)
     progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}
@@ -410,7 +409,7 @@ def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum
                              checkpoint=checkpoints[-1] if checkpoints else None, files=files,
                              evaluation=r.evaluation, map_digests=(digests or {}).get(r.maps, {}),
                              budget=budget)  # fmt: skip
-        write_text_atomic(files["summary"], json.dumps(summary.to_dict(), indent=2))
+        write_text_atomic(files["summary"], summary.to_json())
 
 
 def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:

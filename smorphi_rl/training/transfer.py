@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import csv
 import itertools
-import json
 import math
 import sys
 from dataclasses import dataclass, replace
@@ -16,6 +15,7 @@ from functools import cached_property
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl import jsontext
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import (
@@ -179,7 +179,7 @@ def run_transfer(
         job_dir = prepare_run_dir(log_dir, name)
     else:
         claim_again(job_dir)  # refused while the process that ran it still runs
-    write_text_atomic(job_dir / JOB_FILE, json.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
+    write_text_atomic(job_dir / JOB_FILE, jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
                                                       "seeds": list(job.seeds)}, indent=2))  # fmt: skip
     done: dict[str, TransferRun] = {}
 
