@@ -71,6 +71,8 @@ class SweepSummary:
     wall_s: float
     interrupted: bool
     files: dict[str, Path]
+    read_back: int = 0
+    """Trials a `--resume` found finished and read back untouched (not trained by this call)."""
 
 
 def sweep_trainable(
@@ -337,7 +339,7 @@ def run_sweep(
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
     finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
-    return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files)
+    return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files, len(trials) - len(pending))
 
 
 def _fit(
@@ -435,6 +437,8 @@ def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
         head = f"interrupted after {done} of {s.trials_total} trials finished" + (f" ({cut} cut short)" if cut else "")
     else:
         head = f"ran {len(s.rows)} of {s.trials_total} trials"
+        if s.read_back:  # a resume: say what this call trained
+            head += f" ({s.trials_total - s.read_back} this call, {s.read_back} finished before)"
     lines = [f"sweep {s.experiment_dir.name}: {head} in {fmt_duration(s.wall_s)}"]
     ranked = sorted((r for r in s.rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
     for r in ranked[:5]:

@@ -76,6 +76,16 @@ def test_an_interrupted_sweep_counts_the_trials_that_finished_apart_from_those_c
     assert "ran 2 of 3 trials" in format_sweep_summary(SweepSummary(tmp_path / "s", rows, 3, 60.0, False, {}))
 
 
+def test_a_resumed_sweep_says_how_many_trials_it_trained_and_how_many_it_read_back(tmp_path):
+    from smorphi_rl.training.sweep import SweepSummary, format_sweep_summary
+
+    rows = [_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 80.0, None)]
+    resumed = SweepSummary(tmp_path / "s", rows, 2, 60.0, False, {}, read_back=1)
+    assert "ran 2 of 2 trials (1 this call, 1 finished before) in" in format_sweep_summary(resumed).splitlines()[0]
+    fresh = format_sweep_summary(SweepSummary(tmp_path / "s", rows, 2, 60.0, False, {})).splitlines()[0]
+    assert "this call" not in fresh
+
+
 def test_a_trial_without_an_evaluation_is_named_in_its_groups_figures(tmp_path):
     """Its NaN figures were filtered out before the median: "1.50 [1.00, 2.00]" under a group of 3 seeds."""
     from dataclasses import replace
