@@ -241,8 +241,8 @@ def test_a_log_dir_that_is_a_symlink_loop_is_one_line(tmp_path, capsys):
     (["search", "hillclimb", "--budget", "9" * 4290], "would score over 10^4291 shapes"),  # past str()'s digits
     (["evaluate-policy", "--checkpoint", ".", "--episodes", str(10**20)], "--episodes must be in 1..10,000"),
     (["evaluate-policy", "--checkpoint", ".", "--seed", "4294967294", "--episodes", "3"], "passes 2^32-1"),
-    (["train", "--eval-starts", "1000000"], "eval_starts must be at most 1,000"),
-    (["train", "--envs-per-runner", "1000000"], "envs_per_runner must be at most 1,024"),
+    (["train", "--eval-starts", "1000000"], "--eval-starts must be at most 1,000"),
+    (["train", "--envs-per-runner", "1000000"], "--envs-per-runner must be at most 1,024"),
     (["train", "--timesteps", str(10**14)], "at most 1,000,000,000"),
     (["design", "--budget", "10000000"], "in 1..100,000"),
 ])  # fmt: skip

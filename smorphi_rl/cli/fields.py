@@ -59,10 +59,15 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
 
 
 def flag_named(message: str, argv: list[str]) -> str:
-    """`message` led by the flag the user gave for the configuration field it names (`env_config 'w1' must be ...`
-    reads `--w1: env_config 'w1' must be ...`); as it was when it names no field, or one given by no flag."""
+    """`message` naming the flag the user gave for the configuration field it names: `timesteps must be ...` reads
+    `--timesteps must be ...`, `env_config 'w1' must be ...` reads `--w1: env_config 'w1' must be ...`; as it was
+    when it names no field, or one given by no flag."""
     for name, flag in FIELD_FLAGS.items():
         given = any(a == flag or a.startswith(f"{flag}=") for a in argv)
-        if given and (f"'{name}'" in message or message.startswith(f"{name} ")) and not message.startswith(flag):
+        if not given or message.startswith(flag):
+            continue
+        if message.startswith(f"{name} "):
+            return flag + message[len(name) :]
+        if f"'{name}'" in message:
             return f"{flag}: {message}"
     return message

@@ -53,8 +53,8 @@ def test_an_error_naming_a_field_names_the_flag_the_user_gave(capsys, tmp_path):
 
     cases = {
         ("--w1", "0"): "--w1: env_config 'w1' must be",
-        ("--checkpoint-every", "0"): "--checkpoint-every: checkpoint_every must be",
-        ("--envs-per-runner", "0"): "--envs-per-runner: envs_per_runner must be",
+        ("--checkpoint-every", "0"): "error: --checkpoint-every must be a positive integer, got 0",
+        ("--envs-per-runner", "0"): "error: --envs-per-runner must be a positive integer, got 0",
     }
     for given, message in cases.items():
         assert main(["train", *given, "--log-dir", str(tmp_path / "logs")]) == 1

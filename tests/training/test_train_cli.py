@@ -28,7 +28,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
     [
         (["--algo", "a3c"], 2, "invalid choice: 'a3c'"),
         (["--preset", "huge"], 2, "invalid choice: 'huge'"),
-        (["--timesteps", "0"], 1, "timesteps must be a positive integer, got 0"),
+        (["--timesteps", "0"], 1, "--timesteps must be a positive integer, got 0"),
         (["--timesteps", "-10"], 1, "timesteps must be a positive integer, got -10"),
         (["--timesteps", "ten"], 2, "invalid int value: 'ten'"),
         (["--map", "/no/such/map.yaml"], 1, "map file not found: /no/such/map.yaml"),
@@ -36,10 +36,10 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--address", "nonsense"], 1, "--address must be HOST:PORT, 'auto' or ray://HOST:PORT"),
         (["--pretrained", "/no/such/checkpoint"], 1, "checkpoint not found: /no/such/checkpoint"),
         (["--env-runners", "-1"], 1, "env runners must be 0 (sample in the trial process) or more, got -1"),
-        (["--envs-per-runner", "0"], 1, "envs_per_runner must be a positive integer, got 0"),
+        (["--envs-per-runner", "0"], 1, "--envs-per-runner must be a positive integer, got 0"),
         (["--reward", "greedy"], 2, "invalid choice: 'greedy'"),
-        (["--eval-starts", "0"], 1, "eval_starts must be a positive integer, got 0"),
-        (["--select-starts", "-1"], 1, "select_starts must be a non-negative integer (0: off), got -1"),
+        (["--eval-starts", "0"], 1, "--eval-starts must be a positive integer, got 0"),
+        (["--select-starts", "-1"], 1, "--select-starts must be a non-negative integer (0: off), got -1"),
         (["--name", "../../etc"], 1, "is not a plain folder name"),
         (
             ["--map", "generate:mixed"],
@@ -47,7 +47,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
             "so the run has no exact optimum to be measured against: name fixed floors "
             "with --eval-maps, or --eval-every 0",
         ),
-        (["--eval-maps", "generate:rooms"], 1, "eval_maps must be map files"),
+        (["--eval-maps", "generate:rooms"], 1, "--eval-maps must be map files"),
         (["--eval-maps", "/no/such/map.yaml"], 1, "/no/such/map.yaml"),
     ],
 )
@@ -153,7 +153,7 @@ def test_sweep_file_missing(capsys, tmp_path):
 
 def test_record_every_must_not_be_negative(capsys, tmp_path):
     code, err = run(capsys, "train", "--log-dir", str(tmp_path), "--record-every", "-1")
-    assert code == 1 and "record_every must be a non-negative integer" in err
+    assert code == 1 and "--record-every must be a non-negative integer" in err
 
 
 def test_train_refuses_more_env_runners_than_the_local_ray_can_place(capsys, tmp_path):
