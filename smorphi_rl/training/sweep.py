@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from smorphi_rl import cluster, jsontext
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import Optimum
@@ -45,7 +46,7 @@ from smorphi_rl.training.run import (
     training_optima,
     trial_callbacks,
 )
-from smorphi_rl.training.sweep_config import SweepConfig
+from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError
 from smorphi_rl.training.sweep_report import (
     TrialRow,
     group_curves,
@@ -289,9 +290,12 @@ def run_sweep(
     out: Any = None,
 ) -> SweepSummary:
     """Run (or resume) the sweep as one Tune experiment under `log_dir/<name>/`; write the table and curves."""
-    if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
-        fine_tune_from(sweep.pretrained, sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0],
-                                                          {}).env.to_dict())  # fmt: skip
+    if sweep.pretrained is not None:  # a bad checkpoint fails here, before Ray starts, naming the file's key
+        env = sweep.base_config(sweep.algorithms[0], sweep.map_sets[0], sweep.seeds[0], {}).env.to_dict()
+        try:
+            fine_tune_from(sweep.pretrained, env)
+        except SmorphiError as exc:
+            raise SweepConfigError(f"{sweep.path}: key 'pretrained': {exc}") from None
     from smorphi_rl.env import MorphologyEnv
 
     digests: dict[str, dict[str, str]] = {}  # each map set's digests, by its trials' `maps` label

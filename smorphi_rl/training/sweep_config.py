@@ -272,7 +272,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         env=dict(doc.env),
         search=spaces,
         num_samples=doc.num_samples,
-        pretrained=doc.pretrained,
+        pretrained=None if doc.pretrained is None else _resolve_checkpoint(doc.pretrained, file, fail),
         max_iterations=doc.max_iterations,
         record_every=doc.record_every,
         evaluation=doc.evaluation.model_copy(
@@ -350,6 +350,16 @@ def _map_set(item: Any, key: str, file: Path, fail: Any) -> tuple[str, ...]:
             raise fail(key, f"expected a map path, got {p!r}")
         out.append(_resolve(p, file, key, fail))
     return tuple(out)
+
+
+def _resolve_checkpoint(entry: str, file: Path, fail: Any) -> str:
+    """`pretrained` as a path found in the working directory or next to the sweep file (made absolute), as map
+    entries are: a shipped sweep file runs from anywhere."""
+    for base in (Path(entry), file.parent / entry):
+        if base.exists():
+            return str(base.resolve())
+    raise fail("pretrained", f"checkpoint '{entry}' not found (looked in the working directory and next to the sweep "
+                             "file)")  # fmt: skip
 
 
 def _resolve(entry: str, file: Path, key: str, fail: Any) -> str:

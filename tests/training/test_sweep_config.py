@@ -130,6 +130,7 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (base("maps: [[]]\n").replace(f"maps: [{MAP_1}]\n", ""), "key 'maps[0]': expected a map path"),
         ("- just\n- a list\n", "expected a mapping of keys"),
         ("algorithms: [ppo\n", "not valid YAML at line"),
+        (base("pretrained: /no/such/ckpt\n"), "key 'pretrained': checkpoint '/no/such/ckpt' not found"),
     ],
 )
 def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
@@ -138,6 +139,19 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
         load_sweep(path)
     assert str(info.value).startswith(f"{path}: ")
     assert message in str(info.value)
+
+
+def test_a_checkpoint_resolves_next_to_the_sweep_file_and_a_bad_one_names_the_key(tmp_path, monkeypatch, capsys):
+    (tmp_path / "ck").mkdir()
+    monkeypatch.chdir(ROOT / "scripts")  # not where the checkpoint is
+    path = write(tmp_path, base("pretrained: ck\n"))
+    assert load_sweep(path).pretrained == str((tmp_path / "ck").resolve())
+    from smorphi_rl.cli import main
+
+    assert main(["sweep", str(path), "--log-dir", str(tmp_path / "logs")]) == 1  # a folder that is no checkpoint
+    said = capsys.readouterr().err
+    assert f"{path}: key 'pretrained': {(tmp_path / 'ck').resolve()}: holds no RLlib checkpoint" in said
+    assert not (tmp_path / "logs").exists()
 
 
 def test_missing_file(tmp_path):
