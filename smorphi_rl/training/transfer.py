@@ -139,7 +139,7 @@ def run_transfer(
     raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked."""
     from smorphi_rl import cluster
     from smorphi_rl.errors import SmorphiError
-    from smorphi_rl.rundir import claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
+    from smorphi_rl.rundir import RunDirError, claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained, model_setup
     from smorphi_rl.training.run import TrainingError, train
@@ -176,7 +176,12 @@ def run_transfer(
     if address is None:  # a layout this machine cannot place: one line, no folder (a cluster's is checked attached)
         cluster.check_capacity(configs[0].cpus, configs[0].env_runners, None)
     if job_dir is None:
-        job_dir = prepare_run_dir(log_dir, name)
+        try:
+            job_dir = prepare_run_dir(log_dir, name)
+        except RunDirError as exc:
+            if (Path(log_dir) / name).is_dir():  # an earlier job of that name: it may be one to continue
+                raise RunDirError(f"{exc}, or add --resume to continue that job") from None
+            raise
     else:
         claim_again(job_dir)  # refused while the process that ran it still runs
     write_text_atomic(job_dir / JOB_FILE, jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),

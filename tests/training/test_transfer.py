@@ -355,3 +355,14 @@ def test_a_layout_this_machine_cannot_place_leaves_no_folder(tmp_path, fake_runs
     assert main([*argv, "--seeds", "0", "--env-runners", "1000"]) == 1
     assert "use fewer --env-runners" in capsys.readouterr().err
     assert calls == [] and not (tmp_path / "logs").exists()
+
+
+def test_a_job_name_taken_by_an_earlier_job_says_how_to_continue_it(tmp_path, fake_runs, capsys):
+    from smorphi_rl.cli import main
+
+    argv, calls, _stops, _algos = fake_runs
+    assert main([*argv, "--seeds", "0"]) == 0
+    capsys.readouterr()
+    assert main([*argv, "--seeds", "0"]) == 1
+    assert "already exists: choose another --name, or add --resume to continue that job" in capsys.readouterr().err
+    assert len(calls) == 2  # nothing trained the second time
