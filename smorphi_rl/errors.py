@@ -13,3 +13,7 @@ class MapError(SmorphiError):
 
 class MorphologyError(SmorphiError):
     """Hinge angles that are not numbers or lie outside [0, 180] degrees."""
+
+
+class Interrupted(KeyboardInterrupt):
+    """A stop request (Ctrl-C, SIGTERM) that ended a command with something to say: what it kept, and where."""

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from smorphi_rl import interrupts
 from smorphi_rl.cli import design, evaluate, maps, policy, search, train
 from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 
 __all__ = ["build_parser", "main"]
 
@@ -64,6 +64,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except OSError as exc:
         print(one_line(f"{PROG}: error: {exc.strerror or exc}: {exc.filename or ''}".rstrip(": ")), file=sys.stderr)
         return EXIT_INPUT
-    except KeyboardInterrupt:
-        print(f"{PROG}: interrupted", file=sys.stderr)
+    except KeyboardInterrupt as exc:
+        said = f": {one_line(str(exc))}" if isinstance(exc, Interrupted) else ""
+        print(f"{PROG}: interrupted{said}", file=sys.stderr)
         return EXIT_INTERRUPTED

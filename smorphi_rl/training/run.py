@@ -17,7 +17,7 @@ from typing import Any
 
 from smorphi_rl import cluster, jsontext
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import optimum_progress
@@ -346,9 +346,12 @@ def train(
             progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
-    except BaseException:
+    except BaseException as exc:
         if not reported_any(run_dir, cfg.algo):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
+        elif isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):  # a second Ctrl-C: at once
+            raise Interrupted(f"stopped at once; {rel(run_dir)} keeps the checkpoints and logs written so far, but "
+                              "no tables or summary.json") from None  # fmt: skip
         raise
     if not reported_any(run_dir, cfg.algo):  # stopped (Ctrl-C, SIGTERM) before its first report: nothing to keep
         discard_run_dir(run_dir)

@@ -308,3 +308,25 @@ def test_train_fine_tunes_a_policy_in_the_env_it_was_trained_in():
     assert [Path(m).name for m in env.maps] == ["map-1.yaml"]
     algo, plain = train_setup(build_parser().parse_args(["train", "--algo", "appo"]))
     assert plain.observation == "picture" and plain.moves == (1,) and algo == "appo"
+
+
+def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_path, monkeypatch, capsys):
+    """A second Ctrl-C ends `train` at once, before its tables and summary: it printed only 'interrupted'."""
+    from contextlib import nullcontext
+
+    from smorphi_rl.training import run as run_module
+
+    def fit(cfg, name, run_dir, callbacks, out, label):
+        trial = run_dir / f"{cfg.algo}-trial_00000"
+        trial.mkdir()
+        (trial / "result.json").write_text("{}\n")  # it reported once
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(run_module, "training_optima", lambda cfg, log_dir, out: {})
+    monkeypatch.setattr(run_module.cluster, "ray_session", lambda address: nullcontext())
+    monkeypatch.setattr(run_module, "_fit", fit)
+    code, err = run(capsys, "train", "--log-dir", str(tmp_path / "logs"), "--name", "cut", "--eval-every", "0")
+    assert code == 130
+    kept = f"{tmp_path / 'logs' / 'cut'} keeps the checkpoints and logs written so far, but no tables or summary.json"
+    assert err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: stopped at once; {kept}"
+    assert (tmp_path / "logs" / "cut" / "ppo-trial_00000" / "result.json").is_file()
