@@ -59,7 +59,7 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
     [
         ([], "give at least one run to compare"),
         (["--random", "/no/such/run"], "/no/such/run: not a run folder"),
-        (["--random", "{logs}"], "holds no results"),
+        (["--random", "{logs}"], "run(s) (a sweep, or a job of several runs), not of one; give each run's folder"),
         (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
         (["--random", "{logs}/nsga2-map-1-seed0"], "a `search nsga2` run, given as random (pass it with --nsga2)"),
         (["--local", "{logs}/random-map-1-seed0"], "given as hillclimb or anneal (pass it with --random)"),
@@ -72,6 +72,24 @@ def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
     err = capsys.readouterr().err
     assert code == 1 and message in err and err.count("\n") == 1
     assert not list(tmp_path.iterdir())
+
+
+def test_compare_given_a_sweeps_folder_names_one_of_its_trials(tmp_path, capsys):
+    sweep = tmp_path / "logs" / "tiny"
+    for trial in ("ppo-map-1-seed0_00000", "ppo-map-1-seed1_00001"):
+        (sweep / trial).mkdir(parents=True)
+        (sweep / trial / "morphologies.csv").write_text("")
+    (sweep / "sweep.md").write_text("")
+    capsys.readouterr()
+    assert main(["compare", "--runs", str(sweep), "--log-dir", str(tmp_path / "out")]) == 1
+    err = capsys.readouterr().err
+    assert "holds the results of 2 run(s) (a sweep, or a job of several runs), not of one" in err
+    assert f"such as {sweep / 'ppo-map-1-seed0_00000'}" in err and err.count("\n") == 1
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    assert main(["compare", "--runs", str(empty), "--log-dir", str(tmp_path / "out")]) == 1
+    assert "holds no results (no morphologies.csv" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()
 
 
 @pytest.mark.parametrize("flag", ["--nsga2", "--random", "--local"])
