@@ -137,8 +137,9 @@ def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, mon
     assert f"`smorphi-rl search optimum --map {hall} --log-dir {tmp_path / 'logs'}`" in out.getvalue()  # runnable
     grid_map = load_map(hall)
     weights = cfg.env.weights_on(grid_map)
-    found = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, 400)), 99.0, 400)
+    long_path = round(99.0 * weights.w1 / weights.w2)  # a path term as large as coverage's
+    found = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, long_path)), 99.0, long_path)
     protocol.remember_optimum(grid_map, weights, cfg.env.planning, tmp_path / "logs" / ".cache", found)
     out = io.StringIO()
     assert training_optima(cfg, tmp_path / "logs", out)["hall"] == found
-    assert "read from" in out.getvalue()
+    assert "read from" in out.getvalue() and "warning: on hall the path term swamps coverage" in out.getvalue()

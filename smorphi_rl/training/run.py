@@ -246,11 +246,14 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                           f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {rel(Path(path))} --log-dir "
                           f"{rel(Path(log_dir))}` finds it for train); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = found or NO_OPTIMUM
-            continue
-        out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
-        out.flush()
-        show = optimum_progress(grid_map.name, out)
-        optima[grid_map.name] = opt = exact_optimum(path, weights, cfg.env.planning, cache, show)
+            if found is None:
+                continue  # (`search optimum` warns when it finds it)
+        else:
+            out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
+            out.flush()
+            show = optimum_progress(grid_map.name, out)
+            optima[grid_map.name] = exact_optimum(path, weights, cfg.env.planning, cache, show)
+        opt = optima[grid_map.name]
         line = degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
         if line:
             out.write(line + "\n")
