@@ -105,6 +105,19 @@ def claim_again(run_dir: Path) -> None:
         write_text_atomic(run_dir / MARKER, f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
 
 
+def refuse_links(root: Path) -> None:
+    """Refuse a folder a resume writes into when a symbolic link lies anywhere below it: Tune, RLlib and our own
+    writers would follow it and write wherever it points (a folder someone else handed over)."""
+    for folder, dirs, files in os.walk(root, followlinks=False):
+        for name in (*dirs, *files):
+            path = Path(folder) / name
+            if path.is_symlink():
+                raise RunDirError(
+                    f"{rel(path)}: a link inside {rel(root)}, which the resume writes into (it would "
+                    "write wherever the link points); resume only folders you ran, or remove the link"
+                )
+
+
 def rename_cut_run(run_dir: Path) -> Path:
     """Rename a run that was cut short to the first free `<name>.cut-N` beside it (kept, never deleted), so its
     name is free for the run that replaces it."""

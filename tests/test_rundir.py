@@ -168,3 +168,24 @@ def test_a_taken_name_is_refused_with_the_folder_as_the_user_named_it(tmp_path, 
     with pytest.raises(RunDirError) as refused:
         prepare_run_dir("logs", "run")
     assert str(refused.value) == "run directory logs/run already exists: choose another --name"
+
+
+@pytest.mark.parametrize("where", ["file", "missing", "folder", "deep"])
+def test_a_folder_holding_a_link_is_refused_before_a_resume_writes_into_it(tmp_path, where):
+    """A handed-over sweep folder whose tuner.pkl, result.json or episodes linked elsewhere: the resume wrote there."""
+    from smorphi_rl.rundir import refuse_links
+
+    root, elsewhere = tmp_path / "exp", tmp_path / "victim"
+    (root / "trial" / "checkpoint_000000").mkdir(parents=True)
+    (root / "trial" / "params.json").write_text("{}")
+    elsewhere.mkdir()
+    (elsewhere / "f").write_text("keep")
+    refuse_links(root)  # a folder without links is accepted
+    trial = root / "trial"
+    link = {"file": root / "tuner.pkl", "missing": trial / "result.json", "folder": trial / "episodes",
+            "deep": trial / "checkpoint_000000" / "x.pkl"}[where]  # fmt: skip
+    target = {"missing": elsewhere / "new", "folder": elsewhere}.get(where, elsewhere / "f")
+    link.symlink_to(target)
+    with pytest.raises(RunDirError, match=f"{link.name}: a link inside .*resume only folders you ran"):
+        refuse_links(root)
+    assert (elsewhere / "f").read_text() == "keep" and sorted(p.name for p in elsewhere.iterdir()) == ["f"]

@@ -29,6 +29,7 @@ from smorphi_rl.rundir import (
     check_run_dir,
     claim_again,
     prepare_run_dir,
+    refuse_links,
     write_atomic,
     write_text_atomic,
 )
@@ -273,6 +274,7 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
     if kept != strict_yaml(sweep.path.read_text()):  # comments may differ
         raise RunDirError(f"{sweep.path} has changed since {exp} started: restore it from {copy} to resume, or "
                           "give the changed sweep another `name`")  # fmt: skip
+    refuse_links(exp)  # Tune and the trials would write through them
     claim_again(exp)  # refused while the sweep, or another resume of it, still runs: both would move its files
     return exp
 

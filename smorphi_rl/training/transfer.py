@@ -218,12 +218,13 @@ def run_transfer(
 def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
     """The folder of the transfer job `name` under `log_dir`, which `--resume` continues; one line if there is
     none (a job from before `transfer.json` was written is known by its table)."""
-    from smorphi_rl.rundir import check_run_name
+    from smorphi_rl.rundir import check_run_name, refuse_links
 
     job_dir = Path(log_dir).resolve() / check_run_name(name)
     if not ((job_dir / JOB_FILE).is_file() or (job_dir / "transfer.csv").is_file()):
         raise TrainConfigError(f"--resume: {job_dir} is not a transfer job (no {JOB_FILE}; give the --name and "
                                "--log-dir of the job to continue)")  # fmt: skip
+    refuse_links(job_dir)  # its runs and the optima's cache would be written through them
     return job_dir
 
 

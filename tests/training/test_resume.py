@@ -254,6 +254,21 @@ def test_a_damaged_copy_of_the_sweep_file_is_one_line(sweep, tmp_path, copy):
         prepare_experiment(sweep, tmp_path / "logs", resume=True)
 
 
+def test_a_sweep_folder_holding_a_link_is_refused_before_the_resume_claims_it(sweep, tmp_path):
+    """Tune wrote its tuner.pkl through a planted link, outside the folder the user named."""
+    from smorphi_rl.rundir import MARKER
+    from smorphi_rl.training.sweep import SWEEP_COPY, prepare_experiment
+
+    exp = tmp_path / "logs" / sweep.name
+    exp.mkdir(parents=True)
+    (exp / SWEEP_COPY).write_bytes(sweep.path.read_bytes())
+    (tmp_path / "victim").write_text("keep")
+    (exp / "tuner.pkl").symlink_to(tmp_path / "victim")
+    with pytest.raises(RunDirError, match=r"tuner\.pkl: a link inside"):
+        prepare_experiment(sweep, tmp_path / "logs", resume=True)
+    assert (tmp_path / "victim").read_text() == "keep" and not (exp / MARKER).exists()
+
+
 def test_a_kept_policy_of_a_real_module_round_trips_and_names_must_be_the_trial_s(tmp_path):
     """What `kept_policy` writes of a real module loads back (`load_state`), fits that module and is put back into
     it; a file whose two weight tables both lack or add a name, which RLlib's lenient restore would take, does not

@@ -366,3 +366,18 @@ def test_a_job_name_taken_by_an_earlier_job_says_how_to_continue_it(tmp_path, fa
     assert main([*argv, "--seeds", "0"]) == 1
     assert "already exists: choose another --name, or add --resume to continue that job" in capsys.readouterr().err
     assert len(calls) == 2  # nothing trained the second time
+
+
+def test_a_resumed_job_folder_holding_a_link_is_refused_before_anything_trains(tmp_path, fake_runs, capsys):
+    """The optima's cache of a handed-over job linked elsewhere: the resume would have written the optima there."""
+    from smorphi_rl.cli import main
+
+    argv, calls, _stops, _algos = fake_runs
+    assert main([*argv, "--seeds", "0"]) == 0
+    (tmp_path / "elsewhere").mkdir()
+    (tmp_path / "logs" / "job" / ".cache").rename(tmp_path / "cache-was")
+    (tmp_path / "logs" / "job" / ".cache").symlink_to(tmp_path / "elsewhere")
+    capsys.readouterr()
+    assert main([*argv, "--seeds", "0", "1", "--resume"]) == 1
+    assert ".cache: a link inside" in capsys.readouterr().err
+    assert len(calls) == 2 and not list((tmp_path / "elsewhere").iterdir())
