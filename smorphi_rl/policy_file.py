@@ -152,12 +152,9 @@ def _check_meta(meta: Any, where: Path) -> None:
     )
     if not shapes_ok or not isinstance(obs, dict) or "map" not in obs or "angles" not in obs:
         raise PolicyFileError(f"{where}: 'observation' must give the map's and the angles' shapes")
-    most = 2 * MAX_MOVE_SIZES + 1
-    if not (
-        isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and 1 <= n <= most and n % 2 for n in nvec)
-    ):
-        raise PolicyFileError(f"{where}: 'action_nvec' must be three odd, positive move counts (at most {most}), got "
-                              f"{str(nvec)[:60]}")  # fmt: skip
+    problem = action_problem(nvec)
+    if problem:
+        raise PolicyFileError(f"{where}: 'action_nvec' {problem}")
     problem = policy_problem(obs, model)
     if problem or not isinstance(model, dict):
         raise PolicyFileError(f"{where}: {problem}")
@@ -167,6 +164,9 @@ def _check_meta(meta: Any, where: Path) -> None:
 
 MAX_OBSERVATION_VALUES = 4 * 512 * 512 + 4096
 """An env's observation: a map picture of at most 4 channels of 512 x 512 (obs_size's limit) and small vectors."""
+MAX_SHAPE_INPUTS = 1024
+"""Values a policy's network reads beside the map picture: an env's 3 angles in 64 frequencies (387) and its
+metrics and scale, a dozen."""
 MAX_FREQUENCIES = 64
 """Fourier frequencies of the angles a policy may see (the presets use 0 or 8)."""
 MAX_WEIGHT = 1e6
@@ -185,6 +185,15 @@ def layout_problem(observation: dict[str, tuple[int, ...]], env_observation: dic
     return None
 
 
+def action_problem(nvec: Any) -> str | None:
+    """What keeps `nvec` from being a policy's moves a hinge (three odd counts, at most an env's), or None: the
+    policy's last layer is sized by their sum."""
+    most = 2 * MAX_MOVE_SIZES + 1
+    if isinstance(nvec, list) and len(nvec) == 3 and all(type(n) is int and 1 <= n <= most and n % 2 for n in nvec):
+        return None
+    return f"must be three odd, positive move counts (at most {most}), got {str(nvec)[:60]}"
+
+
 def obs_size(observation: dict[str, list[int]]) -> int:
     """Values in an observation of these shapes."""
     return sum(math.prod(shape) for shape in observation.values())
@@ -197,7 +206,16 @@ def policy_problem(observation: dict[str, list[int]], model: Any) -> str | None:
         return (
             f"its observation holds {obs_size(observation):,} values, more than any env's ({MAX_OBSERVATION_VALUES:,})"
         )
-    return model_config_problem(model)
+    problem = model_config_problem(model)
+    if problem is None:  # the first layer's width, before a module is built: 30,000 angles x 129 took 2.7 GB
+        from smorphi_rl.training.presets import ANGLE_FREQUENCIES  # the critic's
+
+        angles = math.prod(observation.get("angles") or [1])
+        frequencies = max(model.get("policy_angle_frequencies", 0), ANGLE_FREQUENCIES)
+        width = angles * 2 * frequencies + obs_size(observation) - math.prod(observation.get("map") or [1])
+        if width > MAX_SHAPE_INPUTS:
+            return f"its network reads {width:,} values beside the map, more than any env's ({MAX_SHAPE_INPUTS:,})"
+    return problem
 
 
 def model_config_problem(model: Any) -> str | None:

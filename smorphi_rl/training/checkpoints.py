@@ -26,6 +26,7 @@ from smorphi_rl.inputs import check_not_special
 from smorphi_rl.policy_file import (
     PolicyFile,
     PolicyFileError,
+    action_problem,
     is_policy_dir,
     policy_problem,
     read_policy,
@@ -236,11 +237,40 @@ def safe_unpickle(path: Path) -> Any:
     except OSError as exc:
         raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
-        return SafeUnpickler(io.BytesIO(data)).load()
+        obj = SafeUnpickler(io.BytesIO(data)).load()
     except Refused as exc:
         raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
     except Exception as exc:
         raise CheckpointError(f"{path}: not a readable checkpoint file ({type(exc).__name__})") from None
+    problem = _shared_problem(obj, len(data))
+    if problem:
+        raise CheckpointError(f"{path}: refused, {problem} (load only checkpoints written by smorphi-rl)")
+    return obj
+
+
+MAX_PICKLE_NODES = 1_000_000
+"""Values in an unpickled state: ours hold a few thousand (a module's weights about 50, a sweep's state 2,000)."""
+
+
+def _shared_problem(obj: Any, file_bytes: int) -> str | None:
+    """What makes `obj` far larger than its file, or None: a pickle may name one array or table many times (its
+    memo), so 18 MB on disk read as 200,000 arrays of 16 MB, and every later check walked each of them. Ours
+    share nothing: the arrays, counted each time they are named, hold about the file's bytes."""
+    stack, nodes, array_bytes = [obj], 0, 0
+    while stack:
+        item = stack.pop()
+        nodes += 1
+        if nodes > MAX_PICKLE_NODES:
+            return f"it holds over {MAX_PICKLE_NODES:,} values"
+        if isinstance(item, dict):
+            stack.extend(item.values())
+        elif isinstance(item, list | tuple):
+            stack.extend(item)
+        elif isinstance(item, np.ndarray):
+            array_bytes += item.nbytes
+            if array_bytes > 2 * file_bytes + (1 << 20):
+                return f"its arrays, counted where they are named, hold far more than its {file_bytes:,} bytes"
+    return None
 
 
 def check_metadata(meta: Path, state_file: str) -> None:
@@ -304,6 +334,9 @@ def _checked_spaces(kwargs: dict[str, Any], where: Path) -> tuple[Any, Any, dict
     if not (isinstance(act, gym.spaces.MultiDiscrete) and _plain_shape(act) and isinstance(nvec, np.ndarray)
             and nvec.dtype.kind in "iu" and nvec.shape == act.shape):  # fmt: skip
         raise CheckpointError(f"{where}: its action space is not the env's (MultiDiscrete)")
+    moves = action_problem(nvec.tolist())  # the last layer is sized by their sum: 4,000,001 took 7 GB
+    if moves:
+        raise CheckpointError(f"{where}: its action space {moves}")
     problem = policy_problem({k: list(s.shape or ()) for k, s in boxes.items()}, model)
     if problem or not isinstance(model, dict):
         raise CheckpointError(f"{where}: {problem}")
