@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -264,6 +265,9 @@ def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, arg
      "no shapes"),
     (lambda run: (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000), "RecursionError"),
     (lambda run: _resummarise(run, evaluations=10**400), "out of range"),
+    (lambda run: _repack(run, zipfile.ZIP_BZIP2), "packed otherwise than `save` packs them"),  # 2.7 KB -> 2.5 GB
+    (lambda run: _resummarise(run, distinct_shapes=10**12), "more than its summary's 1000000000000 shapes hold"),
+    (lambda run: _huge_header(run), "its arrays declare more values than memory holds"),
 ])  # fmt: skip
 def test_compare_refuses_damaged_search_results(tmp_path, capsys, damage, message):
     log = tmp_path / "logs"
@@ -281,6 +285,24 @@ def _resummarise(run_dir: Path, **fields) -> None:
 
     summary = json.loads((run_dir / "summary.json").read_text())
     (run_dir / "summary.json").write_text(json.dumps(summary | fields))
+
+
+def _repack(run_dir: Path, compression: int) -> None:
+    with zipfile.ZipFile(run_dir / "results.npz") as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    with zipfile.ZipFile(run_dir / "results.npz", "w", compression=compression) as archive:
+        for name, data in entries.items():
+            archive.writestr(name, data)
+
+
+def _huge_header(run_dir: Path) -> None:
+    """P_c's header declares 10^12 rows over its 50 (the archive's sizes stay honest)."""
+    with zipfile.ZipFile(run_dir / "results.npz") as archive:
+        entries = {name: archive.read(name) for name in archive.namelist()}
+    entries["P_c.npy"] = entries["P_c.npy"].replace(b"(50,)", b"(1000000000000,)")
+    with zipfile.ZipFile(run_dir / "results.npz", "w") as archive:
+        for name, data in entries.items():
+            archive.writestr(name, data)
 
 
 def _rewrite(run_dir: Path, **arrays) -> None:

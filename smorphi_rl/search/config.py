@@ -12,7 +12,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.protocol import EVAL_STARTS
-from smorphi_rl.search.results import SearchResult
+from smorphi_rl.search.results import MAX_EVALUATIONS, SearchResult
 
 METHODS = {
     "random": "uniformly random integer shapes (paper Table 4)",
@@ -47,9 +47,6 @@ CUTS = {
     "anneal": "a smaller --budget or fewer --starts",
 }
 """What cuts each method's work: named when a budget is refused and when a run will take over a minute."""
-MAX_EVALUATIONS = 50_000_000
-"""A search scores at most this many shapes (about 20 minutes of planning on 2 cores on a 5 m map; the whole
-1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster."""
 
 
 class SearchConfigError(SmorphiError):

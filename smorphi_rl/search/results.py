@@ -18,8 +18,10 @@ from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
 
 RESULTS_FILE = "results.npz"
-MAX_EVALUATIONS = 2**53
-"""More planner evaluations than any search records (a float holds every count up to it exactly)."""
+MAX_EVALUATIONS = 50_000_000
+"""A search scores at most this many shapes (about 20 minutes of planning on 2 cores on a 5 m map; the whole
+1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster. A results file
+claiming more is not one a search wrote."""
 MAX_WALL_S = 1e9
 """A search's recorded wall time is at most this (31 years)."""
 
@@ -123,12 +125,16 @@ def load(run_dir: str | Path) -> SearchResult:
         rows = summary.get("distinct_shapes", summary.get("evaluations"))
         with zipfile.ZipFile(root / RESULTS_FILE) as archive:  # what the arrays unpack to, before they are read
             inflated = sum(info.file_size for info in archive.infolist())
+            if any(info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED) for info in archive.infolist()):
+                raise ValueError("its arrays are packed otherwise than `save` packs them (stored or deflated)")
         if not (isinstance(rows, int) and 0 <= rows <= MAX_EVALUATIONS and inflated <= 32 * rows + (1 << 16)):
             raise ValueError(f"its arrays unpack to {inflated:,} bytes, more than its summary's {rows!r} shapes hold")
         with np.load(root / RESULTS_FILE, allow_pickle=False) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
     except SmorphiError as exc:
         raise bad(str(exc).removeprefix(f"{root / 'summary.json'}: ")) from None
+    except MemoryError:  # an array's header declaring more than its summary's rows
+        raise bad("its arrays declare more values than memory holds") from None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # missing, cut short, not ours
         raise bad(f"{type(exc).__name__}: {exc}") from None
     fields = {"method": str, "map": str, "evaluations": int, "wall_s": int | float}
