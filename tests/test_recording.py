@@ -250,6 +250,24 @@ def test_a_chunk_that_inflates_beyond_any_recording_is_refused_before_it_is_read
     assert len(err.splitlines()) == 1 and message in err, err
 
 
+def test_messages_that_parse_into_millions_of_lists_are_refused_before_they_are_parsed(tmp_path, capsys):
+    """46 KB of zstd holding `[[],[],...]` messages on /log took 7.6 GB as Python lists (20 times their bytes)."""
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "lists.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh, compression=CompressionType.ZSTD)
+        writer.start()
+        schema = writer.register_schema("log", "jsonschema", b"{}")
+        channel = writer.register_channel("/log", "json", schema)
+        writer.add_message(channel, log_time=0, publish_time=0, data=b"[" + b"[]," * 6_000_000 + b"[]]")
+        writer.finish()
+    assert path.stat().st_size < 100_000
+    assert main(["replay", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "hold more lists and objects than any recording's (5,000,000)" in err, err
+
+
 def test_replay_of_a_folder_without_recordings_and_of_a_missing_file(tmp_path, capsys):
     assert main(["replay", str(tmp_path)]) == 1
     assert "holds no MCAP recordings" in capsys.readouterr().err

@@ -153,8 +153,18 @@ def _chunk_records(chunk: Any, budget: list[int], path: Path) -> Iterator[Any]:
             raise RecordingError(f"{path}: a chunk holds a record of opcode {opcode}, which no recording's does")
 
 
-def _message(data: bytes, topic: str, path: Path) -> Any:
-    """One message's JSON; one that is not JSON (or nested past Python's limit) is named, not read as a cut."""
+MAX_JSON_CONTAINERS = 5_000_000
+"""Lists and objects the messages of one recording may hold (an episode on map-1: 27,000; its path's points are
+most of them): parsed, `[[],[],...]` takes 20 times its bytes, so 46 KB of zstd once took 7.6 GB."""
+
+
+def _message(data: bytes, topic: str, path: Path, budget: list[int]) -> Any:
+    """One message's JSON, within what is left of `budget` (lists and objects); one that is not JSON (or nested
+    past Python's limit) is named, not read as a cut."""
+    budget[0] -= data.count(b"[") + data.count(b"{")  # counted before parsing: a bound, strings' brackets too
+    if budget[0] < 0:
+        raise RecordingError(f"{path}: its messages hold more lists and objects than any recording's "
+                             f"({MAX_JSON_CONTAINERS:,})")  # fmt: skip
     try:
         return json.loads(data)
     except (ValueError, RecursionError):
@@ -183,7 +193,7 @@ def read_episode(path: str | Path) -> Episode:
     meta: dict[str, str] = {}
     by_topic: dict[str, list[dict[str, Any]]] = {t: [] for t in OUR_TOPICS}
     complete = False
-    budget = [MAX_RECORDING_BYTES]
+    budget, containers = [MAX_RECORDING_BYTES], [MAX_JSON_CONTAINERS]
 
     def records(fh: Any) -> Iterator[Any]:
         for record in StreamReader(fh, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES).records:
@@ -195,7 +205,9 @@ def read_episode(path: str | Path) -> Episode:
                 if isinstance(record, Channel):
                     topics[record.id] = record.topic
                 elif isinstance(record, Message) and topics.get(record.channel_id) in by_topic:
-                    by_topic[topics[record.channel_id]].append(_message(record.data, topics[record.channel_id], file))
+                    by_topic[topics[record.channel_id]].append(
+                        _message(record.data, topics[record.channel_id], file, containers)
+                    )
                 elif isinstance(record, Metadata) and record.name == METADATA_NAME:
                     meta = dict(record.metadata)
                 elif isinstance(record, Footer):
