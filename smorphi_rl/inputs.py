@@ -19,6 +19,9 @@ MAX_YAML_BYTES = 1 << 20
 """A map YAML or a sweep file is a few hundred bytes; anything over 1 MiB is not one."""
 MAX_IMAGE_PIXELS = 25_000_000
 """Map images larger than this (5,000 x 5,000) are refused before they are decoded."""
+MAP_IMAGE_FORMATS = ("PNG", "PPM")
+"""What Pillow may decode a map image as, whatever its name says: PNG, and PGM (Pillow's PPM plugin). Any other
+(an EPS named map.png would run Ghostscript) reads as not a map image."""
 MAX_SEED = 2**32 - 1
 """The largest seed every consumer takes (numpy, torch, RLlib and Tune's trial seeds)."""
 
@@ -134,7 +137,7 @@ def check_image_size(path: Path) -> None:
     try:
         with warnings.catch_warnings():  # Pillow's own warning: ours is the one line
             warnings.simplefilter("ignore", Image.DecompressionBombWarning)
-            with Image.open(path) as img:
+            with Image.open(path, formats=MAP_IMAGE_FORMATS) as img:
                 width, height = img.size
     except Image.DecompressionBombError:  # Pillow's own refusal, at twice its limit: far beyond ours
         raise MapError(f"{path}: an image of far more than {MAX_IMAGE_PIXELS:,} pixels, the most that are read "

@@ -19,7 +19,7 @@ import numpy as np
 import yaml
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.inputs import is_finite_number
+from smorphi_rl.inputs import MAP_IMAGE_FORMATS, is_finite_number
 
 SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
 """The default map of every command and of the env: map-1, shipped beside the package."""
@@ -218,7 +218,7 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
     if path.suffix.lower() == ".pgm" and path.is_file():
         _check_pgm_samples(path)
     try:
-        with Image.open(path) as opened:
+        with Image.open(path, formats=MAP_IMAGE_FORMATS) as opened:
             opened.load()
             img: Image.Image = opened
             if img.mode == "P":

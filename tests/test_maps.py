@@ -240,3 +240,17 @@ def test_an_image_name_too_long_for_the_os_names_the_yaml_and_its_key(tmp_path):
     with pytest.raises(MapError, match=r"long\.yaml: its 'image' 'aaa.* cannot be read \(File name too long\)") as e:
         load_map(tmp_path / "long.yaml")
     assert len(str(e.value)) < len(str(tmp_path)) + 120
+
+
+def test_a_map_image_is_decoded_only_as_png_or_pgm_whatever_its_name(tmp_path, monkeypatch):
+    """An EPS named map.png reached Pillow's EPS plugin, which runs Ghostscript where it is installed."""
+    from PIL import EpsImagePlugin
+
+    opened: list[str] = []
+    monkeypatch.setattr(EpsImagePlugin.EpsImageFile, "_open", lambda self: opened.append("eps"))
+    (tmp_path / "map.png").write_text("%!PS-Adobe-3.0 EPSF-3.0\n%%BoundingBox: 0 0 50 50\nshowpage\n")
+    (tmp_path / "map.yaml").write_text("image: map.png\nresolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\n"
+                                       "occupied_thresh: 0.65\nfree_thresh: 0.196\n")  # fmt: skip
+    with pytest.raises(MapError, match=r"map\.png: not a readable PGM/PNG image"):
+        load_map(tmp_path / "map.yaml")
+    assert opened == []
