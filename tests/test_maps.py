@@ -254,3 +254,18 @@ def test_a_map_image_is_decoded_only_as_png_or_pgm_whatever_its_name(tmp_path, m
     with pytest.raises(MapError, match=r"map\.png: not a readable PGM/PNG image"):
         load_map(tmp_path / "map.yaml")
     assert opened == []
+
+
+def test_a_colour_image_reads_as_the_mean_of_its_channels(tmp_path):
+    """map_server averages the channels; read a channel at a time, the result is the grey image's to the cell."""
+    rng = np.random.default_rng(0)
+    rgb = rng.integers(0, 256, (20, 30, 3), dtype=np.uint8)
+    rgb[::4, ::4] = 254  # some free floor
+    grey = (rgb.astype(np.uint16).sum(axis=2) // 3).astype(np.uint8)
+    keep = rgb.astype(np.uint16).sum(axis=2) % 3 == 0  # only pixels whose mean is a whole grey level
+    rgb[~keep], grey[~keep] = 0, 0
+    header = "resolution: 0.1\norigin: [0, 0, 0]\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    for name, array in (("rgb", rgb), ("grey", grey)):
+        Image.fromarray(array).save(tmp_path / f"{name}.png")
+        (tmp_path / f"{name}.yaml").write_text(f"image: {name}.png\n{header}")
+    assert np.array_equal(load_map(tmp_path / "rgb.yaml").cells, load_map(tmp_path / "grey.yaml").cells)
