@@ -237,6 +237,9 @@ def safe_unpickle(path: Path) -> Any:
     except OSError as exc:
         raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     try:
+        nesting = _tuple_nesting_problem(data)
+        if nesting:
+            raise Refused(nesting)
         obj = SafeUnpickler(io.BytesIO(data)).load()
     except Refused as exc:
         raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
@@ -246,6 +249,54 @@ def safe_unpickle(path: Path) -> Any:
     if problem:
         raise CheckpointError(f"{path}: refused, {problem} (load only checkpoints written by smorphi-rl)")
     return obj
+
+
+MAX_TUPLE_NESTING = 16
+"""Tuples within tuples a checkpoint's pickle may build: ours nest 3 deep (an array's state). Python hashes a tuple
+key through every level, so a 300-byte pickle of 40 levels, each naming the one below twice, hashed for hours."""
+_TUPLE_OPS = frozenset({"TUPLE", "TUPLE1", "TUPLE2", "TUPLE3", "FROZENSET"})
+_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
+_MEMO_GETS = frozenset({"GET", "BINGET", "LONG_BINGET"})
+
+
+def _tuple_nesting_problem(data: bytes) -> str | None:
+    """Why a pickle's tuples nest too deep (MAX_TUPLE_NESTING), found from its opcodes before anything is built, or
+    None (also for a pickle the opcodes cannot be read from: the unpickler names that damage). Each stack item is
+    followed by how deep its tuples nest, through the memo too."""
+    import pickletools
+
+    stack: list[int] = []
+    marks: list[int] = []
+    memo: dict[int, int] = {}
+    try:
+        for op, arg, _ in pickletools.genops(data):
+            name = op.name
+            if name == "MARK":
+                marks.append(len(stack))
+            elif name in _MEMO_PUTS or name == "MEMOIZE":
+                memo[len(memo) if name == "MEMOIZE" else int(arg or 0)] = stack[-1] if stack else 0
+            elif name in _MEMO_GETS:
+                stack.append(memo.get(int(arg or 0), 0))
+            elif name == "DUP":
+                stack.append(stack[-1] if stack else 0)
+            else:
+                before = op.stack_before
+                if pickletools.markobject in before:  # the items above the mark, and any below it the op takes
+                    start = marks.pop() if marks else 0
+                    popped, below = stack[start:], before.index(pickletools.markobject)
+                    del stack[start:]
+                else:
+                    popped, below = [], len(before)
+                if below:
+                    popped += stack[-below:]
+                    del stack[-below:]
+                depth = 1 + max(popped, default=0) if name in _TUPLE_OPS else 0
+                if depth > MAX_TUPLE_NESTING:
+                    return f"its tuples nest over {MAX_TUPLE_NESTING} deep, which a smorphi-rl checkpoint's never do"
+                stack.extend([depth] * len(op.stack_after))
+    except (ValueError, IndexError):
+        return None
+    return None
 
 
 MAX_PICKLE_NODES = 1_000_000

@@ -242,6 +242,22 @@ def test_weights_named_many_times_in_their_pickle_are_refused_before_they_are_wa
         load_module(checkpoint)
 
 
+def _nested_tuple_key(depth: int) -> bytes:
+    """A pickle of `{t: 1}`, t a tuple holding the one below twice, `depth` levels: about 7 bytes a level."""
+    out = bytearray(b"\x80\x02)q\x00")  # PROTO 2, EMPTY_TUPLE, BINPUT 0
+    for level in range(1, depth + 1):  # BINGET twice, TUPLE2, BINPUT
+        out += b"h" + bytes([level - 1]) + b"h" + bytes([level - 1]) + b"\x86q" + bytes([level])
+    return bytes(out + b"}h" + bytes([depth]) + b"K\x01s.")  # EMPTY_DICT, BINGET, BININT1 1, SETITEM, STOP
+
+
+def test_a_tuple_key_nested_too_deep_to_hash_is_refused_before_it_is_built(genuine, tmp_path):
+    """Python hashes a tuple through every level, twice a level here: 300 bytes of 40 levels hashed for hours."""
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", _nested_tuple_key(40))
+    with pytest.raises(CheckpointError, match="refused, its tuples nest over 16 deep"):
+        load_module(checkpoint)
+    assert pickle.loads(_nested_tuple_key(3))  # the same pickle, shallow, is a dict of one tuple key
+
+
 def _ctor_with_model_config(genuine: Path, model_config: object) -> bytes:
     ctor = pickle.loads((genuine / MODULE_SUBDIR / "class_and_ctor_args.pkl").read_bytes())  # our own test file
     kwargs = dict(ctor["ctor_args_and_kwargs"][1]) | {"model_config": model_config}
