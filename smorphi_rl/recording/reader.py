@@ -153,18 +153,23 @@ def _chunk_records(chunk: Any, budget: list[int], path: Path) -> Iterator[Any]:
             raise RecordingError(f"{path}: a chunk holds a record of opcode {opcode}, which no recording's does")
 
 
-MAX_JSON_CONTAINERS = 5_000_000
-"""Lists and objects the messages of one recording may hold (an episode on map-1: 27,000; its path's points are
-most of them): parsed, `[[],[],...]` takes 20 times its bytes, so 46 KB of zstd once took 7.6 GB."""
+MIN_BYTES_PER_CONTAINER = 8
+"""Our messages spend 30 bytes or more of JSON on each list or object (a scene's path point, 34; a step, 72):
+`[[],[],...]` spends 3, and parsed takes 20 times its bytes, so 46 KB of zstd once took 7.6 GB."""
+MAX_JSON_CONTAINERS = 16_000_000
+"""Lists and objects the messages of one recording may hold: about what MAX_RECORDING_BYTES of ours hold (an
+episode on map-1: 27,000 in 780 KB)."""
 
 
 def _message(data: bytes, topic: str, path: Path, budget: list[int]) -> Any:
-    """One message's JSON, within what is left of `budget` (lists and objects); one that is not JSON (or nested
-    past Python's limit) is named, not read as a cut."""
-    budget[0] -= data.count(b"[") + data.count(b"{")  # counted before parsing: a bound, strings' brackets too
-    if budget[0] < 0:
-        raise RecordingError(f"{path}: its messages hold more lists and objects than any recording's "
-                             f"({MAX_JSON_CONTAINERS:,})")  # fmt: skip
+    """One message's JSON, within what is left of `budget` (lists and objects) and at most one a
+    MIN_BYTES_PER_CONTAINER bytes; one that is not JSON (or nested past Python's limit) is named, not read as a
+    cut."""
+    containers = data.count(b"[") + data.count(b"{")  # counted before parsing: a bound, strings' brackets too
+    budget[0] -= containers
+    if budget[0] < 0 or containers * MIN_BYTES_PER_CONTAINER > len(data) + 64:
+        raise RecordingError(f"{path}: a message on {topic} holds more lists and objects than smorphi-rl writes "
+                             f"({containers:,} in {len(data):,} bytes)")  # fmt: skip
     try:
         return json.loads(data)
     except (ValueError, RecursionError):
