@@ -179,7 +179,7 @@ def run_transfer(
         try:
             job_dir = prepare_run_dir(log_dir, name)
         except RunDirError as exc:
-            if (Path(log_dir) / name).is_dir():  # an earlier job of that name: it may be one to continue
+            if is_transfer_job(Path(log_dir) / name):  # an earlier job of that name: it may be one to continue
                 raise RunDirError(f"{exc}, or add --resume to continue that job") from None
             raise
     else:
@@ -215,13 +215,18 @@ def run_transfer(
     return job_dir, reported()
 
 
+def is_transfer_job(folder: Path) -> bool:
+    """Whether `folder` holds a transfer job (its record; a job from before the record was kept, its table)."""
+    return (folder / JOB_FILE).is_file() or (folder / "transfer.csv").is_file()
+
+
 def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
     """The folder of the transfer job `name` under `log_dir`, which `--resume` continues; one line if there is
     none (a job from before `transfer.json` was written is known by its table)."""
     from smorphi_rl.rundir import check_run_name, refuse_links
 
     job_dir = Path(log_dir).resolve() / check_run_name(name)
-    if not ((job_dir / JOB_FILE).is_file() or (job_dir / "transfer.csv").is_file()):
+    if not is_transfer_job(job_dir):
         raise TrainConfigError(f"--resume: {job_dir} is not a transfer job (no {JOB_FILE}; give the --name and "
                                "--log-dir of the job to continue)")  # fmt: skip
     refuse_links(job_dir)  # its runs and the optima's cache would be written through them

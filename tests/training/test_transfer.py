@@ -366,6 +366,10 @@ def test_a_job_name_taken_by_an_earlier_job_says_how_to_continue_it(tmp_path, fa
     assert main([*argv, "--seeds", "0"]) == 1
     assert "already exists: choose another --name, or add --resume to continue that job" in capsys.readouterr().err
     assert len(calls) == 2  # nothing trained the second time
+    (tmp_path / "logs" / "run").mkdir()  # a folder of that name that is no transfer job: the hint would not run
+    (tmp_path / "logs" / "run" / "summary.json").write_text("{}")
+    assert main([*argv[:-4], "--name", "run", "--log-dir", str(tmp_path / "logs"), "--seeds", "0"]) == 1
+    assert "already exists: choose another --name\n" in capsys.readouterr().err
 
 
 def test_a_resumed_job_folder_holding_a_link_is_refused_before_anything_trains(tmp_path, fake_runs, capsys):
