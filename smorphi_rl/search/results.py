@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import math
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,6 +111,27 @@ def _npz(arrays: dict[str, np.ndarray]) -> bytes:
     return buffer.getvalue()
 
 
+def check_archive(path: Path, rows: Any) -> None:
+    """Refuse (ValueError) a results archive that would unpack to more than `rows` shapes hold, before numpy
+    allocates anything: packed otherwise than `save` packs it, or its entries' sizes or arrays' headers beyond."""
+    header_readers = {(1, 0): np.lib.format.read_array_header_1_0, (2, 0): np.lib.format.read_array_header_2_0}
+    with zipfile.ZipFile(path) as archive:
+        entries = archive.infolist()
+        if any(info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED) for info in entries):
+            raise ValueError("its arrays are packed otherwise than `save` packs them (stored or deflated)")
+        inflated = sum(info.file_size for info in entries)
+        if not (isinstance(rows, int) and 0 <= rows <= MAX_EVALUATIONS and inflated <= 32 * rows + (1 << 16)):
+            raise ValueError(f"its arrays unpack to {inflated:,} bytes, more than its summary's {rows!r} shapes hold")
+        for info in entries:
+            with archive.open(info) as member:
+                read = header_readers.get(np.lib.format.read_magic(member))  # `save` writes 1.0 (2.0: long headers)
+                if read is None:
+                    raise ValueError(f"{info.filename} is not an array of the formats `save` writes")
+                shape = read(member)[0]
+            if math.prod(shape) > 3 * rows:
+                raise ValueError(f"{info.filename} declares {math.prod(shape):,} values for {rows:,} shapes")
+
+
 def load(run_dir: str | Path) -> SearchResult:
     """A search run written by `save` (for `compare`), checked: a summary of the right types, arrays of one length
     with finite angles in [0, 180], coverage in [0, 100] and non-negative path lengths."""
@@ -123,18 +145,11 @@ def load(run_dir: str | Path) -> SearchResult:
     try:
         summary = read_json_object(root / "summary.json", "search summary")
         rows = summary.get("distinct_shapes", summary.get("evaluations"))
-        with zipfile.ZipFile(root / RESULTS_FILE) as archive:  # what the arrays unpack to, before they are read
-            inflated = sum(info.file_size for info in archive.infolist())
-            if any(info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED) for info in archive.infolist()):
-                raise ValueError("its arrays are packed otherwise than `save` packs them (stored or deflated)")
-        if not (isinstance(rows, int) and 0 <= rows <= MAX_EVALUATIONS and inflated <= 32 * rows + (1 << 16)):
-            raise ValueError(f"its arrays unpack to {inflated:,} bytes, more than its summary's {rows!r} shapes hold")
+        check_archive(root / RESULTS_FILE, rows)
         with np.load(root / RESULTS_FILE, allow_pickle=False) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}
     except SmorphiError as exc:
         raise bad(str(exc).removeprefix(f"{root / 'summary.json'}: ")) from None
-    except MemoryError:  # an array's header declaring more than its summary's rows
-        raise bad("its arrays declare more values than memory holds") from None
     except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:  # missing, cut short, not ours
         raise bad(f"{type(exc).__name__}: {exc}") from None
     fields = {"method": str, "map": str, "evaluations": int, "wall_s": int | float}
