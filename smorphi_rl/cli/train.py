@@ -24,7 +24,7 @@ from smorphi_rl.cli.common import (
 )
 from smorphi_rl.cli.fields import option
 from smorphi_rl.config_fields import field_docs
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.maps import load_map
 from smorphi_rl.rundir import rel
 
@@ -214,13 +214,20 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     sweep = load_sweep(args.config)  # every problem named before Ray starts
     from smorphi_rl.training.sweep import format_sweep_summary, run_sweep
 
-    summary = run_sweep(sweep, args.log_dir, args.address, args.resume)
+    where = "" if args.log_dir == DEFAULT_LOG_DIR else f" --log-dir {shlex.quote(str(args.log_dir))}"
+    cluster = "" if args.address is None else f" --address {shlex.quote(args.address)}"
+    again = f"`{PROG} sweep {shlex.quote(str(args.config))} --resume{where}{cluster}`"
+    try:
+        summary = run_sweep(sweep, args.log_dir, args.address, args.resume)
+    except KeyboardInterrupt as exc:  # a second Ctrl-C: at once, before the tables
+        exp = Path(args.log_dir) / sweep.name
+        if isinstance(exc, Interrupted) or not exp.is_dir():
+            raise
+        raise Interrupted(f"stopped at once; {rel(exp)} keeps the trials that finished and the checkpoints, but "
+                          f"no tables; continue with {again}") from None  # fmt: skip
     print(format_sweep_summary(summary, rel))
     if summary.interrupted:
-        where = "" if args.log_dir == DEFAULT_LOG_DIR else f" --log-dir {shlex.quote(str(args.log_dir))}"
-        cluster = "" if args.address is None else f" --address {shlex.quote(args.address)}"
-        print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with "
-              f"`{PROG} sweep {shlex.quote(str(args.config))} --resume{where}{cluster}`", file=sys.stderr)  # fmt: skip
+        print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with {again}", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
 

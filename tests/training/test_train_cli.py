@@ -105,7 +105,11 @@ def test_transfer_rejects_bad_input(capsys, tmp_path, argv, code, message):
     ("sweep", "extra", "message"),
     [
         ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\nlr: 0.1\n", [], "key 'lr': unknown key"),
-        ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\npretrained: /no/ckpt\n", [], "checkpoint not found: /no/ckpt"),
+        (
+            "algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\npretrained: /no/ckpt\n",
+            [],
+            "key 'pretrained': checkpoint '/no/ckpt' not found",
+        ),
         ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\n", ["--resume"], "nothing to resume"),
         ("algorithms: [ppo]\nmaps: [{map}]\nseeds: [0]\n", ["--address", "127.0.0.1:1"], "cannot reach a Ray cluster"),
     ],
@@ -330,3 +334,23 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
     kept = f"{tmp_path / 'logs' / 'cut'} keeps the checkpoints and logs written so far, but no tables or summary.json"
     assert err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: stopped at once; {kept}"
     assert (tmp_path / "logs" / "cut" / "ppo-trial_00000" / "result.json").is_file()
+
+
+def test_a_sweep_stopped_at_once_names_its_folder_and_the_resume(tmp_path, monkeypatch, capsys):
+    """A second Ctrl-C ended `sweep` before its tables with a bare 'interrupted'."""
+    from smorphi_rl.training import sweep as sweep_module
+
+    root = Path(__file__).resolve().parents[2]
+    config = tmp_path / "tiny.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{root / 'maps' / 'map-1.yaml'}]\nseeds: [0]\n")
+
+    def cut(sweep, log_dir, address, resume):
+        (Path(log_dir) / sweep.name).mkdir(parents=True)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_module, "run_sweep", cut)
+    code, err = run(capsys, "sweep", str(config), "--log-dir", str(tmp_path / "logs"))
+    assert code == 130
+    said = err.strip().splitlines()[-1]
+    assert said.startswith(f"smorphi-rl: interrupted: stopped at once; {tmp_path / 'logs' / 'tiny'} keeps the trials")
+    assert said.endswith(f"continue with `smorphi-rl sweep {config} --resume --log-dir {tmp_path / 'logs'}`")
