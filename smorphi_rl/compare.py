@@ -174,9 +174,9 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
                 np.array([f.P_len for f in rows]), settled)  # fmt: skip
     if not (run_dir / "results.npz").is_file():
         inside = sorted(d for d in run_dir.iterdir() if (d / FOUND_CSV).is_file() or (d / "results.npz").is_file())
-        if inside:  # a sweep's or a transfer job's folder: its runs are one level down
-            raise SmorphiError(f"{run_dir}: holds the results of {len(inside)} run(s) (a sweep, or a job of several "
-                               f"runs), not of one; give each run's folder, such as {inside[0]}")  # fmt: skip
+        if inside:  # a sweep's, a transfer job's or a log folder: its runs are one level down
+            raise SmorphiError(f"{run_dir}: holds the folders of {len(inside)} runs, not one run's results; give each "
+                               f"run's folder, such as {inside[0]}")  # fmt: skip
         raise SmorphiError(
             f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"
         )

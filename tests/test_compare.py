@@ -59,7 +59,7 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
     [
         ([], "give at least one run to compare"),
         (["--random", "/no/such/run"], "/no/such/run: not a run folder"),
-        (["--random", "{logs}"], "run(s) (a sweep, or a job of several runs), not of one; give each run's folder"),
+        (["--random", "{logs}"], "runs, not one run's results; give each run's folder, such as"),
         (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
         (["--random", "{logs}/nsga2-map-1-seed0"], "a `search nsga2` run, given as random (pass it with --nsga2)"),
         (["--local", "{logs}/random-map-1-seed0"], "given as hillclimb or anneal (pass it with --random)"),
