@@ -83,7 +83,7 @@ def test_compare_given_a_sweeps_folder_names_one_of_its_trials(tmp_path, capsys)
     capsys.readouterr()
     assert main(["compare", "--runs", str(sweep), "--log-dir", str(tmp_path / "out")]) == 1
     err = capsys.readouterr().err
-    assert "holds the results of 2 run(s) (a sweep, or a job of several runs), not of one" in err
+    assert "holds the folders of 2 runs, not one run's results" in err
     assert f"such as {sweep / 'ppo-map-1-seed0_00000'}" in err and err.count("\n") == 1
     empty = tmp_path / "empty"
     empty.mkdir()
