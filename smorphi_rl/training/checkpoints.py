@@ -2,26 +2,21 @@
 without running anything a checkpoint file says.
 
 RLlib's checkpoints are pickles, and a pickle can name any callable to run while it loads. So nothing
-here calls `pickle.load` or RLlib's own loaders: the module's two files are read by `SafeUnpickler`,
-which admits an exact list of (module, name) pairs (numpy arrays and dtypes, gymnasium's spaces, numpy's
-random generator state, an ordered dict) and refuses every other global, persistent id and extension
-code; our module's class is read as a marker, never called. The module is then built by our own code
+here calls `pickle.load` or RLlib's own loaders: the module's two files are read by `safe_pickle`, which
+admits an exact list of (module, name) pairs and refuses every other global; our module's class is read
+as a marker, never called. The module is then built by our own code
 from the checked spaces and configuration, and the weights are checked against its parameters, name by
 name and shape by shape, before they are set.
 """
 
 from __future__ import annotations
 
-import io
 import json
-import math
-import pickle
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special
 from smorphi_rl.policy_file import (
     PolicyFile,
@@ -31,6 +26,11 @@ from smorphi_rl.policy_file import (
     policy_problem,
     read_policy,
     weights_problem,
+)
+from smorphi_rl.training.safe_pickle import (  # re-exported: the loaders' one place for them
+    MODULE_CLASS,
+    CheckpointError,
+    safe_unpickle,
 )
 
 MODULE_SUBDIR = Path("learner_group") / "learner" / "rl_module" / "default_policy"
@@ -45,12 +45,6 @@ STAGING_PREFIX = ".checkpoint-staging-"
 """A trial writes each checkpoint into such a folder in its own trial folder (so on the disk it names, never
 $TMPDIR) before Tune copies it to `checkpoint_NNNNNN`; one a stopped or killed trial left is removed when the run
 ends (`failures.fit`)."""
-MAX_PICKLE_BYTES = 64 << 20
-"""A module's files are a few hundred KB; anything larger is not one of ours (and is not read)."""
-
-
-class CheckpointError(SmorphiError):
-    """A path that holds no checkpoint of ours."""
 
 
 def is_checkpoint(path: Path) -> bool:
@@ -97,231 +91,6 @@ def _trial_of(checkpoint: Path, root: Path) -> Path:
         if folder == root:
             break
     return checkpoint.parent
-
-
-class _ModuleClass:
-    """What the checkpoint's reference to our module class reads as: a marker, not the class (so nothing in the
-    file can construct a module with arguments of its own)."""
-
-
-MODULE_CLASS = _ModuleClass()
-SAFE_GLOBALS: dict[tuple[str, str], Any] = {}
-"""Every (module, name) a checkpoint's pickles may name, and what it reads as; filled by `_safe_globals`."""
-
-
-def _safe_globals() -> dict[tuple[str, str], Any]:
-    """The exact pairs RLlib 2.60 writes for our module (numpy 1.x and 2.x spell the array helpers differently)."""
-    if SAFE_GLOBALS:
-        return SAFE_GLOBALS
-    import collections
-
-    import gymnasium.spaces as spaces
-    from numpy.random import PCG64, SeedSequence
-
-    from smorphi_rl import rllib_compat
-
-    allowed: dict[tuple[str, str], Any] = {
-        ("collections", "OrderedDict"): collections.OrderedDict,
-        ("numpy", "dtype"): np.dtype,
-        ("gymnasium.spaces.box", "Box"): _unbuilt(spaces.Box),
-        ("gymnasium.spaces.dict", "Dict"): _unbuilt(spaces.Dict),
-        ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): _unbuilt(spaces.MultiDiscrete),
-        ("smorphi_rl.training.module", "MorphologyModule"): MODULE_CLASS,
-    }
-    # numpy's own (private) helpers for arrays and Generators; the three classes they rebuild are only ever their
-    # arguments, so the classes read as markers the helpers swap back (a pickle calling SeedSequence or ndarray
-    # itself could ask for gigabytes).
-    classes: tuple[type, ...] = (SeedSequence, PCG64, np.ndarray)
-    markers: dict[_Marker, type] = {_Marker(cls): cls for cls in classes}
-    for (module, name), helper in rllib_compat.numpy_unpickle_helpers().items():
-        allowed[(module, name)] = _unmarking(helper, markers, empty_first=name == "_reconstruct")
-    where: dict[type, str] = {SeedSequence: "numpy.random.bit_generator", PCG64: "numpy.random._pcg64",
-                              np.ndarray: "numpy"}  # fmt: skip
-    allowed |= {(where[cls], cls.__name__): marker for marker, cls in markers.items()}
-    SAFE_GLOBALS.update(allowed)
-    return SAFE_GLOBALS
-
-
-class _Marker:
-    """What a class that a pickle may only pass to numpy's helpers reads as: refused when the pickle calls it."""
-
-    def __init__(self, cls: type) -> None:
-        self.name = cls.__name__
-
-    def __call__(self, *args: Any, **kwargs: Any) -> Any:
-        raise Refused(f"it constructs a {self.name} itself, which a smorphi-rl checkpoint never does")
-
-
-def _unmarking(helper: Any, markers: dict[_Marker, type], empty_first: bool = False) -> Any:
-    """`helper`, called with each marker among its arguments replaced by its class; `empty_first`: numpy's
-    `_reconstruct`, which its pickles call for an empty array whose state then holds the data (any other shape
-    would be allocated before the file's data is seen)."""
-
-    def call(*args: Any) -> Any:
-        if empty_first and (len(args) < 2 or args[1] != (0,)):
-            raise Refused("it makes an array of its own shape before its data, which numpy's pickles never do")
-        return helper(*(markers.get(a, a) if isinstance(a, _Marker) else a for a in args))
-
-    return call
-
-
-MAX_SPACE_VALUES = 1 << 22
-"""More values than any space of ours holds (the largest observation, 2 x 512 x 512, holds 524,288)."""
-
-
-def _unbuilt(cls: type) -> type:
-    """A stand-in for a gymnasium space class that a pickle can only rebuild the way pickle writes it: an empty
-    instance whose state is then set. Never constructed with arguments of the file's own (`Box(0, 255, (30000,
-    30000))` would fill gigabytes before any check could run), and its state is checked before gymnasium's
-    `__setstate__` reads it (which, for a MultiDiscrete without `start`, allocates the state's shape)."""
-
-    def __new__(stand_in: type, *args: Any, **kwargs: Any) -> Any:
-        if args or kwargs:
-            raise Refused(f"it constructs a {cls.__name__} with arguments, which a smorphi-rl checkpoint never does")
-        space: Any = object.__new__(cls)
-
-        def checked(state: Any) -> None:  # pickle looks `__setstate__` up on the instance: this one runs first
-            del space.__dict__["__setstate__"]
-            problem = _space_state_problem(state)
-            if problem:
-                raise Refused(f"its {cls.__name__} {problem}")
-            cls.__setstate__(space, state)  # type: ignore[attr-defined]
-
-        space.__dict__["__setstate__"] = checked
-        return space
-
-    return type(f"Unbuilt{cls.__name__}", (cls,), {"__new__": __new__})
-
-
-def _space_state_problem(state: Any) -> str:
-    """What is wrong with a space's pickled state (a dict whose shape is whole sizes of at most MAX_SPACE_VALUES
-    values, whose dtype is numeric), or ''."""
-    if not isinstance(state, dict):
-        return "state is not a table"
-    shape, dtype = state.get("_shape"), state.get("dtype")
-    if shape is not None and not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
-        return f"shape {str(shape)[:40]} is not whole sizes"
-    if shape is not None and math.prod(shape) > MAX_SPACE_VALUES:
-        return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
-    if dtype is not None and not (isinstance(dtype, np.dtype) and dtype.kind in "biuf"):
-        return f"dtype {str(dtype)[:40]} is not numeric"
-    return ""
-
-
-class Refused(pickle.UnpicklingError):
-    """A pickle that names something a smorphi-rl checkpoint never holds."""
-
-
-class SafeUnpickler(pickle.Unpickler):
-    """An unpickler that resolves only the exact pairs of `SAFE_GLOBALS` and nothing else."""
-
-    def find_class(self, module: str, name: str) -> Any:
-        found = _safe_globals().get((module, name))
-        if found is None:
-            raise Refused(f"it names {module}.{name}, which a smorphi-rl checkpoint never does")
-        return found
-
-    def persistent_load(self, pid: Any) -> Any:
-        raise Refused("it holds a persistent reference, which a smorphi-rl checkpoint never does")
-
-
-def safe_unpickle(path: Path) -> Any:
-    """The object a checkpoint pickle holds, read by `SafeUnpickler`; refused in one line otherwise."""
-    try:
-        if path.is_symlink() or not path.is_file():
-            raise CheckpointError(f"{path}: missing or not a plain file (a checkpoint's files are never links)")
-        if path.stat().st_size > MAX_PICKLE_BYTES:
-            raise CheckpointError(f"{path}: {path.stat().st_size:,} bytes, larger than any smorphi-rl policy "
-                                  f"({MAX_PICKLE_BYTES:,} at most)")  # fmt: skip
-        data = path.read_bytes()
-    except OSError as exc:
-        raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    try:
-        nesting = _tuple_nesting_problem(data)
-        if nesting:
-            raise Refused(nesting)
-        obj = SafeUnpickler(io.BytesIO(data)).load()
-    except Refused as exc:
-        raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
-    except Exception as exc:
-        raise CheckpointError(f"{path}: not a readable checkpoint file ({type(exc).__name__})") from None
-    problem = _shared_problem(obj, len(data))
-    if problem:
-        raise CheckpointError(f"{path}: refused, {problem} (load only checkpoints written by smorphi-rl)")
-    return obj
-
-
-MAX_TUPLE_NESTING = 16
-"""Tuples within tuples a checkpoint's pickle may build: ours nest 3 deep (an array's state). Python hashes a tuple
-key through every level, so a 300-byte pickle of 40 levels, each naming the one below twice, hashed for hours."""
-_TUPLE_OPS = frozenset({"TUPLE", "TUPLE1", "TUPLE2", "TUPLE3", "FROZENSET"})
-_MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
-_MEMO_GETS = frozenset({"GET", "BINGET", "LONG_BINGET"})
-
-
-def _tuple_nesting_problem(data: bytes) -> str | None:
-    """Why a pickle's tuples nest too deep (MAX_TUPLE_NESTING), found from its opcodes before anything is built, or
-    None (also for a pickle the opcodes cannot be read from: the unpickler names that damage). Each stack item is
-    followed by how deep its tuples nest, through the memo too."""
-    import pickletools
-
-    stack: list[int] = []
-    marks: list[int] = []
-    memo: dict[int, int] = {}
-    try:
-        for op, arg, _ in pickletools.genops(data):
-            name = op.name
-            if name == "MARK":
-                marks.append(len(stack))
-            elif name in _MEMO_PUTS or name == "MEMOIZE":
-                memo[len(memo) if name == "MEMOIZE" else int(arg or 0)] = stack[-1] if stack else 0
-            elif name in _MEMO_GETS:
-                stack.append(memo.get(int(arg or 0), 0))
-            elif name == "DUP":
-                stack.append(stack[-1] if stack else 0)
-            else:
-                before = op.stack_before
-                if pickletools.markobject in before:  # the items above the mark, and any below it the op takes
-                    start = marks.pop() if marks else 0
-                    popped, below = stack[start:], before.index(pickletools.markobject)
-                    del stack[start:]
-                else:
-                    popped, below = [], len(before)
-                if below:
-                    popped += stack[-below:]
-                    del stack[-below:]
-                depth = 1 + max(popped, default=0) if name in _TUPLE_OPS else 0
-                if depth > MAX_TUPLE_NESTING:
-                    return f"its tuples nest over {MAX_TUPLE_NESTING} deep, which a smorphi-rl checkpoint's never do"
-                stack.extend([depth] * len(op.stack_after))
-    except (ValueError, IndexError):
-        return None
-    return None
-
-
-MAX_PICKLE_NODES = 1_000_000
-"""Values in an unpickled state: ours hold a few thousand (a module's weights about 50, a sweep's state 2,000)."""
-
-
-def _shared_problem(obj: Any, file_bytes: int) -> str | None:
-    """What makes `obj` far larger than its file, or None: a pickle may name one array or table many times (its
-    memo), so 18 MB on disk read as 200,000 arrays of 16 MB, and every later check walked each of them. Ours
-    share nothing: the arrays, counted each time they are named, hold about the file's bytes."""
-    stack, nodes, array_bytes = [obj], 0, 0
-    while stack:
-        item = stack.pop()
-        nodes += 1
-        if nodes > MAX_PICKLE_NODES:
-            return f"it holds over {MAX_PICKLE_NODES:,} values"
-        if isinstance(item, dict):
-            stack.extend(item.values())
-        elif isinstance(item, list | tuple):
-            stack.extend(item)
-        elif isinstance(item, np.ndarray):
-            array_bytes += item.nbytes
-            if array_bytes > 2 * file_bytes + (1 << 20):
-                return f"its arrays, counted where they are named, hold far more than its {file_bytes:,} bytes"
-    return None
 
 
 def check_metadata(meta: Path, state_file: str) -> None:

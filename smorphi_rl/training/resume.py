@@ -22,7 +22,8 @@ import numpy as np
 
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.checkpoints import CheckpointError, checkpoints_under, safe_unpickle
+from smorphi_rl.training.checkpoints import checkpoints_under
+from smorphi_rl.training.safe_pickle import CheckpointError, safe_unpickle
 from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows, trial_done
 
 STATE_FILE = "smorphi_state.pkl"
