@@ -188,10 +188,14 @@ class _SweepProgress:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state, out=sys.stderr)
 
-    def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
-        for b in episode_bests(result):
+    def found(self, bests: list[Any]) -> None:
+        """Take the best of these shapes (each with R1, angles and map) if it beats the one shown."""
+        for b in bests:
             if self.best[0] < b.R1:
                 self.best = (b.R1, f"{b.angles} on {b.map}")
+
+    def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
+        self.found(episode_bests(result))
         steps = int(result.get(keys.STEPS) or 0)
         maps = map_set_label(config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
@@ -312,10 +316,11 @@ def run_sweep(
         cluster.check_capacity(widest.cpus, widest.env_runners, address, _fewer_runners(sweep))
     out = out or sys.stderr
     trials = sweep.trials()
+    earlier: list[TrialRow] = []
     if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
         pending, started = read_resume(exp, trials)
-        read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
+        earlier = read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
         check_maps_unchanged(exp, digests)
     else:
         _new_experiment(log_dir, sweep.name, check_run_dir)
@@ -331,6 +336,7 @@ def run_sweep(
     quiet()
     progress = _SweepProgress(sweep, len(trials), out)
     progress.done |= {f"trial {t['index']}" for t in trials if t not in pending}
+    progress.found([r.best for r in earlier if r.best is not None])  # a resume's: shown from the first line
     t0 = time.monotonic()
     results, failed = (None, None)
     if pending:

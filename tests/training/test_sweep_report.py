@@ -97,3 +97,18 @@ def test_a_trial_without_an_evaluation_is_named_in_its_groups_figures(tmp_path):
     cells = [c.strip() for c in line.strip("|").split("|")]
     assert cells[3] == "1.50 [1.00, 2.00] (2 of 3 seeds)" and cells[4].endswith("(2 of 3 seeds)"), cells
     assert cells[-1].endswith("(2 of 3 seeds)"), cells
+
+
+def test_a_resumed_sweeps_progress_shows_the_best_its_finished_trials_found(tmp_path):
+    """A resume's status line said 'best R1 -' until a trial of this call reported, whatever earlier ones found."""
+    import io
+    from types import SimpleNamespace
+
+    from smorphi_rl.training.sweep import _SweepProgress
+
+    out = io.StringIO()
+    progress = _SweepProgress(SimpleNamespace(name="tiny", timesteps=2000), 2, out)  # type: ignore[arg-type]
+    rows = [_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, None)]
+    progress.found([r.best for r in rows if r.best is not None])
+    progress.complete("trial 0")
+    assert "best R1 89.10 (1, 2, 3) on map-1" in out.getvalue()  # seed 1's, the better
