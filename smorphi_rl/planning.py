@@ -363,7 +363,7 @@ class Planning:
         return key
 
 
-START_AREA_MIN_PCT = 10.0
+START_AREA_MIN_PCT = 50.0
 """A start area holding less of the free floor than this is named in a warning (`Planning.start_warning`)."""
 PAPER_PLANNING = Planning()
 """The paper's planning: docs/spec/fbcpp.md with its default start and the commercial block."""

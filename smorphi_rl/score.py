@@ -83,17 +83,27 @@ PATH_SHARE_WARNED = 0.5
 ranks the shapes."""
 
 
+LOW_COVERAGE_WARNED = 50.0
+"""The best shape covering less of the floor than this (P_c, %): part of the floor is out of its reach."""
+
+
 def degenerate_warning(weights: Weights, p_c: float, p_len: float, path_term: str, map_name: str) -> str | None:
-    """One line when the weights make the ranking degenerate on a floor (the best shape covering under half of it,
-    or its path term over half its coverage term: the path term swamps coverage), naming the option that fixes it;
-    None otherwise."""
+    """One line when the best shape's figures make the ranking mean little on a floor, naming what fixes it: its
+    path term over half its coverage term (the path, not coverage, ranks the shapes), or its coverage under half
+    the floor (the rest out of its reach); None otherwise."""
     if p_c <= 0:
         return f"warning: on {map_name} no shape covers any of the floor (best P_c 0 %): is it narrower than a block?"
     coverage, path = weights.w1 * p_c, weights.w2 * p_len
-    if path_term == "per_area" or (p_c >= 50 and path <= PATH_SHARE_WARNED * coverage):
-        return None
-    return (
-        f"warning: on {map_name} the path term swamps coverage (best R1 {coverage - path:.2f}: P_c {p_c:.1f} %, the "
-        f"path term {path:.2f} against coverage's {coverage:.2f}): the floor is larger than the weights were meant "
-        "for; --path-term per_area states w2 per 25 m^2 of free floor"
-    )
+    if path_term != "per_area" and path > PATH_SHARE_WARNED * coverage:
+        return (
+            f"warning: on {map_name} the path term swamps coverage (best R1 {coverage - path:.2f}: P_c {p_c:.1f} %, "
+            f"the path term {path:.2f} against coverage's {coverage:.2f}): the floor is larger than the weights were "
+            "meant for; --path-term per_area states w2 per 25 m^2 of free floor"
+        )
+    if p_c < LOW_COVERAGE_WARNED:
+        return (
+            f"warning: on {map_name} the best shape covers {p_c:.1f} % of the floor: the rest is out of its reach "
+            "(separate free areas, or passages narrower than the robot); --start-xy X Y starts on the area to "
+            "clean, and `maps crop --rect X0 Y0 X1 Y1` cuts the map down to it"
+        )
+    return None

@@ -143,3 +143,22 @@ def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, mon
     out = io.StringIO()
     assert training_optima(cfg, tmp_path / "logs", out)["hall"] == found
     assert "read from" in out.getvalue() and "warning: on hall the path term swamps coverage" in out.getvalue()
+
+
+def test_train_warns_when_its_plans_start_in_a_room_holding_under_half_the_floor(tmp_path, monkeypatch):
+    """Separate rooms: every shape covers the start's room alone, and train said nothing of it."""
+    from smorphi_rl import protocol
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import Map, save_map
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.run import training_optima
+
+    monkeypatch.delenv(protocol.CACHE_ENV, raising=False)
+    side = int(protocol.OPTIMUM_MAX_CELLS**0.5) + 1  # no optimum searched: the warning comes first regardless
+    cells = np.ones((side, side), dtype=np.uint8)
+    cells[:150, :150] = 0  # the start's room (the first free cell in row order)
+    cells[250:, 250:] = 0  # the larger room, beyond a 10 m wall
+    rooms = save_map(Map(cells, 0.1, name="rooms"), tmp_path / "rooms.yaml")
+    out = io.StringIO()
+    training_optima(TrainConfig(env=EnvConfig.from_dict({"maps": [str(rooms)]})), tmp_path / "logs", out)
+    assert "warning: on rooms plans start in a free area holding 26.3 % of the free cells" in out.getvalue()

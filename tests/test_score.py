@@ -44,10 +44,18 @@ def test_the_env_ranks_with_the_weight_in_effect_on_its_map():
         (97.32, 69, "moves", False),  # map-1's optimum: the path term is 7 % of coverage's
         (99.28, 967, "moves", True),  # depot's best: R1 2.58, positive, yet the path ranks the shapes
         (99.0, 1500, "moves", True),  # R1 negative
-        (40.0, 10, "moves", True),  # the best covers under half the floor
         (99.28, 967, "per_area", False),  # the path charged per area: the fix itself
     ],
 )
 def test_the_path_term_is_said_to_swamp_coverage_when_it_outweighs_half_of_it(p_c, p_len, path_term, warned):
     line = degenerate_warning(Weights(1.0, 0.1), p_c, p_len, path_term, "depot")
     assert (line is not None and "the path term swamps coverage" in line and "--path-term per_area" in line) == warned
+
+
+@pytest.mark.parametrize("path_term", ["moves", "per_area"])
+def test_a_best_shape_that_covers_under_half_the_floor_is_said_to_leave_the_rest_out_of_reach(path_term):
+    """Four separate rooms: the best covered the start's, 37 % of the floor, and the warning blamed the path term
+    (1.50 against coverage's 37.71) and the floor's size."""
+    line = degenerate_warning(Weights(1.0, 0.04), 37.4, 37, path_term, "islands")
+    assert line is not None and "swamps" not in line
+    assert "the best shape covers 37.4 % of the floor: the rest is out of its reach (separate free areas" in line

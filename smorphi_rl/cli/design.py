@@ -7,6 +7,7 @@ answer comes in about a second.
 from __future__ import annotations
 
 import argparse
+import sys
 import time
 from pathlib import Path
 from typing import Any
@@ -19,6 +20,7 @@ from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
 from smorphi_rl.rundir import rel
+from smorphi_rl.score import degenerate_warning
 
 
 def register(sub: Any) -> None:
@@ -75,6 +77,11 @@ def cmd_design(args: argparse.Namespace) -> int:
         record["plot"] = str(plot_coverage(env.plan(best.theta), env.grid_map, Morphology.of(best.theta),
                                            env.config.block_side_m, plot))  # fmt: skip
     record["wall_s"] = round(time.perf_counter() - t0, 3)
+    warning = env.config.planning.start_warning(env.grid_map) or degenerate_warning(
+        env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name
+    )
+    if warning:  # on stderr: --json's stdout stays one object
+        print(warning, file=sys.stderr)
     if args.json:
         print(jsontext.dumps(record))
         return 0

@@ -237,6 +237,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
         if not cfg.env.planning.is_paper_default:
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
         weights = cfg.env.weights_on(grid_map)
+        start = cfg.env.planning.start_warning(grid_map)  # separate rooms: every shape covers the start's alone
+        if start:
+            out.write(start + "\n")
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
             found = cached_optimum(grid_map, weights, cfg.env.planning, cache)
             if found is not None:
@@ -254,7 +257,7 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             show = optimum_progress(grid_map.name, out)
             optima[grid_map.name] = exact_optimum(path, weights, cfg.env.planning, cache, show)
         opt = optima[grid_map.name]
-        line = degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
+        line = None if start else degenerate_warning(weights, opt.P_c, opt.P_len, cfg.env.path_term, grid_map.name)
         if line:
             out.write(line + "\n")
     return optima

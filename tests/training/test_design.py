@@ -175,3 +175,17 @@ def test_a_design_draws_from_the_design_stream(policy, monkeypatch):
     d = load_designer(policy)
     run_design(designer_env(d, str(FLOOR)), d.logits, 30, seed=5)
     assert seen == [5]
+
+
+def test_a_design_on_separate_rooms_warns_that_the_rest_is_out_of_reach(capsys, tmp_path):
+    """Four separate rooms: the design covered the start's alone (P_c 37 %) and said nothing."""
+    from smorphi_rl.maps import Map, save_map
+
+    cells = np.ones((60, 60), dtype=np.uint8)  # occupied, with four 2 x 2 m rooms 2 m apart (no tile spans it)
+    for r in (0, 40):
+        for c in (0, 40):
+            cells[r : r + 20, c : c + 20] = 0
+    rooms = save_map(Map(cells, 0.1, name="rooms"), tmp_path / "rooms.yaml")
+    code, out, err = run(capsys, "design", "--map", str(rooms), "--json", "--budget", "20")
+    assert code == 0 and json.loads(out)["coverage_free_pct"] < 30  # stdout stays one object
+    assert "warning: on rooms plans start in a free area holding 25.0 % of the free cells" in err
