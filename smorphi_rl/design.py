@@ -31,6 +31,10 @@ DESIGN_SEED = 7
 """Seeds the designer's starts and its sampled moves: another stream than the protocol's starts."""
 DEFAULT_BUDGET = 200
 """Planner evaluations (distinct shapes) a design may use by default."""
+PROGRESS_EVERY = 256
+"""Shapes scored between two reports to a design's `progress`."""
+PROGRESS_FROM = 2_000
+"""Budgets from which `design` shows a progress bar (100,000 took 45 s in silence; 200 takes 0.3 s)."""
 GREEDY_ROLLOUTS = 16
 """Greedy roll-outs before the sampled ones."""
 REFINE_SHARE = 0.4
@@ -105,10 +109,11 @@ def moves(logits: np.ndarray, nvec: Sequence[int], rng: np.random.Generator | No
 
 def run_design(
     env: Any, logits: Logits, budget: int = DEFAULT_BUDGET, greedy: int = GREEDY_ROLLOUTS,
-    starts: np.ndarray | None = None, seed: int = DESIGN_SEED,
+    starts: np.ndarray | None = None, seed: int = DESIGN_SEED, progress: Callable[[int, int], None] | None = None,
 ) -> Design:  # fmt: skip
     """Roll-outs of the policy on `env` (a MorphologyEnv of one map) until `budget` distinct shapes are scored
-    (module docstring); the best shape scored is the design."""
+    (module docstring); the best shape scored is the design. `progress(done, budget)` hears of every
+    PROGRESS_EVERY shapes scored."""
     budget = check_budget(budget)
     policy_budget = max(1, budget - int(REFINE_SHARE * budget))
     starts = design_starts(step_deg=env.config.angle_step_deg) if starts is None else starts
@@ -119,6 +124,7 @@ def run_design(
     scored: dict[tuple[float, float, float], Scored] = {}
     walks: list[list[tuple[float, float, float]]] = []
     steps, max_steps = 0, MAX_STEPS_PER_EVALUATION * budget
+    reported = 0  # PROGRESS_EVERYs of shapes told to `progress`
     while len(scored) < policy_budget and steps < max_steps:
         sampled = len(walks) >= greedy
         start = starts[len(walks) % len(starts)]
@@ -138,7 +144,11 @@ def run_design(
             walk.append(theta)
             if theta in scored and not sampled:  # a greedy revisit: from here the walk repeats one already scored
                 break
-            scored.setdefault(theta, env.current)
+            if theta not in scored:
+                scored[theta] = env.current
+                if progress is not None and len(scored) // PROGRESS_EVERY > reported:
+                    reported = len(scored) // PROGRESS_EVERY
+                    progress(len(scored), budget)
             if terminated or truncated:
                 break
     rollouts = len(walks)
@@ -147,9 +157,12 @@ def run_design(
         from smorphi_rl.search.local import compass_refine
 
         start = max(scored.values(), key=lambda s: s.R1).theta
-        refined = compass_refine(env, {t: s.R1 for t, s in scored.items()}, start, budget, rng)
+        told = None if progress is None else (lambda n: progress(n, budget) if n % PROGRESS_EVERY == 0 else None)
+        refined = compass_refine(env, {t: s.R1 for t, s in scored.items()}, start, budget, rng, told)
         scored |= {t: env.score(t) for t in refined}
         walks.append(refined)
     best = max(scored.values(), key=lambda s: s.R1)
+    if progress is not None:
+        progress(budget, budget)
     return Design(best, len(scored), env.planner_calls - calls0, rollouts, time.perf_counter() - t0,
                   refined=len(refined), walks=walks)  # fmt: skip

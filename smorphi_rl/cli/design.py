@@ -14,11 +14,12 @@ from typing import Any
 
 from smorphi_rl import jsontext
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty
-from smorphi_rl.design import DEFAULT_BUDGET
+from smorphi_rl.design import DEFAULT_BUDGET, PROGRESS_FROM
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
+from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
 from smorphi_rl.score import degenerate_warning
 
@@ -30,9 +31,11 @@ def register(sub: Any) -> None:
     ds.add_argument("--policy", default=None, help=f"an exported policy folder (default: the shipped designer, "
                     f"{rel(SHIPPED_DESIGNER)})")  # fmt: skip
     ds.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="N",
-                    help=f"planner evaluations (distinct shapes) at most (default: {DEFAULT_BUDGET})")  # fmt: skip
+                    help=f"planner evaluations (distinct shapes) at most (default: {DEFAULT_BUDGET}); tens of "
+                    "thousands take longer than --exact's search of every shape")  # fmt: skip
     ds.add_argument("--exact", action="store_true", help="also find the exact 1-degree optimum (every shape, about "
-                    "10-60 s the first time, cached under LOG_DIR/.cache) and report the gap")  # fmt: skip
+                    "10 s to 2.5 min the first time, by the floor's size; cached under LOG_DIR/.cache) and report "
+                    "the gap")  # fmt: skip
     ds.add_argument("--json", action="store_true", help="print one JSON object")
     ds.add_argument("--plot", help="write a PNG of the proposed shape's coverage on the floor")
     ds.add_argument("--force", action="store_true", help=FORCE_HELP)
@@ -52,7 +55,10 @@ def cmd_design(args: argparse.Namespace) -> int:
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
-    result = run_design(env, designer.logits, args.budget)
+    show = (
+        progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if args.budget >= PROGRESS_FROM else None
+    )
+    result = run_design(env, designer.logits, args.budget, progress=show)
     best = result.best
     record: dict[str, Any] = {
         "map": env.grid_map.name, "policy": str(designer.path), "theta": list(best.theta), "P_c": best.P_c,

@@ -51,7 +51,9 @@ ANNEAL_MOVES_PER_EVALUATION = 20
 class _Budgeted:
     """R1 of shapes on one env's map, counting distinct shapes scored; stops answering past the budget."""
 
-    def __init__(self, env: MorphologyEnv, budget: int) -> None:
+    def __init__(self, env: MorphologyEnv, budget: int, on_score: Callable[[int], None] | None = None) -> None:
+        self.on_score = on_score
+        """Told the count of shapes scored after each new one (a design's progress)."""
         self.step = env.config.angle_step_deg
         self.n = round(180 / self.step)
         self.lattice = (self.n + 1) ** 3
@@ -76,6 +78,8 @@ class _Budgeted:
         scored = self.env.score(theta)
         self.metrics[theta] = (float(scored.P_c), int(scored.P_len), bool(scored.feasible))
         value = self.seen[theta] = float(scored.R1)
+        if self.on_score is not None:
+            self.on_score(len(self.seen))
         return value
 
     def moved(self, theta: Theta, move: tuple[int, ...]) -> Theta:
@@ -218,13 +222,14 @@ class _Regions:
 
 
 def compass_refine(
-    env: MorphologyEnv, seen: dict[Theta, float], start: Theta, budget: int, rng: np.random.Generator
-) -> list[Theta]:
+    env: MorphologyEnv, seen: dict[Theta, float], start: Theta, budget: int, rng: np.random.Generator,
+    on_score: Callable[[int], None] | None = None,
+) -> list[Theta]:  # fmt: skip
     """Compass search (`pattern`) on `env` from `start`, the shapes of `seen` (with their R1) counted as scored,
     until `budget` shapes are scored in all; the shapes it scored, in order (what a design spends its last
     evaluations on). A climb that ends restarts from the best shape scored far from every shape a climb started
     from or moved to (`_Regions`): where the policy's walks rated the floor well, not a random shape."""
-    space = _Budgeted(env, budget)
+    space = _Budgeted(env, budget, on_score)
     space.seen.update(seen)
     pattern(space, start, rng, _Regions(space))
     return [t for t in space.seen if t not in seen]

@@ -63,6 +63,19 @@ def test_a_design_spends_at_most_its_budget_and_answers_the_best_it_scored(polic
     assert again.best.theta == design.best.theta and again.walks == design.walks  # seeded: repeatable
 
 
+def test_a_large_design_reports_its_progress_through_both_phases_and_ends_at_its_budget(policy):
+    """A budget of 100,000 ran 45 s in silence; the bar hears of every 256 shapes, the policy's and the search's."""
+    from smorphi_rl.design import PROGRESS_EVERY
+
+    designer = load_designer(policy)
+    heard: list[tuple[int, int]] = []
+    design = run_design(designer_env(designer, str(FLOOR)), designer.logits, 1_500, progress=lambda *c: heard.append(c))
+    counts = [done for done, _ in heard]
+    assert all(total == 1_500 for _, total in heard) and counts[-1] == 1_500 and counts == sorted(counts)
+    assert [c // PROGRESS_EVERY for c in counts[:-1]] == list(range(1, 1_500 // PROGRESS_EVERY + 1))  # both phases
+    assert design.refined > 0 and design.evaluations == 1_500
+
+
 def test_design_prints_the_shape_its_cost_and_the_gap(policy, capsys, tmp_path):
     code, out, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), "--budget", "50",
                          "--exact", "--log-dir", str(tmp_path), "--plot", str(tmp_path / "d.png"))  # fmt: skip
