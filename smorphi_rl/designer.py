@@ -93,7 +93,8 @@ def accepts(designer: Designer, grid_map: Map) -> None:
                            "metres in the map frame)")  # fmt: skip
     if free_m2 > limits["max_free_m2"]:
         raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
-                           f"{limits['max_free_m2']:g} m^2")  # fmt: skip
+                           f"{limits['max_free_m2']:g} m^2 (cut a part of it with `maps crop --rect X0 Y0 X1 Y1`, "
+                           "metres in the map frame)")  # fmt: skip
 
 
 def designer_env(designer: Designer, map_path: str) -> Any:

@@ -98,7 +98,11 @@ def read_policy(path: str | Path) -> PolicyFile:
     finite float arrays (nothing in either file can run code)."""
     folder = Path(path)
     if not is_policy_dir(folder):
-        raise PolicyFileError(f"{folder}: holds no smorphi-rl policy ({POLICY_JSON} and {WEIGHTS_NPZ})")
+        levels = ("", "*/", "*/*/")  # a checkpoint, a trial, a run: not a walk of whatever folder was given
+        trained = folder.is_dir() and any(next(folder.glob(f"{k}rllib_checkpoint.json"), None) for k in levels)
+        export = f"`smorphi-rl export-policy --checkpoint {folder} --out DIR` writes one"
+        hint = f"; it holds a training run's checkpoints: {export}" if trained else ""
+        raise PolicyFileError(f"{folder}: holds no smorphi-rl policy ({POLICY_JSON} and {WEIGHTS_NPZ}){hint}")
     meta_file, weights_file = folder / POLICY_JSON, folder / WEIGHTS_NPZ
     for file, limit in ((meta_file, MAX_JSON_BYTES), (weights_file, MAX_WEIGHTS_BYTES)):
         if file.stat().st_size > limit:

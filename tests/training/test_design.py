@@ -122,6 +122,9 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
     fine = save_map(Map(np.zeros((100, 100), dtype=np.uint8), 0.02, name="fine"), tmp_path / "fine.yaml")
     code, _, err = run(capsys, "design", "--map", str(fine), "--policy", str(policy))
     assert code == 1 and "resolution 0.02 m" in err and "maps resample" in err
+    hall = save_map(Map(np.zeros((190, 190), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")  # 361 m^2
+    code, _, err = run(capsys, "design", "--map", str(hall), "--policy", str(policy))
+    assert code == 1 and "361 m^2 of free floor; this designer takes up to 200 m^2 (cut a part of it with" in err
 
 
 def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
@@ -129,7 +132,11 @@ def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(picture))
     assert code == 1 and "trained on 'picture'" in err
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(tmp_path))
-    assert code == 1 and "holds no smorphi-rl policy" in err
+    assert code == 1 and "holds no smorphi-rl policy" in err and "export-policy" not in err
+    (tmp_path / "run" / "trial").mkdir(parents=True)  # a training run's folder: the command that exports one
+    (tmp_path / "run" / "trial" / "rllib_checkpoint.json").write_text("{}")
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(tmp_path / "run"))
+    assert code == 1 and f"`smorphi-rl export-policy --checkpoint {tmp_path / 'run'} --out DIR` writes one" in err
 
 
 def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_problem(policy, capsys, tmp_path):
