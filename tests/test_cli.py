@@ -91,6 +91,21 @@ def test_angles_file_json_lines_in_input_order(capsys, tmp_path):
     assert lines[0].startswith("t1,t2,t3,P_c") and len(lines) == 5 and lines[1] == lines[4]
 
 
+def test_evaluate_scores_r1_as_design_and_search_weigh_it(capsys, tmp_path):
+    """evaluate printed no R1: a design's or a search's answer could not be checked without arithmetic by hand."""
+    code, out, _ = run(capsys, "design", "--map", MAP_1, "--json", "--budget", "30")
+    design = json.loads(out)
+    angles = [f"{t:g}" for t in design["theta"]]
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", *angles, "--path-term", "per_area", "--json")
+    assert code == 0 and json.loads(out)["R1"] == pytest.approx(design["R1"])
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "95", "59", "103", "--w2", "0.2")
+    assert "\nR1           79.2400 (R1 = 1 P_c - 0.2 P_len)" in out  # 97.24 - 0.2 x 90
+    f = tmp_path / "angles.csv"
+    f.write_text("95,59,103\n")
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(f))
+    assert out.splitlines()[0].endswith(",R1") and out.splitlines()[1].endswith(",88.240000")
+
+
 def test_plot_writes_a_png(capsys, tmp_path):
     png = tmp_path / "sub" / "cov.png"
     code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "95", "59", "103", "--plot", str(png))

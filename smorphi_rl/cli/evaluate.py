@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option
+from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, weight_options, weights
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -24,6 +24,7 @@ from smorphi_rl.geometry import Morphology, angles_text, check_block_side
 from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import Cell, Map, load_map, map_inputs
 from smorphi_rl.progress import progress_line
+from smorphi_rl.score import Weights
 
 
 def register(sub: Any) -> None:
@@ -39,6 +40,7 @@ def register(sub: Any) -> None:
     ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
                     "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
     planner_option(ev, start=False)
+    weight_options(ev)
     ev.add_argument("--path", action="store_true",
                     help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
                     "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip
@@ -182,6 +184,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None
     morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
     grid_map = load_map(args.map)
+    score = weights(args).weights_on(grid_map)  # R1, as search, design and train rank shapes
     from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, args.block_side, whole_footprint=args.planner == Planner.FIT.value)  # it holds a robot
@@ -191,21 +194,23 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
                               planner=Planner(args.planner))  # fmt: skip
         if not args.json:
-            sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w\n")
+            sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w,"
+                             "R1\n")  # fmt: skip
         show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
         for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
             batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
-            lines = [jsontext.dumps(r) for r in batch.records()] if args.json else [_csv_row(r) for r in batch]
+            lines = ([jsontext.dumps(r | {"R1": float(score.r1(r["P_c"], r["P_len"]))}) for r in batch.records()]
+                     if args.json else [_csv_row(r, score) for r in batch])  # fmt: skip
             sys.stdout.write("\n".join(lines) + "\n")
             if show is not None:
                 show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
-    return _one_shape(args, grid_map, morphology)
+    return _one_shape(args, grid_map, morphology, score)
 
 
-def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology) -> int:
+def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, score: Weights) -> int:
     """Report one shape. Without a plot, a path or a chosen start, a small map is planned in plain Python
     (`coverage_reference.quick_result`, equal to the kernels by test), so the answer skips numba's start-up."""
     planner = Planner(args.planner)
@@ -237,13 +242,13 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology) 
 
         plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
     if args.json:
-        record = result.to_dict()
+        record = result.to_dict() | {"R1": float(score.r1(result.P_c, result.P_len))}
         if args.path:
             record["footprint"] = [] if result.footprint is None else result.footprint.astype(int).tolist()
             record["placements"] = [] if result.placements is None else result.placements.tolist()
         print(jsontext.dumps(record))
         return 0
-    print(format_result(result, grid_map, start_text(start, area_pct, result), plot_path))
+    print(format_result(result, grid_map, start_text(start, area_pct, result), plot_path, score))
     return 0
 
 
@@ -258,13 +263,13 @@ def start_text(start: Start, area_pct: float, result: CoverageResult) -> str:
     return f"{where}, F's corner on cell ({row}, {col})"
 
 
-def _csv_row(r: CoverageResult) -> str:
+def _csv_row(r: CoverageResult, score: Weights) -> str:
     theta = [f"{t:g}" for t in r.theta]
     fields = [*theta, f"{r.P_c:.6f}", f"{r.coverage_free_pct:.6f}", r.P_len, f"{r.path_length_m:.4f}"]
-    return ",".join(str(v) for v in [*fields, int(r.feasible), *r.footprint_cells])
+    return ",".join(str(v) for v in [*fields, int(r.feasible), *r.footprint_cells, f"{score.r1(r.P_c, r.P_len):.6f}"])
 
 
-def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: Path | None) -> str:
+def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: Path | None, score: Weights) -> str:
     """The human-readable report of one evaluation."""
     pct = {c: 100 * grid_map.fraction(c) for c in Cell}
     theta = ", ".join(f"{t:g}" for t in result.theta)
@@ -285,6 +290,7 @@ def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: 
                       if result.planner == "fit" else "every reachable tile (the paper's planner covers them all)"),
         ("P_len", f"{result.P_len} tile moves"),
         ("path length", f"{result.path_length_m:.2f} m ({result.path_length_cells} cells)"),
+        ("R1", f"{score.r1(result.P_c, result.P_len):.4f} ({score.formula()})"),
     ]  # fmt: skip
     if plot_path is not None:
         rows.append(("plot", str(plot_path)))
