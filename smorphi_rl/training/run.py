@@ -328,8 +328,10 @@ def train(
     address: str | None = None,
     out: Any = None,
     label: str | None = None,
+    optima_log_dir: str | Path | None = None,
 ) -> RunSummary:
-    """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`."""
+    """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`; the exact optima are cached under
+    `optima_log_dir` (default `log_dir`), so a job's runs share the cache of the folder the user named."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
     digests = map_digests(cfg)
@@ -342,7 +344,7 @@ def train(
     out = out or sys.stderr
     run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
     try:
-        optima = training_optima(cfg, log_dir, out)
+        optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
         callbacks = trial_callbacks(cfg, optima, callbacks)
         quiet()
         with cluster.ray_session(address):

@@ -199,7 +199,7 @@ def run_transfer(
                 if (job_dir / run_name).exists():
                     rename_cut_run(job_dir / run_name)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{run_cfg.algo.upper()} {run_name}")  # fmt: skip
+                                label=f"{run_cfg.algo.upper()} {run_name}", optima_log_dir=log_dir)  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such

@@ -194,7 +194,7 @@ def fake_runs(tmp_path, monkeypatch):
     def train(cfg, name, log_dir, **kwargs):
         calls.append(name)
         algos.append(cfg.algo)
-        (Path(log_dir) / ".cache").mkdir(exist_ok=True)  # the exact optima, as the real one caches them
+        (Path(kwargs.get("optima_log_dir", log_dir)) / ".cache").mkdir(exist_ok=True)  # as the real one caches
         if stops.get(len(calls)) == "reported":
             (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
         if stops.get(len(calls)) == "error":
@@ -373,15 +373,23 @@ def test_a_job_name_taken_by_an_earlier_job_says_how_to_continue_it(tmp_path, fa
 
 
 def test_a_resumed_job_folder_holding_a_link_is_refused_before_anything_trains(tmp_path, fake_runs, capsys):
-    """The optima's cache of a handed-over job linked elsewhere: the resume would have written the optima there."""
+    """A handed-over job whose run folder links elsewhere: the resume would have written that run there."""
     from smorphi_rl.cli import main
 
     argv, calls, _stops, _algos = fake_runs
     assert main([*argv, "--seeds", "0"]) == 0
     (tmp_path / "elsewhere").mkdir()
-    (tmp_path / "logs" / "job" / ".cache").rename(tmp_path / "cache-was")
-    (tmp_path / "logs" / "job" / ".cache").symlink_to(tmp_path / "elsewhere")
+    (tmp_path / "logs" / "job" / "val-1-fine-tune-seed1").symlink_to(tmp_path / "elsewhere")
     capsys.readouterr()
     assert main([*argv, "--seeds", "0", "1", "--resume"]) == 1
-    assert ".cache: a link inside" in capsys.readouterr().err
+    assert "val-1-fine-tune-seed1: a link inside" in capsys.readouterr().err
     assert len(calls) == 2 and not list((tmp_path / "elsewhere").iterdir())
+
+
+def test_a_jobs_runs_cache_the_exact_optima_under_the_log_dir_the_user_named(tmp_path, fake_runs, capsys):
+    """They cached them under the job's own folder: `design --exact`'s optimum of the same map was searched again."""
+    from smorphi_rl.cli import main
+
+    argv, _calls, _stops, _algos = fake_runs
+    assert main([*argv, "--seeds", "0"]) == 0
+    assert (tmp_path / "logs" / ".cache").is_dir() and not (tmp_path / "logs" / "job" / ".cache").exists()
