@@ -55,10 +55,9 @@ def cmd_design(args: argparse.Namespace) -> int:
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
-    show = (
-        progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if args.budget >= PROGRESS_FROM else None
-    )
-    result = run_design(env, designer.logits, args.budget, progress=show)
+    large = args.budget >= PROGRESS_FROM
+    bar = progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if large else None
+    result = run_design(env, designer.logits, args.budget, progress=bar)
     best = result.best
     record: dict[str, Any] = {
         "map": env.grid_map.name, "policy": str(designer.path), "theta": list(best.theta), "P_c": best.P_c,
