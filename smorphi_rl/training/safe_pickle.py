@@ -4,7 +4,7 @@ or hang the reader.
 A pickle can name any callable to run while it loads. `SafeUnpickler` admits an exact list of (module, name) pairs
 (numpy arrays and dtypes, gymnasium's spaces, numpy's random generator state, an ordered dict) and refuses every
 other global, persistent id and extension code; our module's class is read as a marker, never called. Before it
-runs, a pickle whose tuples nest deeper than ours is refused from its opcodes; after, one whose arrays, counted
+runs, a pickle whose values nest deeper than ours is refused from its opcodes; after, one whose arrays, counted
 where they are named, hold far more than its file.
 """
 
@@ -165,8 +165,10 @@ def safe_unpickle(path: Path) -> Any:
         data = path.read_bytes()
     except OSError as exc:
         raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    nesting = _tuple_nesting_problem(data)
+    if nesting == UNREADABLE:  # damaged, cut short, or read otherwise by the unpickler: never loaded
+        raise CheckpointError(f"{path}: not a readable checkpoint file ({UNREADABLE})")
     try:
-        nesting = _tuple_nesting_problem(data)
         if nesting:
             raise Refused(nesting)
         obj = SafeUnpickler(io.BytesIO(data)).load()
@@ -180,25 +182,31 @@ def safe_unpickle(path: Path) -> Any:
     return obj
 
 
-MAX_TUPLE_NESTING = 16
-"""Tuples within tuples a checkpoint's pickle may build: ours nest 2 deep (an array's state). Python hashes a tuple
-key through every level, so a 300-byte pickle of 40 levels, each naming the one below twice, hashed for hours."""
+MAX_NESTING = 16
+"""Values within values a checkpoint's pickle may build: ours nest at most 7 deep (1,044 real files).
+Python hashes a tuple key through every level, so a 300-byte pickle of 40 levels, each naming the one below twice,
+hashed for hours."""
+MAX_PICKLE_OPS = 1_000_000
+"""Opcodes in a checkpoint's pickle: ours hold a few thousand (3,522 the most of 1,044 real files)."""
+UNREADABLE = "its opcodes cannot be read"
 _TUPLE_OPS = frozenset({"TUPLE", "TUPLE1", "TUPLE2", "TUPLE3", "FROZENSET"})
 _MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
 _MEMO_GETS = frozenset({"GET", "BINGET", "LONG_BINGET"})
 
 
 def _tuple_nesting_problem(data: bytes) -> str | None:
-    """Why a pickle's tuples nest too deep (MAX_TUPLE_NESTING), found from its opcodes before anything is built, or
-    None (also for a pickle the opcodes cannot be read from: the unpickler names that damage). Each stack item is
-    followed by how deep its tuples nest, through the memo too."""
+    """Why a pickle is refused from its opcodes before anything is built (values nested over MAX_NESTING deep, over
+    MAX_PICKLE_OPS opcodes, opcodes that cannot be read), or None. Each stack item is followed by how deep it nests
+    (every op's result as deep as the deepest value it takes, a tuple one deeper), through the memo too."""
     import pickletools
 
     stack: list[int] = []
     marks: list[int] = []
     memo: dict[int, int] = {}
     try:
-        for op, arg, _ in pickletools.genops(data):
+        for count, (op, arg, _) in enumerate(pickletools.genops(data)):
+            if count >= MAX_PICKLE_OPS:
+                return f"it holds over {MAX_PICKLE_OPS:,} opcodes, which a smorphi-rl checkpoint never does"
             name = op.name
             if name == "MARK":
                 marks.append(len(stack))
@@ -219,12 +227,12 @@ def _tuple_nesting_problem(data: bytes) -> str | None:
                 if below:
                     popped += stack[-below:]
                     del stack[-below:]
-                depth = 1 + max(popped, default=0) if name in _TUPLE_OPS else 0
-                if depth > MAX_TUPLE_NESTING:
-                    return f"its tuples nest over {MAX_TUPLE_NESTING} deep, which a smorphi-rl checkpoint's never do"
+                depth = max(popped, default=0) + (name in _TUPLE_OPS)  # BUILD, REDUCE, SETITEMS keep what they take
+                if depth > MAX_NESTING:
+                    return f"its values nest over {MAX_NESTING} deep, which a smorphi-rl checkpoint's never do"
                 stack.extend([depth] * len(op.stack_after))
-    except (ValueError, IndexError):
-        return None
+    except Exception:  # pickletools reads some opcodes more strictly than the unpickler (`I0x1`): refuse them
+        return UNREADABLE
     return None
 
 

@@ -242,20 +242,32 @@ def test_weights_named_many_times_in_their_pickle_are_refused_before_they_are_wa
         load_module(checkpoint)
 
 
-def _nested_tuple_key(depth: int) -> bytes:
-    """A pickle of `{t: 1}`, t a tuple holding the one below twice, `depth` levels: about 7 bytes a level."""
-    out = bytearray(b"\x80\x02)q\x00")  # PROTO 2, EMPTY_TUPLE, BINPUT 0
-    for level in range(1, depth + 1):  # BINGET twice, TUPLE2, BINPUT
-        out += b"h" + bytes([level - 1]) + b"h" + bytes([level - 1]) + b"\x86q" + bytes([level])
+def _nested_tuple_key(depth: int, build_every: int = 0, head: bytes = b"") -> bytes:
+    """A pickle of `{t: 1}`, t a tuple holding the one below twice, `depth` levels: about 7 bytes a level;
+    `build_every` levels a `NONE BUILD` that leaves the tuple as it is; `head`: opcodes before it all."""
+    out = bytearray(b"\x80\x02" + head + b")q\x00")  # PROTO 2, (head), EMPTY_TUPLE, BINPUT 0
+    for level in range(1, depth + 1):  # BINGET twice, TUPLE2, (NONE BUILD), BINPUT
+        out += b"h" + bytes([level - 1]) + b"h" + bytes([level - 1]) + b"\x86"
+        out += b"Nb" if build_every and level % build_every == 0 else b""
+        out += b"q" + bytes([level])
     return bytes(out + b"}h" + bytes([depth]) + b"K\x01s.")  # EMPTY_DICT, BINGET, BININT1 1, SETITEM, STOP
 
 
-def test_a_tuple_key_nested_too_deep_to_hash_is_refused_before_it_is_built(genuine, tmp_path):
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        (_nested_tuple_key(40), "its values nest over 16 deep"),
+        (_nested_tuple_key(40, build_every=10), "its values nest over 16 deep"),  # BUILD kept its depth
+        (_nested_tuple_key(40, head=b"I0x1\n0"), "not a readable checkpoint file \\(its opcodes cannot be read"),
+    ],  # the unpickler reads 0x1, pickletools does not: the scan was skipped
+    ids=["plain", "a BUILD every 10 levels", "an INT pickletools cannot read"],
+)
+def test_a_tuple_key_nested_too_deep_to_hash_is_refused_before_it_is_built(genuine, tmp_path, data, message):
     """Python hashes a tuple through every level, twice a level here: 300 bytes of 40 levels hashed for hours."""
-    checkpoint = plant(genuine, tmp_path, "module_state.pkl", _nested_tuple_key(40))
-    with pytest.raises(CheckpointError, match="refused, its tuples nest over 16 deep"):
+    checkpoint = plant(genuine, tmp_path, "module_state.pkl", data)
+    with pytest.raises(CheckpointError, match=message):
         load_module(checkpoint)
-    assert pickle.loads(_nested_tuple_key(3))  # the same pickle, shallow, is a dict of one tuple key
+    assert pickle.loads(_nested_tuple_key(3, build_every=2))  # the same pickles, shallow, are a dict of a tuple key
 
 
 def _ctor_with_model_config(genuine: Path, model_config: object) -> bytes:
