@@ -8,7 +8,6 @@ in one compiled call, deduplicated by F, and only unseen footprints are planned.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 
@@ -350,10 +349,14 @@ class Planning:
         share = free_area_share(grid_map, cell)
         if share >= START_AREA_MIN_PCT:
             return None
-        x, y = grid_map.world_of(*cell) if cell is not None else (math.nan, math.nan)
-        return (f"warning: on {grid_map.name} plans start in a free area holding {share:.1f} % of the free cells "
-                f"(around ({x:.2f}, {y:.2f}) m): --start-xy X Y starts them on the floor to clean, and "
-                "`maps crop --min-island M2` drops specks of free space")  # fmt: skip
+        x, y = grid_map.world_of(*cell) if cell is not None else (0.0, 0.0)
+        where = "the largest free area" if cell is None else f"around ({x:.2f}, {y:.2f}) m"
+        fix = ("`maps crop --min-island M2` drops specks of free space" if share < SPECK_PCT else
+               "`maps crop --rect X0 Y0 X1 Y1` cuts the map down to one of its rooms")  # fmt: skip
+        return (
+            f"warning: on {grid_map.name} plans start in a free area holding {share:.1f} % of the free cells "
+            f"({where}): the rest is out of reach; --start-xy X Y starts them on the floor to clean, and {fix}"
+        )
 
     def key(self) -> list[object]:
         """What a cache of results keys on (the paper planner's default start keeps its old key)."""
@@ -365,6 +368,8 @@ class Planning:
 
 START_AREA_MIN_PCT = 50.0
 """A start area holding less of the free floor than this is named in a warning (`Planning.start_warning`)."""
+SPECK_PCT = 10.0
+"""A start area under this share of the free floor is a speck (laser noise), not a room: another fix is named."""
 PAPER_PLANNING = Planning()
 """The paper's planning: docs/spec/fbcpp.md with its default start and the commercial block."""
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import shlex
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -100,7 +101,7 @@ def read_policy(path: str | Path) -> PolicyFile:
     if not is_policy_dir(folder):
         levels = ("", "*/", "*/*/")  # a checkpoint, a trial, a run: not a walk of whatever folder was given
         trained = folder.is_dir() and any(next(folder.glob(f"{k}rllib_checkpoint.json"), None) for k in levels)
-        export = f"`smorphi-rl export-policy --checkpoint {folder} --out DIR` writes one"
+        export = f"`smorphi-rl export-policy --checkpoint {shlex.quote(str(folder))} --out DIR` writes one"
         hint = f"; it holds a training run's checkpoints: {export}" if trained else ""
         raise PolicyFileError(f"{folder}: holds no smorphi-rl policy ({POLICY_JSON} and {WEIGHTS_NPZ}){hint}")
     meta_file, weights_file = folder / POLICY_JSON, folder / WEIGHTS_NPZ

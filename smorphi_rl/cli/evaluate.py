@@ -197,10 +197,16 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
             sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w,"
                              "R1\n")  # fmt: skip
         show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
+        formula = score.formula()
         for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
             batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
-            lines = ([jsontext.dumps(r | {"R1": float(score.r1(r["P_c"], r["P_len"]))}) for r in batch.records()]
-                     if args.json else [_csv_row(r, score) for r in batch])  # fmt: skip
+            if args.json:
+                scored = [
+                    r | {"R1": float(score.r1(r["P_c"], r["P_len"])), "weights": formula} for r in batch.records()
+                ]
+                lines = [jsontext.dumps(r) for r in scored]
+            else:
+                lines = [_csv_row(r, score) for r in batch]
             sys.stdout.write("\n".join(lines) + "\n")
             if show is not None:
                 show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
@@ -242,7 +248,7 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, 
 
         plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
     if args.json:
-        record = result.to_dict() | {"R1": float(score.r1(result.P_c, result.P_len))}
+        record = result.to_dict() | {"R1": float(score.r1(result.P_c, result.P_len)), "weights": score.formula()}
         if args.path:
             record["footprint"] = [] if result.footprint is None else result.footprint.astype(int).tolist()
             record["placements"] = [] if result.placements is None else result.placements.tolist()

@@ -204,7 +204,7 @@ def run_transfer(
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException as exc:
-        if not (resume or any((job_dir / n).exists() for *_, n in planned)):  # (not the optima's .cache)
+        if not (resume or any((job_dir / n).exists() for *_, n in planned)):
             discard_run_dir(job_dir)  # nothing trained: the name stays free
         elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
             raise TransferInterrupted(job_dir, reported()) from None
@@ -229,7 +229,7 @@ def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
     if not is_transfer_job(job_dir):
         raise TrainConfigError(f"--resume: {job_dir} is not a transfer job (no {JOB_FILE}; give the --name and "
                                "--log-dir of the job to continue)")  # fmt: skip
-    refuse_links(job_dir)  # its runs and the optima's cache would be written through them
+    refuse_links(job_dir)  # its runs would be written through them
     return job_dir
 
 
