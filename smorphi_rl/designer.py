@@ -15,7 +15,9 @@ import numpy as np
 
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.floorplans import DEFAULT_RANGE
 from smorphi_rl.inputs import is_finite_number
+from smorphi_rl.map_sources import is_generator
 from smorphi_rl.maps import Cell, Map, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
 from smorphi_rl.policy_file import PolicyFile, layout_problem, read_policy
@@ -77,8 +79,7 @@ def accepts(designer: Designer, grid_map: Map) -> None:
                            "numbers")  # fmt: skip
     limits = {**ACCEPTS, **given}
     r = grid_map.resolution_m
-    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
-    sides = ((rows.max() - rows.min() + 1) * r, (cols.max() - cols.min() + 1) * r)
+    sides = known_sides(grid_map)
     cells_per_block = designer.env_config.block_side_m / r
     free_m2 = grid_map.counts[Cell.FREE] * r * r
     name = grid_map.name
@@ -95,6 +96,36 @@ def accepts(designer: Designer, grid_map: Map) -> None:
         raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
                            f"{limits['max_free_m2']:g} m^2 (cut a part of it with `maps crop --rect X0 Y0 X1 Y1`, "
                            "metres in the map frame)")  # fmt: skip
+
+
+def known_sides(grid_map: Map) -> tuple[float, float]:
+    """The sides in metres of the bounding box of the map's known (free or occupied) cells."""
+    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    r = grid_map.resolution_m
+    return float((rows.max() - rows.min() + 1) * r), float((cols.max() - cols.min() + 1) * r)
+
+
+def training_sides(designer: Designer) -> tuple[float, float] | None:
+    """The least and greatest side of the floors the designer was trained on, where its maps say (generated floors
+    only: their sides are drawn from `floorplans.DEFAULT_RANGE`); None for a designer trained on map files."""
+    if not designer.env_config.maps or not all(is_generator(m) for m in designer.env_config.maps):
+        return None
+    return DEFAULT_RANGE.min_side_m, DEFAULT_RANGE.max_side_m
+
+
+def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:
+    """A warning when the floor's known area is smaller or larger than every floor the designer was trained on: it
+    accepts such a floor, but nothing measured says how near the best its design lies there."""
+    trained = training_sides(designer)
+    if trained is None:
+        return None
+    lo, hi = trained
+    sides = known_sides(grid_map)
+    if lo <= min(sides) and max(sides) <= hi:
+        return None
+    return (f"warning: {grid_map.name}: its known area is {sides[1]:.1f} x {sides[0]:.1f} m; this designer was "
+            f"trained on floors {lo:g}-{hi:g} m a side, so its design may lie further from the best than on "
+            "those (--exact measures the gap)")  # fmt: skip
 
 
 def designer_env(designer: Designer, map_path: str) -> Any:

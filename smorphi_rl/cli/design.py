@@ -46,7 +46,7 @@ def register(sub: Any) -> None:
 
 def cmd_design(args: argparse.Namespace) -> int:
     from smorphi_rl.design import check_budget, run_design
-    from smorphi_rl.designer import designer_env, load_designer
+    from smorphi_rl.designer import designer_env, load_designer, unfamiliar_warning
     from smorphi_rl.protocol import optimum_cache
 
     t0 = time.perf_counter()
@@ -82,10 +82,12 @@ def cmd_design(args: argparse.Namespace) -> int:
         record["plot"] = str(plot_coverage(env.plan(best.theta), env.grid_map, Morphology.of(best.theta),
                                            env.config.block_side_m, plot))  # fmt: skip
     record["wall_s"] = round(time.perf_counter() - t0, 3)
-    warning = env.config.planning.start_warning(env.grid_map) or degenerate_warning(
-        env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name
+    warnings = (
+        unfamiliar_warning(designer, env.grid_map),
+        env.config.planning.start_warning(env.grid_map)
+        or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
     )
-    if warning:  # on stderr: --json's stdout stays one object
+    for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
         print(warning, file=sys.stderr)
     if args.json:
         print(jsontext.dumps(record))
