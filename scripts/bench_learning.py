@@ -119,6 +119,7 @@ def main() -> None:
     layout = (args.env_runners, args.envs_per_runner)
     for algo, reward, map_path in itertools.product(args.algos, args.rewards, args.maps):  # checked before writing
         run_config(algo, reward, 0, map_path, args.timesteps, overrides, layout)
+    names = {m: load_map(m).name for m in args.maps}  # a missing map is named before anything is written
     try:
         out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
     except RunDirError as exc:
@@ -127,7 +128,7 @@ def main() -> None:
     rows: list[Row] = []
     t_all = time.monotonic()
     for map_path in args.maps:
-        name = load_map(map_path).name
+        name = names[map_path]
         base_env = EnvConfig.from_dict({"maps": [map_path]})
         weights = base_env.weights_on(load_map(map_path))
         optimum = exact_optimum(map_path, weights, base_env.planning, ROOT / "logs" / ".cache")

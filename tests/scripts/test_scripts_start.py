@@ -20,14 +20,17 @@ def test_the_script_starts_and_prints_its_usage(script):
     assert "usage:" in proc.stdout
 
 
-def test_a_bad_setting_given_to_a_benchmark_is_one_line_and_writes_nothing():
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--set", "min_time_s_per_iteration=0.4"], "bench_learning.py: error: unknown hyperparameter"),
+    (["--maps", "map-1"], "bench_learning.py: error: map file not found: map-1"),  # its folder was written first
+])  # fmt: skip
+def test_a_bad_setting_given_to_a_benchmark_is_one_line_and_writes_nothing(argv, message):
     logs = SCRIPTS.parent / "logs"
     before = sorted(logs.iterdir()) if logs.is_dir() else []
     proc = subprocess.run([sys.executable, str(SCRIPTS / "bench_learning.py"), "--algos", "appo", "--no-ideal",
-                           "--set", "min_time_s_per_iteration=0.4"], capture_output=True, text=True, timeout=120,
-                          cwd=SCRIPTS.parent)  # fmt: skip
+                           *argv], capture_output=True, text=True, timeout=120, cwd=SCRIPTS.parent)  # fmt: skip
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
-    assert proc.stderr.strip().splitlines()[-1].startswith("bench_learning.py: error: unknown hyperparameter")
+    assert proc.stderr.strip().splitlines()[-1].startswith(message)
     assert (sorted(logs.iterdir()) if logs.is_dir() else []) == before
 
 
