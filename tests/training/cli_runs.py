@@ -15,9 +15,11 @@ def ray_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
 
 
-def cli(*argv: str, cwd: Path, timeout: float = 400, home: Path | None = None) -> subprocess.CompletedProcess[str]:
-    """`smorphi-rl ARGV` in `cwd`; `home`: the HOME it runs with (default the test's own)."""
-    env = ray_env() | ({"HOME": str(home)} if home is not None else {})
+def cli(*argv: str, cwd: Path, timeout: float = 400, home: Path | None = None,
+        drop: tuple[str, ...] = ()) -> subprocess.CompletedProcess[str]:  # fmt: skip
+    """`smorphi-rl ARGV` in `cwd`; `home`: the HOME it runs with (default the test's own); `drop`: environment
+    variables it runs without."""
+    env = {k: v for k, v in ray_env().items() if k not in drop} | ({"HOME": str(home)} if home is not None else {})
     return subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], capture_output=True, text=True, cwd=cwd,
                           env=env, timeout=timeout)  # fmt: skip
 

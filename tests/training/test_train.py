@@ -6,6 +6,7 @@ import csv
 import json
 import math
 import os
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 from smorphi_rl.planning import Evaluator
+from smorphi_rl.protocol import CACHE_ENV, OPTIMUM_CACHE
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.policy import rollout
@@ -231,7 +233,8 @@ def transfer_job(ppo_run, tmp_path_factory) -> tuple[Path, list[str], subprocess
     exported = export_policy(find_checkpoint(run_dir), work / "exported", {})
     args = ["transfer", "--pretrained", str(exported), "--maps", str(ROOT / "maps" / "val-1.yaml"), "--timesteps",
             "2000", "--seeds", "0", "--name", "job"]  # fmt: skip
-    return work, args, cli(*args, cwd=work)
+    shutil.copytree(os.environ[CACHE_ENV], work / "logs" / OPTIMUM_CACHE)  # the suite's optima, where the job looks
+    return work, args, cli(*args, cwd=work, drop=(CACHE_ENV,))
 
 
 def test_transfer_job_fine_tunes_and_trains_from_scratch(transfer_job):
@@ -243,6 +246,7 @@ def test_transfer_job_fine_tunes_and_trains_from_scratch(transfer_job):
     assert rows[0]["pretrained_in_runners"] == "True" and rows[1]["pretrained_in_runners"] == ""
     assert "| val-1 |" in (work / "logs" / "job" / "transfer.md").read_text()
     assert (work / "logs" / "job" / "transfer_curves.png").is_file() and "warning" not in proc.stdout
+    assert not list((work / "logs" / "job").rglob(OPTIMUM_CACHE))  # the --log-dir's cache served it, as design's
 
 
 def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(transfer_job, tmp_path):
