@@ -32,7 +32,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.maps import load_map
 from smorphi_rl.rundir import rename_cut_run
 from smorphi_rl.training.config import TrainConfig
-from smorphi_rl.training.presets import DEFAULT_TIMESTEPS
+from smorphi_rl.training.presets import TRANSFER_TIMESTEPS
 from smorphi_rl.training.run import train
 from smorphi_rl.training.transfer import (
     SPEEDUP_TARGET,
@@ -68,12 +68,12 @@ def _steps(runs: list[TransferRun]) -> str:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--pretrain-steps", type=int, default=DEFAULT_TIMESTEPS)
+    parser.add_argument("--pretrain-steps", type=int, default=TRANSFER_TIMESTEPS)
     parser.add_argument(
         "--steps",
         type=int,
-        default=DEFAULT_TIMESTEPS,
-        help="budget of every run (the main job's: PPO from scratch settles on map-1 and map-2)",
+        default=TRANSFER_TIMESTEPS,
+        help="budget of every run (transfer's default, which keeps the 36 runs within the hour)",
     )
     parser.add_argument("--seeds", type=int, nargs="+", default=[0, 1, 2])
     parser.add_argument("--floors", type=int, default=3, help="generated held-out floors beside val-1..3")

@@ -140,11 +140,15 @@ PRESETS: dict[str, dict[str, Preset]] = {
         "appo": _A3C_PAPER,
     },
 }
-DEFAULT_TIMESTEPS = 200_000
-"""The main job's budget: 30-70 s of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At
-150,000 steps PPO settled 100 % of the 20 starts within 1 % on map-1 (seeds 0-2) but 100, 10 and 100 % on map-2
-(seed 1 sent every start to one shape 1.14 R1 under the optimum); at 200,000, 20, 20, 20 of 20 on map-1 and 20, 18, 20
-on map-2 (100 and 97 %; docs/benchmarks.md)."""
+DEFAULT_TIMESTEPS = 300_000
+"""The main job's budget: 45-100 s of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At 200,000
+steps PPO settled 100 % of the 20 starts within 1 % on map-1 and map-2 for seeds 0-2 and 100-102 on an AMD EPYC, but on
+an Intel Xeon with AVX-512 (a seed's path turns on the CPU's float arithmetic) 5, 45, 0, 100, 100, 55 % on map-1 for
+seeds 200-205 (100 % on map-2); at 300,000 100, 100, 100, 90, 90, 75 % and on map-2 all but one at 100 %
+(docs/decisions.md). The learning rate falls to its floor over the budget, so a longer budget also explores longer."""
+TRANSFER_TIMESTEPS = 200_000
+"""A transfer run's budget (`transfer`, `bench_transfer.py`): Table 5's 36 runs (6 maps x 3 seeds x 2 modes) took 44
+minutes at 200,000 steps on 2 cores, within issue 32's hour; at the main job's 300,000 they would take about 67."""
 ENVS_PER_RUNNER = 16
 """Sub-envs each env runner steps together (one forward pass serves them all): on the default 2 runners, the 32
 envs in all the presets were tuned on, each fragment 62 steps of each env. With 2 x 32 (fragments of 31 steps) the

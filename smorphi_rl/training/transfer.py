@@ -34,6 +34,7 @@ from smorphi_rl.training.convergence import (
     first_measured_steps,
     measured,
 )
+from smorphi_rl.training.presets import TRANSFER_TIMESTEPS
 
 JOB_FILE = "transfer.json"
 """Written when a transfer job starts or resumes (its pretrained policy, maps and seeds): `--resume` knows the
@@ -83,8 +84,8 @@ class TransferJob:
     """Held-out maps (map_server YAML)."""
     seeds: tuple[int, ...] = (0, 1, 2)
     """Seeds; each map runs once per seed and mode (three: a speed-up is a ratio of medians with an interval)."""
-    timesteps: int = TrainConfig.timesteps
-    """Env-step budget of every run."""
+    timesteps: int = TRANSFER_TIMESTEPS
+    """Env-step budget of every run (Table 5's, which keeps its 36 runs within an hour on 2 cores)."""
     algo: str | None = None
     """Algorithm of every run; None: the pretrained policy's (PPO for one that does not say)."""
     preset: str = TrainConfig.preset
