@@ -11,8 +11,8 @@ the exact optimal policy of each reward mode at the preset's discount (value ite
 lattice, `smorphi_rl/search/ideal.py`), rolled out greedily from the same starts (`--no-ideal` skips it).
 
     .venv/bin/python scripts/bench_learning.py [--maps maps/map-1.yaml maps/map-2.yaml]
-        [--algos ppo impala appo] [--rewards peak] [--seeds 100 101 102] [--timesteps 200000]
-        [--async-timesteps 400000] [--no-ideal]
+        [--algos ppo impala appo] [--rewards peak] [--seeds 100 101 102] [--timesteps 300000]
+        [--async-timesteps 600000] [--no-ideal]
         [--set NAME=VALUE ...] [--env-runners N] [--envs-per-runner N] [--out NAME]
 
 Prints a table and writes it (learning.md), the per-run rows (learning.csv) and the greedy gap
