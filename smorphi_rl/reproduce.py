@@ -141,7 +141,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
                     cfg = TrainConfig(algo=algo, env=env, timesteps=b.train_steps, seed=seed,
                                       envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
                     run = train(cfg, name=f"{algo}-{map_name}-seed{seed}", log_dir=root, out=out,
-                                label=f"{algo.upper()} {map_name} seed {seed}")  # fmt: skip
+                                label=f"{algo.upper()} {map_name} seed {seed}", optima_log_dir=log_dir)  # fmt: skip
                     training.setdefault((algo, map_name), []).append(_whole(run).run_dir)
         exact: dict[str, SearchResult] = {}
         for map_name in b.train_maps:  # the searches with the training seeds: the claims compare seed by seed
@@ -158,14 +158,15 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         pre_env = EnvConfig.from_dict({"maps": [_map(m) for m in TRAIN_MAPS], "reward": PAPER_REWARD})
         pre_cfg = TrainConfig(env=pre_env, timesteps=b.pretrain_steps, envs_per_runner=b.envs_per_runner,
                               num_env_runners=b.env_runners)  # fmt: skip
-        pre = _whole(train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain"))
+        pre = _whole(train(pre_cfg, name="pretrain", log_dir=root, out=out, label="PPO pretrain",
+                           optima_log_dir=log_dir))  # fmt: skip
         say(
             f"[reproduce] transfer to {', '.join(b.val_maps)}: fine-tuned and from scratch, {b.transfer_steps:,} each, "
             f"seeds {', '.join(map(str, b.transfer_seeds))}"
         )
         job = TransferJob(pre.run_dir, tuple(_map(m) for m in b.val_maps), tuple(b.transfer_seeds), b.transfer_steps,
                           envs_per_runner=b.envs_per_runner, num_env_runners=b.env_runners)  # fmt: skip
-        job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out)
+        job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out, optima_log_dir=log_dir)
         for transfer_run in transfer_runs:
             _whole(transfer_run)
     transfer_files = write_transfer_report(job_dir, transfer_runs)

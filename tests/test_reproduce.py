@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import re
+import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -12,12 +13,14 @@ import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
+from smorphi_rl.protocol import CACHE_ENV, OPTIMUM_CACHE
 
 pytestmark = pytest.mark.slow
 
 
 def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
-    env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+    env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", CACHE_ENV)}
+    shutil.copytree(os.environ[CACHE_ENV], tmp_path / "logs" / OPTIMUM_CACHE)  # the suite's optima, where it looks
     proc = subprocess.run(
         [sys.executable, "-m", "smorphi_rl.cli", "reproduce", "--budget", "tiny", "--name", "r"],
         capture_output=True, text=True, cwd=tmp_path, env=env, timeout=900,
@@ -42,6 +45,7 @@ def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
                    "exhaustive-map-1", "pretrain"):  # fmt: skip
         assert (root / method).is_dir(), method
     assert "| val-1 |" in report
+    assert not list(root.rglob(OPTIMUM_CACHE))  # the --log-dir's cache, shared with train and design --exact
 
 
 def test_reproduce_refuses_an_unknown_budget_and_an_existing_run(capsys, tmp_path):

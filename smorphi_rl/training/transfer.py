@@ -133,11 +133,13 @@ def run_transfer(
     address: str | None = None,
     out: Any = None,
     resume: bool = False,
+    optima_log_dir: str | Path | None = None,
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget.
     `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
     short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
-    raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked."""
+    raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked. The
+    exact optima are cached under `optima_log_dir` (default `log_dir`, the folder the user named)."""
     from smorphi_rl import cluster
     from smorphi_rl.errors import SmorphiError
     from smorphi_rl.rundir import RunDirError, claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
@@ -200,7 +202,8 @@ def run_transfer(
                 if (job_dir / run_name).exists():
                     rename_cut_run(job_dir / run_name)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{run_cfg.algo.upper()} {run_name}", optima_log_dir=log_dir)  # fmt: skip
+                                label=f"{run_cfg.algo.upper()} {run_name}",
+                                optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir)  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
