@@ -9,7 +9,7 @@ start, the exact optima, scheduling, the tables); above 1 where a larger machine
     .venv/bin/python scripts/bench_sweeps.py [FILE.yaml ...] [--keep DIR] [--write-docs]
 
 Without files: `paper-ppo-vs-impala.yaml` and `pretrain-multimap.yaml` (about 17 minutes on 2 cores); name
-`hparams.yaml` (about 20 minutes more) or `designer.yaml` (hours) to run them too. The experiments stay in a
+`hparams.yaml` (about 30 minutes more) or `designer.yaml` (hours) to run them too. The experiments stay in a
 temporary folder (or `--keep DIR`, a new or empty one), named at the end. Figures are printed whatever they are.
 """
 

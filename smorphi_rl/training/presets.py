@@ -89,7 +89,7 @@ at a constant 1e-3 and entropy 0.003 IMPALA settled 13 % of the 20 starts within
 seeds 0-2); with the rate falling, 40, 40 and 25 % (gaps 1.30, 2.99, 2.96); with entropy 0.01 too, 35, 55 and
 60 % (gaps 1.44, 0.60, 0.86). It keeps the angle frequencies in its policy (without them: 0 %).
 Iterations of at least 0.4 s (about 4,000 env steps on 2 cores): the protocol, every 5 iterations, then evaluates
-about every 20,000 steps, some 20 times in the async budget as in PPO's, and the run ends on the best of as many
+about every 20,000 steps, some 30 times in the async budget as in PPO's, and the run ends on the best of as many
 policies; at 2 s it evaluated every 50,000 (8 times) and APPO settled 6 of 10 runs (map-1, map-2, seeds 0-4) at
 90 % of the starts within 1 %, at 0.4 s 18 of 24 when adopted (seeds 0-8; docs/decisions.md has every tally since)."""
 PRESETS: dict[str, dict[str, Preset]] = {
@@ -141,10 +141,10 @@ PRESETS: dict[str, dict[str, Preset]] = {
     },
 }
 DEFAULT_TIMESTEPS = 300_000
-"""The main job's budget: 45-100 s of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At 200,000
+"""The main job's budget: 1-2 min of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At 200,000
 steps PPO settled 100 % of the 20 starts within 1 % on map-1 and map-2 for seeds 0-2 and 100-102 on an AMD EPYC, but on
 an Intel Xeon with AVX-512 (a seed's path turns on the CPU's float arithmetic) 5, 45, 0, 100, 100, 55 % on map-1 for
-seeds 200-205 (100 % on map-2); at 300,000 100, 100, 100, 90, 90, 75 % and on map-2 all but one at 100 %
+seeds 200-205 (100 % on map-2); at 300,000 100, 100, 100, 90, 90, 75 % and 100 % on map-2 for all six
 (docs/decisions.md). The learning rate falls to its floor over the budget, so a longer budget also explores longer."""
 TRANSFER_TIMESTEPS = 200_000
 """A transfer run's budget (`transfer`, `bench_transfer.py`): Table 5's 36 runs (6 maps x 3 seeds x 2 modes) took 44

@@ -219,8 +219,12 @@ def test_a_floor_outside_the_training_sizes_is_designed_with_a_warning(capsys, t
     code, out, err = run(capsys, "design", "--map", str(room), "--json", "--budget", "20")
     assert code == 0 and json.loads(out)["evaluations"] <= 20
     assert "warning: closet: its known area is 1.2 x 1.0 m; this designer was trained on floors 3-15 m a side" in err
+    assert "--exact measures the gap" in err
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--json", "--budget", "20")
     assert code == 0 and "trained on floors" not in err  # a floor of its own distribution
+    edge = save_map(Map(np.zeros((40, 188), dtype=np.uint8), 0.08, name="edge"), tmp_path / "edge.yaml")
+    code, _, err = run(capsys, "design", "--map", str(edge), "--json", "--budget", "5")
+    assert code == 0 and "trained on floors" not in err  # 15.04 m: a 15 m floor counted in whole cells
 
 
 def test_a_designer_trained_on_map_files_names_no_training_sizes(tmp_path):
