@@ -158,16 +158,19 @@ class MorphologyCallbacks(RLlibCallback):
             self._snapshot = ((iteration, steps), ((both, *design), state))
             n = len(self.eval_starts)
             trained = [replace(e, outcomes=e.outcomes[:n]) for e in both]
-            protocol, policy_steps = trained, steps
+            protocol, policy_steps, policy_design = trained, steps, design
             if self.select_starts:
                 selection = [replace(e, outcomes=e.outcomes[n:]) for e in both]
-                protocol, policy_steps = self._select(algorithm, steps, last, selection, trained, state)
+                protocol, policy_steps, policy_design = self._select(algorithm, steps, last, selection, trained,
+                                                                     state, design)  # fmt: skip
             result[EVAL_KEY] = evaluation_metrics(protocol) | {"policy_env_steps": policy_steps}
+            for figures in policy_design:  # the designer's figures of the policy the row reports
+                result[EVAL_KEY] |= figures
             if protocol is not trained:  # the run ends on an earlier policy; the curves keep the trained one's
                 figures = evaluation_metrics(trained)
                 result[EVAL_KEY][TRAINED_KEY] = {k: figures[k] for k in TRAINED_FIGURES}
-            for figures in design:
-                result[EVAL_KEY] |= figures
+                for figures in design:
+                    result[EVAL_KEY][TRAINED_KEY] |= figures
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
         """The protocol's greedy roll-outs from `starts` on every evaluated map (a GreedyRollouts)."""
@@ -194,33 +197,34 @@ class MorphologyCallbacks(RLlibCallback):
 
     def _select(
         self, algorithm: Any, steps: int, last: bool, selection: list[Any], protocol: list[Any],
-        state: dict[str, Any],
-    ) -> tuple[list[Any], int]:  # fmt: skip
+        state: dict[str, Any], design: list[dict[str, Any]],
+    ) -> tuple[list[Any], int, list[dict[str, Any]]]:  # fmt: skip
         """Rank the evaluated policy (weights `state`) by its `selection` evaluation and keep it if it is the best
         so far (ties: the later); at the run's last iteration, put the kept policy back if it beat the last one.
-        The protocol evaluation and env steps of the policy the learner now holds (greedy roll-outs are
-        deterministic, so the kept policy's evaluation stands for it)."""
+        The protocol evaluation, env steps and designer's figures (`design`) of the policy the learner now holds
+        (greedy roll-outs and designs are deterministic, so the kept policy's stand for it)."""
         score = selection_score(selection)
         kept = self._kept
         if kept is None or score >= kept[0]:
-            self._kept = (score, steps, state, protocol)
-            return protocol, steps
+            self._kept = (score, steps, state, protocol, design)
+            return protocol, steps, design
         if not last:
-            return protocol, steps
+            return protocol, steps, design
         _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
-        evaluation = kept[3]
+        evaluation, kept_design = kept[3], kept[4]
         if evaluation is None:  # kept before a resume, which keeps its weights only: its roll-outs are repeated
-            (both,), _ = _on_snapshot(algorithm, [self._evaluation])
+            calls = [self._evaluation, *([self._design] if self.design_budget else [])]
+            (both, *kept_design), _ = _on_snapshot(algorithm, calls)
             evaluation = [replace(e, outcomes=e.outcomes[: len(self.eval_starts)]) for e in both]
-        return evaluation, int(kept[1])
+        return evaluation, int(kept[1]), kept_design
 
     def kept_policy(self) -> dict[str, Any] | None:
         """The kept policy as numbers and arrays (a resumable sweep's state file holds it): its selection score,
         env steps and weights; None when none is kept."""
         if self._kept is None or not math.isfinite(self._kept[0][1]):  # a NaN never ranks: nothing to keep
             return None
-        (within, gap), steps, state, _ = self._kept
+        (within, gap), steps, state, *_ = self._kept
         weights = {name: value.detach().cpu().numpy() for name, value in state.items()}
         return {"score": [int(within), float(gap)], "env_steps": int(steps), "weights": weights}
 
@@ -230,7 +234,7 @@ class MorphologyCallbacks(RLlibCallback):
 
         within, gap = kept["score"]
         weights = {name: torch.from_numpy(value.copy()) for name, value in kept["weights"].items()}
-        self._kept = ((int(within), float(gap)), int(kept["env_steps"]), weights, None)
+        self._kept = ((int(within), float(gap)), int(kept["env_steps"]), weights, None, [])
 
 
 def _is_async(algorithm: Any) -> bool:

@@ -54,6 +54,8 @@ class TrialRow:
     """The last evaluation's median gap of the greedy settled R1 to the exact optimum (NaN: never evaluated)."""
     share_within_1pct: float = math.nan
     """The last evaluation's share of starts settled within 1 % of the optimum."""
+    design_gap_pct: float = math.nan
+    """The last evaluation's designer median gap in per cent of the optimum (NaN: the sweep measured none)."""
     finished: bool = True
     """Whether the trial reached its budget or stop criteria (False: cut short, or failed; left out of the groups)."""
     evaluation: dict[str, Any] = field(default_factory=dict)
@@ -118,7 +120,7 @@ def curve_point(row: dict[str, Any]) -> dict[str, float]:
         "eval_R1": _num(learned.get("settled_R1_mean")),
         "eval_gap": _num(learned.get("median_gap")),
         "eval_within": _num(learned.get("share_within_1pct")),
-        "design_gap": _num(ev.get("design_median_gap_pct")),
+        "design_gap": _num(learned.get("design_median_gap_pct")),
     }
 
 
@@ -162,6 +164,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         curve=curve,
         median_gap=_num(last.get("median_gap")),
         share_within_1pct=_num(last.get("share_within_1pct")),
+        design_gap_pct=_num(last.get("design_median_gap_pct")),
         finished=trial_done(rows),
         evaluation=last,
         top=top,
@@ -196,9 +199,11 @@ def read_sweep(experiment_dir: Path) -> list[TrialRow]:
 def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> None:
     """sweep.csv (every column) and sweep.md (the same, sorted by best R1)."""
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
+    design = _designed(rows)
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
               "best_map", "best_P_c", "best_P_len", "greedy_median_gap", "share_within_1pct",
-              "converged_at_env_steps", "settled_R1_plateau", "finished"]  # fmt: skip
+              *(["design_median_gap_pct"] if design else []), "converged_at_env_steps", "settled_R1_plateau",
+              "finished"]  # fmt: skip
     table = []
     for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
         b = r.best
@@ -206,7 +211,7 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
                       r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
                       _fixed(r.median_gap), _fixed(r.share_within_1pct),
-                      converged_text(r.converged_at, r.curve),
+                      *([_fixed(r.design_gap_pct)] if design else []), converged_text(r.converged_at, r.curve),
                       f"{r.settled_R1_plateau:.2f}", "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
@@ -215,6 +220,11 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     md = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     md += ["| " + " | ".join(str(c) for c in row) + " |" for row in table]
     write_text_atomic(md_path, "\n".join(md) + "\n")
+
+
+def _designed(rows: list[TrialRow]) -> bool:
+    """Whether the sweep measured the designer's gap (its `evaluation.design_budget`): its tables then show it."""
+    return any(math.isfinite(r.design_gap_pct) for r in rows)
 
 
 def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
@@ -244,6 +254,10 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
              "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
+    design = _designed(rows)
+    if design:  # the designer's gap on its evaluation floors, beside the protocol's figures
+        lines[-2] = lines[-2].replace(" | converged ", " | design median gap (%) | converged ")
+        lines[-1] += "---:|"
     for (maps, label), trials in _groups(rows).items():
         steps = censored_steps([(t.converged_at, t.env_steps) for t in trials if measured(t.curve)])
         gap = median_interval([t.median_gap for t in trials])  # a trial never evaluated: "(2 of 3 seeds)"
@@ -252,7 +266,8 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
         best = median_interval([math.nan if t.best is None else t.best.R1 for t in trials])
         to_converge = censored_median_interval(*steps).text(",.0f")
         count = converged_count(sum(t.converged_at is not None for t in trials), [t.curve for t in trials])
-        lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} | {count} "
+        designed = f" {median_interval([t.design_gap_pct for t in trials]).text()} |" if design else ""
+        lines.append(f"| {maps} | {label} | {len(trials)} | {gap.text()} | {within.text()} |{designed} {count} "
                      f"| {to_converge} | {plateau.text()} | {best.text()} |")  # fmt: skip
     return lines
 

@@ -161,6 +161,42 @@ def test_policies_rank_by_settled_r1_where_no_map_has_an_exact_optimum():
     assert score[0] == 2 and abs(score[1] + 0.1) < 1e-9
 
 
+def test_the_designers_figures_a_run_reports_are_those_of_the_policy_it_ends_on(monkeypatch):
+    """Evaluations 20 %, 100 %, 20 % with design gaps 3, 1 and 2 %: the last row reports the kept policy's 1 % (it
+    reported the last policy's 2 % beside the kept one's protocol figures), the curve the trained one's 2 %."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.protocol import EVAL_KEY
+    from smorphi_rl.training import callbacks
+    from smorphi_rl.training.sweep_report import result_curve
+
+    poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
+    shares, gaps = [poor, good, poor], [3.0, 1.0, 2.0]
+
+    def on_snapshot(algorithm, calls):
+        assert len(calls) == 2  # the protocol and the designer, on the same snapshot
+        return [_evaluation(*shares[0], *shares.pop(0)), {"design_median_gap_pct": gaps.pop(0)}], {}
+
+    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    starts = [(0.0, 0.0, 0.0)] * 5
+    evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 3000,
+                                           selection=starts, design_budget=10)  # fmt: skip
+    hooks = evaluating()
+    hooks._evaluation, hooks._design = object(), object()
+    rows = []
+    for i in range(1, 4):
+        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
+        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
+        rows.append(result)
+    last = rows[-1][EVAL_KEY]
+    assert last["share_within_1pct"] == 1.0 and last["design_median_gap_pct"] == 1.0
+    assert last["trained"]["design_median_gap_pct"] == 2.0
+    assert result_curve(rows)["design_gap"] == [3.0, 1.0, 2.0]
+
+
 def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(monkeypatch):
     """Evaluations 20 %, 100 %, an interruption, a resume from the state file's kept policy, then 20 %, 20 %: the
     run ends on the 100 % policy kept before the resume; its weights are put back and, as only its weights are

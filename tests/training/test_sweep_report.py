@@ -112,3 +112,21 @@ def test_a_resumed_sweeps_progress_shows_the_best_its_finished_trials_found(tmp_
     progress.found([r.best for r in rows if r.best is not None])
     progress.complete("trial 0")
     assert "best R1 89.10 (1, 2, 3) on map-1" in out.getvalue()  # seed 1's, the better
+
+
+def test_a_sweep_that_measured_the_designer_shows_its_gap_per_trial_and_group(tmp_path):
+    """A designer sweep's sweep.md and sweep_groups.md left the design gap out (it was in summary.json alone)."""
+    from dataclasses import replace
+
+    from smorphi_rl.training.sweep_report import write_sweep_tables
+
+    rows = [replace(_trial(s, 1e-3, 88.0, 4_000), design_gap_pct=0.2 + s / 10) for s in range(3)]
+    write_sweep_tables(rows, tmp_path / "sweep.csv", tmp_path / "sweep.md")
+    header, *lines = (tmp_path / "sweep.md").read_text().splitlines()
+    column = [c.strip() for c in header.strip("|").split("|")].index("design_median_gap_pct")
+    assert sorted(line.strip("|").split("|")[column].strip() for line in lines[1:]) == ["0.2", "0.3", "0.4"]
+    write_sweep_groups(rows, tmp_path / "groups.md")
+    text = (tmp_path / "groups.md").read_text()
+    assert "| design median gap (%) |" in text and "| 0.30 [0.20, 0.40] |" in text
+    write_sweep_tables([_trial(0, 1e-3, 88.0, 4_000)], tmp_path / "plain.csv", tmp_path / "plain.md")
+    assert "design" not in (tmp_path / "plain.md").read_text()  # a sweep without the designer: no empty column
