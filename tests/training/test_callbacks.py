@@ -16,6 +16,28 @@ def _evaluation(*settled_R1: float) -> list[MapEvaluation]:
     return [MapEvaluation("map-1", "policy", OPTIMUM, outcomes)]
 
 
+def _without_a_learner(monkeypatch, on_snapshot) -> None:
+    """The callbacks' learner calls answered by `on_snapshot(algorithm, calls)` alone, with no learner to change."""
+    from smorphi_rl.training import callbacks
+
+    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+
+
+def _train_results(hooks, iterations) -> list[dict]:
+    """The result rows of `iterations`, 1,000 env steps each, as the callbacks leave them."""
+    from types import SimpleNamespace
+
+    rows = []
+    for i in iterations:
+        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
+        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
+        rows.append(result)
+    return rows
+
+
 def test_more_starts_within_one_percent_rank_first_then_the_smaller_median_gap():
     three_in = selection_score(_evaluation(89.9, 89.5, 89.2, 80.0))  # 89.2 is within 1 % of 90 (band 89.1)
     two_in_close = selection_score(_evaluation(90.0, 89.95, 89.0, 89.0))
@@ -94,7 +116,6 @@ def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_op
 def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_convergence(monkeypatch):
     """Evaluations 20 %, 100 %, 20 %, 20 % of the starts within 1 %: the run ends on the 100 % policy, whose
     figures its last row reports, but the curves (and so convergence) read the policy training ended with."""
-    from types import SimpleNamespace
 
     from smorphi_rl.protocol import EVAL_KEY
     from smorphi_rl.training import callbacks
@@ -107,20 +128,13 @@ def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_conver
     def on_snapshot(algorithm, calls):
         return [_evaluation(*shares[0], *shares.pop(0))], {"weights": len(shares)}
 
-    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
-    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    _without_a_learner(monkeypatch, on_snapshot)
     starts = [(0.0, 0.0, 0.0)] * 5
     evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 4000,
                                            selection=starts)  # fmt: skip
     hooks = evaluating()
     hooks._evaluation = object()
-    rows = []
-    for i in range(1, 5):
-        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
-        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
-        rows.append(result)
+    rows = _train_results(hooks, range(1, 5))
     last = rows[-1][EVAL_KEY]
     assert last["share_within_1pct"] == 1.0 and last["policy_env_steps"] == 2000  # the policy it ends on
     assert last["trained"]["share_within_1pct"] == 0.2 and "trained" not in rows[1][EVAL_KEY]
@@ -164,7 +178,6 @@ def test_policies_rank_by_settled_r1_where_no_map_has_an_exact_optimum():
 def test_the_designers_figures_a_run_reports_are_those_of_the_policy_it_ends_on(monkeypatch):
     """Evaluations 20 %, 100 %, 20 % with design gaps 3, 1 and 2 %: the last row reports the kept policy's 1 % (it
     reported the last policy's 2 % beside the kept one's protocol figures), the curve the trained one's 2 %."""
-    from types import SimpleNamespace
 
     from smorphi_rl.protocol import EVAL_KEY
     from smorphi_rl.training import callbacks
@@ -177,20 +190,13 @@ def test_the_designers_figures_a_run_reports_are_those_of_the_policy_it_ends_on(
         assert len(calls) == 2  # the protocol and the designer, on the same snapshot
         return [_evaluation(*shares[0], *shares.pop(0)), {"design_median_gap_pct": gaps.pop(0)}], {}
 
-    monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
-    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "_on_live_learner", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    _without_a_learner(monkeypatch, on_snapshot)
     starts = [(0.0, 0.0, 0.0)] * 5
     evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 3000,
                                            selection=starts, design_budget=10)  # fmt: skip
     hooks = evaluating()
     hooks._evaluation, hooks._design = object(), object()
-    rows = []
-    for i in range(1, 4):
-        result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
-        hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
-        rows.append(result)
+    rows = _train_results(hooks, range(1, 4))
     last = rows[-1][EVAL_KEY]
     assert last["share_within_1pct"] == 1.0 and last["design_median_gap_pct"] == 1.0
     assert last["trained"]["design_median_gap_pct"] == 2.0
