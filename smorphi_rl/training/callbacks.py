@@ -55,7 +55,8 @@ class MorphologyCallbacks(RLlibCallback):
     """The GreedyRollouts this run's evaluations reuse (its envs keep their scored shapes), made at the first:
     the protocol's starts, then the selection starts, rolled out together (one forward pass a step for both)."""
     _kept: Any = None
-    """(selection score, env steps, module state, protocol evaluation) of the best policy evaluated so far."""
+    """(selection score, env steps, module state, protocol evaluation, designer's figures) of the best policy
+    evaluated so far (after a resume: its evaluation None and figures empty, rolled out again if it is put back)."""
     _ended: bool = False
     """Whether the run's last iteration has been evaluated (by its budget, or `end_run`)."""
     _snapshot: Any = None

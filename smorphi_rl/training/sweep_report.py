@@ -120,7 +120,8 @@ def curve_point(row: dict[str, Any]) -> dict[str, float]:
         "eval_R1": _num(learned.get("settled_R1_mean")),
         "eval_gap": _num(learned.get("median_gap")),
         "eval_within": _num(learned.get("share_within_1pct")),
-        "design_gap": _num(learned.get("design_median_gap_pct")),
+        # rows written before 2026-12-06 held the trained policy's design figures beside the kept one's protocol's
+        "design_gap": _num(learned.get("design_median_gap_pct", ev.get("design_median_gap_pct"))),
     }
 
 

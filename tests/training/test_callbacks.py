@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from smorphi_rl.protocol import MapEvaluation, Optimum, Outcome
 from smorphi_rl.training.callbacks import selection_score
 
@@ -203,10 +205,11 @@ def test_the_designers_figures_a_run_reports_are_those_of_the_policy_it_ends_on(
     assert result_curve(rows)["design_gap"] == [3.0, 1.0, 2.0]
 
 
-def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(monkeypatch):
+@pytest.mark.parametrize("design_budget", [0, 10])
+def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(monkeypatch, design_budget):
     """Evaluations 20 %, 100 %, an interruption, a resume from the state file's kept policy, then 20 %, 20 %: the
     run ends on the 100 % policy kept before the resume; its weights are put back and, as only its weights are
-    kept, its protocol roll-outs are repeated for the figures."""
+    kept, its protocol roll-outs (and its designs) are repeated for the figures."""
     from types import SimpleNamespace
 
     import torch
@@ -218,7 +221,8 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
     shares = [poor, good, poor, poor, good]  # the last: the kept policy's roll-outs, repeated
 
     def on_snapshot(algorithm, calls):
-        return [_evaluation(*shares[0], *shares.pop(0))], {"w": torch.tensor([float(len(shares))])}
+        design = [{"design_median_gap_pct": 1.0 if shares[0] is good else 3.0}] if len(calls) == 2 else []
+        return [_evaluation(*shares[0], *shares.pop(0)), *design], {"w": torch.tensor([float(len(shares))])}
 
     loaded = []
     monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
@@ -228,10 +232,10 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
     monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
     starts = [(0.0, 0.0, 0.0)] * 5
     evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 4000,
-                                           selection=starts)  # fmt: skip
+                                           selection=starts, design_budget=design_budget)  # fmt: skip
 
     def run(hooks, iterations):
-        hooks._evaluation = object()
+        hooks._evaluation, hooks._design = object(), object()
         for i in iterations:
             result = {"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}}
             hooks.on_train_result(algorithm=SimpleNamespace(iteration=i), result=result)
@@ -247,6 +251,10 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
     assert last["share_within_1pct"] == 1.0 and last["policy_env_steps"] == 2000
     assert last["trained"]["share_within_1pct"] == 0.2
     assert [w["w"].tolist() for w in loaded] == [[3.0]] and not shares
+    if design_budget:  # the kept policy's designs are repeated with its roll-outs, on its own weights
+        assert last["design_median_gap_pct"] == 1.0 and last["trained"]["design_median_gap_pct"] == 3.0
+    else:
+        assert "design_median_gap_pct" not in last
 
 
 def test_a_run_ending_early_on_an_evaluated_iteration_is_not_rolled_out_twice(monkeypatch):

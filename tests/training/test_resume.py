@@ -287,7 +287,7 @@ def test_a_kept_policy_of_a_real_module_round_trips_and_names_must_be_the_trial_
                           "policy_angle_frequencies": 0, "env_config": env_config, "algorithm": "ppo"})  # fmt: skip
     ours = {k: v.detach().numpy() for k, v in module.state_dict().items()}
     hooks = MorphologyCallbacks()
-    hooks._kept = ((18, -0.25), 4000, {k: v + 1 for k, v in module.state_dict().items()}, None)
+    hooks._kept = ((18, -0.25), 4000, {k: v + 1 for k, v in module.state_dict().items()}, None, [])
     written = state(2)
     written["learner_group"]["learner"]["rl_module"]["default_policy"] = ours
     (tmp_path / STATE_FILE).write_bytes(pickle.dumps({**written, KEPT: hooks.kept_policy()}))
