@@ -55,9 +55,6 @@ def cmd_design(args: argparse.Namespace) -> int:
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     env = designer_env(designer, str(args.map))
-    unfamiliar = unfamiliar_warning(designer, env.grid_map)
-    if unfamiliar:  # before the design, which may take minutes; on stderr, as every warning
-        print(unfamiliar + ("" if args.exact else " (--exact measures the gap)"), file=sys.stderr)
     large = args.budget >= PROGRESS_FROM
     bar = progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if large else None
     result = run_design(env, designer.logits, args.budget, progress=bar)
@@ -85,10 +82,13 @@ def cmd_design(args: argparse.Namespace) -> int:
         record["plot"] = str(plot_coverage(env.plan(best.theta), env.grid_map, Morphology.of(best.theta),
                                            env.config.block_side_m, plot))  # fmt: skip
     record["wall_s"] = round(time.perf_counter() - t0, 3)
-    warning = env.config.planning.start_warning(env.grid_map) or degenerate_warning(
-        env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name
+    unfamiliar = unfamiliar_warning(designer, env.grid_map)  # after the design: a floor it refuses says one line
+    warnings = (
+        unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"),
+        env.config.planning.start_warning(env.grid_map)
+        or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
     )
-    if warning:  # on stderr: --json's stdout stays one object
+    for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
         print(warning, file=sys.stderr)
     if args.json:
         print(jsontext.dumps(record))
