@@ -170,8 +170,8 @@ class MorphologyCallbacks(RLlibCallback):
             if protocol is not trained:  # the run ends on an earlier policy; the curves keep the trained one's
                 figures = evaluation_metrics(trained)
                 result[EVAL_KEY][TRAINED_KEY] = {k: figures[k] for k in TRAINED_FIGURES}
-                for figures in design:
-                    result[EVAL_KEY][TRAINED_KEY] |= figures
+                for designed in design:
+                    result[EVAL_KEY][TRAINED_KEY] |= designed
 
     def _protocol(self, algorithm: Any, starts: Any) -> Any:
         """The protocol's greedy roll-outs from `starts` on every evaluated map (a GreedyRollouts)."""
