@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import os
+import shutil
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -118,6 +121,16 @@ def _shared_optimum_cache(tmp_path_factory):
 
     os.environ["SMORPHI_RL_CACHE_DIR"] = str(tmp_path_factory.mktemp("optimum-cache"))
     yield
+
+
+@contextmanager
+def optima_under(log_dir: Path) -> Iterator[None]:
+    """For a command run without $SMORPHI_RL_CACHE_DIR (so a test sees where it caches exact optima): the suite's
+    optima copied into `log_dir`'s own cache first, and what the command adds copied back for later tests."""
+    shared, own = Path(os.environ["SMORPHI_RL_CACHE_DIR"]), log_dir / ".cache"
+    shutil.copytree(shared, own, dirs_exist_ok=True)
+    yield
+    shutil.copytree(own, shared, dirs_exist_ok=True)
 
 
 @pytest.fixture

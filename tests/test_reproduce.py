@@ -4,13 +4,13 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 from dataclasses import replace
 
 import numpy as np
 import pytest
+from conftest import optima_under
 
 from smorphi_rl.cli import main
 from smorphi_rl.protocol import CACHE_ENV, OPTIMUM_CACHE
@@ -20,11 +20,11 @@ pytestmark = pytest.mark.slow
 
 def test_reproduce_tiny_writes_a_claim_by_claim_report(tmp_path):
     env = {k: v for k, v in os.environ.items() if k not in ("RAY_ADDRESS", CACHE_ENV)}
-    shutil.copytree(os.environ[CACHE_ENV], tmp_path / "logs" / OPTIMUM_CACHE)  # the suite's optima, where it looks
-    proc = subprocess.run(
-        [sys.executable, "-m", "smorphi_rl.cli", "reproduce", "--budget", "tiny", "--name", "r"],
-        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=900,
-    )  # fmt: skip
+    with optima_under(tmp_path / "logs"):  # the suite's optima, where it looks
+        proc = subprocess.run(
+            [sys.executable, "-m", "smorphi_rl.cli", "reproduce", "--budget", "tiny", "--name", "r"],
+            capture_output=True, text=True, cwd=tmp_path, env=env, timeout=900,
+        )  # fmt: skip
     assert proc.returncode == 0, proc.stderr[-3000:]
     root = tmp_path / "logs" / "r"
     report = (root / "report.md").read_text()

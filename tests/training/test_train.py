@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home
-from conftest import printed_command, ray_cluster
+from conftest import optima_under, printed_command, ray_cluster
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
 from smorphi_rl.env import MorphologyEnv
@@ -233,8 +233,8 @@ def transfer_job(ppo_run, tmp_path_factory) -> tuple[Path, list[str], subprocess
     exported = export_policy(find_checkpoint(run_dir), work / "exported", {})
     args = ["transfer", "--pretrained", str(exported), "--maps", str(ROOT / "maps" / "val-1.yaml"), "--timesteps",
             "2000", "--seeds", "0", "--name", "job"]  # fmt: skip
-    shutil.copytree(os.environ[CACHE_ENV], work / "logs" / OPTIMUM_CACHE)  # the suite's optima, where the job looks
-    return work, args, cli(*args, cwd=work, drop=(CACHE_ENV,))
+    with optima_under(work / "logs"):  # the suite's optima, where the job looks
+        return work, args, cli(*args, cwd=work, drop=(CACHE_ENV,))
 
 
 def test_transfer_job_fine_tunes_and_trains_from_scratch(transfer_job):
@@ -250,7 +250,6 @@ def test_transfer_job_fine_tunes_and_trains_from_scratch(transfer_job):
 
 
 def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(transfer_job, tmp_path):
-    import shutil
 
     work, args, proc = transfer_job
     assert proc.returncode == 0, proc.stderr[-3000:]
