@@ -165,12 +165,12 @@ def safe_unpickle(path: Path) -> Any:
         data = path.read_bytes()
     except OSError as exc:
         raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    nesting = _tuple_nesting_problem(data)
-    if nesting == UNREADABLE:  # damaged, cut short, or read otherwise by the unpickler: never loaded
+    problem = _opcode_problem(data)
+    if problem == UNREADABLE:  # damaged, cut short, or read otherwise by the unpickler: never loaded
         raise CheckpointError(f"{path}: not a readable checkpoint file ({UNREADABLE})")
     try:
-        if nesting:
-            raise Refused(nesting)
+        if problem:
+            raise Refused(problem)
         obj = SafeUnpickler(io.BytesIO(data)).load()
     except Refused as exc:
         raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
@@ -194,7 +194,7 @@ _MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
 _MEMO_GETS = frozenset({"GET", "BINGET", "LONG_BINGET"})
 
 
-def _tuple_nesting_problem(data: bytes) -> str | None:
+def _opcode_problem(data: bytes) -> str | None:
     """Why a pickle is refused from its opcodes before anything is built (values nested over MAX_NESTING deep, over
     MAX_PICKLE_OPS opcodes, opcodes that cannot be read), or None. Each stack item is followed by how deep it nests
     (every op's result as deep as the deepest value it takes, a tuple one deeper), through the memo too."""
