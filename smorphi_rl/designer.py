@@ -79,7 +79,7 @@ def accepts(designer: Designer, grid_map: Map) -> None:
                            "numbers")  # fmt: skip
     limits = {**ACCEPTS, **given}
     r = grid_map.resolution_m
-    sides = known_sides(grid_map)
+    sides = grid_map.known_sides_m()
     cells_per_block = designer.env_config.block_side_m / r
     free_m2 = grid_map.counts[Cell.FREE] * r * r
     name = grid_map.name
@@ -98,13 +98,6 @@ def accepts(designer: Designer, grid_map: Map) -> None:
                            "metres in the map frame)")  # fmt: skip
 
 
-def known_sides(grid_map: Map) -> tuple[float, float]:
-    """The sides in metres of the bounding box of the map's known (free or occupied) cells."""
-    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
-    r = grid_map.resolution_m
-    return float((rows.max() - rows.min() + 1) * r), float((cols.max() - cols.min() + 1) * r)
-
-
 def training_sides(designer: Designer) -> tuple[float, float] | None:
     """The least and greatest side of the floors the designer was trained on, where its maps say (generated floors
     only: their sides are drawn from `floorplans.DEFAULT_RANGE`); None for a designer trained on map files."""
@@ -120,7 +113,7 @@ def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:
     if trained is None:
         return None
     lo, hi = trained
-    sides = known_sides(grid_map)
+    sides = grid_map.known_sides_m()
     r = grid_map.resolution_m  # a side counts whole cells: a 15 m floor at 0.08 m spans 188 of them, 15.04 m
     if lo - r <= min(sides) and max(sides) <= hi + r:
         return None

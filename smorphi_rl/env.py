@@ -188,8 +188,8 @@ def map_picture(grid_map: Map, size: int, square: bool) -> np.ndarray:
     """Occupied and unknown fractions over the known cells' bounding box (a recorded map is mostly unknown space
     around the floor: the policy sees the floor, not the frame), resampled to size x size, times 255 (uint8).
     `square`: the box is first padded with unknown cells to a square, so the picture keeps the floor's aspect."""
-    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
-    cells = grid_map.cells[rows.min() : rows.max() + 1, cols.min() : cols.max() + 1]
+    r0, r1, c0, c1 = grid_map.known_box()
+    cells = grid_map.cells[r0:r1, c0:c1]
     if square:
         side = max(cells.shape)
         canvas = np.full((side, side), Cell.UNKNOWN, dtype=np.uint8)
@@ -209,8 +209,7 @@ def floor_scale(grid_map: Map, block_side_m: float) -> np.ndarray:
     from scipy import ndimage
 
     r = grid_map.resolution_m
-    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
-    height_m, width_m = (rows.max() - rows.min() + 1) * r, (cols.max() - cols.min() + 1) * r
+    height_m, width_m = grid_map.known_sides_m()
     free = grid_map.cells == Cell.FREE
     n_free = max(int(free.sum()), 1)
     clearance_m = ndimage.distance_transform_edt(np.pad(free, 1))[1:-1, 1:-1] * r

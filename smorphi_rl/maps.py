@@ -111,6 +111,17 @@ class Map:
     def fraction(self, cell: Cell) -> float:
         return self.counts[cell] / self.cells.size
 
+    def known_box(self) -> tuple[int, int, int, int]:
+        """(row0, row1, col0, col1), ends excluded, of the known (free or occupied) cells: the floor a recorded map
+        holds, which is mostly unknown space around it (a map always has a free cell, so the box is never empty)."""
+        rows, cols = np.nonzero(self.cells != Cell.UNKNOWN)
+        return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+
+    def known_sides_m(self) -> tuple[float, float]:
+        """(height, width) of `known_box` in metres."""
+        r0, r1, c0, c1 = self.known_box()
+        return (r1 - r0) * self.resolution_m, (c1 - c0) * self.resolution_m
+
     def world_of(self, row: int, col: int) -> tuple[float, float]:
         """The centre of cell (row, col) in metres, map frame (the inverse of `cell_of`)."""
         return (self.origin[0] + (col + 0.5) * self.resolution_m, self.origin[1] + (row + 0.5) * self.resolution_m)

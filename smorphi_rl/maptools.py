@@ -50,10 +50,10 @@ def crop_to_known(grid_map: Map, margin_m: float = 0.0) -> Map:
     side = max(grid_map.width, grid_map.height) * grid_map.resolution_m
     if margin_m > side:
         raise MapError(f"the crop margin {margin_m:g} m is beyond the map's own {side:g} m: it would crop nothing")
-    rows, cols = np.nonzero(grid_map.cells != Cell.UNKNOWN)
+    k0, k1, j0, j1 = grid_map.known_box()
     pad = int(np.ceil(margin_m / grid_map.resolution_m - 1e-9))
-    r0, r1 = max(int(rows.min()) - pad, 0), min(int(rows.max()) + 1 + pad, grid_map.height)
-    c0, c1 = max(int(cols.min()) - pad, 0), min(int(cols.max()) + 1 + pad, grid_map.width)
+    r0, r1 = max(k0 - pad, 0), min(k1 + pad, grid_map.height)
+    c0, c1 = max(j0 - pad, 0), min(j1 + pad, grid_map.width)
     x0, y0, yaw = grid_map.origin
     r = grid_map.resolution_m
     return Map(grid_map.cells[r0:r1, c0:c1], r, (x0 + c0 * r, y0 + r0 * r, yaw), grid_map.name)
