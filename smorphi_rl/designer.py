@@ -2,11 +2,13 @@
 
 A designer was trained on a distribution of floors (`floorplans.py`) with the `floor` observation; it
 accepts a floor whose scale features it can represent (the `accepts` limits in its policy.json: the known
-area's sides, the resolution against the block) and refuses others in one line.
+area's sides, the resolution against the block) and refuses others in one line. Its policy.json also records the
+sides of the floors it was trained on (`trained_sides_m`, written at export), so a floor outside them is warned of.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -14,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import MapError, SmorphiError
 from smorphi_rl.floorplans import DEFAULT_RANGE
 from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.map_sources import is_generator
@@ -25,6 +27,8 @@ from smorphi_rl.policy_file import PolicyFile, layout_problem, read_policy
 ACCEPTS = {"max_side_m": 20.0, "min_cells_per_block": 1.0, "max_cells_per_block": 4.0, "max_free_m2": 200.0}
 """What the `floor` observation's scale features represent without saturating (`env.floor_scale`): a known area
 up to 20 m a side and 200 m^2 free, a block of 1 to 4 cells."""
+TRAINED_SIDES_KEY = "trained_sides_m"
+"""policy.json's [least, greatest] side in metres of the known area of the floors the policy was trained on."""
 
 
 @dataclass(frozen=True)
@@ -34,6 +38,8 @@ class Designer:
     policy: PolicyFile
     net: NumpyPolicy
     env_config: EnvConfig
+    trained_sides: tuple[float, float] | None = None
+    """The least and greatest side of the floors it was trained on (`sides_trained_on`); None: not known."""
 
     @property
     def path(self) -> Path:
@@ -68,7 +74,39 @@ def load_designer(path: Path) -> Designer:
         raise SmorphiError(f"{path}: the policy's {exc}") from None
     frequencies = int(policy.model_config.get("policy_angle_frequencies", 8))
     net = NumpyPolicy(policy.weights, policy.action_nvec, frequencies, policy.observation_shapes)
-    return Designer(policy, net, env_config)
+    return Designer(policy, net, env_config, _recorded_sides(policy, env_config))
+
+
+def _recorded_sides(policy: PolicyFile, env_config: EnvConfig) -> tuple[float, float] | None:
+    """The training floors' sides policy.json records; for a policy exported before it recorded them, its generated
+    floors' range (their sides are drawn from `floorplans.DEFAULT_RANGE`; map files are not read again)."""
+    given = policy.meta.get(TRAINED_SIDES_KEY)
+    if given is None:
+        generated = bool(env_config.maps) and all(is_generator(m) for m in env_config.maps)
+        return (DEFAULT_RANGE.min_side_m, DEFAULT_RANGE.max_side_m) if generated else None
+    if not (isinstance(given, list) and len(given) == 2 and all(is_finite_number(v) and v > 0 for v in given)
+            and given[0] <= given[1]):  # fmt: skip
+        raise SmorphiError(f"{policy.path}: its policy.json's '{TRAINED_SIDES_KEY}' must be [least, greatest] side "
+                           "in metres, two positive numbers")  # fmt: skip
+    return float(given[0]), float(given[1])
+
+
+def sides_trained_on(maps: Iterable[str]) -> tuple[float, float] | None:
+    """The least and greatest side of the known area of the floors `maps` names (a generator's drawn range, a map
+    file's measured), recorded at export; None when a map file cannot be read, so the range is not known."""
+    lows, highs = [], []
+    for entry in maps:
+        if is_generator(entry):
+            lows.append(DEFAULT_RANGE.min_side_m)
+            highs.append(DEFAULT_RANGE.max_side_m)
+            continue
+        try:
+            sides = load_map(entry).known_sides_m()
+        except (MapError, OSError):
+            return None
+        lows.append(min(sides))
+        highs.append(max(sides))
+    return (round(min(lows), 3), round(max(highs), 3)) if lows else None
 
 
 def accepts(designer: Designer, grid_map: Map) -> None:
@@ -98,18 +136,10 @@ def accepts(designer: Designer, grid_map: Map) -> None:
                            "metres in the map frame)")  # fmt: skip
 
 
-def training_sides(designer: Designer) -> tuple[float, float] | None:
-    """The least and greatest side of the floors the designer was trained on, where its maps say (generated floors
-    only: their sides are drawn from `floorplans.DEFAULT_RANGE`); None for a designer trained on map files."""
-    if not designer.env_config.maps or not all(is_generator(m) for m in designer.env_config.maps):
-        return None
-    return DEFAULT_RANGE.min_side_m, DEFAULT_RANGE.max_side_m
-
-
 def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:
     """A warning when the floor's known area is smaller or larger than every floor the designer was trained on: it
     accepts such a floor, but nothing measured says how near the best its design lies there."""
-    trained = training_sides(designer)
+    trained = designer.trained_sides
     if trained is None:
         return None
     lo, hi = trained

@@ -5,14 +5,18 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl.designer import TRAINED_SIDES_KEY, sides_trained_on
 from smorphi_rl.policy_file import write_policy
 from smorphi_rl.training.checkpoints import TARGET_PREFIX, load_module
 
 
 def export_policy(checkpoint: Path, out_dir: Path, about: dict[str, Any], module: Any = None) -> Path:
     """Write the policy and value nets of `checkpoint` (read safely) to `out_dir` with `about` (where it came from,
-    its figures) beside them; APPO's target net is left out (fine-tuning rebuilds it from the policy)."""
+    its figures) beside them, and the sides of the floors it was trained on (`designer.sides_trained_on`); APPO's
+    target net is left out (fine-tuning rebuilds it from the policy)."""
     module = module if module is not None else load_module(checkpoint)
+    sides = sides_trained_on((module.model_config.get("env_config") or {}).get("maps") or ())
+    about = about if sides is None else {TRAINED_SIDES_KEY: list(sides), **about}
     weights = {k: v.detach().numpy() for k, v in module.state_dict().items() if not k.startswith(TARGET_PREFIX)}
     observation = {k: tuple(int(d) for d in space.shape) for k, space in module.observation_space.spaces.items()}
     nvec = [int(n) for n in module.action_space.nvec]

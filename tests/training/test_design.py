@@ -227,9 +227,31 @@ def test_a_floor_outside_the_training_sizes_is_designed_with_a_warning(capsys, t
     assert code == 0 and "trained on floors" not in err  # 15.04 m: a 15 m floor counted in whole cells
 
 
-def test_a_designer_trained_on_map_files_names_no_training_sizes(tmp_path):
-    from smorphi_rl.designer import training_sides
+def test_a_designer_records_the_sides_of_the_floors_it_was_trained_on(tmp_path, capsys):
+    """Export measures the training floors' sides (a map file's known area, a generator's range), so a designer
+    trained on map files, or on both, warns too; one whose policy.json says otherwise is refused in one line."""
+    from smorphi_rl.designer import TRAINED_SIDES_KEY, sides_trained_on
+    from smorphi_rl.maps import Map, load_map, save_map
 
-    trained = load_designer(export(tmp_path, CONFIG | {"maps": [str(FLOOR)]}))
-    assert training_sides(trained) is None
-    assert training_sides(load_designer(export(tmp_path / "g", CONFIG))) == (3.0, 15.0)
+    floor_sides = load_map(FLOOR).known_sides_m()
+    on_file = load_designer(export(tmp_path / "f", CONFIG | {"maps": [str(FLOOR)]}))
+    assert on_file.trained_sides == (round(min(floor_sides), 3), round(max(floor_sides), 3))
+    both = load_designer(export(tmp_path / "b", CONFIG | {"maps": [str(FLOOR), "generate:rooms"]}))
+    assert both.trained_sides == (3.0, 15.0)
+    assert load_designer(export(tmp_path / "g", CONFIG)).trained_sides == (3.0, 15.0)
+    assert sides_trained_on([str(tmp_path / "gone.yaml")]) is None  # a map file not there: the range is unknown
+
+    hall = save_map(Map(np.zeros((90, 80), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")  # 9 x 8 m
+    code, _, err = run(capsys, "design", "--policy", str(on_file.path), "--map", str(hall), "--json", "--budget", "5")
+    assert code == 0 and f"trained on floors {on_file.trained_sides[0]:g}-{on_file.trained_sides[1]:g} m" in err
+    code, _, err = run(capsys, "design", "--policy", str(both.path), "--map", str(hall), "--json", "--budget", "5")
+    assert code == 0 and "trained on floors" not in err
+
+    meta_file = on_file.path / "policy.json"
+    meta = json.loads(meta_file.read_text())
+    del meta[TRAINED_SIDES_KEY]  # exported before the sides were recorded: a map file's are not known
+    meta_file.write_text(json.dumps(meta))
+    assert load_designer(on_file.path).trained_sides is None
+    meta_file.write_text(json.dumps(meta | {TRAINED_SIDES_KEY: [15, 3]}))
+    code, out, err = run(capsys, "design", "--policy", str(on_file.path), "--map", str(FLOOR), "--budget", "5")
+    assert code == 1 and not out and err.count("\n") == 1 and f"'{TRAINED_SIDES_KEY}' must be" in err
