@@ -152,8 +152,9 @@ def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:
             "those")  # fmt: skip
 
 
-def designer_env(designer: Designer, map_path: str) -> Any:
-    """The designer's env on one map (its planner, weights, moves and episode length), checked to fit it."""
+def designer_env(designer: Designer, map_path: str, start_xy: tuple[float, float] | None = None) -> Any:
+    """The designer's env on one map (its planner, weights, moves and episode length), checked to fit it; plans start
+    at `start_xy` (metres, map frame) where given, else where the designer's configuration says."""
     from smorphi_rl.env import MorphologyEnv
 
     if designer.env_config.observation != ObservationLayout.FLOOR.value:
@@ -162,6 +163,7 @@ def designer_env(designer: Designer, map_path: str) -> Any:
     grid_map = load_map(map_path)
     accepts(designer, grid_map)
     config = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [map_path]}).maps, reward="paper")
+    config = config if start_xy is None else replace(config, start_xy=start_xy)
     env = MorphologyEnv(config.to_dict())  # `paper`: no reward scales to compute, so no planner calls for them
     have = {k: tuple(s.shape) for k, s in env.observation_space.spaces.items()}  # type: ignore[attr-defined]
     env_moves = [int(n) for n in env.action_space.nvec]  # type: ignore[attr-defined]

@@ -97,8 +97,15 @@ def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset
 
     option(parser, EnvConfig, "planner", unset=unset, choices=PLANNERS)
     if start:
-        option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=finite, metavar=("X", "Y"),
-               default_text="the planner's")  # fmt: skip
+        start_option(parser)
+
+
+def start_option(parser: argparse.ArgumentParser) -> None:
+    """--start-xy X Y: where plans start (the env's field; None when not given: the planner's own start)."""
+    from smorphi_rl.env_config import EnvConfig
+
+    option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=finite, metavar=("X", "Y"),
+           default_text="the planner's")  # fmt: skip
 
 
 def planning_of(args: argparse.Namespace, grid_map: Map | None = None) -> Planning:

@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, start_option
 from smorphi_rl.design import DEFAULT_BUDGET, PROGRESS_FROM
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, output_file
@@ -36,6 +36,7 @@ def register(sub: Any) -> None:
     ds.add_argument("--exact", action="store_true", help="also find the exact 1-degree optimum (every shape, about "
                     "10 s to 2.5 min the first time, by the floor's size; cached under LOG_DIR/.cache) and report "
                     "the gap")  # fmt: skip
+    start_option(ds)  # the floor to clean where plans would start in another room; the designer's planner stays
     ds.add_argument("--json", action="store_true", help="print one JSON object")
     ds.add_argument("--plot", help="write a PNG of the proposed shape's coverage on the floor")
     ds.add_argument("--force", action="store_true", help=FORCE_HELP)
@@ -54,7 +55,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     cache = optimum_cache(args.log_dir) if args.exact else None  # a --log-dir that is a file: one line, before work
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
-    env = designer_env(designer, str(args.map))
+    start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
+    env = designer_env(designer, str(args.map), start)
     large = args.budget >= PROGRESS_FROM
     bar = progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if large else None
     result = run_design(env, designer.logits, args.budget, progress=bar)
@@ -66,6 +68,8 @@ def cmd_design(args: argparse.Namespace) -> int:
         "planner_calls": result.planner_calls, "rollouts": result.rollouts, "refined": result.refined,
         "budget": args.budget,
     }  # fmt: skip
+    if start is not None:
+        record["start_xy"] = list(start)
     if args.exact:
         from smorphi_rl.progress import optimum_progress
         from smorphi_rl.protocol import exact_optimum

@@ -103,6 +103,7 @@ def test_design_loads_without_torch_or_ray(policy):
     (["--plot", "x.txt"], "give a file name ending in .png"),
     (["--plot", str(FLOOR / "x.png")], "is not a folder this process can write into"),
     (["--map", "/no/map.yaml"], "map file not found"),
+    (["--start-xy", "100", "1"], "--start-xy: env_config 'start_xy': map mixed-0900002: point (100.0, 1.0) m lies"),
 ])  # fmt: skip
 def test_bad_design_input_is_one_line(policy, capsys, tmp_path, argv, message):
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), *argv)
@@ -209,6 +210,9 @@ def test_a_design_on_separate_rooms_warns_that_the_rest_is_out_of_reach(capsys, 
     code, out, err = run(capsys, "design", "--map", str(rooms), "--json", "--budget", "20")
     assert code == 0 and json.loads(out)["coverage_free_pct"] < 30  # stdout stays one object
     assert "warning: on rooms plans start in a free area holding 25.0 % of the free cells" in err
+    code, out, err = run(capsys, "design", "--map", str(rooms), "--json", "--budget", "20", "--start-xy", "5", "5")
+    assert code == 0 and json.loads(out)["start_xy"] == [5, 5]  # the hint's --start-xy is design's too
+    assert "25.0 % of the free cells (around (5.05, 5.05) m)" in err
 
 
 def test_a_floor_outside_the_training_sizes_is_designed_with_a_warning(capsys, tmp_path):
