@@ -142,7 +142,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
 }
 DEFAULT_TIMESTEPS = 300_000
 """The main job's budget: 1-2 min of training on 2 cores (2,800-6,400 env steps/s end to end, by machine). At 200,000
-steps PPO settled 100 % of the 20 starts within 1 % on map-1 and map-2 for seeds 0-2 and 100-102 on an AMD EPYC, but on
+steps PPO settled 100 % of the 20 starts within 1 % on map-1 for seeds 0-2 and 100-102 on an AMD EPYC (map-2: 90 % for
+seed 1, 100 % for the others), but on
 an Intel Xeon with AVX-512 (a seed's path turns on the CPU's float arithmetic) 5, 45, 0, 100, 100, 55 % on map-1 for
 seeds 200-205 (100 % on map-2); at 300,000 100, 100, 100, 90, 90, 75 % and 100 % on map-2 for all six
 (docs/decisions.md). The learning rate falls to its floor over the budget, so a longer budget also explores longer."""
