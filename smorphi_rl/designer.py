@@ -49,8 +49,8 @@ class Designer:
     def summary(self) -> str:
         """One line for reports: the algorithm and what it was trained on."""
         model = self.policy.model_config
-        trained = self.policy.meta.get("trained", {})
-        steps = trained.get("env_steps")
+        trained = self.policy.meta.get("trained")  # what its shipping recorded, if anything: read, never required
+        steps = trained.get("env_steps") if isinstance(trained, dict) else None
         text = f"{str(model.get('algorithm', 'policy')).upper()}"
         if isinstance(steps, int):
             text += f", {steps:,} env steps"

@@ -207,6 +207,11 @@ def obs_size(observation: dict[str, list[int]]) -> int:
 def policy_problem(observation: dict[str, list[int]], model: Any) -> str | None:
     """What is wrong with a policy's observation shapes and model configuration (`model_config_problem`), or None;
     checked for checkpoints and policy files alike before a module is built."""
+    for key, shape in observation.items():  # the network reads a picture and vectors: no other shape builds it
+        dims = 3 if key == "map" else 1
+        if len(shape) != dims:
+            what = "[channels, height, width]" if dims == 3 else "one length (a vector)"
+            return f"its observation's '{str(key)[:40]}' must have the shape {what}, got {list(shape)[:8]}"
     if obs_size(observation) > MAX_OBSERVATION_VALUES:
         return (
             f"its observation holds {obs_size(observation):,} values, more than any env's ({MAX_OBSERVATION_VALUES:,})"

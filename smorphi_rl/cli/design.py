@@ -104,7 +104,8 @@ def cmd_design(args: argparse.Namespace) -> int:
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']})"),
         ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "
-                 f"planned): {result.rollouts} roll-outs of the policy, {result.refined} shapes of compass search"),
+                 f"planned): {result.rollouts} roll-out{'s' * (result.rollouts != 1)} of the policy, {result.refined} "
+                 "shapes of compass search"),
     ]  # fmt: skip
     if "exact" in record:
         ex = record["exact"]

@@ -346,13 +346,14 @@ def _with_env(model_config: dict, **env: object) -> dict:
     [
         ({"observation_space": lambda s: _with_shape(s, ("3",))}, "refused, its Box shape ('3',) is not whole sizes"),
         ({"observation_space": lambda s: _with_shape(s, 3)}, "refused, its Box shape 3 is not whole sizes"),
+        ({"observation_space": lambda s: _with_shape(s, (3, 1))}, "'angles' must have the shape one length"),
         ({"model_config": lambda m: m | {"env_config": "maps"}}, "env configuration is a str, not a table"),
         ({"model_config": lambda m: _with_env(m, observation="floor")}, "is not the env's"),
         ({"model_config": lambda m: _with_env(m, moves=[1, 2, 4])}, "the policy chooses among [3, 3, 3] moves"),
         ({"action_space": gym.spaces.MultiDiscrete([4_000_001, 3, 3])}, "its action space must be three odd"),
         (
             {
-                "observation_space": lambda s: _with_shape(s, (100, 300)),
+                "observation_space": lambda s: _with_shape(s, (30_000,)),
                 "model_config": lambda m: m | {"policy_angle_frequencies": 64},
             },
             "reads 3,870,002 values beside the map",
@@ -361,6 +362,7 @@ def _with_env(model_config: dict, **env: object) -> dict:
     ids=[
         "a shape of strings",
         "a shape that is a number",
+        "angles of two dimensions",
         "env_config a string",
         "another layout",
         "other moves",

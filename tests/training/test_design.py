@@ -164,6 +164,20 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
     assert code == 1 and err.count("\n") == 1 and "among [7, 7, 7] moves a hinge, its env among [3, 3, 3]" in err
 
 
+@pytest.mark.parametrize("trained", ["x", [1], {"env_steps": "many"}])
+def test_a_policy_whose_shipping_record_is_not_a_table_still_designs(policy, capsys, tmp_path, trained):
+    """`trained` is what a shipping recorded, read for the report's line: a string there stopped `design` in a
+    traceback after the design was made."""
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    (odd / "policy.json").write_text(
+        json.dumps(json.loads((policy / "policy.json").read_text()) | {"trained": trained})
+    )
+    code, out, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd), "--budget", "5")
+    assert code == 0 and "odd (PPO on " in out and not err
+
+
 def test_the_shipped_designer_is_small_plain_and_designs(capsys):
     from smorphi_rl.policy_file import SHIPPED_DESIGNER, read_policy
 

@@ -113,8 +113,13 @@ def test_weights_that_hold_objects_are_refused(exported, tmp_path):
      r"'policy_angle_frequencies' must be an integer in 0..64, got 1000000000"),
     (lambda m: m | {"model_config": m["model_config"] | {"algorithm": "__import__('os')"}},
      "'algorithm' must be one of ppo, impala, appo"),
-    (lambda m: m | {"observation": m["observation"] | {"angles": [100, 300]}},  # 2.7 GB of first layer once
-     r"its network reads 510,0\d\d values beside the map, more than any env's \(1,024\)"),
+    (lambda m: m | {"observation": m["observation"] | {"angles": [4000]}},  # [100, 300]: 2.7 GB of first layer once
+     r"its network reads 68,0\d\d values beside the map, more than any env's \(1,024\)"),
+    (lambda m: m | {"observation": m["observation"] | {"map": [2]}},  # torch's loaders failed in a traceback
+     r"its observation's 'map' must have the shape \[channels, height, width\], got \[2\]"),
+    (lambda m: m | {"observation": m["observation"] | {"map": [2, 64, 64, 1]}}, r"'map' must have the shape"),
+    (lambda m: m | {"observation": m["observation"] | {"angles": [3, 1]}},
+     r"its observation's 'angles' must have the shape one length \(a vector\), got \[3, 1\]"),
 ])  # fmt: skip
 def test_a_foreign_description_is_refused(exported, tmp_path, edit, message):
     _, _, out = exported
