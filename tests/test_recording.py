@@ -355,6 +355,18 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
     return target
 
 
+def _robot(scene: dict, edit) -> dict:
+    """A scene message with its robot's cubes changed by `edit`."""
+    for entity in scene["entities"]:
+        if entity["id"] == "robot":
+            entity["cubes"] = edit(entity["cubes"])
+    return scene
+
+
+def _at(cube: dict, x: object) -> dict:
+    return cube | {"pose": cube["pose"] | {"position": cube["pose"]["position"] | {"x": x}}}
+
+
 @pytest.mark.parametrize(("topic", "edit", "message"), [
     ("/smorphi/step", lambda m: m | {"theta": "abc"}, "step message 0 is damaged (theta abc is not three hinge"),
     ("/smorphi/step", lambda m: m | {"theta": [1e30, 5, 5]}, "is not three hinge angles in [0, 180]"),
@@ -362,6 +374,11 @@ def _tampered(source: Path, target: Path, topic: str, edit) -> Path:
     ("/map", lambda m: m | {"data": "!!!notbase64"}, "the map message is damaged"),
     ("/map", lambda m: m | {"column_count": 10**9, "row_stride": 10**9}, "the map message is damaged"),
     ("/morphology", lambda m: m | {"entities": [{"id": "robot"}]}, "scene message 0 is damaged"),
+    ("/map", lambda m: m | {"cell_size": {"x": 10**400, "y": 0.1}}, "map message is damaged (OverflowError"),
+    ("/map", lambda m: m | {"pose": m["pose"] | {"position": {"x": 1e300, "y": 0, "z": 0}}}, "beyond a map file's"),
+    ("/morphology", lambda m: _robot(m, lambda cubes: []), "scene message 0 is damaged (ValueError: 0 blocks, not "),
+    ("/morphology", lambda m: _robot(m, lambda cubes: [_at(c, 10**400) for c in cubes]), "(OverflowError: int too"),
+    ("/morphology", lambda m: _robot(m, lambda cubes: [_at(c, 1e300) for c in cubes]), "damaged (ValueError: a block"),
     ("/smorphi/step", lambda m: m | {"action": 5}, "action 5 is not three moves in 0..2"),
     ("/smorphi/step", lambda m: m | {"R1": 10**400}, "is not a finite number"),
     ("/smorphi/step", lambda m: m | {"step": 10**30}, "beyond any episode's 100,000"),
@@ -379,3 +396,17 @@ def test_a_recording_whose_messages_are_damaged_is_one_line(tmp_path, capsys, to
     err = capsys.readouterr().err
     assert code == 1 and message in err and err.count("\n") == 1 and "Traceback" not in err, err
     assert not (tmp_path / "r.png").exists()
+
+
+def test_a_recordings_text_is_shown_escaped_never_sent_to_the_terminal(tmp_path, capsys):
+    """A map name or run name holding a newline or an escape sequence printed as it was (clearing the screen)."""
+    env = recorded_env(tmp_path, max_steps=5)
+    play(env, 0, np.random.default_rng(0))
+    (source,) = episode_files(tmp_path / "episodes")
+    odd = _tampered(source, tmp_path / "odd.mcap", "/smorphi/step", lambda m: m | {"map": "a\nb\x1b[2J"})
+    assert main(["replay", str(odd)]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "a\\nb\\x1b[2J" in out
+    assert main(["replay", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "\x1b" not in out and "a\\nb\\x1b[2J" in out

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 from smorphi_rl import interrupts
 from smorphi_rl.cli import design, evaluate, maps, policy, search, train
-from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map
+from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map, one_line
 from smorphi_rl.errors import Interrupted, SmorphiError
 
 __all__ = ["build_parser", "main"]
@@ -36,12 +36,6 @@ def build_parser(command: str | None = None) -> Parser:
         if command is None or command in commands:
             group.register(sub)
     return parser
-
-
-def one_line(message: str) -> str:
-    """An error as one line: a newline or another control character inside it (a path or a value holding one) is
-    shown escaped, as \\n or \\x00."""
-    return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

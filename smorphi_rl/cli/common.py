@@ -89,6 +89,12 @@ def weight_options(parser: argparse.ArgumentParser) -> None:
     option(parser, EnvConfig, "path_term", unset=True, choices=PATH_TERMS)
 
 
+def one_line(message: str) -> str:
+    """Text as one line: a newline or another control character inside it (a path, a value or a recording's text
+    holding one: an escape sequence would drive the terminal) is shown escaped, as \\n or \\x1b."""
+    return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
+
+
 def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset: bool = False) -> None:
     """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start
     (the env's fields; `unset`: the planner stays None when not given, for a checkpoint's to apply)."""

@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, scored_text, seed_arg
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, one_line, scored_text, seed_arg
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
@@ -109,14 +109,15 @@ def _replay_listing(directory: Path) -> int:
         try:
             ep = read_episode(f)
         except RecordingError as exc:
-            print(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}")
+            print(one_line(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}"))
             unreadable += 1
             continue
         b = ep.best
         assert b is not None
         flag = " (cut short)" if ep.truncated else ""
-        print(f"{f.name:<44} {b['map']:<8} {ep.metadata.get('algorithm', '-'):<8} {len(ep.steps) - 1:>5}  "
-              f"{b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}")  # fmt: skip
+        algorithm = ep.metadata.get("algorithm", "-")
+        print(one_line(f"{f.name:<44} {b['map']:<8} {algorithm:<8} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
+                       f"{angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}"))  # fmt: skip
     print(f"{len(files)} recordings in {rel(directory)}")
     if unreadable == len(files):
         raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
@@ -150,7 +151,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     ]
     if ep.truncated:
         rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short (the rest of the episode was lost)"))
-    print("\n".join(f"{k:<10} {v}" for k, v in rows))
+    print("\n".join(one_line(f"{k:<10} {v}") for k, v in rows))  # a recording's text never drives the terminal
     if args.steps:
         print(f"\n{'step':>5}  {'theta':<18} {'action':<9} {'reward':>8} {'R1':>7} {'P_c %':>7} {'P_len':>5}  feasible")
         for st in steps:

@@ -16,7 +16,7 @@ import numpy as np
 from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special, is_finite_number
-from smorphi_rl.maps import Cell, Map
+from smorphi_rl.maps import MAX_ORIGIN_M, MAX_RESOLUTION_M, MIN_RESOLUTION_M, Cell, Map
 from smorphi_rl.recording.messages import (
     MAX_MOVE,
     MCAP_MAGIC,
@@ -80,8 +80,11 @@ class Episode:
         try:
             pos = self.grid["pose"]["position"]
             origin = (float(pos["x"]), float(pos["y"]), 0.0)
-            return Map(cells, float(self.grid["cell_size"]["x"]), origin, self.steps[0]["map"])
-        except (KeyError, TypeError, ValueError, SmorphiError) as exc:
+            cell = float(self.grid["cell_size"]["x"])
+            if not (MIN_RESOLUTION_M <= cell <= MAX_RESOLUTION_M and max(map(abs, origin)) <= MAX_ORIGIN_M):
+                raise ValueError(f"a cell of {cell:.3g} m at ({origin[0]:.3g}, {origin[1]:.3g}) m, beyond a map file's")
+            return Map(cells, cell, origin, self.steps[0]["map"])
+        except (KeyError, TypeError, ValueError, OverflowError, SmorphiError) as exc:  # Overflow: a 400-digit integer
             raise self._damaged("the map message", exc) from None
 
     def changed_steps(self, max_frames: int) -> list[int]:
@@ -101,12 +104,16 @@ class Episode:
                 q = cube["pose"]["orientation"]
                 pos = cube["pose"]["position"]
                 block = (float(pos["x"]), float(pos["y"]), 2 * math.atan2(q["z"], q["w"]), float(cube["size"]["x"]))
-                if not all(math.isfinite(v) for v in block):
+                if not (all(abs(v) <= MAX_COORD_M for v in block) and 0 < block[3] <= MAX_RESOLUTION_M):
                     raise ValueError(f"a block at {block}")
                 blocks.append(block)
+            if len(blocks) != BLOCKS:
+                raise ValueError(f"{len(blocks)} blocks, not Smorphi's {BLOCKS}")
             pts = [[p["x"], p["y"]] for line in entities["coverage_path"]["lines"] for p in line["points"]]
             path = np.asarray(pts, dtype=float).reshape(-1, 2)
-        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            if path.size and not np.all(np.abs(path) <= MAX_COORD_M):  # NaN fails too
+                raise ValueError("a path point beyond any map's frame")
+        except (KeyError, TypeError, ValueError, OverflowError, IndexError) as exc:
             raise self._damaged(f"scene message {index}", exc) from None
         return {"blocks": blocks, "path": path, "step": self.steps[index]}
 
@@ -114,6 +121,12 @@ class Episode:
     def episode_return(self) -> float:
         return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
 
+
+BLOCKS = 4
+"""Smorphi's blocks: a scene draws each."""
+MAX_COORD_M = 2 * MAX_ORIGIN_M
+"""A scene's point lies within this of the map frame's zero (a map's origin and its extent); beyond, matplotlib
+cannot draw it and the file is damaged."""
 
 MAX_CHUNK_BYTES = 64 << 20
 """More than any chunk a recording holds (its chunks hold about 1 MiB; the map's grid of MAX_IMAGE_PIXELS cells,
