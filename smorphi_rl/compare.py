@@ -184,8 +184,11 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
     if methods and result.method not in methods:
         from smorphi_rl.search.config import LOCAL_METHODS  # loads the planner: only where a search run is read
 
-        raise SmorphiError(f"{run_dir}: a `search {result.method}` run, given as {' or '.join(methods)} (pass it "
-                           f"with --{'local' if result.method in LOCAL_METHODS else result.method})")  # fmt: skip
+        given = f"{run_dir}: a `search {result.method}` run, given as {' or '.join(methods)}"
+        if result.method == "optimum":  # it holds only the shapes it planned: no front to draw, no flag takes it
+            raise SmorphiError(f"{given}; an optimum run holds only the shapes it planned: compare the methods against "
+                               "a `search exhaustive` run's front (--exhaustive)")  # fmt: skip
+        raise SmorphiError(f"{given} (pass it with --{'local' if result.method in LOCAL_METHODS else result.method})")
     if result.map_name != map_name:
         raise SmorphiError(f"{run_dir}: results are for map '{result.map_name}', not '{map_name}'")
     check_digest(result.map_digest, run_dir)
