@@ -64,10 +64,15 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
         (["--random", "{logs}/random-map-1-seed0", "--map", MAP_2], "results are for map 'map-1', not 'map-2'"),
         (["--random", "{logs}/nsga2-map-1-seed0"], "a `search nsga2` run, given as random (pass it with --nsga2)"),
         (["--local", "{logs}/random-map-1-seed0"], "given as hillclimb or anneal (pass it with --random)"),
-        (["--random", "{logs}/exhaustive-map-1-step10"], "a `search exhaustive` run, given as random (pass it with "
-         "--exhaustive)"),
-        (["--random", "{logs}/optimum-map-1-step10"], "an optimum run holds only the shapes it planned: compare the "
-         "methods against a `search exhaustive` run's front (--exhaustive)"),  # it named a flag compare lacks
+        (
+            ["--random", "{logs}/exhaustive-map-1-step10"],
+            "a `search exhaustive` run, given as random (pass it with --exhaustive)",
+        ),
+        (
+            ["--random", "{logs}/optimum-map-1-step10"],
+            "an optimum run holds only the shapes it planned: compare the "
+            "methods against a `search exhaustive` run's front (--exhaustive)",
+        ),  # it named a flag compare lacks
     ],
 )
 def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
