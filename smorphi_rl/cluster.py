@@ -70,11 +70,40 @@ def check_reachable(address: str | None) -> None:
     if target is None:
         return
     try:
-        with socket.create_connection(target, timeout=CONNECT_TIMEOUT_S):
-            pass
+        with socket.create_connection(target, timeout=CONNECT_TIMEOUT_S) as sock:
+            answers = _answers_grpc(sock) if not _tls() else True  # under TLS a plain preface is no question
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
         raise ClusterError(f"cannot reach a Ray cluster at {address} ({reason})") from None
+    if not answers:  # Ray itself would retry for a minute and more, printing its C++ core's log lines
+        raise ClusterError(f"{address} answers, but not as a Ray cluster (no gRPC reply within {CONNECT_TIMEOUT_S:g} "
+                           "s): give the port `ray start --head --port` printed")  # fmt: skip
+
+
+GRPC_PREFACE = b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n" + bytes([0, 0, 0, 4, 0, 0, 0, 0, 0])
+"""HTTP/2's client preface and an empty SETTINGS frame: a gRPC server (Ray's GCS, its client server) answers with
+a SETTINGS frame of its own."""
+
+
+def _answers_grpc(sock: socket.socket) -> bool:
+    """Whether the server on `sock` answers HTTP/2's preface with a SETTINGS frame, as every gRPC server does."""
+    sock.settimeout(CONNECT_TIMEOUT_S)
+    sock.sendall(GRPC_PREFACE)
+    head = b""
+    try:
+        while len(head) < 9:
+            chunk = sock.recv(9 - len(head))
+            if not chunk:
+                break
+            head += chunk
+    except (TimeoutError, ConnectionError):
+        return False
+    return len(head) == 9 and head[3] == 4  # a frame header: length (3 bytes), then its type, 4 for SETTINGS
+
+
+def _tls() -> bool:
+    """Whether Ray speaks TLS here (RAY_USE_TLS), so a cleartext preface tells nothing."""
+    return os.environ.get("RAY_USE_TLS", "0").strip().lower() in ("1", "true")
 
 
 _OPEN: list[str | None] = []

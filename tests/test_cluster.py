@@ -34,6 +34,32 @@ def test_auto_follows_the_address_ray_start_recorded(no_ray_here):
         check_reachable("auto")
 
 
+def test_a_port_where_something_else_listens_is_refused_in_one_line_not_retried(tmp_path, capsys):
+    """An HTTP server, or a listener that never speaks, on the given port: Ray retried for over a minute, printing
+    its C++ core's log lines, where a gRPC probe answers within seconds."""
+    import socket
+    import threading
+
+    from smorphi_rl.cli import main
+
+    def http_once(server: socket.socket) -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(b"HTTP/1.0 400 Bad request\r\n\r\n")
+
+    with socket.create_server(("127.0.0.1", 0)) as silent, socket.create_server(("127.0.0.1", 0)) as http:
+        threading.Thread(target=http_once, args=(http,), daemon=True).start()
+        for server in (http, silent):
+            address = f"127.0.0.1:{server.getsockname()[1]}"
+            with pytest.raises(ClusterError, match=f"{address} answers, but not as a Ray cluster"):
+                check_reachable(address)
+        address = f"127.0.0.1:{silent.getsockname()[1]}"
+        assert main(["search", "random", "--samples", "5", "--address", address, "--log-dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "answers, but not as a Ray cluster" in err[0] and not list(tmp_path.iterdir())
+
+
 def test_train_with_auto_and_no_cluster_writes_nothing(no_ray_here, tmp_path, capsys):
     from smorphi_rl.cli import main
 
