@@ -16,6 +16,7 @@ from typing import Any
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_SEED
+from smorphi_rl.policy_file import MAX_FREQUENCIES
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
     ALGORITHMS,
@@ -252,6 +253,8 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
                 else "a non-negative number"
             )
             raise TrainConfigError(f"hyperparameter '{name}' must be {kind}, got {value!r}")
+        if name == "policy_angle_frequencies" and value > MAX_FREQUENCIES:  # every loader refuses a wider policy
+            raise TrainConfigError(f"hyperparameter '{name}' must be at most {MAX_FREQUENCIES}, got {value!r}")
 
 
 def learning_rate(hp: Preset, timesteps: int) -> float | list[list[float]]:

@@ -47,7 +47,7 @@ from smorphi_rl.training.run import (
     training_optima,
     trial_callbacks,
 )
-from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError
+from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, sweep_key
 from smorphi_rl.training.sweep_report import (
     TrialRow,
     group_curves,
@@ -305,9 +305,14 @@ def run_sweep(
     from smorphi_rl.env import MorphologyEnv
 
     digests: dict[str, dict[str, str]] = {}  # each map set's digests, by its trials' `maps` label
-    for maps in sweep.map_sets:  # an unreadable map or one with no free cell fails here, before Ray starts
-        base = sweep.base_config(sweep.algorithms[0], maps, 0, {})
-        MorphologyEnv(base.env.to_dict())
+    for i, maps in enumerate(sweep.map_sets):  # an unreadable map, one with no free cell, a start off its floor or
+        base = sweep.base_config(sweep.algorithms[0], maps, 0, {})  # a block under its cell fails here, before Ray
+        try:
+            MorphologyEnv(base.env.to_dict())
+        except SmorphiError as exc:
+            raise SweepConfigError(
+                f"{sweep.path}: key '{sweep_key(str(exc), sweep.env, f'maps[{i}]')}': {exc}"
+            ) from None
         digests[map_set_label(maps)] = map_digests(base)  # every evaluated map too, before any optimum
     cluster.check_reachable(address)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import itertools
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, get_args
 
 import numpy as np
 import yaml
@@ -228,7 +229,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
         "evaluation",
     )  # `key:` with nothing after it: the default, as before
     try:
-        doc = SweepFile.model_validate({k: v for k, v in raw.items() if v is not None or k not in empty})
+        doc = SweepFile.model_validate(_whole_numbers({k: v for k, v in raw.items() if v is not None or k not in empty},
+                                                      SweepFile))  # fmt: skip
     except ValidationError as exc:
         raise _first_problem(exc, fail) from None
     for a in doc.algorithms:
@@ -290,7 +292,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         try:
             trial = cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {})
         except SmorphiError as exc:
-            raise fail(f"maps[{i}]", str(exc)) from None
+            raise fail(sweep_key(str(exc), cfg.env, f"maps[{i}]"), str(exc)) from None
         _check_evaluable(trial, f"maps[{i}]", fail)
     for algo in cfg.algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
@@ -300,6 +302,40 @@ def load_sweep(path: str | Path) -> SweepConfig:
                 except SmorphiError as exc:
                     raise fail(f"search.{key}", str(exc)) from None
     return cfg
+
+
+def _whole_numbers(raw: dict[str, Any], model: type[BaseModel]) -> dict[str, Any]:
+    """`raw` with a whole number written with an exponent (`timesteps: 3e5`, which YAML reads as 300000.0) as the
+    integer it is, where `model`'s field, or its nested mapping's, takes an integer."""
+    out = dict(raw)
+    for key, value in raw.items():
+        field = model.model_fields.get(key)
+        if field is None:
+            continue
+        kind = field.annotation
+        if isinstance(value, float) and value.is_integer() and abs(value) <= 2**53 and int in (kind, *get_args(kind)):
+            out[key] = int(value)
+        elif isinstance(value, dict) and isinstance(kind, type) and issubclass(kind, BaseModel):
+            out[key] = _whole_numbers(value, kind)
+    return out
+
+
+TRIAL_KEYS = {
+    "timesteps": "timesteps", "envs_per_runner": "envs_per_runner", "num_env_runners": "env_runners",
+    "env_runners": "env_runners", "eval_every": "evaluation.every", "eval_starts": "evaluation.starts",
+    "select_starts": "evaluation.select_starts", "design_budget": "evaluation.design_budget",
+    "max_iterations": "max_iterations", "record_every": "record_every", "checkpoint_every": "checkpoint.every",
+}  # fmt: skip
+"""A trial's configuration field, as its complaints begin, and the sweep file's key that sets it."""
+
+
+def sweep_key(message: str, env: dict[str, Any], default: str) -> str:
+    """The sweep file's key a trial's complaint is about: the field it begins with (`timesteps ...`), or the `env`
+    key it names (`env_config 'start_xy' ...`); `default` (the map set being built) otherwise."""
+    named = re.match(r"env_config '(\w+)'", message)
+    if named:
+        return f"env.{named[1]}" if named[1] in env else default
+    return TRIAL_KEYS.get(re.split(r"[\s:]", message, maxsplit=1)[0], default)
 
 
 def _check_evaluable(trial: TrainConfig, key: str, fail: Any) -> None:

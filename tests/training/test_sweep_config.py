@@ -92,7 +92,12 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         ),
         ("algorithms: [ppo]\nmaps: [nowhere.yaml]\nseeds: [0]\n", "key 'maps[0]': map file 'nowhere.yaml' not found"),
         (base("timesteps: -5\n"), "key 'timesteps': input should be greater than or equal to 1, got -5"),
-        (base("timesteps: 1e5\n"), "key 'timesteps': input should be a valid integer, got '1e5'"),
+        (base("timesteps: 1.5\n"), "key 'timesteps': input should be a valid integer, got 1.5"),
+        (base("timesteps: 99999999999999999999999\n"), "key 'timesteps': timesteps 99,999,"),  # it named maps[0]
+        (base("envs_per_runner: 100000\n"), "key 'envs_per_runner': envs_per_runner must be at most 1,024"),
+        (base("evaluation: {starts: 999999}\n"), "key 'evaluation.starts': eval_starts must be at most 1,000"),
+        (base("evaluation: {design_budget: 99999999}\n"), "key 'evaluation.design_budget': design_budget must be"),
+        (base("search: {policy_angle_frequencies: 100000}\n"), "must be at most 64, got 100000"),
         (base("preset: slow\n"), "key 'preset': unknown preset 'slow'"),
         (f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [1, 1]\n", "key 'seeds[1]': 1 is given twice"),
         (f"algorithms: [ppo, ppo]\nmaps: [{MAP_1}]\nseeds: [1]\n", "key 'algorithms[1]': 'ppo' is given twice"),
@@ -139,6 +144,30 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
         load_sweep(path)
     assert str(info.value).startswith(f"{path}: ")
     assert message in str(info.value)
+
+
+def test_numbers_with_an_exponent_are_numbers(tmp_path):
+    """YAML 1.1 reads 1e-4 as a string and 3e5 as 300000.0: `lr: 1e-4` was refused as no number, `timesteps: 3e5` as
+    no integer."""
+    text = base("timesteps: 3e5\nevaluation: {starts: 1e1}\nsearch: {lr: 1e-4, entropy_coeff: {grid: [1e-3, 1E-2]}}\n")
+    sweep = load_sweep(write(tmp_path, text))
+    assert sweep.timesteps == 300_000 and type(sweep.timesteps) is int and sweep.evaluation.starts == 10
+    assert sweep.search["lr"].values == (1e-4,) and sweep.search["entropy_coeff"].values == (1e-3, 1e-2)
+
+
+def test_a_start_or_block_that_does_not_fit_a_map_names_the_env_key(tmp_path, capsys):
+    """Checked on the maps before Ray starts; the line named neither the file nor the key."""
+    from smorphi_rl.cli import main
+
+    for env, message in (
+        ("{start_xy: [100, 100]}", "key 'env.start_xy': env_config 'start_xy': map map-1: point"),
+        ("{block_side_m: 50}", "key 'env.block_side_m': env_config 'block_side_m' on map-1: a block"),
+    ):
+        path = write(tmp_path, base(f"env: {env}\n"))
+        assert main(["sweep", str(path), "--log-dir", str(tmp_path / "logs")]) == 1
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"{path}: {message}" in err, err
+    assert not (tmp_path / "logs").exists()
 
 
 def test_a_checkpoint_resolves_next_to_the_sweep_file_and_a_bad_one_names_the_key(tmp_path, monkeypatch, capsys):
