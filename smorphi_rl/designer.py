@@ -73,7 +73,10 @@ def load_designer(path: Path) -> Designer:
     except EnvConfigError as exc:
         raise SmorphiError(f"{path}: the policy's {exc}") from None
     frequencies = int(policy.model_config.get("policy_angle_frequencies", 8))
-    net = NumpyPolicy(policy.weights, policy.action_nvec, frequencies, policy.observation_shapes)
+    try:
+        net = NumpyPolicy(policy.weights, policy.action_nvec, frequencies, policy.observation_shapes)
+    except SmorphiError as exc:  # its layers: the folder named, as for its description
+        raise SmorphiError(f"{path}: {exc}") from None
     return Designer(policy, net, env_config, _recorded_sides(policy, env_config))
 
 
@@ -116,6 +119,10 @@ def accepts(designer: Designer, grid_map: Map) -> None:
         raise SmorphiError(f"{designer.path}: its policy.json's 'accepts' must map {', '.join(ACCEPTS)} to positive "
                            "numbers")  # fmt: skip
     limits = {**ACCEPTS, **given}
+    least, most = limits["min_cells_per_block"], limits["max_cells_per_block"]
+    if least > most:
+        raise SmorphiError(f"{designer.path}: its policy.json's 'accepts' has min_cells_per_block {least:g} over "
+                           f"max_cells_per_block {most:g}")  # fmt: skip
     r = grid_map.resolution_m
     sides = grid_map.known_sides_m()
     cells_per_block = designer.env_config.block_side_m / r

@@ -224,6 +224,20 @@ def test_usage_errors_are_one_line(capsys):
     assert err.count("\n") == 1 and "--angles" in err
 
 
+@pytest.mark.parametrize("argv", [
+    ["design", "--policy", ""],  # designed with the shipped designer, saying nothing
+    ["design", "--map="],
+    ["evaluate-policy", "--checkpoint", ""],  # searched the working directory for checkpoints
+    ["train", "--pretrained", "", "--timesteps", "100"],
+    ["replay", ""],
+])  # fmt: skip
+def test_an_empty_value_is_refused_not_read_as_the_working_directory(capsys, argv):
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and "expected a value, got an empty string" in err
+
+
 def test_installed_command_reports_errors_without_traceback(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(

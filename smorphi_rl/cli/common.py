@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, NoReturn
+from typing import TYPE_CHECKING, Any, NoReturn
 
 from smorphi_rl.cli.fields import option
 from smorphi_rl.errors import SmorphiError
@@ -26,10 +26,23 @@ EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse that reports a usage error as one line, like every other error."""
+    """argparse that reports a usage error as one line, like every other error, and refuses an empty value: every
+    option names a file, a folder, a name or a number, and '' read as a path is the working directory."""
 
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
+
+    def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
+        parsed, rest = super().parse_known_args(args, namespace)  # a value its type checks is named by its type
+        for dest, value in vars(parsed).items():
+            empty = value == "" or (isinstance(value, list) and "" in value)
+            if empty and dest not in EMPTY_ALLOWED:
+                self.error(f"argument --{dest.replace('_', '-')}: expected a value, got an empty string")
+        return parsed, rest
+
+
+EMPTY_ALLOWED = ("command",)
+"""Options whose empty value means something (export-policy's --command, by its default: none given)."""
 
 
 def default_map() -> Path:

@@ -128,6 +128,19 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
     assert code == 1 and "361 m^2 of free floor; this designer takes up to 200 m^2 (cut a part of it with" in err
 
 
+def test_accepts_limits_the_wrong_way_round_are_named(policy, capsys, tmp_path):
+    """It designed after saying it represents "0.17-0.034 m a cell"."""
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    meta = json.loads((policy / "policy.json").read_text())
+    (odd / "policy.json").write_text(
+        json.dumps(meta | {"accepts": {"min_cells_per_block": 5, "max_cells_per_block": 1}})
+    )
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd))
+    assert code == 1 and err.count("\n") == 1 and "has min_cells_per_block 5 over max_cells_per_block 1" in err
+
+
 def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
     picture = export(tmp_path, {"max_steps": 16})
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(picture))

@@ -183,7 +183,7 @@ def test_flattened_weights_are_refused_in_one_line_by_design(exported, tmp_path,
     val_1 = str(Path(__file__).resolve().parents[2] / "maps" / "val-1.yaml")
     code = main(["design", "--map", val_1, "--policy", str(bad), "--budget", "20"])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 1 and len(err) == 1 and "layers do not fit" in err[0]
+    assert code == 1 and len(err) == 1 and f"{bad}: the policy's layers do not fit" in err[0]  # the folder named
 
 
 def test_weights_too_large_for_float32_arithmetic_are_refused(exported, tmp_path):
