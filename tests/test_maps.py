@@ -269,3 +269,16 @@ def test_a_colour_image_reads_as_the_mean_of_its_channels(tmp_path):
         Image.fromarray(array).save(tmp_path / f"{name}.png")
         (tmp_path / f"{name}.yaml").write_text(f"image: {name}.png\n{header}")
     assert np.array_equal(load_map(tmp_path / "rgb.yaml").cells, load_map(tmp_path / "grey.yaml").cells)
+
+
+def test_a_floor_set_refused_for_a_file_there_names_the_file_that_is(tmp_path, capsys):
+    """Only the image of a floor left in the folder: the line named its YAML, which did not exist."""
+    from smorphi_rl.cli import main
+
+    (tmp_path / "rooms-0001000.png").write_bytes(b"")
+    assert (
+        main(["maps", "generate", "--kind", "rooms", "--seed", "1000", "--format", "png", "--out", str(tmp_path)]) == 1
+    )
+    err = capsys.readouterr().err
+    assert f"{tmp_path / 'rooms-0001000.png'} exists (1 of the 1 floors have a file there); pass --force" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["rooms-0001000.png"]

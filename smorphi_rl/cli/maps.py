@@ -131,9 +131,10 @@ def _generate_floors(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--out {out}: with --kind, give the folder the floors go to")
     names = [floor_name(args.kind, args.seed + i) for i in range(args.count)]
     if not args.force:
-        taken = [n for n in names if (out / f"{n}.yaml").exists() or (out / f"{n}.{args.format}").exists()]
-        if taken:
-            raise SmorphiError(f"{out / taken[0]}.yaml exists ({len(taken)} of the {len(names)} floors do); pass "
+        taken = [f for n in names for f in (out / f"{n}.yaml", out / f"{n}.{args.format}") if f.exists()]
+        if taken:  # the file named is one that exists, the YAML or its image
+            floors = len({f.stem for f in taken})
+            raise SmorphiError(f"{taken[0]} exists ({floors} of the {len(names)} floors have a file there); pass "
                                "--force to overwrite them")  # fmt: skip
     from smorphi_rl.rundir import claimed_files
 
