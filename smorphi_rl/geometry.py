@@ -222,6 +222,7 @@ def check_block_side(block_side_m: float, resolution_m: float) -> float:
         raise MorphologyError(f"a block of {block_side_m:g} m is smaller than one cell of this map "
                               f"({resolution_m:g} m): plan on a map of cells no larger than a block")  # fmt: skip
     if cells > MAX_BLOCK_CELLS:
-        raise MorphologyError(f"a block of {block_side_m:g} m spans {cells:,.0f} cells of this map "
+        many = f"{cells:,.0f}" if cells < 1e9 else f"{cells:.3g}"  # not a number of 300 digits
+        raise MorphologyError(f"a block of {block_side_m:g} m spans {many} cells of this map "
                               f"({resolution_m:g} m); at most {MAX_BLOCK_CELLS}: resample the map coarser")  # fmt: skip
     return float(block_side_m)

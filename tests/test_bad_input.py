@@ -45,7 +45,12 @@ def test_angles_file_names_the_file_and_line(tmp_path, capsys):
 
 @pytest.mark.parametrize(
     ("block", "status", "message"),
-    [("0.01", 1, "smaller than one cell"), ("inf", 2, "finite number"), ("1000", 1, "at most 400")],
+    [
+        ("0.01", 1, "smaller than one cell"),
+        ("inf", 2, "finite number"),
+        ("1000", 1, "spans 10,000 cells"),
+        ("1e300", 1, "a block of 1e+300 m spans 1e+301 cells of this map (0.1 m); at most 400"),
+    ],  # not 302 digits
 )
 def test_block_sizes_the_map_cannot_hold(capsys, block, status, message):
     code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles", "10", "20", "30", "--block-side", block)
