@@ -27,13 +27,17 @@ def progress_line(
     warned = [False]
     stage = [0, 0]  # pass, last count
     first: list[tuple[float, int] | None] = [None]  # (time, count) of the pass's first count above 0
+    ended = [False]  # the pass's full bar is written: a caller reporting the end twice gets it once
 
     def show(done: int, total: int) -> None:
         now = time.monotonic()
         if done < stage[1] and stage[0] + 1 < len(labels):
             stage[0] += 1
-            t0[0], last[0], warned[0], first[0] = now, -math.inf, False, None
+            t0[0], last[0], warned[0], first[0], ended[0] = now, -math.inf, False, None, False
         stage[1] = done
+        if done >= total and ended[0]:
+            return
+        ended[0] = done >= total
         name = labels[stage[0]]
         elapsed = now - t0[0]
         if first[0] is None and done:

@@ -14,6 +14,15 @@ def test_a_progress_line_of_two_passes_names_each(capsys):
     assert all(line.startswith("x: settled [") for line in lines[1:]) and len(lines) == 3
 
 
+def test_a_pass_reported_ended_twice_writes_its_full_bar_once(capsys):
+    """`search exhaustive` reports the end of its pass twice: off a terminal the full bar was written twice."""
+    show = progress.progress_line(("x: keyed", "x: settled"))
+    for done in (4, 8, 8, 2, 8, 8):
+        show(done, 8)
+    lines = capsys.readouterr().err.splitlines()
+    assert [line.split(" [")[0] for line in lines] == ["x: keyed", "x: keyed", "x: settled", "x: settled"]
+
+
 def test_the_time_left_leaves_out_the_wait_for_the_first_count(capsys, monkeypatch):
     """The first count of `search optimum` comes after the planner compiles (about 35 s): at the rate from the
     start it read "about 34 min more" for a search that had seconds left."""
