@@ -133,9 +133,14 @@ def another_floor(where: Path | str, map_name: str) -> SmorphiError:
                         "runs of the same map file")  # fmt: skip
 
 
+TRAINING_RUN = ("a training run",)
+"""`points_of_run`'s `methods` for a folder given as a training run (`compare --runs`)."""
+
+
 def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), digest: str | None = None) -> Points:
     """What a training run directory or a search run directory found on `map_name`; `methods`: the search methods
-    the folder was given as (a `search nsga2` run given as random search is refused), empty for any; `digest`: the
+    the folder was given as, or TRAINING_RUN (a `search nsga2` run given as random search is refused, a search run
+    given as a training run too), empty for any; `digest`: the
     map's `Map.digest`, which a run that recorded its map's must match (another floor filed under the same name)."""
 
     def check_digest(recorded: Any, where: Path) -> None:
@@ -145,7 +150,7 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
     if not run_dir.is_dir():
         raise SmorphiError(f"run directory not found: {run_dir}")
     if (run_dir / FOUND_CSV).is_file():
-        if methods:  # a training run's label says PPO or IMPALA: it would sit in the table under another name
+        if methods and methods != TRAINING_RUN:  # its label says PPO or IMPALA: it would sit under another name
             raise SmorphiError(f"{run_dir}: a training run, given as {' or '.join(methods)} (pass it with --runs)")
         every = read_csv(run_dir / FOUND_CSV)
         if not every:

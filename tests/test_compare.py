@@ -65,6 +65,10 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
         (["--random", "{logs}/nsga2-map-1-seed0"], "a `search nsga2` run, given as random (pass it with --nsga2)"),
         (["--local", "{logs}/random-map-1-seed0"], "given as hillclimb or anneal (pass it with --random)"),
         (
+            ["--runs", "{logs}/random-map-1-seed0"],
+            "a `search random` run, given as a training run (pass it with --random)",
+        ),
+        (
             ["--random", "{logs}/exhaustive-map-1-step10"],
             "a `search exhaustive` run, given as random (pass it with --exhaustive)",
         ),

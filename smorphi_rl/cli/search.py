@@ -199,6 +199,7 @@ def format_search(
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
+        TRAINING_RUN,
         another_floor,
         block_of_run,
         check_best_as_planned,
@@ -225,7 +226,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if any(d.resolve() == earlier.resolve() for earlier in dirs[:i]):
             raise SmorphiError(f"{d} is given twice: the report would list it twice")
     grid_map = load_map(args.map)
-    given = {**{str(d): ("nsga2",) for d in args.nsga2 or []}, **{str(d): ("random",) for d in args.random or []},
+    given = {**{str(d): TRAINING_RUN for d in args.runs or []}, **{str(d): ("nsga2",) for d in args.nsga2 or []},
+             **{str(d): ("random",) for d in args.random or []},
              **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
     digest = grid_map.digest  # hashed once, for every run and the exact front
     runs = [points_of_run(d, grid_map.name, given.get(str(d), ()), digest) for d in dirs]  # what each run is, first
