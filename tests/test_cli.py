@@ -230,12 +230,16 @@ def test_usage_errors_are_one_line(capsys):
     ["evaluate-policy", "--checkpoint", ""],  # searched the working directory for checkpoints
     ["train", "--pretrained", "", "--timesteps", "100"],
     ["replay", ""],
+    ["maps", "show", ""],
 ])  # fmt: skip
 def test_an_empty_value_is_refused_not_read_as_the_working_directory(capsys, argv):
     with pytest.raises(SystemExit) as exc:
         main(argv)
     err = capsys.readouterr().err
-    assert exc.value.code == 2 and err.count("\n") == 1 and "expected a value, got an empty string" in err
+    flags = [a for a, b in zip(argv, [*argv[1:], ""], strict=True) if a.startswith("--") and (a.endswith("=") or not b)]
+    named = flags[0] if flags else {"replay": "path", "maps": "map"}[argv[0]]  # a positional, as argparse names it
+    assert exc.value.code == 2 and err.count("\n") == 1
+    assert f"argument {named.removesuffix('=')}: expected a value, got an empty string" in err
 
 
 def test_installed_command_reports_errors_without_traceback(tmp_path):

@@ -60,6 +60,24 @@ def test_a_port_where_something_else_listens_is_refused_in_one_line_not_retried(
     assert len(err) == 1 and "answers, but not as a Ray cluster" in err[0] and not list(tmp_path.iterdir())
 
 
+def test_a_port_that_answers_as_grpc_passes_the_probe():
+    """A server that answers HTTP/2's preface with a SETTINGS frame, as Ray's GCS and client server do."""
+    import socket
+    import threading
+
+    def settings_once(server: socket.socket) -> None:
+        conn, _ = server.accept()
+        with conn:
+            conn.recv(64)
+            conn.sendall(bytes([0, 0, 0, 4, 0, 0, 0, 0, 0]))
+            conn.recv(64)
+
+    for prefix in ("", "ray://"):
+        with socket.create_server(("127.0.0.1", 0)) as server:
+            threading.Thread(target=settings_once, args=(server,), daemon=True).start()
+            check_reachable(f"{prefix}127.0.0.1:{server.getsockname()[1]}")
+
+
 def test_train_with_auto_and_no_cluster_writes_nothing(no_ray_here, tmp_path, capsys):
     from smorphi_rl.cli import main
 

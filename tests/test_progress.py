@@ -44,3 +44,15 @@ def test_a_long_time_left_is_said_once_with_the_hint(capsys, monkeypatch):
         show(done, 1_000_000)
     warned = [line for line in capsys.readouterr().err.splitlines() if "min more" in line]
     assert warned == ["x: about 6667 min more at this rate; a coarser --step"]
+
+
+def test_an_exhaustive_search_shows_both_passes_when_its_plans_fit_one_chunk(capsys, tmp_path):
+    """Its settling pass reported only its end, which the bar took for the first pass's end reported again."""
+    from pathlib import Path
+
+    from smorphi_rl.cli import main
+
+    map_1 = str(Path(__file__).resolve().parents[1] / "maps" / "map-1.yaml")
+    assert main(["search", "exhaustive", "--map", map_1, "--step", "30", "--log-dir", str(tmp_path)]) == 0
+    labels = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines() if " [" in line]
+    assert labels[0] == "exhaustive: shapes keyed by footprint" and labels[-1] == "exhaustive: shapes settled"

@@ -376,6 +376,7 @@ def _at(cube: dict, x: object) -> dict:
     ("/morphology", lambda m: m | {"entities": [{"id": "robot"}]}, "scene message 0 is damaged"),
     ("/map", lambda m: m | {"cell_size": {"x": 10**400, "y": 0.1}}, "map message is damaged (OverflowError"),
     ("/map", lambda m: m | {"pose": m["pose"] | {"position": {"x": 1e300, "y": 0, "z": 0}}}, "beyond a map file's"),
+    ("/map", lambda m: m | {"pose": m["pose"] | {"position": {"x": 0, "y": float("nan"), "z": 0}}}, "beyond a map"),
     ("/morphology", lambda m: _robot(m, lambda cubes: []), "scene message 0 is damaged (ValueError: 0 blocks, not "),
     ("/morphology", lambda m: _robot(m, lambda cubes: [_at(c, 10**400) for c in cubes]), "(OverflowError: int too"),
     ("/morphology", lambda m: _robot(m, lambda cubes: [_at(c, 1e300) for c in cubes]), "damaged (ValueError: a block"),

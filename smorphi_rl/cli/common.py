@@ -32,12 +32,19 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
+    def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
+        action = super().add_argument(*args, **kwargs)
+        shown = action.metavar if isinstance(action.metavar, str) else action.dest  # a positional, as argparse says
+        self.__dict__.setdefault("named", {})[action.dest] = "/".join(action.option_strings) or shown
+        return action
+
     def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
         parsed, rest = super().parse_known_args(args, namespace)  # a value its type checks is named by its type
+        named = self.__dict__.get("named", {})
         for dest, value in vars(parsed).items():
             empty = value == "" or (isinstance(value, list) and "" in value)
-            if empty and dest not in EMPTY_ALLOWED:
-                self.error(f"argument --{dest.replace('_', '-')}: expected a value, got an empty string")
+            if empty and dest not in EMPTY_ALLOWED and dest in named:  # another parser's dest: its own check says
+                self.error(f"argument {named[dest]}: expected a value, got an empty string")
         return parsed, rest
 
 

@@ -81,7 +81,7 @@ class Episode:
             pos = self.grid["pose"]["position"]
             origin = (float(pos["x"]), float(pos["y"]), 0.0)
             cell = float(self.grid["cell_size"]["x"])
-            if not (MIN_RESOLUTION_M <= cell <= MAX_RESOLUTION_M and max(map(abs, origin)) <= MAX_ORIGIN_M):
+            if not (MIN_RESOLUTION_M <= cell <= MAX_RESOLUTION_M and all(abs(v) <= MAX_ORIGIN_M for v in origin)):
                 raise ValueError(f"a cell of {cell:.3g} m at ({origin[0]:.3g}, {origin[1]:.3g}) m, beyond a map file's")
             return Map(cells, cell, origin, self.steps[0]["map"])
         except (KeyError, TypeError, ValueError, OverflowError, SmorphiError) as exc:  # Overflow: a 400-digit integer
@@ -104,7 +104,7 @@ class Episode:
                 q = cube["pose"]["orientation"]
                 pos = cube["pose"]["position"]
                 block = (float(pos["x"]), float(pos["y"]), 2 * math.atan2(q["z"], q["w"]), float(cube["size"]["x"]))
-                if not (all(abs(v) <= MAX_COORD_M for v in block) and 0 < block[3] <= MAX_RESOLUTION_M):
+                if not (all(abs(v) <= MAX_COORD_M for v in block) and block[3] > 0):  # NaN fails too
                     raise ValueError(f"a block at {block}")
                 blocks.append(block)
             if len(blocks) != BLOCKS:

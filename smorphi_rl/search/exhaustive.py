@@ -343,6 +343,8 @@ def _two_passes(
     sizes = np.bincount(inverse, minlength=len(reps))
     parts = np.array_split(_plan_order(thetas, rows, inverse, len(reps), bounded), max(1, -(-len(reps) // per_chunk)))
     state = _Settled(len(reps), n - len(rows))
+    if progress is not None:  # the settling pass starts below its end, so the bar shows it under its own label
+        progress(state.settled, n)
     plan_tasks = (("plan", i, reps[part].astype(np.int32), state.threshold) for i, part in enumerate(parts))
     for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
         state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)

@@ -220,6 +220,19 @@ AT_LEAST_ONE = ("circular_buffer_batches", "circular_buffer_passes", "learner_qu
 """Hyperparameters that must be at least 1 (a buffer of no batches trains on nothing)."""
 
 
+INTEGER_HYPERPARAMETERS = (
+    "train_batch_size",
+    "num_epochs",
+    "minibatch_size",
+    "policy_angle_frequencies",
+    "circular_buffer_batches",
+    "circular_buffer_passes",
+    "learner_queue",
+    "frozen_critic",
+)
+"""Preset fields that take whole numbers."""
+
+
 def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
     """Every override names a hyperparameter that `algo` uses, with a positive number (gamma, lambda_ <= 1)."""
     known = {f.name for f in fields(Preset)} - set(LAYOUT)
@@ -228,16 +241,7 @@ def check_overrides(algo: str, overrides: dict[str, Any]) -> None:
             raise TrainConfigError(f"unknown hyperparameter '{name}' (known: {', '.join(sorted(known))})")
         if algo not in USED_BY.get(name, (algo,)):
             raise TrainConfigError(f"hyperparameter '{name}' is {' and '.join(USED_BY[name])}'s; {algo} has none")
-        integer = name in (
-            "train_batch_size",
-            "num_epochs",
-            "minibatch_size",
-            "policy_angle_frequencies",
-            "circular_buffer_batches",
-            "circular_buffer_passes",
-            "learner_queue",
-            "frozen_critic",
-        )
+        integer = name in INTEGER_HYPERPARAMETERS
         least = 1 if name in AT_LEAST_ONE else 0
         ok = not isinstance(value, bool) and isinstance(value, int if integer else int | float) and value >= least
         if not ok or (name in FRACTIONS and not 0 <= value <= 1):

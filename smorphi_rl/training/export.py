@@ -15,9 +15,20 @@ def export_policy(checkpoint: Path, out_dir: Path, about: dict[str, Any], module
     its figures) beside them, and the sides of the floors it was trained on (`designer.sides_trained_on`); APPO's
     target net is left out (fine-tuning rebuilds it from the policy)."""
     module = module if module is not None else load_module(checkpoint)
-    sides = sides_trained_on((module.model_config.get("env_config") or {}).get("maps") or ())
+    sides = sides_trained_on(_maps_of(module.model_config.get("env_config")))
     about = about if sides is None else {TRAINED_SIDES_KEY: list(sides), **about}
     weights = {k: v.detach().numpy() for k, v in module.state_dict().items() if not k.startswith(TARGET_PREFIX)}
     observation = {k: tuple(int(d) for d in space.shape) for k, space in module.observation_space.spaces.items()}
     nvec = [int(n) for n in module.action_space.nvec]
     return write_policy(out_dir, weights, observation, nvec, dict(module.model_config), about)
+
+
+def _maps_of(env_config: Any) -> tuple[str, ...]:
+    """The map entries a policy was trained on, as its env configuration normalises them; none where it is not one."""
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.errors import SmorphiError
+
+    try:
+        return EnvConfig.from_dict(dict(env_config)).maps if isinstance(env_config, dict) else ()
+    except SmorphiError:
+        return ()

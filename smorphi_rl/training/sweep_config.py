@@ -12,7 +12,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, get_args
+from typing import Annotated, Any, get_args, get_origin
 
 import numpy as np
 import yaml
@@ -23,7 +23,7 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, is_finite_number, strict_yaml
 from smorphi_rl.training import result_keys as keys
-from smorphi_rl.training.config import TrainConfig
+from smorphi_rl.training.config import INTEGER_HYPERPARAMETERS, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
 
 SPACE_KINDS = ("grid", "choice", "uniform", "loguniform")
@@ -260,6 +260,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
     except SmorphiError as exc:
         raise fail("env", str(exc)) from None
     spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in doc.search.items()}
+    for k, space in spaces.items():  # num_epochs: {grid: [1e1, 2e1]}, whole numbers YAML read as floats
+        if k in INTEGER_HYPERPARAMETERS and space.kind in ("constant", "grid", "choice"):
+            spaces[k] = Space(space.kind, tuple(map(whole, space.values)))
     cfg = SweepConfig(
         path=file,
         name=_name(file.stem if doc.name is None else doc.name, fail),
@@ -313,11 +316,18 @@ def _whole_numbers(raw: dict[str, Any], model: type[BaseModel]) -> dict[str, Any
         if field is None:
             continue
         kind = field.annotation
-        if isinstance(value, float) and value.is_integer() and abs(value) <= 2**53 and int in (kind, *get_args(kind)):
-            out[key] = int(value)
-        elif isinstance(value, dict) and isinstance(kind, type) and issubclass(kind, BaseModel):
+        if int in (kind, *get_args(kind)):
+            out[key] = whole(value)
+        elif get_origin(kind) is list:  # seeds: [1e3]
+            out[key] = [whole(v) for v in value] if isinstance(value, list) else value
+        elif isinstance(value, dict) and kind in (_Checkpoint, _Evaluation):
             out[key] = _whole_numbers(value, kind)
     return out
+
+
+def whole(value: Any) -> Any:
+    """A float that is a whole number (YAML's 3e5) as the integer it is; anything else as it is."""
+    return int(value) if isinstance(value, float) and value.is_integer() and abs(value) <= 2**53 else value
 
 
 TRIAL_KEYS = {

@@ -149,10 +149,15 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
 def test_numbers_with_an_exponent_are_numbers(tmp_path):
     """YAML 1.1 reads 1e-4 as a string and 3e5 as 300000.0: `lr: 1e-4` was refused as no number, `timesteps: 3e5` as
     no integer."""
-    text = base("timesteps: 3e5\nevaluation: {starts: 1e1}\nsearch: {lr: 1e-4, entropy_coeff: {grid: [1e-3, 1E-2]}}\n")
+    text = base(
+        "timesteps: 3e5\nevaluation: {starts: 1e1}\nsearch: {lr: 1e-4, entropy_coeff: {grid: [1e-3, 1E-2]},"
+        " num_epochs: {grid: [1e0, 2e0]}}\n"
+    ).replace("seeds: [0]", "seeds: [0, 1e0]")
     sweep = load_sweep(write(tmp_path, text))
     assert sweep.timesteps == 300_000 and type(sweep.timesteps) is int and sweep.evaluation.starts == 10
     assert sweep.search["lr"].values == (1e-4,) and sweep.search["entropy_coeff"].values == (1e-3, 1e-2)
+    assert sweep.search["num_epochs"].values == (1, 2) and sweep.seeds == (0, 1)
+    assert all(type(v) is int for v in (*sweep.search["num_epochs"].values, *sweep.seeds))
 
 
 def test_a_start_or_block_that_does_not_fit_a_map_names_the_env_key(tmp_path, capsys):
