@@ -62,7 +62,7 @@ def register(sub: Any) -> None:
 def cmd_export_policy(args: argparse.Namespace) -> int:
     """Export a checkpoint's policy and value nets to a folder `design`, `evaluate-policy` and `--pretrained` read."""
     from smorphi_rl.training.checkpoints import find_checkpoint
-    from smorphi_rl.training.export import export_policy
+    from smorphi_rl.training.export import export_policy, run_record
 
     out = Path(args.out)
     resolved(out, "--out")  # a symlink loop: one line
@@ -84,7 +84,10 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
             EnvConfig.from_dict(dict(raw))
         except SmorphiError as exc:
             raise SmorphiError(f"{checkpoint}: {exc}") from None
-    about = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
+    about: dict[str, Any] = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
+    trained = run_record(checkpoint)  # the run's env steps, where its summary names this checkpoint
+    if trained is not None:
+        about["trained"] = trained
     from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
     from smorphi_rl.rundir import claimed_files
 

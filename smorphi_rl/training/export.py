@@ -23,6 +23,30 @@ def export_policy(checkpoint: Path, out_dir: Path, about: dict[str, Any], module
     return write_policy(out_dir, weights, observation, nvec, dict(module.model_config), about)
 
 
+def run_record(checkpoint: Path) -> dict[str, Any] | None:
+    """What the run that wrote `checkpoint` recorded of it, when its summary.json (a run's, or a sweep trial's)
+    names this very checkpoint as the policy the run ended on: its env steps and training time; None otherwise."""
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.inputs import is_finite_number, read_json_object
+
+    for folder in (checkpoint.parent, checkpoint.parent.parent):  # a trial's folder, a run's folder
+        if not (folder / "summary.json").is_file():
+            continue
+        try:
+            summary = read_json_object(folder / "summary.json", "run summary")
+            named = summary.get("checkpoint")
+            same = isinstance(named, str) and Path(named).resolve() == checkpoint.resolve()
+        except (SmorphiError, OSError, ValueError):
+            continue
+        steps, wall = summary.get("env_steps"), summary.get("wall_s")
+        if same and type(steps) is int and steps >= 0:
+            record: dict[str, Any] = {"env_steps": steps}
+            if isinstance(wall, int | float) and is_finite_number(wall) and wall >= 0:
+                record["wall_s"] = round(wall)
+            return record
+    return None
+
+
 def _maps_of(env_config: Any) -> tuple[str, ...]:
     """The map entries a policy was trained on, as its env configuration normalises them; none where it is not one."""
     from smorphi_rl.env_config import EnvConfig

@@ -157,6 +157,30 @@ def test_export_policy_writes_a_folder_once(exported, tmp_path, capsys):
     assert "is a folder that holds files already" in capsys.readouterr().err
 
 
+def test_export_records_the_runs_env_steps_when_its_summary_names_the_checkpoint(tmp_path, capsys):
+    """A designer a user trained and exported said "PPO on ..." where the shipped one says how long it trained."""
+    from smorphi_rl.cli import main
+
+    trial = tmp_path / "run" / "ppo-x_00000"
+    env = MorphologyEnv(FLOOR)
+    for name in ("checkpoint_000000", "checkpoint_000001"):
+        module_for(env).save_to_path(str(trial / name / MODULE_SUBDIR))
+    final = trial / "checkpoint_000001"
+    summary = {"checkpoint": str(final), "env_steps": 12_345, "wall_s": 67.8}
+    (tmp_path / "run" / "summary.json").write_text(json.dumps(summary))
+    assert main(["export-policy", "--checkpoint", str(final), "--out", str(tmp_path / "final")]) == 0
+    assert json.loads((tmp_path / "final" / "policy.json").read_text())["trained"] == {
+        "env_steps": 12_345,
+        "wall_s": 68,
+    }
+    assert main(["export-policy", "--checkpoint", str(trial / "checkpoint_000000"), "--out", str(tmp_path / "e")]) == 0
+    assert "trained" not in json.loads((tmp_path / "e" / "policy.json").read_text())  # not the policy it ended on
+    (tmp_path / "run" / "summary.json").write_text("[not a summary")
+    assert main(["export-policy", "--checkpoint", str(final), "--out", str(tmp_path / "broken")]) == 0
+    assert "trained" not in json.loads((tmp_path / "broken" / "policy.json").read_text())
+    capsys.readouterr()
+
+
 def _with_weights(out, folder, arrays: dict[str, np.ndarray]):
     folder.mkdir()
     (folder / "policy.json").write_text((out / "policy.json").read_text())
