@@ -221,6 +221,9 @@ def optimum_cache(log_dir: str | Path) -> Path:
         raise SmorphiError(f"log directory {log_dir} cannot be used ({exc})") from None
     if root.exists() and not root.is_dir():
         raise SmorphiError(f"log directory {log_dir} is not a folder (exact optima are cached under it)")
+    if (root / OPTIMUM_CACHE).is_symlink():  # the optima would be written wherever it points
+        raise SmorphiError(f"{root / OPTIMUM_CACHE} is a link: exact optima are cached only under --log-dir (remove "
+                           f"the link, or set {CACHE_ENV} to a cache folder)")  # fmt: skip
     return root / OPTIMUM_CACHE
 
 

@@ -106,8 +106,10 @@ def claim_again(run_dir: Path) -> None:
 
 
 def refuse_links(root: Path) -> None:
-    """Refuse a folder a resume writes into when a symbolic link lies anywhere below it: Tune, RLlib and our own
-    writers would follow it and write wherever it points (a folder someone else handed over)."""
+    """Refuse a folder a resume writes into when it is a symbolic link or one lies anywhere below it: Tune, RLlib and
+    our own writers would follow it and write wherever it points (a folder someone else handed over)."""
+    if root.is_symlink():
+        raise RunDirError(outside_link(root))
     for folder, dirs, files in os.walk(root, followlinks=False):
         for name in (*dirs, *files):
             path = Path(folder) / name
@@ -116,6 +118,13 @@ def refuse_links(root: Path) -> None:
                     f"{rel(path)}: a link inside {rel(root)}, which the resume writes into (it would "
                     "write wherever the link points); resume only folders you ran, or remove the link"
                 )
+
+
+def outside_link(path: Path) -> str:
+    """The refusal of a run's folder that is a symbolic link: its files would land wherever it points, outside
+    --log-dir."""
+    return (f"{rel(path)} is a link to {os.readlink(path)}: a run writes only into a folder of its own under --log-dir "
+            "(choose another --name, or give the link's target as --log-dir)")  # fmt: skip
 
 
 def rename_cut_run(run_dir: Path) -> Path:
@@ -139,6 +148,8 @@ def check_run_dir(log_dir: str | Path, name: str) -> Path:
         raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
     if run_dir.parent.exists() and not run_dir.parent.is_dir():
         raise RunDirError(f"log directory {log_dir} is not a folder")
+    if run_dir.is_symlink():  # exists(), iterdir() and mkdir() would all follow it
+        raise RunDirError(outside_link(run_dir))
     if run_dir.is_dir() and _abandoned(run_dir):
         import sys
 
@@ -162,7 +173,11 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     root = run_dir.parent
     try:
         root.mkdir(parents=True, exist_ok=True)
-        run_dir.mkdir(exist_ok=True)
+        try:
+            run_dir.mkdir()
+            _MADE.add(run_dir)
+        except FileExistsError:  # the user's own empty folder: used, and never removed with a run discarded
+            pass
         fd = os.open(run_dir / MARKER, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
     except FileExistsError:
         raise RunDirError(_taken(run_dir)) from None
@@ -176,10 +191,23 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     return run_dir
 
 
+_MADE: set[Path] = set()
+"""Run folders this process made (`prepare_run_dir`); a folder the user made is emptied, never removed."""
+
+
 def discard_run_dir(run_dir: Path) -> None:
-    """Remove a run directory this process claimed and that holds no result (a run that never started)."""
-    if (run_dir / MARKER).is_file():
+    """Remove a run directory this process claimed and that holds no result (a run that never started); one the user
+    made (empty when it was claimed) is emptied of what the run wrote and kept."""
+    if run_dir.is_symlink() or not (run_dir / MARKER).is_file():
+        return
+    if run_dir in _MADE:
         shutil.rmtree(run_dir, ignore_errors=True)
+        return
+    for child in run_dir.iterdir():
+        if child.is_dir() and not child.is_symlink():
+            shutil.rmtree(child, ignore_errors=True)
+        else:
+            child.unlink(missing_ok=True)
 
 
 def write_text_atomic(path: Path, text: str) -> None:

@@ -189,3 +189,40 @@ def test_a_folder_holding_a_link_is_refused_before_a_resume_writes_into_it(tmp_p
     with pytest.raises(RunDirError, match=f"{link.name}: a link inside .*resume only folders you ran"):
         refuse_links(root)
     assert (elsewhere / "f").read_text() == "keep" and sorted(p.name for p in elsewhere.iterdir()) == ["f"]
+
+
+def test_a_name_that_is_a_link_is_refused_so_nothing_lands_outside_the_log_dir(tmp_path, capsys, monkeypatch):
+    """A link under --log-dir named as the run: every file of the run went where it pointed."""
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    (tmp_path / "logs").mkdir()
+    (tmp_path / "logs" / "lnk").symlink_to(elsewhere)
+    with pytest.raises(RunDirError, match=r"lnk is a link to .*elsewhere: a run writes only into a folder of its own"):
+        prepare_run_dir(tmp_path / "logs", "lnk")
+    code = main(["search", "random", "--samples", "5", "--name", "lnk", "--log-dir", str(tmp_path / "logs")])
+    assert code == 1 and capsys.readouterr().err.count("\n") == 1 and not list(elsewhere.iterdir())
+    from smorphi_rl.rundir import refuse_links
+
+    with pytest.raises(RunDirError, match="is a link to"):  # a resumed sweep's or transfer job's own folder
+        refuse_links(tmp_path / "logs" / "lnk")
+    (tmp_path / "logs" / ".cache").symlink_to(elsewhere)
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.protocol import CACHE_ENV, optimum_cache
+
+    monkeypatch.delenv(CACHE_ENV, raising=False)  # the suite shares one cache through it
+    with pytest.raises(SmorphiError, match=r"\.cache is a link: exact optima are cached only under"):
+        optimum_cache(tmp_path / "logs")
+
+
+def test_a_discarded_run_removes_only_a_folder_it_made(tmp_path):
+    """A run stopped before its first report removed the user's own empty folder it had been given."""
+    from smorphi_rl.rundir import discard_run_dir
+
+    (tmp_path / "mine").mkdir()
+    kept = prepare_run_dir(tmp_path, "mine")
+    (kept / "config.json").write_text("{}")
+    discard_run_dir(kept)
+    assert kept.is_dir() and not list(kept.iterdir())
+    made = prepare_run_dir(tmp_path, "new")
+    discard_run_dir(made)
+    assert not made.exists()

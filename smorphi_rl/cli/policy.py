@@ -212,15 +212,16 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     maps = list(resolve(map_paths(args.map))) if args.map is not None else None  # folders and globs expanded
     for path in map_files(tuple(maps or ())):
         load_map(path)
-    if args.plot is not None:
-        inputs = tuple(p for m in map_files(tuple(maps or ())) for p in map_inputs(m))
-        output_file(args.plot, "--plot", (".png",), inputs, args.force)
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
     from smorphi_rl.training.policy import check_fits, env_config_of
 
     module = load_module(checkpoint)
-    base = MorphologyEnv(env_config_of(module, maps).to_dict())
+    config = env_config_of(module, maps)
+    if args.plot is not None:  # the maps it rolls out on, given or the policy's own: a plot never replaces their images
+        inputs = tuple(p for m in map_files(config.maps) for p in map_inputs(m))
+        output_file(args.plot, "--plot", (".png",), inputs, args.force)
+    base = MorphologyEnv(config.to_dict())
     check_fits(module, base)
     if args.starts is not None:
         return _evaluate_protocol(args, module, base.config)

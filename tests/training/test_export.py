@@ -181,6 +181,25 @@ def test_export_records_the_runs_env_steps_when_its_summary_names_the_checkpoint
     capsys.readouterr()
 
 
+def test_a_plot_never_replaces_the_image_of_a_map_the_policy_rolls_out_on(tmp_path, capsys):
+    """Without --map, the policy's own maps were not counted as inputs, and --force replaced the training map's image
+    with the plot."""
+    import shutil
+
+    from smorphi_rl.cli import main
+
+    root = Path(__file__).resolve().parents[2] / "maps" / "designer" / "held-out"
+    for suffix in (".yaml", ".png"):
+        shutil.copy(root / f"mixed-1000001{suffix}", tmp_path / f"mixed-1000001{suffix}")
+    image = (tmp_path / "mixed-1000001.png").read_bytes()
+    env = MorphologyEnv({**FLOOR, "maps": [str(tmp_path / "mixed-1000001.yaml")]})
+    module_for(env).save_to_path(str(tmp_path / "ck" / MODULE_SUBDIR))
+    argv = ["evaluate-policy", "--checkpoint", str(tmp_path / "ck"), "--episodes", "1"]
+    assert main([*argv, "--plot", str(tmp_path / "mixed-1000001.png"), "--force"]) == 1
+    assert "is one of this command's inputs" in capsys.readouterr().err
+    assert (tmp_path / "mixed-1000001.png").read_bytes() == image
+
+
 def _with_weights(out, folder, arrays: dict[str, np.ndarray]):
     folder.mkdir()
     (folder / "policy.json").write_text((out / "policy.json").read_text())
