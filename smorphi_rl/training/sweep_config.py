@@ -22,6 +22,7 @@ from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, is_finite_number, strict_yaml
+from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import INTEGER_HYPERPARAMETERS, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -191,6 +192,8 @@ SAMPLE_SEED = 20_240_917
 """Seeds the draws of a sweep's random search parts (each trial its own stream, by index)."""
 STOP_METRICS = (keys.TIME_TOTAL, keys.ITERATION, keys.STEPS, keys.TIMESTEPS_TOTAL)
 """Stop criteria a sweep may give (Ray Tune ignores an unknown metric silently: a typo would never stop)."""
+MAX_TRIAL_NAME = 200
+"""Bytes of a trial folder's name: the file system takes 255, and Ray names files after it too."""
 MAX_TRIALS = 10_000
 """More trials than any machine or cluster of ours runs; a larger grid is a typo (it would create the folders)."""
 
@@ -291,6 +294,11 @@ def load_sweep(path: str | Path) -> SweepConfig:
                    "trials: give more seeds, or a choice, uniform or loguniform part")  # fmt: skip
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
+    for i, maps in enumerate(map_sets):  # a trial's folder is named for its maps: one the file system takes
+        longest = max(len(f"{a}-{map_set_label(maps)}-seed{max(cfg.seeds)}_00000".encode()) for a in cfg.algorithms)
+        if longest > MAX_TRIAL_NAME:
+            raise fail(f"maps[{i}]", f"its trials' folders would be named {longest} bytes long (algorithm, map names, "
+                       f"seed); at most {MAX_TRIAL_NAME}: give the map files shorter names")  # fmt: skip
     for i, maps in enumerate(map_sets):  # every trial is measured against its evaluated maps' exact optima
         try:
             trial = cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {})

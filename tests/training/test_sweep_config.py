@@ -249,3 +249,14 @@ def test_a_sweep_whose_trials_could_not_be_evaluated_is_refused_before_anything_
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert len(proc.stderr.strip().splitlines()) == 1 and "cells, over the" in proc.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == before  # no logs folder, nothing else
+
+
+def test_a_trial_folder_name_too_long_for_the_file_system_is_refused_before_anything_is_written(tmp_path):
+    """A 245-character map name failed only once Ray ran the trial, leaving a folder that blocked the sweep's name."""
+    import shutil
+
+    long = "L" * 190
+    shutil.copy(Path(MAP_1).with_suffix(".pgm"), tmp_path / "map-1.pgm")
+    (tmp_path / f"{long}.yaml").write_text(Path(MAP_1).read_text())
+    with pytest.raises(SweepConfigError, match=r"key 'maps\[0\]': its trials. folders would be named 206 bytes long"):
+        load_sweep(write(tmp_path, f"algorithms: [ppo]\nmaps: [{long}.yaml]\nseeds: [0]\n"))
