@@ -66,6 +66,8 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
 
     out = Path(args.out)
     resolved(out, "--out")  # a symlink loop: one line
+    if out.is_symlink() and not out.exists():
+        raise SmorphiError(f"--out {out} is a link to {out.readlink()}, which does not exist: give a folder")
     if out.exists() and not out.is_dir():
         raise SmorphiError(f"--out {out} is a file, not a folder: give the folder the policy goes to")
     if out.exists() and any(out.iterdir()):

@@ -155,6 +155,9 @@ def test_export_policy_writes_a_folder_once(exported, tmp_path, capsys):
     capsys.readouterr()
     assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "p")]) == 1
     assert "is a folder that holds files already" in capsys.readouterr().err
+    (tmp_path / "dangling").symlink_to(tmp_path / "nowhere")
+    assert main(["export-policy", "--checkpoint", str(ck), "--out", str(tmp_path / "dangling")]) == 1
+    assert "dangling is a link to" in capsys.readouterr().err and not (tmp_path / "nowhere").exists()
 
 
 def test_export_records_the_runs_env_steps_when_its_summary_names_the_checkpoint(tmp_path, capsys):
