@@ -55,10 +55,18 @@ def check_run_name(name: str, what: str = "run name") -> str:
     return name
 
 
+MAX_DEFAULT_NAME = 128
+"""Characters of a default run name; a longer one is cut in its middle, keeping its end (a seed, a time stamp)."""
+
+
 def safe_name(text: str) -> str:
     """A default run name built from free text (a map's file name): every other character becomes '_'."""
-    name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text)[:128]
-    return name if RUN_NAME.fullmatch(name) else f"run_{name}"[:128]
+    name = re.sub(r"[^A-Za-z0-9_.+-]+", "_", text)
+    name = name if RUN_NAME.match(name[:1]) else f"run_{name}"  # '..', '-x': a plain name's first character
+    if len(name) > MAX_DEFAULT_NAME:  # cut at the end, every run of a long map name had one name, refused as taken
+        keep = MAX_DEFAULT_NAME // 3
+        name = f"{name[: MAX_DEFAULT_NAME - keep - 1]}_{name[-keep:]}"
+    return name
 
 
 def _claimant(run_dir: Path) -> int:

@@ -25,6 +25,9 @@ def test_names_that_leave_the_log_dir_are_refused(name):
 def test_default_names_from_odd_map_files_are_made_safe():
     assert check_run_name(safe_name("random-my map (copy)-seed0")) == "random-my_map_copy_-seed0"
     assert check_run_name(safe_name("..")).startswith("run_")
+    long = safe_name("random-" + "L" * 300 + "-seed12")  # the seed was cut off: every seed's run had one name
+    assert check_run_name(long) == long and len(long) == 128 and long.endswith("-seed12")
+    assert safe_name("ppo-" + "m" * 300 + "-20261206-034303") != safe_name("ppo-" + "m" * 300 + "-20261206-034304")
 
 
 def test_an_existing_run_is_never_reused(tmp_path):
