@@ -86,7 +86,7 @@ def _recorded_sides(policy: PolicyFile, env_config: EnvConfig) -> tuple[float, f
     given = policy.meta.get(TRAINED_SIDES_KEY)
     if given is None:
         generated = bool(env_config.maps) and all(is_generator(m) for m in env_config.maps)
-        return (DEFAULT_RANGE.min_side_m, DEFAULT_RANGE.max_side_m) if generated else None
+        return sides_trained_on(env_config.maps) if generated else None
     if not (isinstance(given, list) and len(given) == 2 and all(is_finite_number(v) and v > 0 for v in given)
             and given[0] <= given[1]):  # fmt: skip
         raise SmorphiError(f"{policy.path}: its policy.json's '{TRAINED_SIDES_KEY}' must be [least, greatest] side "

@@ -32,19 +32,22 @@ class Parser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        self.named: dict[str, str] = {}  # each argument's dest, as argparse names the argument (before --help's)
+        super().__init__(*args, **kwargs)
+
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
         action = super().add_argument(*args, **kwargs)
         shown = action.metavar if isinstance(action.metavar, str) else action.dest  # a positional, as argparse says
-        self.__dict__.setdefault("named", {})[action.dest] = "/".join(action.option_strings) or shown
+        self.named[action.dest] = "/".join(action.option_strings) or shown
         return action
 
     def parse_known_args(self, args: Any = None, namespace: Any = None) -> Any:
         parsed, rest = super().parse_known_args(args, namespace)  # a value its type checks is named by its type
-        named = self.__dict__.get("named", {})
         for dest, value in vars(parsed).items():
             empty = value == "" or (isinstance(value, list) and "" in value)
-            if empty and dest not in EMPTY_ALLOWED and dest in named:  # another parser's dest: its own check says
-                self.error(f"argument {named[dest]}: expected a value, got an empty string")
+            if empty and dest not in EMPTY_ALLOWED and dest in self.named:  # another parser's: its own check says
+                self.error(f"argument {self.named[dest]}: expected a value, got an empty string")
         return parsed, rest
 
 
