@@ -47,7 +47,7 @@ from smorphi_rl.training.run import (
     training_optima,
     trial_callbacks,
 )
-from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, sweep_key
+from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, sweep_key, trial_dirname
 from smorphi_rl.training.sweep_report import (
     TrialRow,
     group_curves,
@@ -403,13 +403,6 @@ def _fit(
 
 _TRIAL_FIELDS = ("algo", "maps", "seed", "hp")
 """A trial's fields besides its index (`SweepConfig.trials`), as Tune's params.json records them."""
-
-
-def trial_dirname(trial: dict[str, Any]) -> str:
-    """A trial's folder, from its fields and sweep index (the same folder when a resumed sweep runs it again;
-    Tune's own config still holds placeholders for the fields when it names the folder)."""
-    maps = map_set_label(trial["maps"])
-    return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
 
 
 def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum],

@@ -295,7 +295,8 @@ def load_sweep(path: str | Path) -> SweepConfig:
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
     for i, maps in enumerate(map_sets):  # a trial's folder is named for its maps: one the file system takes
-        longest = max(len(f"{a}-{map_set_label(maps)}-seed{max(cfg.seeds)}_00000".encode()) for a in cfg.algorithms)
+        named = {"maps": maps, "seed": max(cfg.seeds), "index": 0}
+        longest = max(len(trial_dirname(named | {"algo": a}).encode()) for a in cfg.algorithms)
         if longest > MAX_TRIAL_NAME:
             raise fail(f"maps[{i}]", f"its trials' folders would be named {longest} bytes long (algorithm, map names, "
                        f"seed); at most {MAX_TRIAL_NAME}: give the map files shorter names")  # fmt: skip
@@ -313,6 +314,13 @@ def load_sweep(path: str | Path) -> SweepConfig:
                 except SmorphiError as exc:
                     raise fail(f"search.{key}", str(exc)) from None
     return cfg
+
+
+def trial_dirname(trial: dict[str, Any]) -> str:
+    """A trial's folder, from its fields and sweep index (the same folder when a resumed sweep runs it again;
+    Tune's own config still holds placeholders for the fields when it names the folder)."""
+    maps = map_set_label(trial["maps"])
+    return f"{trial['algo']}-{maps}-seed{trial['seed']}_{trial['index']:05d}"
 
 
 def _whole_numbers(raw: dict[str, Any], model: type[BaseModel]) -> dict[str, Any]:
