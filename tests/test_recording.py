@@ -411,3 +411,18 @@ def test_a_recordings_text_is_shown_escaped_never_sent_to_the_terminal(tmp_path,
     assert main(["replay", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "\x1b" not in out and "a\\nb\\x1b[2J" in out
+
+
+def test_a_long_recorded_value_is_shown_shortened_with_its_length(tmp_path, capsys, monkeypatch):
+    """A 10,000-character run or map name was printed whole, filling the screen for one field."""
+    monkeypatch.setitem(META, "run", "r" * 9_000 + "-end")
+    env = recorded_env(tmp_path, max_steps=5)
+    play(env, 0, np.random.default_rng(0))
+    (source,) = episode_files(tmp_path / "episodes")
+    long = _tampered(source, tmp_path / "long.mcap", "/smorphi/step", lambda m: m | {"map": "m" * 10_000})
+    assert main(["replay", str(long)]) == 0
+    out = capsys.readouterr().out
+    assert "-end (9,004 characters)" in out and "(10,000 characters)" in out
+    assert max(len(line) for line in out.splitlines()) < 200, out
+    assert main(["replay", str(tmp_path)]) == 0
+    assert max(len(line) for line in capsys.readouterr().out.splitlines()) < 250

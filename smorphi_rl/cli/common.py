@@ -118,6 +118,16 @@ def one_line(message: str) -> str:
     return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
 
 
+def clipped(value: object, limit: int = 80) -> str:
+    """A recorded value as text of at most about `limit` characters: a long one (a 10,000-character run name) keeps
+    its start and end, and says how long it was, so one field cannot fill the screen."""
+    text = str(value)
+    if len(text) <= limit:
+        return text
+    tail = limit // 4
+    return f"{text[: limit - tail]}...{text[-tail:]} ({len(text):,} characters)"
+
+
 def planner_option(parser: argparse.ArgumentParser, *, start: bool = True, unset: bool = False) -> None:
     """--planner paper|fit: which coverage planner scores shapes; and (`start`) --start-xy X Y, where plans start
     (the env's fields; `unset`: the planner stays None when not given, for a checkpoint's to apply)."""

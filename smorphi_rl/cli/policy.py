@@ -9,7 +9,15 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, map_paths, nonempty, one_line, scored_text, seed_arg
+from smorphi_rl.cli.common import (
+    DEFAULT_LOG_DIR,
+    clipped,
+    map_paths,
+    nonempty,
+    one_line,
+    scored_text,
+    seed_arg,
+)
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
@@ -120,8 +128,8 @@ def _replay_listing(directory: Path) -> int:
         b = ep.best
         assert b is not None
         flag = " (cut short)" if ep.truncated else ""
-        algorithm = ep.metadata.get("algorithm", "-")
-        print(one_line(f"{f.name:<44} {b['map']:<8} {algorithm:<8} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
+        name, algorithm = clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16)
+        print(one_line(f"{f.name:<44} {name:<8} {algorithm:<8} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
                        f"{angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}"))  # fmt: skip
     print(f"{len(files)} recordings in {rel(directory)}")
     if unreadable == len(files):
@@ -144,12 +152,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     ep = read_episode(target)
     meta, steps, best = ep.metadata, ep.steps, ep.best
     assert best is not None
+    meta = {key: clipped(value) for key, value in meta.items()}  # a long recorded value cannot fill the screen
     run = f"{meta.get('run', '-')} ({meta.get('algorithm', '-').upper()}, seed {meta.get('seed', '-')})"
     start, final = angles_text(steps[0]["theta"]), angles_text(steps[-1]["theta"])
     rows = [
         ("episode", rel(target)),
         ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}"),
-        ("map", steps[0]["map"]),
+        ("map", clipped(steps[0]["map"])),
         ("steps", f"{len(steps) - 1} (start {start}, final {final})"),
         ("best", f"step {best['step']}: {scored_text(best)}"),
         ("return", f"{ep.episode_return:,.1f}"),
