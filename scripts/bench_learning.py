@@ -40,7 +40,7 @@ from smorphi_rl.rundir import RunDirError, prepare_run_dir
 from smorphi_rl.search.exhaustive import run_exhaustive
 from smorphi_rl.search.ideal import IDEAL_MODES, greedy_settled, move_values, stay_move_costs
 from smorphi_rl.search.local import run_local
-from smorphi_rl.stats import FEW_SEEDS_NOTE, censored_median_interval, mean_interval
+from smorphi_rl.stats import FEW_SEEDS_NOTE, cell, censored_median_interval, mean_interval
 from smorphi_rl.training.checkpoints import load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.convergence import censored_steps, converged_text, convergence
@@ -234,8 +234,9 @@ def report(rows: list[Row], out: Path, args: argparse.Namespace, wall_s: float) 
         writer.writerow(["map", "method", "seed", "median_gap", "share_within_1pct", "evaluations_per_start",
                          "settled_R1_mean", "wall_s", "converged_at_env_steps"])  # fmt: skip
         for r in rows:
-            writer.writerow([r.map, r.method, r.seed, f"{r.median_gap:.4f}", f"{r.within:.3f}", f"{r.evaluations:.1f}",
-                             f"{r.settled_R1:.4f}", f"{r.wall_s:.1f}", r.converged])  # fmt: skip
+            writer.writerow([r.map, r.method, r.seed, cell(r.median_gap, ".4f"), cell(r.within, ".3f"),
+                             cell(r.evaluations, ".1f"), cell(r.settled_R1, ".4f"), cell(r.wall_s, ".1f"),
+                             r.converged])  # fmt: skip
     changed = f" Hyperparameters changed from the presets: {' '.join(args.set)}." if args.set else ""
     if args.env_runners is not None or args.envs_per_runner != ENVS_PER_RUNNER:
         runners = "the preset's" if args.env_runners is None else args.env_runners

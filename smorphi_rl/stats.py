@@ -28,6 +28,11 @@ is 2^-n, and a resampled median of n <= 5 values (mean of 3) falls on the least 
 time."""
 
 
+def cell(value: float, spec: str = ".4g") -> str:
+    """A figure as a table's or CSV's cell: empty where there is none (NaN, never the text "nan")."""
+    return f"{value:{spec}}" if math.isfinite(value) else ""
+
+
 @dataclass(frozen=True)
 class Interval:
     """A mean (or median) over seeds and its 95 % bootstrap interval (lo = hi = the value with one seed)."""
@@ -104,7 +109,8 @@ def censored_ratio_interval(numerator: Bounds, denominator: Bounds, seed: int = 
     (Table 5's speed-up, scratch / fine-tuned; `censored_median_interval`), with its 95 % percentile bootstrap
     interval (each set resampled on its own). Exact where both medians are; where only the numerator's is
     uncertain, a lower bound (">"); where only the denominator's, an upper bound ("<"); NaN (no ratio) where both
-    are, or a median is not positive. The interval's low end takes each resample's least possible ratio, its high
+    are (with one budget for both sets, as transfer's, the ratio is then anywhere from 0 to infinity), or a median
+    is not positive. The interval's low end takes each resample's least possible ratio, its high
     end the greatest."""
     (a_least, a_most), (b_least, b_most) = ((np.asarray(x, dtype=float), np.asarray(y, dtype=float))
                                             for x, y in (numerator, denominator))  # fmt: skip

@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -19,7 +20,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
 from smorphi_rl.rundir import atomic_text, write_text_atomic
-from smorphi_rl.stats import FEW_SEEDS_NOTE, band, censored_median_interval, median_interval
+from smorphi_rl.stats import FEW_SEEDS_NOTE, band, cell, censored_median_interval, median_interval
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.convergence import (
     PLATEAU_KEY,
@@ -51,9 +52,12 @@ class TrialRow:
     settled_R1_plateau: float
     curve: dict[str, list[float]]
     median_gap: float = math.nan
-    """The last evaluation's median gap of the greedy settled R1 to the exact optimum (NaN: never evaluated)."""
+    """The last evaluation's median gap of the greedy settled R1 to the exact optimum (NaN: never evaluated), of
+    the policy the trial ends on (kept: its best evaluated one, perhaps earlier than the last trained)."""
     share_within_1pct: float = math.nan
-    """The last evaluation's share of starts settled within 1 % of the optimum."""
+    """The last evaluation's share of starts settled within 1 % of the optimum, of the kept policy."""
+    trained_share_within_1pct: float = math.nan
+    """The same share of the policy last trained, the one `converged_at` reads (equal where it is the kept one)."""
     design_gap_pct: float = math.nan
     """The last evaluation's designer median gap in per cent of the optimum (NaN: the sweep measured none)."""
     finished: bool = True
@@ -149,6 +153,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
     curve = result_curve(rows)
     at, plateau = convergence(curve)
     last = next((r.get(EVAL_KEY) for r in reversed(rows) if r.get(EVAL_KEY)), None) or {}
+    trained = last.get(TRAINED_KEY) or last  # where the kept policy is the last trained, no second record
     best = top.top(1)
     return TrialRow(
         trial=trial_dir.name,
@@ -165,6 +170,7 @@ def read_trial(trial_dir: Path) -> TrialRow | None:
         curve=curve,
         median_gap=_num(last.get("median_gap")),
         share_within_1pct=_num(last.get("share_within_1pct")),
+        trained_share_within_1pct=_num(trained.get("share_within_1pct")),
         design_gap_pct=_num(last.get("design_median_gap_pct")),
         finished=trial_done(rows),
         evaluation=last,
@@ -202,18 +208,19 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
     design = _designed(rows)
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
-              "best_map", "best_P_c", "best_P_len", "greedy_median_gap", "share_within_1pct",
+              "best_map", "best_P_c", "best_P_len", "kept_median_gap", "kept_share_within_1pct",
+              "trained_share_within_1pct",
               *(["design_median_gap_pct"] if design else []), "converged_at_env_steps", "settled_R1_plateau",
               "finished"]  # fmt: skip
     table = []
     for r in sorted(rows, key=lambda r: -(r.best.R1 if r.best else -math.inf)):
         b = r.best
-        table.append([r.trial, r.algo, r.maps, r.seed, *[_fmt(r.hyperparameters.get(k)) for k in hp_keys],
-                      r.env_steps, r.iterations, f"{r.wall_s:.0f}", f"{b.R1:.2f}" if b else "",
+        table.append([r.trial, r.algo, r.maps, r.seed, *[_exact(r.hyperparameters.get(k)) for k in hp_keys],
+                      r.env_steps, r.iterations, cell(r.wall_s, ".0f"), f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
-                      _fixed(r.median_gap), _fixed(r.share_within_1pct),
-                      *([_fixed(r.design_gap_pct)] if design else []), converged_text(r.converged_at, r.curve),
-                      f"{r.settled_R1_plateau:.2f}", "yes" if r.finished else "no"])  # fmt: skip
+                      cell(r.median_gap), cell(r.share_within_1pct), cell(r.trained_share_within_1pct),
+                      *([cell(r.design_gap_pct)] if design else []), converged_text(r.converged_at, r.curve),
+                      cell(r.settled_R1_plateau, ".2f"), "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
         writer.writerow(header)
@@ -230,12 +237,24 @@ def _designed(rows: list[TrialRow]) -> bool:
 
 def _groups(rows: list[TrialRow]) -> dict[tuple[str, str], list[TrialRow]]:
     """Finished trials that differ only by seed, keyed by (map set, algorithm and hyperparameters): a trial cut
-    short would count a shorter budget's figures as its group's."""
-    groups: dict[tuple[str, str], list[TrialRow]] = {}
+    short would count a shorter budget's figures as its group's. Trials group by their exact values (two draws of a
+    random search that round alike are two groups), labelled by the values rounded to 4 digits, or exactly where
+    rounding would give two groups one label."""
+    exact: dict[tuple[str, str], list[TrialRow]] = {}
     for r in (r for r in rows if r.finished):
-        hp = " ".join(f"{k}={_fmt(v)}" for k, v in sorted(r.hyperparameters.items()))
-        groups.setdefault((r.maps, f"{r.algo.upper()} {hp}".strip()), []).append(r)
+        exact.setdefault((r.maps, _label(r.algo, r.hyperparameters, _exact)), []).append(r)
+    rounded = {key: _label(trials[0].algo, trials[0].hyperparameters, _fmt) for key, trials in exact.items()}
+    named = Counter((maps, rounded[maps, label]) for maps, label in exact)
+    groups: dict[tuple[str, str], list[TrialRow]] = {}
+    for (maps, label), trials in exact.items():
+        groups[maps, rounded[maps, label] if named[maps, rounded[maps, label]] == 1 else label] = trials
     return groups
+
+
+def _label(algo: str, hyperparameters: dict[str, Any], fmt: Any) -> str:
+    """A group's name: the algorithm and its hyperparameters as `fmt` writes them."""
+    hp = " ".join(f"{k}={fmt(v)}" for k, v in sorted(hyperparameters.items()))
+    return f"{algo.upper()} {hp}".strip()
 
 
 def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
@@ -252,7 +271,8 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
              "protocol's starts settle within 1 % of the optimum; a trial that never converged counts as "
              "converging past its budget, so a median that depends on it reads \"> x\" (at least x) and an "
              f"interval's end past the budget \"inf\". {FEW_SEEDS_NOTE}{left_out}", "",
-             "| maps | algorithm and hyperparameters | seeds | greedy median gap | share within 1 % | converged "
+             "| maps | algorithm and hyperparameters | seeds | kept policy's median gap | kept policy's share within "
+             "1 % | converged "
              "| env steps to converge | plateau greedy settled R1 | best R1 |",
              "|---|---|---:|---:|---:|---:|---:|---:|---:|"]  # fmt: skip
     design = _designed(rows)
@@ -309,11 +329,13 @@ def _num(value: Any) -> float:
     return float(value) if isinstance(value, int | float) and not isinstance(value, bool) else math.nan
 
 
-def _fixed(value: float) -> str:
-    return "" if not math.isfinite(value) else f"{value:.4g}"
-
-
 def _fmt(value: Any) -> str:
+    """A hyperparameter for a label: floats to 4 significant digits."""
     if isinstance(value, float):
         return f"{value:.4g}"
     return "" if value is None else str(value)
+
+
+def _exact(value: Any) -> str:
+    """A hyperparameter as its exact value (a float's shortest text that reads back to it), for sweep.csv."""
+    return "" if value is None else repr(value) if isinstance(value, float) else str(value)

@@ -21,6 +21,7 @@ from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_tex
 from smorphi_rl.stats import (
     FEW_SEEDS_NOTE,
     Interval,
+    cell,
     censored_median_interval,
     censored_ratio_interval,
     median_interval,
@@ -328,8 +329,9 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         for r in runs:
             at = converged_text(r.converged_at, r.curve)
             gap = at_steps(r.curve, GAP_KEY, equal)
-            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, f"{r.plateau:.3f}", f"{r.best_R1:.4f}", equal,
-                             f"{gap:.3f}", r.pretrained_in_runners, r.interrupted])  # fmt: skip
+            writer.writerow([r.map_name, r.seed, r.mode, r.env_steps, at, cell(r.plateau, ".3f"),
+                             cell(r.best_R1, ".4f"), equal, cell(gap, ".3f"), r.pretrained_in_runners,
+                             r.interrupted])  # fmt: skip
     lines = [
         "Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
         "protocol's starts settle within 1 % of the optimum. A run that never converged is counted as not converged, "

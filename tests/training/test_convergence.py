@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import math
 from pathlib import Path
@@ -81,9 +82,10 @@ def test_sweep_table_and_curves(tmp_path):
     write_sweep_tables(rows, tmp_path / "s.csv", tmp_path / "s.md")
     lines = (tmp_path / "s.csv").read_text().splitlines()
     assert lines[0].startswith("trial,algo,maps,seed,lr,env_steps")
-    assert lines[0].endswith("share_within_1pct,converged_at_env_steps,settled_R1_plateau,finished")
+    assert lines[0].endswith("kept_median_gap,kept_share_within_1pct,trained_share_within_1pct,"
+                             "converged_at_env_steps,settled_R1_plateau,finished")  # fmt: skip
     assert lines[1].startswith("ppo-a,ppo,map-1,0,0.001,5000,5,10,90.00,")  # sorted by best R1
-    assert lines[1].endswith(",5,0.5,not converged,85.00,yes")  # the last evaluation: gap 90 - 85, half within 1 %
+    assert lines[1].endswith(",5,0.5,0.5,not converged,85.00,yes")  # the last evaluation: gap 90 - 85, half within 1 %
     assert lines[2].endswith(",no")
     groups = group_curves(rows)
     (lines_by_label,) = groups.values()
@@ -112,3 +114,29 @@ def test_a_curve_is_read_at_equal_env_steps_from_its_last_evaluation_by_then():
         first_measured_steps(curve, "eval_gap") == 1_000
         and first_measured_steps({"env_steps": []}, "eval_gap") == math.inf
     )
+
+
+def test_a_trial_that_ends_on_an_earlier_policy_shows_both_shares(tmp_path):
+    """The kept policy's share stood beside a convergence read from the trained policy's curve, unnamed: a row
+    said 95 % within 1 % and not converged."""
+    rows = [_row(i, 85.0, 88.0 + i) for i in range(1, 4)]
+    rows[-1]["eval"] |= {"share_within_1pct": 0.95, "trained": {"share_within_1pct": 0.5, "settled_R1_mean": 85.0}}
+    rows[-1]["smorphi_done"] = True
+    _trial(tmp_path, "ppo-a", "ppo", 0.001, rows)
+    write_sweep_tables(read_sweep(tmp_path), tmp_path / "s.csv", tmp_path / "s.md")
+    header, row = csv.reader((tmp_path / "s.csv").read_text().splitlines())
+    figures = dict(zip(header, row, strict=True))
+    assert figures["kept_share_within_1pct"] == "0.95" and figures["trained_share_within_1pct"] == "0.5"
+    assert figures["converged_at_env_steps"] == "not converged"
+
+
+def test_figures_a_trial_lacks_are_empty_cells_not_nan(tmp_path):
+    rows = [_row(i, 85.0, 88.0 + i) for i in range(1, 3)]
+    for r in rows:
+        del r["time_this_iter_s"], r["eval"]
+    _trial(tmp_path, "ppo-a", "ppo", 0.001, rows)
+    write_sweep_tables(read_sweep(tmp_path), tmp_path / "s.csv", tmp_path / "s.md")
+    header, row = csv.reader((tmp_path / "s.csv").read_text().splitlines())
+    figures = dict(zip(header, row, strict=True))
+    assert figures["wall_s"] == figures["settled_R1_plateau"] == figures["kept_median_gap"] == ""
+    assert "nan" not in (tmp_path / "s.csv").read_text() + (tmp_path / "s.md").read_text()

@@ -130,3 +130,18 @@ def test_a_sweep_that_measured_the_designer_shows_its_gap_per_trial_and_group(tm
     assert "| design median gap (%) |" in text and "| 0.30 [0.20, 0.40] |" in text
     write_sweep_tables([_trial(0, 1e-3, 88.0, 4_000)], tmp_path / "plain.csv", tmp_path / "plain.md")
     assert "design" not in (tmp_path / "plain.md").read_text()  # a sweep without the designer: no empty column
+
+
+def test_draws_that_round_alike_are_two_groups_each_named_exactly(tmp_path):
+    """A random search's 0.99999 and 0.999995 both read "1": their trials were pooled as seeds of one group, and
+    sweep.csv kept neither value."""
+    from smorphi_rl.training.sweep_report import write_sweep_tables
+
+    rows = [_trial(0, 0.99999, 88.0, 4_000), _trial(1, 0.999995, 88.6, 6_000), _trial(2, 3e-4, 87.0, None)]
+    write_sweep_groups(rows, tmp_path / "groups.md")
+    text = (tmp_path / "groups.md").read_text()
+    assert "| PPO lr=0.99999 | 1 |" in text and "| PPO lr=0.999995 | 1 |" in text
+    assert "| PPO lr=0.0003 | 1 |" in text  # a value no other rounds to keeps its short label
+    write_sweep_tables(rows, tmp_path / "sweep.csv", tmp_path / "sweep.md")
+    lrs = {line.split(",")[4] for line in (tmp_path / "sweep.csv").read_text().splitlines()[1:]}
+    assert lrs == {"0.99999", "0.999995", "0.0003"}

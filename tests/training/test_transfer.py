@@ -87,6 +87,7 @@ def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_pat
     row = next(line for line in write_transfer_report(tmp_path, unfinished)["md"].read_text().splitlines()
                if line.startswith("| val-1"))  # fmt: skip
     assert row.rstrip().endswith("| - / - |")
+    assert "nan" not in files["csv"].read_text()  # the CSV leaves a cell empty, as the table says "-"
     assert by_map(runs)[0].ratio.n == 0  # no scratch run finished its budget: no ratio
     assert by_map(runs)[0].scratch == [] and "1 run(s) cut short (transfer.csv) are left out" in files["md"].read_text()
     assert files["csv"].read_text().splitlines()[-1].endswith(",True")
