@@ -208,7 +208,16 @@ def summary_file_writer(writer: Any) -> Any:
     return _private(writer, "_get_file_writer")()
 
 
-# -- numpy's pickling helpers -----------------------------------------------------------------------------
+# -- pickle's and numpy's pickling helpers ------------------------------------------------------------------
+
+
+def python_unpickler() -> type:
+    """The standard library's pure-Python unpickler (`pickle._Unpickler`): unlike the C one, a subclass can check
+    what each BUILD opcode hands an object's `__setstate__` (its `dispatch` table, `load_build`)."""
+    import pickle
+
+    unpickler: type = pickle._Unpickler  # type: ignore[attr-defined]
+    return unpickler
 
 
 def numpy_unpickle_helpers() -> dict[tuple[str, str], Any]:

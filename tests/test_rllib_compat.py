@@ -184,3 +184,10 @@ def test_numpys_unpickling_helpers_are_the_ones_its_pickles_name():
             named.add((module, name))
     private = {pair for pair in named if pair[1].startswith("_")}
     assert private and private <= set(helpers)
+
+
+def test_the_python_unpickler_dispatches_build_to_a_method_a_subclass_can_check():
+    import pickle
+
+    unpickler = rllib_compat.python_unpickler()
+    assert unpickler.dispatch[pickle.BUILD[0]] is unpickler.load_build and callable(unpickler.find_class)

@@ -3,21 +3,24 @@ or hang the reader.
 
 A pickle can name any callable to run while it loads. `SafeUnpickler` admits an exact list of (module, name) pairs
 (numpy arrays and dtypes, gymnasium's spaces, numpy's random generator state, an ordered dict) and refuses every
-other global, persistent id and extension code; our module's class is read as a marker, never called. Before it
-runs, a pickle whose values nest deeper than ours is refused from its opcodes; after, one whose arrays, counted
-where they are named, hold far more than its file.
+other global, persistent id and extension code; our module's class is read as a marker, never called. numpy's
+dtypes and arrays are of numbers only and take only the states numpy writes (numpy trusts a state: an object array
+over the file's bytes reads memory the file chose). Before it runs, a pickle whose values nest deeper than ours is
+refused from its opcodes; after, one whose arrays, counted where they are named, hold far more than its file.
 """
 
 from __future__ import annotations
 
+import contextvars
 import io
 import math
 import pickle
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
+from smorphi_rl import rllib_compat
 from smorphi_rl.errors import SmorphiError
 
 MAX_PICKLE_BYTES = 64 << 20
@@ -47,11 +50,9 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     import gymnasium.spaces as spaces
     from numpy.random import PCG64, SeedSequence
 
-    from smorphi_rl import rllib_compat
-
     allowed: dict[tuple[str, str], Any] = {
         ("collections", "OrderedDict"): collections.OrderedDict,
-        ("numpy", "dtype"): np.dtype,
+        ("numpy", "dtype"): _numeric_dtype,
         ("gymnasium.spaces.box", "Box"): _unbuilt(spaces.Box),
         ("gymnasium.spaces.dict", "Dict"): _unbuilt(spaces.Dict),
         ("gymnasium.spaces.multi_discrete", "MultiDiscrete"): _unbuilt(spaces.MultiDiscrete),
@@ -63,12 +64,65 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     classes: tuple[type, ...] = (SeedSequence, PCG64, np.ndarray)
     markers: dict[_Marker, type] = {_Marker(cls): cls for cls in classes}
     for (module, name), helper in rllib_compat.numpy_unpickle_helpers().items():
-        allowed[(module, name)] = _unmarking(helper, markers, empty_first=name == "_reconstruct")
+        checked = _from_bytes(helper) if name == "_frombuffer" else helper
+        allowed[(module, name)] = _unmarking(checked, markers, empty_first=name == "_reconstruct")
     where: dict[type, str] = {SeedSequence: "numpy.random.bit_generator", PCG64: "numpy.random._pcg64",
                               np.ndarray: "numpy"}  # fmt: skip
     allowed |= {(where[cls], cls.__name__): marker for marker, cls in markers.items()}
     SAFE_GLOBALS.update(allowed)
     return SAFE_GLOBALS
+
+
+def _dtype_problem(dtype: Any) -> str:
+    """Why `dtype` is not one an array of ours holds (a plain number or boolean), or ''. An object dtype's array
+    holds pointers: one built from a file's bytes is memory the file chose."""
+    if not isinstance(dtype, np.dtype) or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype:
+        return f"it holds an array of dtype {str(dtype)[:40]}, not of numbers, which a smorphi-rl checkpoint never does"
+    return ""
+
+
+def _numeric_dtype(code: Any, align: Any = False, copy: Any = False) -> np.dtype:
+    """What the pickle's `numpy.dtype` reads as: a dtype of numbers or booleans from its code ('<f4'), else refused."""
+    dtype = np.dtype(code, align=bool(align), copy=bool(copy)) if isinstance(code, str) and len(code) < 8 else None
+    problem = _dtype_problem(dtype)
+    if problem or dtype is None:
+        raise Refused(problem)
+    return dtype
+
+
+def _from_bytes(helper: Any) -> Any:
+    """numpy's `_frombuffer(buffer, dtype, shape, order)`, called only with a numeric dtype and a buffer of exactly
+    the shape's bytes (numpy reads it as it is given)."""
+
+    def call(buffer: Any, dtype: Any, shape: Any, order: Any) -> Any:
+        problem = _dtype_problem(dtype) or _bytes_problem(buffer, dtype, shape)
+        if problem or order not in ("C", "F"):
+            raise Refused(problem or "it lays an array out in an order numpy does not write")
+        return helper(buffer, dtype, shape, order)
+
+    return call
+
+
+def _bytes_problem(data: Any, dtype: np.dtype, shape: Any) -> str:
+    """Why `data` is not the bytes of an array of `shape` and `dtype`, or ''."""
+    if not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
+        return f"it gives an array the shape {str(shape)[:40]}, not whole sizes"
+    if not isinstance(data, bytes | bytearray) or len(data) != math.prod(shape) * dtype.itemsize:
+        return f"its array of shape {shape} does not hold that shape's bytes"
+    return ""
+
+
+def _build_problem(inst: Any, state: Any) -> str:
+    """Why pickle's BUILD may not hand `state` to `inst` (numpy's `__setstate__` trusts it: a dtype's flags or an
+    array's data that disagree with its shape reach memory outside the file), or ''."""
+    if isinstance(inst, np.dtype):  # numpy's pickles restate the dtype as it was built: nothing to change
+        plain = isinstance(state, tuple) and all(type(v) in (int, str, type(None)) for v in state)
+        return "" if plain and state == inst.__reduce__()[2] else "it changes a dtype after making it"
+    if isinstance(inst, np.ndarray):  # (version, shape, dtype, fortran order, bytes), as `ndarray.__reduce__`
+        if not (isinstance(state, tuple) and len(state) == 5 and type(state[3]) is bool):
+            return "it gives an array a state numpy does not write"
+        return _dtype_problem(state[2]) or _bytes_problem(state[4], state[2], state[1])
+    return ""
 
 
 class _Marker:
@@ -107,6 +161,10 @@ def _unbuilt(cls: type) -> type:
     def __new__(stand_in: type, *args: Any, **kwargs: Any) -> Any:
         if args or kwargs:
             raise Refused(f"it constructs a {cls.__name__} with arguments, which a smorphi-rl checkpoint never does")
+        left = _SPACES_LEFT.get([0])
+        left[0] -= 1
+        if left[0] < 0:
+            raise Refused(f"it holds over {MAX_SPACES} spaces, which a smorphi-rl checkpoint never does")
         space: Any = object.__new__(cls)
 
         def checked(state: Any) -> None:  # pickle looks `__setstate__` up on the instance: this one runs first
@@ -134,15 +192,49 @@ def _space_state_problem(state: Any) -> str:
         return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
     if dtype is not None and not (isinstance(dtype, np.dtype) and dtype.kind in "biuf"):
         return f"dtype {str(dtype)[:40]} is not numeric"
+    for key in ("low", "high", "bounded_below", "bounded_above", "nvec", "start"):  # gymnasium reads each whole
+        value = state.get(key)
+        if value is not None and not (isinstance(value, np.ndarray) and value.shape == shape and value.dtype.kind
+                                      in "biuf"):  # fmt: skip
+            return f"{key} is not an array of numbers of its shape {shape}"
     return ""
+
+
+MAX_SPACES = 64
+"""Spaces in one checkpoint pickle: ours hold fewer than 10. Gymnasium reads each one's bounds whole as it is
+built, so a file naming one large bound 200,000 times read for most of an hour."""
+_SPACES_LEFT: contextvars.ContextVar[list[int]] = contextvars.ContextVar("spaces_left")
 
 
 class Refused(pickle.UnpicklingError):
     """A pickle that names something a smorphi-rl checkpoint never holds."""
 
 
-class SafeUnpickler(pickle.Unpickler):
-    """An unpickler that resolves only the exact pairs of `SAFE_GLOBALS` and nothing else."""
+_Unpickler: Any = rllib_compat.python_unpickler()
+
+
+class SafeUnpickler(_Unpickler):  # type: ignore[misc]
+    """An unpickler that resolves only the exact pairs of `SAFE_GLOBALS` and nothing else, and hands numpy's
+    dtypes and arrays only the states numpy writes (the pure-Python unpickler: the C one cannot check BUILD)."""
+
+    def load(self) -> Any:
+        token = _SPACES_LEFT.set([MAX_SPACES])
+        try:
+            return super().load()
+        finally:
+            _SPACES_LEFT.reset(token)
+
+    def load_build(self) -> None:
+        inst, state = self.stack[-2:]
+        problem = _build_problem(inst, state)
+        if problem:
+            raise Refused(problem)
+        if isinstance(inst, np.dtype):  # its state restates it: nothing to set
+            self.stack.pop()
+            return
+        super().load_build()
+
+    dispatch: ClassVar[dict[int, Any]] = {**_Unpickler.dispatch, pickle.BUILD[0]: load_build}
 
     def find_class(self, module: str, name: str) -> Any:
         found = _safe_globals().get((module, name))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import os
 import pickle
+import re
 import shutil
 from pathlib import Path
 
@@ -166,10 +167,10 @@ def rebuilt(cls: type, state: dict) -> object:
 @pytest.mark.parametrize(
     ("item", "message"),
     [
-        (Reduce(np.ndarray, (3000, 3000), np.dtype("O")), "it constructs a ndarray itself"),  # 72 MB of None
+        (Reduce(np.ndarray, (3000, 3000), np.dtype("f8")), "it constructs a ndarray itself"),  # 72 MB
         (Reduce(np.zeros(0).__reduce__()[0], np.ndarray, (3000, 3000), b"b"), "an array of its own shape"),
         (rebuilt(gym.spaces.MultiDiscrete, {"_shape": (3000, 3000), "dtype": np.dtype(np.int64)}), "more values"),
-        (rebuilt(gym.spaces.Box, {"_shape": (2,), "dtype": np.dtype("O")}), "dtype object is not numeric"),
+        (rebuilt(gym.spaces.Box, {"_shape": (2,), "dtype": np.dtype("O")}), "of dtype object, not of numbers"),
     ],
     ids=["ndarray called", "an array made at its own shape", "a MultiDiscrete without start", "an object dtype"],
 )
@@ -178,6 +179,48 @@ def test_what_numpy_and_gymnasium_would_allocate_for_a_file_is_refused_first(gen
     `__setstate__` allocate its shape; each is refused before memory is taken."""
     path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}))
     with pytest.raises(CheckpointError, match=message):
+        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+
+
+class Built:
+    """An object that pickles as `func(*args)`, then BUILD with `state`: what numpy's own pickles write."""
+
+    def __init__(self, func, args, state) -> None:
+        self.func, self.args, self.state = func, args, state
+
+    def __reduce__(self):
+        return self.func, self.args, self.state
+
+
+def _numpy_helper(name: str):
+    core = getattr(np, "_core", None) or np.core
+    return core.multiarray._reconstruct if name == "_reconstruct" else core.numeric._frombuffer
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        (Built(_numpy_helper("_reconstruct"), (np.ndarray, (0,), b"b"), (1, (100_000,), np.dtype("O"), False, [1.0])),
+         "an array of dtype object, not of numbers"),  # numpy read 100,000 pointers past a list of one
+        (Built(np.dtype, ("f8", False, True), (3, ">", None, None, None, -1, -1, 0)), "it changes a dtype"),
+        (Built(np.dtype, ("O8", False, True), (3, "|", None, None, None, -1, -1, 0)), "of dtype object"),
+        (Built(_numpy_helper("_reconstruct"), (np.ndarray, (0,), b"b"), (1, (4,), np.dtype("f8"), False, b"x" * 8)),
+         "does not hold that shape's bytes"),
+        (Reduce(_numpy_helper("_frombuffer"), b"x" * 8, np.dtype("f8"), (1000,), "C"),
+         "does not hold that shape's bytes"),
+        (rebuilt(gym.spaces.Box, {"_shape": (2,), "dtype": np.dtype("f4"), "low": np.zeros(10**6, np.float32)}),
+         "its Box low is not an array of numbers of its shape (2,)"),  # gymnasium takes its min and max
+        ([gym.spaces.Box(0, 1, (1,)) for _ in range(65)], "it holds over 64 spaces"),
+    ],
+    ids=["an object array over a list", "a dtype changed after it is made", "an object dtype", "short bytes",
+         "short bytes from a buffer", "bounds of another shape", "too many spaces"],
+)  # fmt: skip
+def test_what_numpy_would_read_past_its_data_is_refused(genuine, tmp_path, item, message):
+    """numpy's `__setstate__` trusts the state pickle hands it: an object dtype over the file's bytes, or over a
+    shorter list, read memory the file chose (a crash, or worse); many spaces sharing one large bound took most of
+    an hour to load."""
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
+    with pytest.raises(CheckpointError, match=re.escape(message)):
         safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
 
 
@@ -333,7 +376,10 @@ def _ctor_with(genuine: Path, **changes: object) -> bytes:
 
 def _with_shape(space: gym.spaces.Dict, shape: object) -> gym.spaces.Dict:
     box = space.spaces["angles"]
-    box._shape = shape  # what a crafted file's state can set
+    box._shape = shape  # what a crafted file's state can set, with bounds of that shape where it is one
+    if isinstance(shape, tuple) and all(isinstance(d, int) for d in shape):
+        for key in ("low", "high", "bounded_below", "bounded_above"):
+            setattr(box, key, np.resize(getattr(box, key), shape))
     return space
 
 
