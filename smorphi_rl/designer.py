@@ -69,7 +69,7 @@ def load_designer(path: Path) -> Designer:
     if not raw:
         raise SmorphiError(f"{path}: the policy carries no env configuration")
     try:
-        env_config = EnvConfig.from_dict(raw)
+        env_config = EnvConfig.recorded(raw)
     except EnvConfigError as exc:
         raise SmorphiError(f"{path}: the policy's {exc}") from None
     frequencies = int(policy.model_config.get("policy_angle_frequencies", 8))

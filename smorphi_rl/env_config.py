@@ -65,6 +65,8 @@ MAX_EPISODE_STEPS = 100_000
 """An episode is at most this many steps (the paper's are 200): longer ones are a typo, and one roll-out of them
 would run for minutes."""
 MAX_WEIGHT = 1e6
+MAX_RECORDED_MAPS = 1000
+"""Map entries a policy or checkpoint may record: more than any run is trained on (a generator is one entry)."""
 """R1's weights are at most this: far beyond any ranking, and R1 stays a number a table can print."""
 
 
@@ -180,6 +182,25 @@ class EnvConfig:
         for name, value in raw.items():
             values[name] = _coerce(name, value)
         return cls(**values)
+
+    @classmethod
+    def recorded(cls, raw: dict[str, Any]) -> EnvConfig:
+        """An env configuration a policy or checkpoint recorded: its maps are the files and floors its training
+        resolved, named one by one, never a glob or folder to expand again (a file's list of globs read the whole
+        disk each time it was loaded), and at most MAX_RECORDED_MAPS of them."""
+        maps = raw.get("maps")
+        entries = [maps] if isinstance(maps, str) else list(maps) if isinstance(maps, list | tuple) else []
+        if len(entries) > MAX_RECORDED_MAPS:
+            raise EnvConfigError(f"env_config 'maps' names {len(entries):,} maps, more than any run is trained on "
+                                 f"({MAX_RECORDED_MAPS:,})")  # fmt: skip
+        from smorphi_rl.map_sources import is_generator
+
+        for entry in entries:
+            text = str(entry)
+            if not is_generator(text) and (any(ch in text for ch in "*?[") or Path(text).is_dir()):
+                raise EnvConfigError(f"env_config 'maps' entry {text[:80]!r} is a glob or folder, which a policy "
+                                     "never records (its maps are resolved when it is trained)")  # fmt: skip
+        return cls.from_dict(raw)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -91,7 +91,7 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
         if not isinstance(raw, dict):
             raise SmorphiError(f"{checkpoint}: its env configuration is a {type(raw).__name__}, not a table")
         try:
-            EnvConfig.from_dict(dict(raw))
+            EnvConfig.recorded(dict(raw))
         except SmorphiError as exc:
             raise SmorphiError(f"{checkpoint}: {exc}") from None
     about: dict[str, Any] = {"checkpoint": str(checkpoint.resolve()), "command": args.command}

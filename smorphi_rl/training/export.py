@@ -53,6 +53,6 @@ def _maps_of(env_config: Any) -> tuple[str, ...]:
     from smorphi_rl.errors import SmorphiError
 
     try:
-        return EnvConfig.from_dict(dict(env_config)).maps if isinstance(env_config, dict) else ()
+        return EnvConfig.recorded(dict(env_config)).maps if isinstance(env_config, dict) else ()
     except SmorphiError:
         return ()

@@ -38,7 +38,7 @@ def env_config_of(module: Any, maps: list[str] | None) -> EnvConfig:
         raise CheckpointError("the checkpoint carries no env configuration (not trained by smorphi-rl)")
     if not isinstance(raw, dict):
         raise CheckpointError(f"the checkpoint's env configuration is a {type(raw).__name__}, not a table")
-    cfg = EnvConfig.from_dict(dict(raw))
+    cfg = EnvConfig.recorded(dict(raw))
     if maps:
         cfg = replace(cfg, maps=EnvConfig.from_dict({"maps": maps}).maps)
     return cfg

@@ -155,7 +155,7 @@ def run_transfer(
     job = replace(job, algo=job.algo or algo or TrainConfig.algo)  # the pretrained policy's
     configs = []
     its_maps = dict(model.get("env_config") or {}).get("maps")  # its own floors, whatever `trained_with` keeps
-    trained_on = {Path(m).resolve() for m in EnvConfig.from_dict({"maps": its_maps} if its_maps else {}).map_files}
+    trained_on = {Path(m).resolve() for m in EnvConfig.recorded({"maps": its_maps} if its_maps else {}).map_files}
     for path in job.maps:  # every map and the checkpoint are checked before the first run starts
         if Path(path).resolve() in trained_on:
             raise TrainConfigError(f"--maps {path} is one the pretrained policy was trained on: transfer measures "

@@ -396,6 +396,7 @@ def _with_env(model_config: dict, **env: object) -> dict:
         ({"model_config": lambda m: m | {"env_config": "maps"}}, "env configuration is a str, not a table"),
         ({"model_config": lambda m: _with_env(m, observation="floor")}, "is not the env's"),
         ({"model_config": lambda m: _with_env(m, moves=[1, 2, 4])}, "the policy chooses among [3, 3, 3] moves"),
+        ({"model_config": lambda m: _with_env(m, maps=["/usr/*/*.yaml"])}, "'/usr/*/*.yaml' is a glob or folder"),
         ({"action_space": gym.spaces.MultiDiscrete([4_000_001, 3, 3])}, "its action space must be three odd"),
         (
             {
@@ -412,6 +413,7 @@ def _with_env(model_config: dict, **env: object) -> dict:
         "env_config a string",
         "another layout",
         "other moves",
+        "maps to search for",
         "a huge last layer",
         "a huge first layer",
     ],

@@ -177,6 +177,28 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
     assert code == 1 and err.count("\n") == 1 and "among [7, 7, 7] moves a hinge, its env among [3, 3, 3]" in err
 
 
+@pytest.mark.parametrize(
+    ("maps", "message"),
+    [
+        (["/usr/*/*/*/*/*/*/*.yaml"] * 20, "'/usr/*/*/*/*/*/*/*.yaml' is a glob or folder, which a policy never"),
+        (["/usr"], "'/usr' is a glob or folder"),
+        (["generate:floor"] * 1001, "names 1,001 maps, more than any run is trained on (1,000)"),
+    ],
+    ids=["globs", "a folder", "too many"],
+)
+def test_a_policy_whose_maps_would_be_searched_for_is_refused(policy, capsys, tmp_path, maps, message):
+    """A policy's maps were expanded again each time it loaded, even with --map: twenty globs over /usr took
+    seconds, and a 1 MB policy.json holds 40,000 of them."""
+    bad = tmp_path / "bad"
+    bad.mkdir()
+    (bad / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    meta = json.loads((policy / "policy.json").read_text())
+    meta["model_config"]["env_config"]["maps"] = maps
+    (bad / "policy.json").write_text(json.dumps(meta))
+    code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
+    assert code == 1 and err.count("\n") == 1 and message in err, err
+
+
 @pytest.mark.parametrize("trained", ["x", [1], {"env_steps": "many"}])
 def test_a_policy_whose_shipping_record_is_not_a_table_still_designs(policy, capsys, tmp_path, trained):
     """`trained` is what a shipping recorded, read for the report's line: a string there stopped `design` in a
