@@ -19,6 +19,12 @@ from smorphi_rl.errors import SmorphiError
 
 POLICY = "_pi."
 POOL = 4
+CONV_CHANNELS = (8, 16)
+MAP_FEATURES = 64
+HIDDEN = 128
+"""The policy net's layer sizes (its two convolutions' channels, the map's features, the MLP's width), the torch
+module's (`training/module.py` builds from them): weights of other sizes are no policy of ours (a first layer of
+50,000 channels in a 400 KB file took gigabytes to run)."""
 MISFIT = "the policy's layers do not fit its observation and action sizes, or each other"
 
 
@@ -52,6 +58,8 @@ class NumpyPolicy:
         (c0, _), (c1, _) = self.conv
         layers = [self.fc, *self.mlp, self.head]
         shapes_ok = c0.ndim == c1.ndim == 4 and c1.shape[2:] == (3, 3) and all(w.ndim == 2 for w, _ in layers)
+        sizes = (c0.shape[0], c1.shape[0], self.fc[0].shape[0], self.mlp[0][0].shape[0], self.mlp[1][0].shape[0])
+        shapes_ok = shapes_ok and sizes == (*CONV_CHANNELS, MAP_FEATURES, HIDDEN, HIDDEN)
         if not shapes_ok or any(b.shape != (w.shape[0],) for w, b in [*self.conv, *layers]):
             return False
         return (c1.shape[1] == c0.shape[0] and self.fc[0].shape[1] == c1.shape[0] * POOL * POOL

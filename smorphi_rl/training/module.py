@@ -28,11 +28,10 @@ from torch import nn
 
 from smorphi_rl import rllib_compat
 from smorphi_rl.env import EXTRA_KEYS, MAP_LEVELS
+from smorphi_rl.numpy_policy import CONV_CHANNELS, HIDDEN, MAP_FEATURES
 from smorphi_rl.training.distribution import HingeCategorical
 from smorphi_rl.training.presets import ANGLE_FREQUENCIES
 
-HIDDEN = 128
-MAP_FEATURES = 64
 # The angles (presets.ANGLE_FREQUENCIES): the critic also sees each angle as sin and cos of k pi theta / 180 for
 # k = 1..8, as the R1 landscape is rugged at a few degrees and the value net has to resolve it. What the policy
 # net sees is a preset's choice (`policy_angle_frequencies`, in the module's model_config): the fast PPO preset
@@ -199,9 +198,9 @@ class _Net(nn.Module):
         channels, size, _ = map_shape
         self._map_shape = tuple(int(d) for d in map_shape)
         self.cnn = nn.Sequential(
-            nn.Conv2d(channels, 8, kernel_size=3, stride=2, padding=1),
+            nn.Conv2d(channels, CONV_CHANNELS[0], kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
-            nn.Conv2d(8, 16, kernel_size=3, stride=2, padding=1),
+            nn.Conv2d(*CONV_CHANNELS, kernel_size=3, stride=2, padding=1),
             nn.ReLU(),
             nn.AdaptiveMaxPool2d(4),  # any obs_size gives the same 16 x 4 x 4 features
             nn.Flatten(),

@@ -232,6 +232,23 @@ def test_flattened_weights_are_refused_in_one_line_by_design(exported, tmp_path,
     assert code == 1 and len(err) == 1 and f"{bad}: the policy's layers do not fit" in err[0]  # the folder named
 
 
+def test_layers_wider_than_the_nets_are_refused_in_one_line_by_design(exported, tmp_path, capsys):
+    """A first convolution of 50,000 channels (and a second that takes them) chained, in a 400 KB file: `design`
+    took 1.1 GB to run it, and more with a larger picture."""
+    from smorphi_rl.cli import main
+
+    _, _, out = exported
+    weights = dict(read_policy(out).weights)
+    c0, c1 = "_pi.cnn.0.weight", "_pi.cnn.2.weight"
+    weights |= {c0: np.zeros((5000, *weights[c0].shape[1:]), np.float32), "_pi.cnn.0.bias": np.zeros(5000, np.float32),
+                c1: np.zeros((weights[c1].shape[0], 5000, 3, 3), np.float32)}  # fmt: skip
+    bad = _with_weights(out, tmp_path / "wide", weights)
+    val_1 = str(Path(__file__).resolve().parents[2] / "maps" / "val-1.yaml")
+    code = main(["design", "--map", val_1, "--policy", str(bad), "--budget", "20"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 1 and len(err) == 1 and f"{bad}: the policy's layers do not fit" in err[0]
+
+
 def test_weights_too_large_for_float32_arithmetic_are_refused(exported, tmp_path):
     """Finite weights of 3e38 overflowed the forward pass and `design` printed a shape from it."""
     _, _, out = exported
