@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, nonempty, start_option
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, clipped, nonempty, one_line, start_option
 from smorphi_rl.design import DEFAULT_BUDGET, PROGRESS_FROM
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, output_file
@@ -93,14 +93,14 @@ def cmd_design(args: argparse.Namespace) -> int:
         or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
     )
     for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
-        print(warning, file=sys.stderr)
+        print(one_line(warning), file=sys.stderr)
     if args.json:
         print(jsontext.dumps(record))
         return 0
-    grid_map = env.grid_map
+    grid_map, about = env.grid_map, clipped(designer.summary, 200)  # what a policy.json says of itself
     lines = [
         ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
-        ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({designer.summary})"),
+        ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']})"),
         ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "
@@ -114,5 +114,5 @@ def cmd_design(args: argparse.Namespace) -> int:
     if "plot" in record:
         lines.append(("plot", rel(Path(record["plot"]))))
     lines.append(("time", f"{record['wall_s']:.2f} s"))
-    print("\n".join(f"{k:<7} {v}" for k, v in lines))
+    print("\n".join(one_line(f"{k:<7} {v}") for k, v in lines))  # a policy's text never drives the terminal
     return 0

@@ -199,6 +199,18 @@ def test_a_policy_whose_maps_would_be_searched_for_is_refused(policy, capsys, tm
     assert code == 1 and err.count("\n") == 1 and message in err, err
 
 
+def test_a_policys_text_is_shown_escaped_never_sent_to_the_terminal(policy, capsys, tmp_path):
+    """A map name in policy.json holding an escape sequence (a terminal's title) was printed as it was."""
+    odd = tmp_path / "odd"
+    odd.mkdir()
+    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    meta = json.loads((policy / "policy.json").read_text())
+    meta["model_config"]["env_config"]["maps"] = ["/tmp/\x1b]0;TITLE\x07x.yaml"]
+    (odd / "policy.json").write_text(json.dumps(meta))
+    code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd), "--budget", "20")
+    assert code == 0 and "\x1b" not in out and "\\x1b]0;TITLE\\x07x.yaml" in out, out
+
+
 @pytest.mark.parametrize("trained", ["x", [1], {"env_steps": "many"}])
 def test_a_policy_whose_shipping_record_is_not_a_table_still_designs(policy, capsys, tmp_path, trained):
     """`trained` is what a shipping recorded, read for the report's line: a string there stopped `design` in a
