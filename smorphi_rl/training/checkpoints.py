@@ -114,6 +114,10 @@ def read_module_files(checkpoint: Path) -> tuple[dict[str, Any], dict[str, np.nd
     """(the module's constructor keywords, its weights as float arrays by parameter name), read safely and
     checked for the types our module writes."""
     folder = checkpoint / MODULE_SUBDIR
+    parts = MODULE_SUBDIR.parts
+    linked = next((p for i in range(len(parts)) if (p := checkpoint.joinpath(*parts[: i + 1])).is_symlink()), None)
+    if linked is not None:  # its files would be read from wherever the link points
+        raise CheckpointError(f"{linked}: a link, refused (a checkpoint's folders are never links)")
     check_metadata(checkpoint / ROOT_METADATA_FILE, "algorithm_state")
     check_metadata(folder / METADATA_FILE, STATE_FILE.removesuffix(".pkl"))
     ctor = safe_unpickle(folder / CTOR_FILE)

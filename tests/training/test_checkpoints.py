@@ -245,6 +245,17 @@ def test_a_linked_state_file_is_refused(genuine, tmp_path):
         load_module(checkpoint)
 
 
+def test_a_linked_module_folder_is_refused(genuine, tmp_path):
+    """A link among the checkpoint's folders had its module's files read from wherever it points."""
+    checkpoint = tmp_path / "checkpoint_000000"
+    shutil.copytree(genuine, checkpoint)
+    learner = checkpoint / MODULE_SUBDIR.parts[0]
+    shutil.move(learner, tmp_path / "elsewhere")
+    learner.symlink_to(tmp_path / "elsewhere")
+    with pytest.raises(CheckpointError, match="a link, refused"):
+        load_module(checkpoint)
+
+
 def test_weights_of_another_layout_are_refused(genuine, tmp_path):
     state = dict(safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl"))
     state["_pi.mlp.0.weight"] = np.zeros((128, 70), dtype=np.float32)
