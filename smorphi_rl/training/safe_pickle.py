@@ -118,6 +118,11 @@ def _build_problem(inst: Any, state: Any) -> str:
     if isinstance(inst, np.dtype):  # numpy's pickles restate the dtype as it was built: nothing to change
         plain = isinstance(state, tuple) and all(type(v) in (int, str, type(None)) for v in state)
         return "" if plain and state == inst.__reduce__()[2] else "it changes a dtype after making it"
+    from gymnasium.spaces import Space
+
+    if isinstance(inst, Space):  # each time: a second BUILD would reach gymnasium's `__setstate__` unchecked
+        problem = _space_state_problem(state)
+        return problem and f"its {type(inst).__name__} {problem}"
     if isinstance(inst, np.ndarray):  # (version, shape, dtype, fortran order, bytes), as `ndarray.__reduce__`
         if not (isinstance(state, tuple) and len(state) == 5 and type(state[3]) is bool):
             return "it gives an array a state numpy does not write"
@@ -155,8 +160,8 @@ MAX_SPACE_VALUES = 1 << 22
 def _unbuilt(cls: type) -> type:
     """A stand-in for a gymnasium space class that a pickle can only rebuild the way pickle writes it: an empty
     instance whose state is then set. Never constructed with arguments of the file's own (`Box(0, 255, (30000,
-    30000))` would fill gigabytes before any check could run), and its state is checked before gymnasium's
-    `__setstate__` reads it (which, for a MultiDiscrete without `start`, allocates the state's shape)."""
+    30000))` would fill gigabytes before any check could run), and its state is checked at every BUILD before
+    gymnasium's `__setstate__` reads it (which, for a MultiDiscrete without `start`, allocates the state's shape)."""
 
     def __new__(stand_in: type, *args: Any, **kwargs: Any) -> Any:
         if args or kwargs:
@@ -165,17 +170,7 @@ def _unbuilt(cls: type) -> type:
         left[0] -= 1
         if left[0] < 0:
             raise Refused(f"it holds over {MAX_SPACES} spaces, which a smorphi-rl checkpoint never does")
-        space: Any = object.__new__(cls)
-
-        def checked(state: Any) -> None:  # pickle looks `__setstate__` up on the instance: this one runs first
-            del space.__dict__["__setstate__"]
-            problem = _space_state_problem(state)
-            if problem:
-                raise Refused(f"its {cls.__name__} {problem}")
-            cls.__setstate__(space, state)  # type: ignore[attr-defined]
-
-        space.__dict__["__setstate__"] = checked
-        return space
+        return object.__new__(cls)  # its state is checked at every BUILD (`_build_problem`)
 
     return type(f"Unbuilt{cls.__name__}", (cls,), {"__new__": __new__})
 

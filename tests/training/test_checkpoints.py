@@ -245,6 +245,16 @@ def test_a_linked_state_file_is_refused(genuine, tmp_path):
         load_module(checkpoint)
 
 
+def test_a_space_built_twice_is_checked_twice(genuine, tmp_path):
+    """A pickle may BUILD one object twice: the second state reached gymnasium's `__setstate__` unchecked."""
+    box = pickle.dumps(gym.spaces.Box(0, 1, (3,), np.float32), protocol=3)[:-1]  # without its STOP
+    again = {"_shape": (3,), "dtype": np.dtype("f4"), "low": np.zeros(10**6, np.float32)}
+    data = box + pickle.dumps(again, protocol=3)[2:-1] + pickle.BUILD + pickle.STOP
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
+    with pytest.raises(CheckpointError, match=re.escape("its Box low is not an array of numbers of its shape (3,)")):
+        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+
+
 def test_a_linked_module_folder_is_refused(genuine, tmp_path):
     """A link among the checkpoint's folders had its module's files read from wherever it points."""
     checkpoint = tmp_path / "checkpoint_000000"
