@@ -65,9 +65,9 @@ MAX_EPISODE_STEPS = 100_000
 """An episode is at most this many steps (the paper's are 200): longer ones are a typo, and one roll-out of them
 would run for minutes."""
 MAX_WEIGHT = 1e6
+"""R1's weights are at most this: far beyond any ranking, and R1 stays a number a table can print."""
 MAX_RECORDED_MAPS = 1000
 """Map entries a policy or checkpoint may record: more than any run is trained on (a generator is one entry)."""
-"""R1's weights are at most this: far beyond any ranking, and R1 stays a number a table can print."""
 
 
 @dataclass(frozen=True)
