@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 import numpy as np
+from gymnasium.spaces import Space
 
 from smorphi_rl import rllib_compat
 from smorphi_rl.errors import SmorphiError
@@ -64,8 +65,7 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     classes: tuple[type, ...] = (SeedSequence, PCG64, np.ndarray)
     markers: dict[_Marker, type] = {_Marker(cls): cls for cls in classes}
     for (module, name), helper in rllib_compat.numpy_unpickle_helpers().items():
-        checked = _from_bytes(helper) if name == "_frombuffer" else helper
-        allowed[(module, name)] = _unmarking(checked, markers, empty_first=name == "_reconstruct")
+        allowed[(module, name)] = _as_numpy_calls(name, helper, markers)
     where: dict[type, str] = {SeedSequence: "numpy.random.bit_generator", PCG64: "numpy.random._pcg64",
                               np.ndarray: "numpy"}  # fmt: skip
     allowed |= {(where[cls], cls.__name__): marker for marker, cls in markers.items()}
@@ -90,19 +90,6 @@ def _numeric_dtype(code: Any, align: Any = False, copy: Any = False) -> np.dtype
     return dtype
 
 
-def _from_bytes(helper: Any) -> Any:
-    """numpy's `_frombuffer(buffer, dtype, shape, order)`, called only with a numeric dtype and a buffer of exactly
-    the shape's bytes (numpy reads it as it is given)."""
-
-    def call(buffer: Any, dtype: Any, shape: Any, order: Any) -> Any:
-        problem = _dtype_problem(dtype) or _bytes_problem(buffer, dtype, shape)
-        if problem or order not in ("C", "F"):
-            raise Refused(problem or "it lays an array out in an order numpy does not write")
-        return helper(buffer, dtype, shape, order)
-
-    return call
-
-
 def _bytes_problem(data: Any, dtype: np.dtype, shape: Any) -> str:
     """Why `data` is not the bytes of an array of `shape` and `dtype`, or ''."""
     if not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
@@ -118,8 +105,6 @@ def _build_problem(inst: Any, state: Any) -> str:
     if isinstance(inst, np.dtype):  # numpy's pickles restate the dtype as it was built: nothing to change
         plain = isinstance(state, tuple) and all(type(v) in (int, str, type(None)) for v in state)
         return "" if plain and state == inst.__reduce__()[2] else "it changes a dtype after making it"
-    from gymnasium.spaces import Space
-
     if isinstance(inst, Space):  # each time: a second BUILD would reach gymnasium's `__setstate__` unchecked
         problem = _space_state_problem(state)
         return problem and f"its {type(inst).__name__} {problem}"
@@ -140,19 +125,50 @@ class _Marker:
         raise Refused(f"it constructs a {self.name} itself, which a smorphi-rl checkpoint never does")
 
 
-def _unmarking(helper: Any, markers: dict[_Marker, type], empty_first: bool = False) -> Any:
-    """`helper`, called with each marker among its arguments replaced by its class; `empty_first`: numpy's
-    `_reconstruct`, which its pickles call for an empty array whose state then holds the data (any other shape
-    would be allocated before the file's data is seen)."""
+def _as_numpy_calls(name: str, helper: Any, markers: dict[_Marker, type]) -> Any:
+    """numpy's pickling `helper`, called only as numpy's own pickles call it (`_helper_problem`), with a marker as
+    its first argument swapped for its class: passed on as an argument, a class is a constructor the file would
+    call with values of its own (`__generator_ctor(huge seed, PCG64)` ran for hours)."""
+    named = {cls.__name__: marker for marker, cls in markers.items()}
 
     def call(*args: Any) -> Any:
-        if empty_first and (len(args) < 2 or args[1] != (0,)):
-            raise Refused("it makes an array of its own shape before its data, which numpy's pickles never do")
-        return helper(*(markers.get(a, a) if isinstance(a, _Marker) else a for a in args))
+        problem = _helper_problem(name, args, named)
+        if problem:
+            raise Refused(problem)
+        first = markers[args[0]] if isinstance(args[0], _Marker) else args[0]
+        return helper(first, *args[1:])
 
     return call
 
 
+def _helper_problem(name: str, args: tuple[Any, ...], named: dict[str, _Marker]) -> str:
+    """Why `args` are not what numpy's pickles pass its helper `name`, or ''."""
+    from numpy.random import BitGenerator
+
+    unlike = f"it calls numpy's {name.strip('_')} with arguments of its own, as numpy's pickles never do"
+    if not args or any(isinstance(a, _Marker) for a in args[1:]):
+        return unlike
+    if name == "_reconstruct":  # an empty array, its data set by BUILD (another shape is allocated unseen)
+        code_ok = len(args) == 3 and isinstance(args[2], bytes | str) and len(args[2]) < 8
+        ok = code_ok and args[0] is named["ndarray"] and args[1] == (0,)
+        return "" if ok else "it makes an array of its own shape before its data, which numpy's pickles never do"
+    if name == "_frombuffer":
+        if len(args) != 4 or args[3] not in ("C", "F"):
+            return unlike
+        return _dtype_problem(args[1]) or _bytes_problem(args[0], args[1], args[2])
+    if name == "__generator_ctor":  # numpy 2 passes the bit generator itself, numpy 1 its name
+        ok = len(args) == 1 and isinstance(args[0], BitGenerator | str)
+    elif name == "__bit_generator_ctor":
+        ok = len(args) == 1 and (args[0] is named["PCG64"] or isinstance(args[0], str))
+    else:  # SeedSequence's: its class, a checksum, its state
+        state_ok = args[2] is None or isinstance(args[2], tuple) if len(args) == 3 else False
+        ok = state_ok and args[0] is named["SeedSequence"] and type(args[1]) is int
+    return "" if ok else unlike
+
+
+SPACE_STATE_KEYS = frozenset({"_shape", "dtype", "_np_random", "low", "high", "bounded_below", "bounded_above",
+                              "low_repr", "high_repr", "nvec", "start", "spaces"})  # fmt: skip
+"""What the pickled state of gymnasium's Box, Dict and MultiDiscrete holds (gymnasium 1.x)."""
 MAX_SPACE_VALUES = 1 << 22
 """More values than any space of ours holds (the largest observation, 2 x 512 x 512, holds 524,288)."""
 
@@ -187,6 +203,9 @@ def _space_state_problem(state: Any) -> str:
         return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
     if dtype is not None and not (isinstance(dtype, np.dtype) and dtype.kind in "biuf"):
         return f"dtype {str(dtype)[:40]} is not numeric"
+    unknown = sorted(str(k)[:40] for k in set(state) - SPACE_STATE_KEYS)
+    if unknown:  # gymnasium copies every key, renaming old ones (`shape`) after this check
+        return f"state holds {unknown[0]!r}, which gymnasium's spaces do not"
     for key in ("low", "high", "bounded_below", "bounded_above", "nvec", "start"):  # gymnasium reads each whole
         value = state.get(key)
         if value is not None and not (isinstance(value, np.ndarray) and value.shape == shape and value.dtype.kind
@@ -206,6 +225,18 @@ class Refused(pickle.UnpicklingError):
 
 
 _Unpickler: Any = rllib_compat.python_unpickler()
+MAX_KEY_INT = 1 << 31
+"""Dict keys and set members are strings, or whole numbers under this, or None or booleans: ours are strings and
+small numbers. Numbers that differ by multiples of 2^61 - 1 hash alike, so 40,000 such keys took 8 s to add."""
+
+
+def _check_keys(keys: list[Any]) -> None:
+    """Refuse a dict key or set member of ours not (`MAX_KEY_INT`)."""
+    for key in keys:
+        if not (type(key) is str or key is None or type(key) is bool
+                or (type(key) is int and -MAX_KEY_INT < key < MAX_KEY_INT)):  # fmt: skip
+            raise Refused(f"it keys a table by {type(key).__name__} {str(key)[:40]}, which a smorphi-rl checkpoint "
+                          "never does")  # fmt: skip
 
 
 class SafeUnpickler(_Unpickler):  # type: ignore[misc]
@@ -213,6 +244,7 @@ class SafeUnpickler(_Unpickler):  # type: ignore[misc]
     dtypes and arrays only the states numpy writes (the pure-Python unpickler: the C one cannot check BUILD)."""
 
     def load(self) -> Any:
+        self.built: set[int] = set()
         token = _SPACES_LEFT.set([MAX_SPACES])
         try:
             return super().load()
@@ -222,6 +254,9 @@ class SafeUnpickler(_Unpickler):  # type: ignore[misc]
     def load_build(self) -> None:
         inst, state = self.stack[-2:]
         problem = _build_problem(inst, state)
+        if not problem and isinstance(inst, Space):  # once: a space set again and again copied its state each time
+            problem = "it sets a space's state twice" if id(inst) in self.built else ""
+            self.built.add(id(inst))
         if problem:
             raise Refused(problem)
         if isinstance(inst, np.dtype):  # its state restates it: nothing to set
@@ -229,7 +264,35 @@ class SafeUnpickler(_Unpickler):  # type: ignore[misc]
             return
         super().load_build()
 
-    dispatch: ClassVar[dict[int, Any]] = {**_Unpickler.dispatch, pickle.BUILD[0]: load_build}
+    def load_setitem(self) -> None:
+        _check_keys(self.stack[-2:-1])
+        super().load_setitem()
+
+    def load_setitems(self) -> None:  # the items above the last MARK: the pure-Python unpickler's `stack`
+        _check_keys(self.stack[0::2])
+        super().load_setitems()
+
+    def load_dict(self) -> None:
+        _check_keys(self.stack[0::2])
+        super().load_dict()
+
+    def load_additems(self) -> None:
+        _check_keys(self.stack)
+        super().load_additems()
+
+    def load_frozenset(self) -> None:
+        _check_keys(self.stack)
+        super().load_frozenset()
+
+    dispatch: ClassVar[dict[int, Any]] = {
+        **_Unpickler.dispatch,
+        pickle.BUILD[0]: load_build,
+        pickle.SETITEM[0]: load_setitem,
+        pickle.SETITEMS[0]: load_setitems,
+        pickle.DICT[0]: load_dict,
+        pickle.ADDITEMS[0]: load_additems,
+        pickle.FROZENSET[0]: load_frozenset,
+    }
 
     def find_class(self, module: str, name: str) -> Any:
         found = _safe_globals().get((module, name))
@@ -277,6 +340,10 @@ MAX_PICKLE_OPS = 1_000_000
 """Opcodes in a checkpoint's pickle: ours hold a few thousand (3,522 the most of 1,044 real files)."""
 UNREADABLE = "its opcodes cannot be read"
 _TUPLE_OPS = frozenset({"TUPLE", "TUPLE1", "TUPLE2", "TUPLE3", "FROZENSET"})
+_LONG_OPS = frozenset({"INT", "LONG", "LONG1", "LONG4"})
+MAX_INT_BITS = 1024
+"""Whole numbers in a checkpoint's pickle: ours are at most 128 bits (a random generator's state). numpy turns a
+seed into 32-bit words one division at a time, so a 128 KB seed took 5 s and a megabyte minutes."""
 _MEMO_PUTS = frozenset({"PUT", "BINPUT", "LONG_BINPUT"})
 _MEMO_GETS = frozenset({"GET", "BINGET", "LONG_BINGET"})
 
@@ -295,6 +362,8 @@ def _opcode_problem(data: bytes) -> str | None:
             if count >= MAX_PICKLE_OPS:
                 return f"it holds over {MAX_PICKLE_OPS:,} opcodes, which a smorphi-rl checkpoint never does"
             name = op.name
+            if name in _LONG_OPS and isinstance(arg, int) and abs(arg).bit_length() > MAX_INT_BITS:
+                return f"it holds a number of over {MAX_INT_BITS} bits, which a smorphi-rl checkpoint never does"
             if name == "MARK":
                 marks.append(len(stack))
             elif name in _MEMO_PUTS or name == "MEMOIZE":

@@ -193,8 +193,12 @@ class Built:
 
 
 def _numpy_helper(name: str):
+    from numpy.random import _pickle as random_pickle
+
     core = getattr(np, "_core", None) or np.core
-    return core.multiarray._reconstruct if name == "_reconstruct" else core.numeric._frombuffer
+    helpers = {"_reconstruct": core.multiarray._reconstruct, "_frombuffer": core.numeric._frombuffer,
+               "__generator_ctor": random_pickle.__generator_ctor}  # fmt: skip
+    return helpers[name]
 
 
 @pytest.mark.parametrize(
@@ -245,13 +249,41 @@ def test_a_linked_state_file_is_refused(genuine, tmp_path):
         load_module(checkpoint)
 
 
-def test_a_space_built_twice_is_checked_twice(genuine, tmp_path):
-    """A pickle may BUILD one object twice: the second state reached gymnasium's `__setstate__` unchecked."""
+@pytest.mark.parametrize(
+    ("again", "message"),
+    [
+        ({"_shape": (3,), "dtype": np.dtype("f4"), "low": np.zeros(10**6, np.float32)}, "its Box low is not an array"),
+        ({"_shape": (3,), "dtype": np.dtype("f4")}, "it sets a space's state twice"),
+    ],
+    ids=["unchecked", "copied again and again"],
+)
+def test_a_space_built_twice_is_refused(genuine, tmp_path, again, message):
+    """A pickle may BUILD one object many times: the second state reached gymnasium's `__setstate__` unchecked, and
+    a space set 20,000 times with a 20,000-key state took 15 s."""
     box = pickle.dumps(gym.spaces.Box(0, 1, (3,), np.float32), protocol=3)[:-1]  # without its STOP
-    again = {"_shape": (3,), "dtype": np.dtype("f4"), "low": np.zeros(10**6, np.float32)}
     data = box + pickle.dumps(again, protocol=3)[2:-1] + pickle.BUILD + pickle.STOP
     path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
-    with pytest.raises(CheckpointError, match=re.escape("its Box low is not an array of numbers of its shape (3,)")):
+    with pytest.raises(CheckpointError, match=re.escape(message)):
+        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+
+
+@pytest.mark.parametrize(
+    ("item", "message"),
+    [
+        (Reduce(_numpy_helper("__generator_ctor"), 12345, np.random.PCG64), "generator_ctor with arguments of its own"),
+        ({"seed": 2**2000}, "a number of over 1024 bits"),  # numpy's seed words: a division per 32 bits, each whole
+        ({i * (2**61 - 1) + 7: None for i in range(3)}, "it keys a table by int 2305843009213693958"),
+        ({frozenset({2**61 + 6})}, "it keys a table by int"),
+        (rebuilt(gym.spaces.Box, {"shape": (2**40,), "dtype": np.dtype("f4")}), "its Box state holds 'shape'"),
+    ],
+    ids=["a generator of the file's own seed", "a huge number", "keys that hash alike", "set members", "old keys"],
+)  # fmt: skip
+def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, item, message):
+    """A class passed on to `__generator_ctor` was called with the file's own seed (128 KB of it took 5 s, and the
+    time grows with its square); 40,000 keys that hash alike took 8 s to add; gymnasium renames `shape` after the
+    check has read `_shape`."""
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
+    with pytest.raises(CheckpointError, match=re.escape(message)):
         safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
 
 
