@@ -246,8 +246,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     else:
         print(f"policy      {checkpoint}")
         for i, r in enumerate(rollouts):
-            print(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
-                  f"return {r.episode_return:.1f})")  # fmt: skip
+            print(one_line(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
+                           f"return {r.episode_return:.1f})"))  # fmt: skip
             print(f"  start     {scored_text(r.start)}")
             print(f"  settled   {scored_text(r.settled.info)}")
             print(f"  best      {scored_text(r.best)}")
@@ -305,9 +305,10 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
                                               "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
             continue
         opt = ev.optimum
-        print(f"{ev.map}: exact optimum {angles_text(opt.theta)} R1 {opt.R1:.2f}; greedy from {len(ev.outcomes)} "
-              f"fixed starts: {ev.within}/{len(ev.outcomes)} settle within 1 %, median gap {ev.median_gap:.2f}, "
-              f"mean settled R1 {ev.mean_R1:.2f}, {ev.mean_evaluations:.0f} FBCPP evaluations a start")  # fmt: skip
+        print(one_line(f"{ev.map}: exact optimum {angles_text(opt.theta)} R1 {opt.R1:.2f}; greedy from "
+                       f"{len(ev.outcomes)} fixed starts: {ev.within}/{len(ev.outcomes)} settle within 1 %, median gap "
+                       f"{ev.median_gap:.2f}, mean settled R1 {ev.mean_R1:.2f}, {ev.mean_evaluations:.0f} FBCPP "
+                       "evaluations a start"))  # fmt: skip
         for o in ev.outcomes:
             print(f"  start {angles_text(o.start):<17} settled {angles_text(o.settled):<17} R1 {o.R1:6.2f}  "
                   f"gap {opt.R1 - o.R1:5.2f}")  # fmt: skip

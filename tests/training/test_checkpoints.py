@@ -477,3 +477,12 @@ def test_a_policy_at_odds_with_itself_is_refused_in_one_line(genuine, tmp_path, 
     checkpoint = plant(genuine, tmp_path, "class_and_ctor_args.pkl", _ctor_with(genuine, **changes))
     code, err = run(capsys, "evaluate-policy", "--checkpoint", str(checkpoint), "--episodes", "1")
     assert code == 1 and len(err.strip().splitlines()) == 1 and message in err, err
+
+
+def test_evaluate_policy_shows_a_maps_name_escaped(genuine, tmp_path, capsys):
+    """A map file's name holding an escape sequence was printed as it was, in each episode's and protocol's line."""
+    odd = tmp_path / "a\x1b[2Jb.yaml"
+    odd.write_text(Path(MAP_1).read_text().replace("image: ", f"image: {Path(MAP_1).parent}/"))
+    code = main(["evaluate-policy", "--checkpoint", str(genuine), "--episodes", "1", "--map", str(odd)])
+    out = capsys.readouterr().out  # an episode's line (the protocol's, --starts, needs the exact optimum: seconds)
+    assert code == 0 and "a\\x1b[2Jb" in out and "\x1b" not in out, out
