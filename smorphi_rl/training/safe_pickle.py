@@ -46,13 +46,12 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     """The exact pairs RLlib 2.60 writes for our module (numpy 1.x and 2.x spell the array helpers differently)."""
     if SAFE_GLOBALS:
         return SAFE_GLOBALS
-    import collections
 
     import gymnasium.spaces as spaces
     from numpy.random import PCG64, SeedSequence
 
     allowed: dict[tuple[str, str], Any] = {
-        ("collections", "OrderedDict"): collections.OrderedDict,
+        ("collections", "OrderedDict"): _empty_ordered_dict,
         ("numpy", "dtype"): _numeric_dtype,
         ("gymnasium.spaces.box", "Box"): _unbuilt(spaces.Box),
         ("gymnasium.spaces.dict", "Dict"): _unbuilt(spaces.Dict),
@@ -71,6 +70,16 @@ def _safe_globals() -> dict[tuple[str, str], Any]:
     allowed |= {(where[cls], cls.__name__): marker for marker, cls in markers.items()}
     SAFE_GLOBALS.update(allowed)
     return SAFE_GLOBALS
+
+
+def _empty_ordered_dict(*args: Any, **kwargs: Any) -> Any:
+    """What the pickle's `collections.OrderedDict` reads as: an empty one, filled by SETITEMS as pickle writes it
+    (whose keys are checked); given pairs of its own, its keys would go unchecked (keys that hash alike)."""
+    import collections
+
+    if args or kwargs:
+        raise Refused("it fills an OrderedDict with arguments of its own, which a smorphi-rl checkpoint never does")
+    return collections.OrderedDict()
 
 
 def _dtype_problem(dtype: Any) -> str:
@@ -364,6 +373,8 @@ def _opcode_problem(data: bytes) -> str | None:
             name = op.name
             if name in _LONG_OPS and isinstance(arg, int) and abs(arg).bit_length() > MAX_INT_BITS:
                 return f"it holds a number of over {MAX_INT_BITS} bits, which a smorphi-rl checkpoint never does"
+            if (name in _MEMO_PUTS or name in _MEMO_GETS) and not 0 <= int(arg or 0) < MAX_PICKLE_OPS:
+                return "it files a value under a number no pickle of ours reaches"  # numbers that hash alike
             if name == "MARK":
                 marks.append(len(stack))
             elif name in _MEMO_PUTS or name == "MEMOIZE":

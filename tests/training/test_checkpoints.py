@@ -3,6 +3,7 @@ module, is refused in one line by every loader, and its payload never runs."""
 
 from __future__ import annotations
 
+import collections
 import json
 import os
 import pickle
@@ -275,8 +276,10 @@ def test_a_space_built_twice_is_refused(genuine, tmp_path, again, message):
         ({i * (2**61 - 1) + 7: None for i in range(3)}, "it keys a table by int 2305843009213693958"),
         ({frozenset({2**61 + 6})}, "it keys a table by int"),
         (rebuilt(gym.spaces.Box, {"shape": (2**40,), "dtype": np.dtype("f4")}), "its Box state holds 'shape'"),
+        (Reduce(collections.OrderedDict, [(2**61 + 6, None)]), "it fills an OrderedDict with arguments of its own"),
     ],
-    ids=["a generator of the file's own seed", "a huge number", "keys that hash alike", "set members", "old keys"],
+    ids=["a generator of the file's own seed", "a huge number", "keys that hash alike", "set members", "old keys",
+         "an OrderedDict's own pairs"],
 )  # fmt: skip
 def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, item, message):
     """A class passed on to `__generator_ctor` was called with the file's own seed (128 KB of it took 5 s, and the
@@ -284,6 +287,14 @@ def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, ite
     check has read `_shape`."""
     path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
     with pytest.raises(CheckpointError, match=re.escape(message)):
+        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+
+
+def test_memo_numbers_that_hash_alike_are_refused_before_loading(genuine, tmp_path):
+    """Text PUT opcodes may file values under any number: 16,000 that hash alike took 2.8 s to file."""
+    data = b"\x80\x02N" + b"".join(b"p%d\n" % (7 + i * (2**61 - 1)) for i in range(1, 4)) + b"."
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
+    with pytest.raises(CheckpointError, match="it files a value under a number no pickle of ours reaches"):
         safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
 
 
