@@ -4,6 +4,7 @@ these fail first when Ray, RLlib, Tune, tensorboardX, torch or numpy change unde
 from __future__ import annotations
 
 import inspect
+import io
 import subprocess
 
 import pytest
@@ -191,3 +192,17 @@ def test_the_python_unpickler_dispatches_build_to_a_method_a_subclass_can_check(
 
     unpickler = rllib_compat.python_unpickler()
     assert unpickler.dispatch[pickle.BUILD[0]] is unpickler.load_build and callable(unpickler.find_class)
+    for op, method in ((pickle.SETITEM, "load_setitem"), (pickle.SETITEMS, "load_setitems"), (pickle.DICT, "load_dict"),
+                       (pickle.ADDITEMS, "load_additems"), (pickle.FROZENSET, "load_frozenset")):  # fmt: skip
+        assert unpickler.dispatch[op[0]] is getattr(unpickler, method), method
+    seen = []  # the items since the last MARK are the stack itself: what the key checks read
+
+    class Peek(unpickler):  # type: ignore[misc, valid-type]
+        def load_setitems(self) -> None:
+            seen.append(list(self.stack))
+            super().load_setitems()
+
+        dispatch = {**unpickler.dispatch, pickle.SETITEMS[0]: load_setitems}  # noqa: RUF012
+
+    assert Peek(io.BytesIO(pickle.dumps({"a": 1, "b": 2}, protocol=4))).load() == {"a": 1, "b": 2}
+    assert seen == [["a", 1, "b", 2]]
