@@ -99,9 +99,16 @@ def _numeric_dtype(code: Any, align: Any = False, copy: Any = False) -> np.dtype
     return dtype
 
 
+def _whole_sizes(shape: Any) -> bool:
+    """Whether `shape` is a shape numpy could hold: at most 32 whole sizes, each under 2^31 (their product is then
+    cheap; 8,000 sizes of 1,024 bits each took 25 s to multiply)."""
+    return (isinstance(shape, tuple) and len(shape) <= MAX_DIMENSIONS
+            and all(type(d) is int and 0 <= d < 1 << 31 for d in shape))  # fmt: skip
+
+
 def _bytes_problem(data: Any, dtype: np.dtype, shape: Any) -> str:
     """Why `data` is not the bytes of an array of `shape` and `dtype`, or ''."""
-    if not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
+    if not _whole_sizes(shape):
         return f"it gives an array the shape {str(shape)[:40]}, not whole sizes"
     if not isinstance(data, bytes | bytearray) or len(data) != math.prod(shape) * dtype.itemsize:
         return f"its array of shape {shape} does not hold that shape's bytes"
@@ -178,6 +185,8 @@ def _helper_problem(name: str, args: tuple[Any, ...], named: dict[str, _Marker])
 SPACE_STATE_KEYS = frozenset({"_shape", "dtype", "_np_random", "low", "high", "bounded_below", "bounded_above",
                               "low_repr", "high_repr", "nvec", "start", "spaces"})  # fmt: skip
 """What the pickled state of gymnasium's Box, Dict and MultiDiscrete holds (gymnasium 1.x)."""
+MAX_DIMENSIONS = 32
+"""numpy's most dimensions (ours: 3)."""
 MAX_SPACE_VALUES = 1 << 22
 """More values than any space of ours holds (the largest observation, 2 x 512 x 512, holds 524,288)."""
 
@@ -206,7 +215,7 @@ def _space_state_problem(state: Any) -> str:
     if not isinstance(state, dict):
         return "state is not a table"
     shape, dtype = state.get("_shape"), state.get("dtype")
-    if shape is not None and not (isinstance(shape, tuple) and all(type(d) is int and d >= 0 for d in shape)):
+    if shape is not None and not _whole_sizes(shape):
         return f"shape {str(shape)[:40]} is not whole sizes"
     if shape is not None and math.prod(shape) > MAX_SPACE_VALUES:
         return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
@@ -411,16 +420,14 @@ def _shared_problem(obj: Any, file_bytes: int) -> str | None:
     """What makes `obj` far larger than its file, or None: a pickle may name one array or table many times (its
     memo), so 18 MB on disk read as 200,000 arrays of 16 MB, and every later check walked each of them. Ours
     share nothing: the arrays, counted each time they are named, hold about the file's bytes."""
-    stack, nodes, array_bytes = [obj], 0, 0
+    stack, nodes, array_bytes = [obj], 1, 0
     while stack:
         item = stack.pop()
-        nodes += 1
-        if nodes > MAX_PICKLE_NODES:
-            return f"it holds over {MAX_PICKLE_NODES:,} values"
-        if isinstance(item, dict):
-            stack.extend(item.values())
-        elif isinstance(item, list | tuple):
-            stack.extend(item)
+        if isinstance(item, dict | list | tuple):  # counted as they are pushed: a list of itself 1,000 times
+            nodes += len(item)  # held a billion pointers by the time a million had been popped
+            if nodes > MAX_PICKLE_NODES:
+                return f"it holds over {MAX_PICKLE_NODES:,} values"
+            stack.extend(item.values() if isinstance(item, dict) else item)
         elif isinstance(item, np.ndarray):
             array_bytes += item.nbytes
             if array_bytes > 2 * file_bytes + (1 << 20):

@@ -277,9 +277,11 @@ def test_a_space_built_twice_is_refused(genuine, tmp_path, again, message):
         ({frozenset({2**61 + 6})}, "it keys a table by int"),
         (rebuilt(gym.spaces.Box, {"shape": (2**40,), "dtype": np.dtype("f4")}), "its Box state holds 'shape'"),
         (Reduce(collections.OrderedDict, [(2**61 + 6, None)]), "it fills an OrderedDict with arguments of its own"),
+        (Reduce(_numpy_helper("_frombuffer"), b"", np.dtype("f4"), (2**1000,) * 8 + (0,), "C"), "not whole sizes"),
+        (rebuilt(gym.spaces.Box, {"_shape": (1,) * 33 + (0,), "dtype": np.dtype("f4")}), "is not whole sizes"),
     ],
     ids=["a generator of the file's own seed", "a huge number", "keys that hash alike", "set members", "old keys",
-         "an OrderedDict's own pairs"],
+         "an OrderedDict's own pairs", "a shape of huge sizes", "a shape of many sizes"],
 )  # fmt: skip
 def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, item, message):
     """A class passed on to `__generator_ctor` was called with the file's own seed (128 KB of it took 5 s, and the
@@ -288,6 +290,22 @@ def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, ite
     path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
     with pytest.raises(CheckpointError, match=re.escape(message)):
         safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+
+
+def test_a_list_of_itself_is_counted_as_it_is_walked(genuine, tmp_path):
+    """A 2 KB list holding itself 1,000 times took 7.9 GB to walk: its entries were counted when popped, not pushed."""
+    import tracemalloc
+
+    data = b"\x80\x04]q\x00(h\x00" + b"h\x00" * 100 + b"e."  # 800 MB of pointers before the fix
+    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
+    tracemalloc.start()
+    try:
+        with pytest.raises(CheckpointError, match="it holds over 1,000,000 values"):
+            safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 50 << 20, f"{peak:,} bytes"
 
 
 def test_memo_numbers_that_hash_alike_are_refused_before_loading(genuine, tmp_path):
