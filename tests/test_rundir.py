@@ -101,8 +101,12 @@ def test_a_write_killed_midway_leaves_the_old_file_or_the_new_one(tmp_path):
     size = 4 << 20
     code = (f"from pathlib import Path\nfrom smorphi_rl.rundir import write_text_atomic\np = Path({str(target)!r})\n"
             f"i = 0\nwhile True:\n    write_text_atomic(p, 'ab'[i % 2] * {size})\n    i += 1\n")  # fmt: skip
-    for delay in (0.3, 0.45, 0.6, 0.75, 0.9):
+    for delay in (0.0, 0.01, 0.02, 0.04, 0.08):  # a 4 MB version takes some 10-50 ms to write
+        before = target.stat().st_mtime_ns if target.exists() else None
         proc = subprocess.Popen([sys.executable, "-c", code])
+        deadline = time.monotonic() + 60  # the writer's first version: however long its start takes on a busy machine
+        while time.monotonic() < deadline and (not target.exists() or target.stat().st_mtime_ns == before):
+            time.sleep(0.005)
         time.sleep(delay)
         proc.send_signal(signal.SIGKILL)
         proc.wait(timeout=10)

@@ -178,7 +178,7 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
     else:
         proc.send_signal(getattr(signal, signame))
     _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 130 and time.monotonic() - t0 < 5, err
+    assert proc.returncode == 130 and time.monotonic() - t0 < 15, err  # a hang, not a speed: the cores may be busy
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "smorphi-rl: interrupted"
     time.sleep(0.5)
     assert not [w for w in workers if _running(w)]

@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 
@@ -32,8 +33,11 @@ def fresh_home(home: Path) -> list[Path]:
     return sorted(home.rglob("*"))
 
 
-def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, pattern: str) -> tuple[int, str, str]:
-    """Start the command; SIGINT once `checkpoints.glob(pattern)` finds a checkpoint; (exit code, stdout, stderr)."""
+def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, pattern: str,
+                            ready: Callable[[], bool] = lambda: True) -> tuple[int, str, str]:  # fmt: skip
+    """Start the command; SIGINT once `checkpoints.glob(pattern)` finds a checkpoint and `ready()` holds (what the
+    test reads afterwards is written: polled, not a fixed wait, as a machine under load writes it later);
+    (exit code, stdout, stderr)."""
     proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], cwd=cwd, env=ray_env(),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     deadline = time.monotonic() + 240
@@ -42,6 +46,8 @@ def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, patte
     if not list(checkpoints.glob(pattern)):
         proc.kill()
         raise AssertionError(f"no checkpoint matching {pattern} under {checkpoints} within 240 s")
+    while time.monotonic() < deadline and not ready():
+        time.sleep(0.2)
     time.sleep(1.0)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=180)

@@ -77,7 +77,12 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     config = tmp_path / "tiny.yaml"
     config.write_text(SWEEP)
     exp = tmp_path / "logs" / "tiny"
-    code, out, err = ctrl_c_after_checkpoint(["sweep", str(config)], tmp_path, exp, "*_00000/checkpoint_000000")
+
+    def first_row() -> bool:  # Tune writes a trial's row after it has moved the checkpoint in
+        return any(results(trial) for trial in exp.glob("*_00000") if (trial / "result.json").is_file())
+
+    code, out, err = ctrl_c_after_checkpoint(["sweep", str(config)], tmp_path, exp, "*_00000/checkpoint_000000",
+                                             ready=first_row)  # fmt: skip
     assert code == 130, err[-3000:]
     assert "Traceback" not in err and f"sweep {config} --resume" in err
     assert "interrupted after" in out

@@ -202,6 +202,15 @@ def _ray_daemon_of(pid: int) -> bool:
     return False
 
 
+def own_cache() -> dict[str, str]:
+    """The environment a run sees that caches optima under its own --log-dir, not in the suite's shared folder."""
+    from cli_runs import ray_env
+
+    from smorphi_rl.protocol import CACHE_ENV
+
+    return {k: v for k, v in ray_env().items() if k != CACHE_ENV}
+
+
 @pytest.fixture(scope="module")
 def cached_optimum(tmp_path_factory):
     """A log folder whose cache already holds map-1's optimum, so `train` starts Ray right after saying so."""
@@ -209,7 +218,7 @@ def cached_optimum(tmp_path_factory):
     from smorphi_rl.maps import load_map
     from smorphi_rl.protocol import exact_optimum
 
-    logs = tmp_path_factory.mktemp("cached") / "logs"
+    logs = tmp_path_factory.mktemp("cached") / "logs"  # the runs read its cache: `own_cache` drops the suite's
     env = EnvConfig.from_dict({"maps": [MAP_1]})
     exact_optimum(MAP_1, env.weights_on(load_map(MAP_1)), env.planning, logs / ".cache")
     return logs
@@ -225,8 +234,6 @@ def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
     import sys
     import time
 
-    from cli_runs import ray_env
-
     logs, name = cached_optimum, f"cut-{signame}"
     argv = ["train", "--timesteps", "4000", "--eval-every", "0", "--select-starts", "0", "--record-every", "0",
             "--env-runners", "0", "--envs-per-runner", "4", "--name", name, "--log-dir", str(logs)]  # fmt: skip
@@ -234,7 +241,7 @@ def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
     def as_a_background_job() -> None:  # a script's `smorphi-rl train &`: its shell ignores SIGINT for it
         signal.signal(signal.SIGINT, signal.SIG_IGN)
 
-    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=ray_env(), stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, preexec_fn=as_a_background_job)  # fmt: skip
     assert proc.stderr is not None
     first = proc.stderr.readline()  # the optimum line, from the cache: Ray starts next and takes seconds
@@ -257,12 +264,10 @@ def test_a_run_stopped_before_its_first_report_leaves_no_folder(cached_optimum):
     import sys
     import time
 
-    from cli_runs import ray_env
-
     logs, name = cached_optimum, "cut-before-report"
     argv = ["train", "--timesteps", "20000", "--eval-every", "0", "--select-starts", "0", "--record-every", "0",
             "--env-runners", "0", "--envs-per-runner", "4", "--name", name, "--log-dir", str(logs)]  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=ray_env(), stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)  # fmt: skip
     deadline = time.monotonic() + 180
     while not list((logs / name).glob("ppo-*")) and time.monotonic() < deadline:
