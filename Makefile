@@ -23,7 +23,7 @@ run: setup  ## the main job: PPO on the shipped default map, on a local Ray star
 	$(BIN)/smorphi-rl train --map $(MAP)
 
 # 2 workers, each test file whole on one (its module fixtures built once, the README's examples in order): much of a
-# Ray test is waiting, so the suite took 8.4 min against 12.8 on 2 cores (docs/decisions.md).
+# Ray test is waiting, so a fresh clone's suite took 8.6 min against 11.2 on 2 cores (docs/decisions.md).
 test: setup  ## lint, format check, type check and the whole suite
 	$(BIN)/ruff check smorphi_rl tests scripts
 	$(BIN)/ruff format --check smorphi_rl tests scripts
