@@ -21,15 +21,16 @@ def local_ray_cluster(num_cpus: int) -> Iterator[str]:
     import tempfile
     import time
 
-    with socket.socket() as s:
+    with socket.socket() as s, socket.socket() as c:  # the client server's too: Ray's fixed 10001 is one per machine
         s.bind(("127.0.0.1", 0))
-        port = int(s.getsockname()[1])
+        c.bind(("127.0.0.1", 0))
+        port, client_port = int(s.getsockname()[1]), int(c.getsockname()[1])
     ray = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
     temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
     # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
     start = [ray, "start", "--head", f"--num-cpus={num_cpus}", f"--port={port}", "--include-dashboard=false",
-             "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
+             f"--ray-client-server-port={client_port}", "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
     try:
         yield f"127.0.0.1:{port}"
