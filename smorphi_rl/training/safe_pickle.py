@@ -82,10 +82,15 @@ def _empty_ordered_dict(*args: Any, **kwargs: Any) -> Any:
     return collections.OrderedDict()
 
 
+def _numbers(dtype: Any) -> bool:
+    """Whether `dtype` is a plain number's or boolean's (no objects, records or sub-arrays)."""
+    return isinstance(dtype, np.dtype) and dtype.kind in "biuf" and dtype.fields is None and not dtype.subdtype
+
+
 def _dtype_problem(dtype: Any) -> str:
     """Why `dtype` is not one an array of ours holds (a plain number or boolean), or ''. An object dtype's array
     holds pointers: one built from a file's bytes is memory the file chose."""
-    if not isinstance(dtype, np.dtype) or dtype.kind not in "biuf" or dtype.fields is not None or dtype.subdtype:
+    if not _numbers(dtype):
         return f"it holds an array of dtype {str(dtype)[:40]}, not of numbers, which a smorphi-rl checkpoint never does"
     return ""
 
@@ -219,15 +224,14 @@ def _space_state_problem(state: Any) -> str:
         return f"shape {str(shape)[:40]} is not whole sizes"
     if shape is not None and math.prod(shape) > MAX_SPACE_VALUES:
         return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
-    if dtype is not None and not (isinstance(dtype, np.dtype) and dtype.kind in "biuf"):
+    if dtype is not None and not _numbers(dtype):
         return f"dtype {str(dtype)[:40]} is not numeric"
     unknown = sorted(str(k)[:40] for k in set(state) - SPACE_STATE_KEYS)
     if unknown:  # gymnasium copies every key, renaming old ones (`shape`) after this check
         return f"state holds {unknown[0]!r}, which gymnasium's spaces do not"
     for key in ("low", "high", "bounded_below", "bounded_above", "nvec", "start"):  # gymnasium reads each whole
         value = state.get(key)
-        if value is not None and not (isinstance(value, np.ndarray) and value.shape == shape and value.dtype.kind
-                                      in "biuf"):  # fmt: skip
+        if value is not None and not (isinstance(value, np.ndarray) and value.shape == shape and _numbers(value.dtype)):
             return f"{key} is not an array of numbers of its shape {shape}"
     return ""
 
