@@ -41,6 +41,19 @@ def policy(tmp_path_factory) -> Path:
     return export(tmp_path_factory.mktemp("designer"), CONFIG)
 
 
+def meta_of(policy: Path) -> dict:
+    """`policy`'s policy.json, as a table to edit."""
+    return json.loads((policy / "policy.json").read_text())
+
+
+def policy_with(policy: Path, folder: Path, meta: dict) -> Path:
+    """A copy of `policy` in `folder` (made if missing) with `meta` for its policy.json: an edited designer."""
+    folder.mkdir(exist_ok=True)
+    (folder / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
+    (folder / "policy.json").write_text(json.dumps(meta))
+    return folder
+
+
 def run(capsys, *argv: str) -> tuple[int, str, str]:
     try:
         code = main(list(argv))
@@ -130,13 +143,8 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
 
 def test_accepts_limits_the_wrong_way_round_are_named(policy, capsys, tmp_path):
     """It designed after saying it represents "0.17-0.034 m a cell"."""
-    odd = tmp_path / "odd"
-    odd.mkdir()
-    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
-    meta = json.loads((policy / "policy.json").read_text())
-    (odd / "policy.json").write_text(
-        json.dumps(meta | {"accepts": {"min_cells_per_block": 5, "max_cells_per_block": 1}})
-    )
+    odd = policy_with(policy, tmp_path / "odd",
+                      meta_of(policy) | {"accepts": {"min_cells_per_block": 5, "max_cells_per_block": 1}})  # fmt: skip
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd))
     assert code == 1 and err.count("\n") == 1 and "has min_cells_per_block 5 over max_cells_per_block 1" in err
 
@@ -154,12 +162,9 @@ def test_a_policy_of_the_picture_layout_is_no_designer(tmp_path, capsys):
 
 
 def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_problem(policy, capsys, tmp_path):
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
-    meta = json.loads((policy / "policy.json").read_text())
+    meta = meta_of(policy)
     meta["model_config"]["env_config"]["angle_step_deg"] = 0  # its moves, in lattice steps, are fine at 1 degree
-    (bad / "policy.json").write_text(json.dumps(meta))
+    bad = policy_with(policy, tmp_path / "bad", meta)
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
     assert code == 1 and err.count("\n") == 1
     assert f"{bad}: the policy's env_config 'angle_step_deg' must divide 180 and be at least 0.1, got 0" in err
@@ -189,24 +194,18 @@ def test_a_policy_whose_env_configuration_is_broken_is_named_with_the_right_prob
 def test_a_policy_whose_maps_would_be_searched_for_is_refused(policy, capsys, tmp_path, maps, message):
     """A policy's maps were expanded again each time it loaded, even with --map: twenty globs over /usr took
     seconds, and a 1 MB policy.json holds 40,000 of them."""
-    bad = tmp_path / "bad"
-    bad.mkdir()
-    (bad / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
-    meta = json.loads((policy / "policy.json").read_text())
+    meta = meta_of(policy)
     meta["model_config"]["env_config"]["maps"] = maps
-    (bad / "policy.json").write_text(json.dumps(meta))
+    bad = policy_with(policy, tmp_path / "bad", meta)
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(bad))
     assert code == 1 and err.count("\n") == 1 and message in err, err
 
 
 def test_a_policys_text_is_shown_escaped_never_sent_to_the_terminal(policy, capsys, tmp_path):
     """A map name in policy.json holding an escape sequence (a terminal's title) was printed as it was."""
-    odd = tmp_path / "odd"
-    odd.mkdir()
-    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
-    meta = json.loads((policy / "policy.json").read_text())
+    meta = meta_of(policy)
     meta["model_config"]["env_config"]["maps"] = ["/tmp/\x1b]0;TITLE\x07x.yaml"]
-    (odd / "policy.json").write_text(json.dumps(meta))
+    odd = policy_with(policy, tmp_path / "odd", meta)
     code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd), "--budget", "20")
     assert code == 0 and "\x1b" not in out and "\\x1b]0;TITLE\\x07x.yaml" in out, out
 
@@ -215,12 +214,7 @@ def test_a_policys_text_is_shown_escaped_never_sent_to_the_terminal(policy, caps
 def test_a_policy_whose_shipping_record_is_not_a_table_still_designs(policy, capsys, tmp_path, trained):
     """`trained` is what a shipping recorded, read for the report's line: a string there stopped `design` in a
     traceback after the design was made."""
-    odd = tmp_path / "odd"
-    odd.mkdir()
-    (odd / "weights.npz").write_bytes((policy / "weights.npz").read_bytes())
-    (odd / "policy.json").write_text(
-        json.dumps(json.loads((policy / "policy.json").read_text()) | {"trained": trained})
-    )
+    odd = policy_with(policy, tmp_path / "odd", meta_of(policy) | {"trained": trained})
     code, out, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(odd), "--budget", "5")
     assert code == 0 and "odd (PPO on " in out and not err
 

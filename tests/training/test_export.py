@@ -234,7 +234,7 @@ def test_flattened_weights_are_refused_in_one_line_by_design(exported, tmp_path,
 
 def test_layers_wider_than_the_nets_are_refused_in_one_line_by_design(exported, tmp_path, capsys):
     """A first convolution of 50,000 channels (and a second that takes them) chained, in a 400 KB file: `design`
-    took 1.1 GB to run it, and more with a larger picture."""
+    took 1.1 GB to run it, and more with a larger picture (5,000 here)."""
     from smorphi_rl.cli import main
 
     _, _, out = exported
