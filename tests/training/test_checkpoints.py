@@ -89,6 +89,13 @@ def plant(genuine: Path, where: Path, file: str, data: bytes) -> Path:
     return checkpoint
 
 
+def read_planted(genuine: Path, where: Path, data: bytes) -> object:
+    """`data` planted as a checkpoint's `class_and_ctor_args.pkl`, read back as every loader reads it."""
+    return safe_unpickle(
+        plant(genuine, where, "class_and_ctor_args.pkl", data) / MODULE_SUBDIR / "class_and_ctor_args.pkl"
+    )
+
+
 def spy_on_hub(monkeypatch) -> None:
     """torch.hub.load creates the marker if it is ever called (so the test needs no network to see it run)."""
     monkeypatch.setattr(torch.hub, "load", lambda repo, *a, **k: Path(repo).write_text("ran"))
@@ -153,9 +160,8 @@ def test_every_loader_refuses_every_payload_and_nothing_runs(genuine, tmp_path, 
 def test_an_allowed_class_called_with_arguments_of_the_files_own_is_refused(genuine, tmp_path, call):
     """The allowed classes are rebuilt only as pickle writes them (an empty instance, then its state): a file that
     calls one itself is refused before the call allocates anything."""
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": call}))
     with pytest.raises(CheckpointError, match="refused, it constructs"):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, pickle.dumps({"class": call}))
 
 
 def rebuilt(cls: type, state: dict) -> object:
@@ -178,9 +184,8 @@ def rebuilt(cls: type, state: dict) -> object:
 def test_what_numpy_and_gymnasium_would_allocate_for_a_file_is_refused_first(genuine, tmp_path, item, message):
     """A 92-byte file called ndarray with its own shape; a space's state without `start` has gymnasium's
     `__setstate__` allocate its shape; each is refused before memory is taken."""
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}))
     with pytest.raises(CheckpointError, match=message):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, pickle.dumps({"class": item}))
 
 
 class Built:
@@ -224,9 +229,8 @@ def test_what_numpy_would_read_past_its_data_is_refused(genuine, tmp_path, item,
     """numpy's `__setstate__` trusts the state pickle hands it: an object dtype over the file's bytes, or over a
     shorter list, read memory the file chose (a crash, or worse); many spaces sharing one large bound took most of
     an hour to load."""
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
     with pytest.raises(CheckpointError, match=re.escape(message)):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, pickle.dumps({"class": item}, protocol=4))
 
 
 @pytest.mark.parametrize("metadata", ["rllib_checkpoint.json", f"{MODULE_SUBDIR.as_posix()}/metadata.json"])
@@ -263,9 +267,8 @@ def test_a_space_built_twice_is_refused(genuine, tmp_path, again, message):
     a space set 20,000 times with a 20,000-key state took 15 s."""
     box = pickle.dumps(gym.spaces.Box(0, 1, (3,), np.float32), protocol=3)[:-1]  # without its STOP
     data = box + pickle.dumps(again, protocol=3)[2:-1] + pickle.BUILD + pickle.STOP
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
     with pytest.raises(CheckpointError, match=re.escape(message)):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, data)
 
 
 @pytest.mark.parametrize(
@@ -287,9 +290,8 @@ def test_what_would_take_numpy_or_python_hours_is_refused(genuine, tmp_path, ite
     """A class passed on to `__generator_ctor` was called with the file's own seed (128 KB of it took 5 s, and the
     time grows with its square); 40,000 keys that hash alike took 8 s to add; gymnasium renames `shape` after the
     check has read `_shape`."""
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", pickle.dumps({"class": item}, protocol=4))
     with pytest.raises(CheckpointError, match=re.escape(message)):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, pickle.dumps({"class": item}, protocol=4))
 
 
 def test_a_list_of_itself_is_counted_as_it_is_walked(genuine, tmp_path):
@@ -311,9 +313,8 @@ def test_a_list_of_itself_is_counted_as_it_is_walked(genuine, tmp_path):
 def test_memo_numbers_that_hash_alike_are_refused_before_loading(genuine, tmp_path):
     """Text PUT opcodes may file values under any number: 16,000 that hash alike took 2.8 s to file."""
     data = b"\x80\x02N" + b"".join(b"p%d\n" % (7 + i * (2**61 - 1)) for i in range(1, 4)) + b"."
-    path = plant(genuine, tmp_path, "class_and_ctor_args.pkl", data)
     with pytest.raises(CheckpointError, match="it files a value under a number no pickle of ours reaches"):
-        safe_unpickle(path / MODULE_SUBDIR / "class_and_ctor_args.pkl")
+        read_planted(genuine, tmp_path, data)
 
 
 def test_a_linked_module_folder_is_refused(genuine, tmp_path):
