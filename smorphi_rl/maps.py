@@ -46,7 +46,7 @@ class MapMode(enum.Enum):
 
 
 # What `map_saver` writes for each state, and the thresholds we write beside it. free_thresh
-# 0.196 keeps 205 (p = 0.19608) unknown under both nav2 (<=) and ROS 1 (<) semantics.
+# 0.196 keeps 205 (p = 0.19608) unknown: it is not under the threshold.
 SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
@@ -267,16 +267,16 @@ def cells_from_image(
     occupied_thresh: float,
     free_thresh: float,
 ) -> np.ndarray:
-    """nav2 semantics: p = (max - v) / max (v / max if negate); p >= occupied is occupied,
-    p <= free is free. Scale-mode values in between are known but not free: occupied here.
-    A cell is free only where nav2's OccupancyGrid would hold 0."""
+    """nav2's map_io (and ROS 1's map_server): p = (max - v) / max (v / max if negate); p > occupied is
+    occupied, p < free is free, both strictly. Scale-mode values in between are known but not free: occupied
+    here. A cell is free only where nav2's OccupancyGrid would hold 0."""
     cells = np.full(gray.shape, Cell.UNKNOWN, dtype=np.uint8)
     if mode is MapMode.RAW:
         cells[gray == 0] = Cell.FREE
         cells[(gray > 0) & (gray <= 100)] = Cell.OCCUPIED
     else:
         p = gray / max_value if negate else (max_value - gray) / max_value
-        occupied, free = p >= occupied_thresh, p <= free_thresh
+        occupied, free = p > occupied_thresh, p < free_thresh
         if mode is MapMode.SCALE:
             cells[:] = Cell.OCCUPIED
         cells[occupied] = Cell.OCCUPIED

@@ -35,15 +35,16 @@ def test_first_image_row_is_highest_y(tmp_path):
     assert m.cell_of(1.0 + 0.01, -2.0 + 2 * 0.05 + 0.01) == (2, 0)
 
 
-def test_trinary_thresholds_are_inclusive_like_nav2(tmp_path):
-    # p = (255 - v) / 255: v=89 -> p=0.65098 (>= 0.65 occupied); v=90 -> 0.647 (unknown);
-    # v=192 -> p=0.24706 (<= 0.25 free); v=191 -> 0.25098 (unknown)
+def test_trinary_thresholds_are_strict_like_nav2(tmp_path):
+    # p = (255 - v) / 255: v=89 -> p=0.65098 (> 0.65 occupied); v=90 -> 0.647 (unknown);
+    # v=192 -> p=0.24706 (< 0.25 free); v=191 -> 0.25098 (unknown)
     pixels = np.array([[89, 90, 191, 192, 0, 255]])
     m = load_map(write_map(tmp_path, pixels, occupied_thresh=0.65, free_thresh=0.25))
     assert m.cells[0].tolist() == [Cell.OCCUPIED, Cell.UNKNOWN, Cell.UNKNOWN, Cell.FREE, Cell.OCCUPIED, Cell.FREE]
-    # exactly at the threshold: p = 51/255 = 0.2 with free_thresh 0.2 is free
-    m = load_map(write_map(tmp_path, np.array([[204, 0]]), name="edge", free_thresh=0.2))
-    assert m.cells[0, 0] == Cell.FREE
+    # exactly at a threshold is neither (nav2's map_io compares strictly): p = 51/255 = 0.2 with free_thresh 0.2,
+    # p = 153/255 = 0.6 with occupied_thresh 0.6
+    m = load_map(write_map(tmp_path, np.array([[204, 102, 0, 255]]), name="edge", free_thresh=0.2, occupied_thresh=0.6))
+    assert m.cells[0].tolist() == [Cell.UNKNOWN, Cell.UNKNOWN, Cell.OCCUPIED, Cell.FREE]
 
 
 def test_negate_flips_the_probability(tmp_path):
