@@ -18,7 +18,7 @@ METHODS = {
     "random": "uniformly random integer shapes (paper Table 4)",
     "nsga2": "NSGA-II over integer angles (paper Table 6, Figure 7)",
     "exhaustive": "every triple on the lattice: the exact front and best R1",
-    "optimum": "the exact best R1 on the lattice alone, by branch and bound: far fewer plans on large floors",
+    "optimum": "the exact best R1 on the lattice alone; under --planner fit, by branch and bound (fewer plans)",
     "hillclimb": "steepest ascent over the 26 one-step moves from the protocol's fixed starts",
     "anneal": "simulated annealing over the same moves from the same starts",
 }
@@ -80,7 +80,7 @@ class SearchConfig:
     step: float = 1.0
     """exhaustive, optimum: lattice step in degrees; must divide 180."""
     address: str | None = None
-    """exhaustive, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: this machine's cores."""
+    """exhaustive, optimum, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: this machine's cores."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
