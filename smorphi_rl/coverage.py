@@ -1,7 +1,7 @@
 """FBCPP (docs/spec/fbcpp.md sections 4-7, and the footprint-safe planner of docs/fbcpp-fit.md) on the compiled
 fast path: value types and one full plan.
 
-`plan_coverage` returns the path and covered mask for plots and replays; `evaluate.Evaluator`
+`plan_coverage` returns the path and covered mask for plots and replays; `planning.Evaluator`
 is the cached, batched entry point for everything that only needs the metrics.
 """
 

@@ -325,7 +325,7 @@ def largest_free_area_pct(grid_map: Map) -> float:
 
 def quick_result(grid_map: Map, morphology: Morphology, block_side_m: float, planner: Planner) -> CoverageResult | None:
     """One shape from the default start, planned by this module's planners and reported exactly as
-    `evaluate.Evaluator.evaluate` reports it (the tests hold the two equal), or None on a map too big for
+    `planning.Evaluator.evaluate` reports it (the tests hold the two equal), or None on a map too big for
     that to be quick. `smorphi-rl evaluate` of one shape uses it to answer without numba."""
     if grid_map.cells.size > QUICK_MAX_CELLS[planner]:
         return None

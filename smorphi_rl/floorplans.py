@@ -12,8 +12,8 @@ Every floor has an outer wall, a margin of unknown space outside it as a SLAM ma
 inside the laser never saw (unknown) on about half the pieces, and one connected free area. Sizes are
 3-15 m a side and resolutions 0.05-0.1 m a cell, coarsened where a floor would exceed MAX_CELLS.
 
-Seeds: training draws floors from [0, HELD_OUT_SEED); held-out floors use seeds from HELD_OUT_SEED up,
-so the two never share a floor.
+Seeds: training draws floors from [0, 900,000), validation from [900,000, HELD_OUT_SEED) and held-out floors
+from HELD_OUT_SEED up (`map_sources`), so no two share a floor.
 """
 
 from __future__ import annotations

@@ -2,7 +2,7 @@
 
 An entry of `env_config['maps']` is one of:
 - a map_server YAML file;
-- a folder: every `*.yaml` in it, sorted;
+- a folder: every `*.yaml` and `*.yml` in it, sorted;
 - a glob (`floors/rooms-*.yaml`): every YAML it matches, sorted;
 - `generate:KIND` or `generate:KIND:LO-HI`: a fresh floor of `floorplans.generate_floor(KIND, seed)` each episode,
   the seed drawn from [LO, HI) by the env's seeded generator (default: the training seeds, TRAINING_SEEDS).

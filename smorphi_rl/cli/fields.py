@@ -50,6 +50,7 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
     if kwargs.get("type") is float:  # no NaN or infinity reaches a configuration
         kwargs["type"] = finite
     doc = field_docs(cls).get(name, "").replace("%", "%%")  # argparse formats help with %
+    doc = doc.replace("; None: ", "; not given: ")  # a field's unset value, which no flag spells
     said = default_text if default_text is not None else shown(default)
     kwargs["help"] = f"{doc} (default: {said})".strip() if doc else f"default: {said}"
     kwargs["default"] = UNSET if unset else default

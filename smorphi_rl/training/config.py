@@ -88,7 +88,7 @@ class TrainConfig:
     eval_every: int = EVAL_EVERY
     """Evaluate the greedy policy from the protocol's fixed starts every this many iterations (0: never)."""
     eval_starts: int = EVAL_STARTS
-    """Fixed seeded start shapes per training map in each evaluation."""
+    """Fixed seeded start shapes per evaluated map (`eval_maps`, else the training maps) in each evaluation."""
     select_starts: int = EVAL_STARTS
     """End on the run's best evaluated policy, chosen on this many other seeded starts per map (0: the last)."""
     record_every: int = DEFAULT_RECORD_EVERY
