@@ -26,6 +26,7 @@ from smorphi_rl.protocol import (
     NO_OPTIMUM,
     OPTIMUM_MAX_CELLS,
     SELECT_SEED,
+    TRAINED_KEY,
     Optimum,
     cached_optimum,
     eval_starts,
@@ -164,7 +165,7 @@ class _Progress:
         best = self.top.top(1)
         best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
         mean_txt = f"episode mean R1 {self._last_mean:.2f}" if math.isfinite(self._last_mean) else ""
-        ev = self.last_eval
+        ev = self.last_eval.get(TRAINED_KEY) or self.last_eval  # the policy of `steps`, not the one a run keeps
         settled_txt = (f"greedy: gap {ev['median_gap']:.2f}, {ev['share_within_1pct'] * 100:.0f} % within 1 %"
                        if ev and math.isfinite(ev.get("share_within_1pct", math.nan)) else "")  # fmt: skip
         line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {fmt_duration(now - self.t0)}  "
