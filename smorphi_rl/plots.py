@@ -308,7 +308,7 @@ def _save(fig: plt.Figure, out: str | Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     try:
         with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a PNG
-            fig.savefig(tmp, dpi=120, format="png")
+            fig.savefig(tmp, dpi=120, format="png", bbox_inches="tight")  # equal-aspect panels: labels kept whole
     finally:
         plt.close(fig)
     return path
