@@ -296,6 +296,8 @@ def load_map(yaml_path: str | Path) -> Map:
     from smorphi_rl.inputs import MAX_YAML_BYTES, check_image_size, check_not_special, strict_yaml
 
     check_not_special(path, "map YAML", MapError)
+    if path.is_dir():
+        raise MapError(f"{path} is a folder: give one map YAML (train and sweep also take a folder of them)")
     try:
         if path.stat().st_size > MAX_YAML_BYTES:
             raise MapError(f"{path}: {path.stat().st_size:,} bytes; a map YAML is at most {MAX_YAML_BYTES:,}")

@@ -173,6 +173,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (tmp_path / name).write_text(text)
     Image.fromarray(np.full((5, 5), 254, np.uint8)).save(tmp_path / "m.pgm")
     Image.fromarray(np.zeros((5, 5), np.uint8)).save(tmp_path / "black.pgm")
+    (tmp_path / "folder").mkdir()
     return {name: tmp_path / name for name in files}
 
 
@@ -180,6 +181,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
     ("args", "message"),
     [
         (["--map", "{missing.yaml}", "--angles", "1", "2", "3"], "map file not found"),
+        (["--map", "{folder}", "--angles", "1", "2", "3"], "folder is a folder: give one map YAML (train and sweep"),
         (["--map", "{malformed.yaml}", "--angles", "1", "2", "3"], "malformed YAML"),
         (["--map", "{nores.yaml}", "--angles", "1", "2", "3"], "missing key 'resolution'"),
         (["--map", "{zero.yaml}", "--angles", "1", "2", "3"], "'resolution' must be 0.001-10 m a cell"),
