@@ -218,6 +218,22 @@ def test_bad_input_one_line_nonzero(capsys, tmp_path, args, message):
     assert err.count("\n") == 1 and err.startswith("smorphi-rl") and message in err
 
 
+@pytest.mark.parametrize(
+    ("argv", "named"),
+    [
+        ([], "{evaluate,maps,"),
+        (["maps"], "{generate,show,crop,resample}"),
+        (["search"], "{random,nsga2,exhaustive,optimum,hillclimb,anneal}"),
+    ],
+)
+def test_a_missing_subcommand_is_named_by_its_choices(capsys, argv, named):
+    """Not by argparse's dest (`maps_command`), a name no user can type."""
+    with pytest.raises(SystemExit) as exc:
+        main(argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and f"the following arguments are required: {named}" in err and "_command" not in err
+
+
 def test_usage_errors_are_one_line(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--angles", "1", "2"])

@@ -10,7 +10,7 @@ from collections.abc import Sequence
 
 from smorphi_rl import interrupts
 from smorphi_rl.cli import design, evaluate, maps, policy, search, train
-from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map, one_line
+from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map, name_choices, one_line
 from smorphi_rl.errors import Interrupted, SmorphiError
 
 __all__ = ["build_parser", "main"]
@@ -35,6 +35,7 @@ def build_parser(command: str | None = None) -> Parser:
     for group, commands in GROUPS.items():
         if command is None or command in commands:
             group.register(sub)
+    name_choices(sub)
     return parser
 
 

@@ -51,6 +51,11 @@ class Parser(argparse.ArgumentParser):
         return parsed, rest
 
 
+def name_choices(sub: Any) -> None:
+    """Have a missing subcommand named by its choices, as `--help` lists them, not by its internal dest."""
+    sub.metavar = "{" + ",".join(sub.choices) + "}"
+
+
 EMPTY_ALLOWED = ("command",)
 """Options whose empty value means something (export-policy's --command, by its default: none given)."""
 
