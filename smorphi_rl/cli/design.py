@@ -103,7 +103,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']})"),
-        ("cost", f"{result.evaluations} planner evaluations of {args.budget} ({result.planner_calls} footprints "
+        ("cost", f"{result.evaluations:,} planner evaluations of {args.budget:,} ({result.planner_calls:,} footprints "
                  f"planned): {result.rollouts} roll-out{'s' * (result.rollouts != 1)} of the policy, {result.refined} "
                  "shapes of compass search"),
     ]  # fmt: skip

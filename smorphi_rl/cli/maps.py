@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -146,7 +147,7 @@ def _generate_floors(args: argparse.Namespace) -> int:
             save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
             cells += grid_map.cells.size
     print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
-          f"{cells / len(names):,.0f} cells on average)")  # fmt: skip
+          f"{cells / len(names):,.0f} cells a floor on average, free or not)")  # fmt: skip
     return 0
 
 
@@ -167,7 +168,7 @@ def cmd_maps_crop(args: argparse.Namespace) -> int:
         block = EnvConfig.block_side_m
         if source.resolution_m <= block:  # a crop no robot fits on is refused (a coarse map: resample's warning)
             try:
-                check_fits(cropped, block)
+                check_fits(replace(cropped, name=Path(args.out).stem), block)  # named as the map it would write
             except SmorphiError as exc:
                 raise MapError(f"maps crop: nothing written, the crop holds no robot of {block:g} m blocks ({exc})") \
                     from None  # fmt: skip
@@ -251,7 +252,7 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
         ("size", f"{grid_map.width} x {grid_map.height} cells, {grid_map.width * r:g} x {grid_map.height * r:g} m"),
         ("resolution", f"{r:g} m/cell"),
         ("origin", ", ".join(f"{v:g}" for v in grid_map.origin)),
-        *((c.name.lower(), f"{100 * grid_map.fraction(c):.2f} % ({grid_map.counts[c]} cells)") for c in Cell),
+        *((c.name.lower(), f"{100 * grid_map.fraction(c):.2f} % ({grid_map.counts[c]:,} cells)") for c in Cell),
         ("png", str(plot_map(grid_map, png))),
     ]
     print("\n".join(f"{k:<11} {v}" for k, v in rows))

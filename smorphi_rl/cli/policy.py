@@ -116,7 +116,7 @@ def _replay_listing(directory: Path) -> int:
     files = episode_files(directory)
     if not files:
         raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
-    print(f"{'episode':<44} {'map':<8} {'algo':<8} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
+    print(f"{'episode':<44} {'map':<8} {'algo':<16} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
     unreadable = 0
     for f in files:
         try:
@@ -129,7 +129,7 @@ def _replay_listing(directory: Path) -> int:
         assert b is not None
         flag = " (cut short)" if ep.truncated else ""
         name, algorithm = clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16)
-        print(one_line(f"{f.name:<44} {name:<8} {algorithm:<8} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
+        print(one_line(f"{f.name:<44} {name:<8} {algorithm:<16} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
                        f"{angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}"))  # fmt: skip
     print(f"{len(files)} recordings in {rel(directory)}")
     if unreadable == len(files):
@@ -246,7 +246,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     else:
         print(f"policy      {checkpoint}")
         for i, r in enumerate(rollouts):
-            print(one_line(f"episode {i + 1} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
+            print(one_line(f"episode {i} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
                            f"return {r.episode_return:.1f})"))  # fmt: skip
             print(f"  start     {scored_text(r.start)}")
             print(f"  settled   {scored_text(r.settled.info)}")

@@ -188,16 +188,16 @@ def cmd_transfer(args: argparse.Namespace) -> int:
         files = write_transfer_report(job_dir, runs)
         reused = sum(r.reused for r in runs)
         if reused:
-            print(f"{reused} of {len(runs)} runs finished earlier in this job and were read back (--resume)")
+            print(f"read back (--resume): {reused} of {len(runs)} runs, finished earlier in this job")
         print(files["md"].read_text().rstrip())
         missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
         if missing:
-            print(f"warning: {len(missing)} fine-tuned run(s) did not confirm the pretrained policy in every runner")
+            print(f"warning: fine-tuned runs that did not confirm the pretrained policy in all runners: {len(missing)}")
         print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
               f"curves: {rel(files['png'])}")  # fmt: skip
     if cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
         listed = " (transfer.csv lists the one cut short)" if cut else ""
-        held = f"the table holds the {len(runs) - cut} run(s) that finished{listed}" if runs else "no run finished"
+        held = f"the table holds the runs that finished ({len(runs) - cut}){listed}" if runs else "no run finished"
         print(f"{PROG}: interrupted: {held}; continue with the same command and --name "
               f"{shlex.quote(job_dir.name)} --resume", file=sys.stderr)  # fmt: skip
         return EXIT_INTERRUPTED

@@ -214,7 +214,7 @@ def run_transfer(
         elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
             raise TransferInterrupted(job_dir, reported()) from None
         elif isinstance(exc, SmorphiError) and reported():  # a run failed: the others are kept, and resumable
-            raise TrainingError(f"{exc}; the {len(reported())} run(s) that finished are kept under {job_dir}: "
+            raise TrainingError(f"{exc}; the runs that finished ({len(reported())}) are kept under {job_dir}: "
                                 f"continue with --name {job_dir.name} --resume") from None  # fmt: skip
         raise
     return job_dir, reported()
@@ -342,7 +342,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         "fine-tunes from the one pretrained checkpoint: the intervals are over the seeds of fine-tuning and of "
         "scratch, not over pretrainings. "
         + FEW_SEEDS_NOTE
-        + (f" {cut} run(s) cut short (transfer.csv) are left out." if cut else ""),
+        + (f" Runs cut short ({cut}; transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         f"| Ratio scratch / fine-tuned | Gap at {equal:,} env steps fine-tuned | scratch "

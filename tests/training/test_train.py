@@ -274,7 +274,7 @@ def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(t
 
     resumed = cli(*args, "--resume", cwd=tmp_path)
     assert resumed.returncode == 0, resumed.stderr[-3000:]
-    assert "1 of 2 runs finished earlier in this job and were read back" in resumed.stdout
+    assert "read back (--resume): 1 of 2 runs, finished earlier in this job" in resumed.stdout
     assert {p: p.read_bytes() for p in tuned.rglob("*") if p.is_file()} == tuned_files  # read, not retrained
     cut = job / "val-1-scratch-seed0.cut-1"
     assert json.loads((cut / "summary.json").read_text())["interrupted"] is True  # kept, never deleted

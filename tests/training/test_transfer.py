@@ -89,7 +89,7 @@ def test_a_job_stopped_before_a_maps_scratch_runs_still_writes_its_table(tmp_pat
     assert row.rstrip().endswith("| - / - |")
     assert "nan" not in files["csv"].read_text()  # the CSV leaves a cell empty, as the table says "-"
     assert by_map(runs)[0].ratio.n == 0  # no scratch run finished its budget: no ratio
-    assert by_map(runs)[0].scratch == [] and "1 run(s) cut short (transfer.csv) are left out" in files["md"].read_text()
+    assert by_map(runs)[0].scratch == [] and "Runs cut short (1; transfer.csv) are left out" in files["md"].read_text()
     assert files["csv"].read_text().splitlines()[-1].endswith(",True")
 
 
@@ -241,7 +241,7 @@ def test_a_stop_as_a_later_run_starts_keeps_the_finished_runs_table_and_the_resu
     assert calls == ["val-1-fine-tune-seed0", "val-1-scratch-seed0"]
     rows = (tmp_path / "logs" / "job" / "transfer.csv").read_text().splitlines()
     assert len(rows) == 2 and rows[1].startswith("val-1,0,fine-tune,")
-    assert "| val-1 |" in out and "the table holds the 1 run(s) that finished" in err
+    assert "| val-1 |" in out and "the table holds the runs that finished (1)" in err
     assert "--name job --resume" in err and "Traceback" not in err
 
 
@@ -279,7 +279,7 @@ def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path
     assert calls == ["val-1-fine-tune-seed0"]
     rows = (job / "transfer.csv").read_text().splitlines()[1:]
     assert [r.split(",")[:3] for r in rows] == [["val-1", "1", "fine-tune"], ["val-1", "1", "scratch"]]
-    assert "the table holds the 2 run(s) that finished" in capsys.readouterr().err
+    assert "the table holds the runs that finished (2)" in capsys.readouterr().err
 
 
 def test_runs_on_a_map_without_an_optimum_are_not_measured(tmp_path):
@@ -300,7 +300,7 @@ def test_a_run_that_fails_after_others_finished_names_the_resume(tmp_path, fake_
     stops[2] = "error"
     assert main([*argv, "--seeds", "0"]) == 1
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "trial failed: boom; the 1 run(s) that finished are kept" in err
+    assert err.count("\n") == 1 and "trial failed: boom; the runs that finished (1) are kept" in err
     assert "--name job --resume" in err and (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
 
 
