@@ -14,6 +14,7 @@ from ray.rllib.callbacks.callbacks import RLlibCallback
 from ray.rllib.core import DEFAULT_MODULE_ID
 from ray.rllib.utils.metrics import ENV_RUNNER_RESULTS, NUM_ENV_STEPS_SAMPLED_LIFETIME
 
+from smorphi_rl.policy_file import MAX_WEIGHT
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_FIGURES, TRAINED_KEY
 from smorphi_rl.training.heap import settle_heap
 from smorphi_rl.training.result_keys import METRIC_PREFIX
@@ -123,12 +124,16 @@ class MorphologyCallbacks(RLlibCallback):
         metrics_logger.log_value(EPISODE_BEST_KEY, best.to_row(), reduce="item_series")
 
     def on_train_result(self, *, algorithm: Any, result: dict[str, Any], **kwargs: Any) -> None:
+        steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
+        bad = _on_learner_itself(algorithm, lambda learner: diverged(learner.module[DEFAULT_MODULE_ID]))
+        if bad:  # the runners would sample from NaN and fail, restarted by RLlib for ever: end the run now
+            raise DivergedError(f"the policy diverged after {steps:,} env steps: weight {bad} holds values beyond "
+                                f"{MAX_WEIGHT:g} or not numbers (a learning rate or step size too large)")  # fmt: skip
         runners = result.get(ENV_RUNNER_RESULTS, {})
         bests = runners.pop(EPISODE_BEST_KEY, None)
         if not isinstance(bests, list | tuple):  # no episode ended this iteration (RLlib reports NaN)
             bests = []
         result[EPISODE_BEST_KEY] = encode_bests(bests)
-        steps = int(result.get(NUM_ENV_STEPS_SAMPLED_LIFETIME) or 0)
         self._evaluate(algorithm, result, bool(self.eval_final_steps and steps >= self.eval_final_steps))
 
     def end_run(self, *, algorithm: Any, result: dict[str, Any]) -> None:
@@ -286,6 +291,21 @@ def _on_snapshot(algorithm: Any, calls: list[Any]) -> tuple[list[Any], dict[str,
 def _on_live_learner(algorithm: Any, call: Any) -> Any:
     """`call(module)` on the learner's own module (to change it)."""
     return _on_learner_itself(algorithm, lambda learner: call(learner.module[DEFAULT_MODULE_ID]))
+
+
+class DivergedError(RuntimeError):
+    """A run's weights overflowed: nothing more can be learnt, sampling from them fails, no loader reads them."""
+
+
+def diverged(module: Any) -> str:
+    """The first of `module`'s parameters holding a NaN, an infinity or a value beyond MAX_WEIGHT (whose forward pass
+    overflows, and which no loader reads), or '' (a check of about a millisecond)."""
+    import torch
+
+    for name, p in module.named_parameters():
+        if not bool(torch.isfinite(p).all()) or (p.numel() and float(p.detach().abs().max()) > MAX_WEIGHT):
+            return name
+    return ""
 
 
 def _on_learner_itself(algorithm: Any, call: Any) -> Any:

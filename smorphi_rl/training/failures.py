@@ -9,6 +9,7 @@ whole one.
 from __future__ import annotations
 
 import errno
+import re
 import shutil
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -98,9 +99,9 @@ def failure(results: Any, folder: Path, what: str = "training") -> Failure | Non
         return Failure(f"{what} failed and its error could not be read back (see the trial folders under {folder})",
                        False)  # fmt: skip
     first = errors[0].strip().splitlines()
+    line = re.sub(r"^smorphi_rl(\.\w+)+: ", "", first[-1]) if first else "unknown error"  # ours says what it is
     where = f" in {len(errors)} trials" if len(errors) > 1 else ""
-    return Failure(f"{what} failed{where}: {first[-1] if first else 'unknown error'} (full errors under {folder})",
-                   False)  # fmt: skip
+    return Failure(f"{what} failed{where}: {line} (full errors under {folder})", False)
 
 
 def fit(tuner: Any, folder: Path, what: str = "training") -> tuple[Any, Failure | None]:

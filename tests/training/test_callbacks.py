@@ -299,3 +299,20 @@ def test_the_protocol_runs_on_the_training_maps_that_are_files_never_on_a_genera
     hooks = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, [(90.0, 90.0, 90.0)], {"map-1": OPTIMUM})()
     rollouts = hooks._protocol(SimpleNamespace(config=SimpleNamespace(env_config={"maps": maps})), [(90.0,) * 3])
     assert [Path(m).name for m in rollouts.env_config.maps] == ["map-1.yaml"]
+
+
+def test_weights_that_overflowed_or_are_not_numbers_are_named():
+    """What ends a diverged run before its runners sample from it (they would fail, and RLlib restart them for ever)."""
+    import torch
+
+    from smorphi_rl.training.callbacks import diverged
+
+    net = torch.nn.Sequential(torch.nn.Linear(3, 4), torch.nn.Linear(4, 2))
+    assert diverged(net) == ""
+    with torch.no_grad():
+        net[1].bias[0] = 2e6  # beyond MAX_WEIGHT: its forward pass overflows, and no loader reads it
+    assert diverged(net) == "1.bias"
+    with torch.no_grad():
+        net[1].bias[0] = 0.0
+        net[0].weight[2, 1] = float("nan")
+    assert diverged(net) == "0.weight"

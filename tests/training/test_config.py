@@ -32,6 +32,9 @@ def test_paper_preset_is_table_1():
         ({"max_iterations": 0}, "max_iterations must be a positive integer"),
         ({"overrides": {"minibatch_size": 4000}}, r"minibatch_size \(4000\) must not exceed train_batch_size"),
         ({"algo": "impala", "overrides": {"minibatch_size": 120}}, "must be a multiple of the rollout fragment"),
+        ({"overrides": {"minibatch_size": 0}}, "'minibatch_size' must be a positive integer, got 0"),
+        ({"overrides": {"num_epochs": 0}}, "'num_epochs' must be a positive integer, got 0"),
+        ({"overrides": {"train_batch_size": 0}}, "'train_batch_size' must be a positive integer, got 0"),
     ],
 )
 def test_bad_options_are_named(changes, message):

@@ -53,6 +53,14 @@ def test_an_ordinary_error_names_its_last_line_and_where_the_rest_is(tmp_path):
     assert failed.line == f"training failed: ValueError: bad lr (full errors under {tmp_path})"
 
 
+def test_an_error_of_ours_is_said_without_its_module_path(tmp_path):
+    """Ours name the problem themselves; another package's keep their class name (`ValueError: bad lr` above)."""
+    text = "Traceback ...\nsmorphi_rl.training.callbacks.DivergedError: the policy diverged after 2,000 env steps"
+    failed = failure(_Results([RuntimeError(text)]), tmp_path)
+    assert failed is not None
+    assert failed.line == f"training failed: the policy diverged after 2,000 env steps (full errors under {tmp_path})"
+
+
 def test_a_full_disk_removes_the_checkpoint_cut_short_and_names_the_folder(tmp_path):
     cut = _cut_short_checkpoint(tmp_path / "ppo-0", 1)
     failed = failure(_Results([OSError(28, "No space left on device")]), tmp_path, "the sweep")

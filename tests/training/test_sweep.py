@@ -153,3 +153,16 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
     config.write_text(SWEEP.replace("10000", "11000"))  # another sweep under the same name: refused
     changed = cli("sweep", str(config), "--resume", cwd=tmp_path)
     assert changed.returncode == 1 and "has changed since" in changed.stderr
+
+
+def test_a_trial_whose_weights_overflow_ends_in_one_line_instead_of_restarting_its_runners_for_ever(tmp_path):
+    """At lr 1e30 the first update leaves weights of 1e30; the 2 remote runners then fail on every sample and RLlib
+    restarted them for ever (a hostile review's sweep ran past 5 minutes); the trial now ends after that update."""
+    sweep = tmp_path / "huge-lr.yaml"
+    sweep.write_text(f"name: huge\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 8000\nrecord_every: 0\n"
+                     "search: {lr: 1.0e+30, lr_final: 1.0e+30}\n")  # fmt: skip
+    proc = cli("sweep", str(sweep), "--log-dir", str(tmp_path / "logs"), cwd=tmp_path, timeout=240)
+    lines = [line for line in proc.stderr.splitlines() if "error" in line]
+    assert proc.returncode == 1 and len(lines) == 1, proc.stderr[-2000:]
+    assert "the sweep failed: the policy diverged after 2,000 env steps: weight " in lines[0]
+    assert "values beyond 1e+06 or not numbers" in lines[0]
