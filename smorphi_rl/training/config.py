@@ -216,8 +216,14 @@ USED_BY = {
     "frozen_critic": ("appo",),
 }
 """Hyperparameters only some algorithms have (the others take every Preset field)."""
-AT_LEAST_ONE = ("train_batch_size", "num_epochs", "minibatch_size", "circular_buffer_batches", "circular_buffer_passes",
-                "learner_queue")
+AT_LEAST_ONE = (
+    "train_batch_size",
+    "num_epochs",
+    "minibatch_size",
+    "circular_buffer_batches",
+    "circular_buffer_passes",
+    "learner_queue",
+)
 """Hyperparameters that must be at least 1 (a batch, a pass or a buffer of none trains on nothing)."""
 
 
