@@ -61,14 +61,16 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
 
 def flag_named(message: str, argv: list[str]) -> str:
     """`message` naming the flag the user gave for the configuration field it names: `timesteps must be ...` reads
-    `--timesteps must be ...`, `env_config 'w1' must be ...` reads `--w1: env_config 'w1' must be ...`; as it was
-    when it names no field, or one given by no flag."""
+    `--timesteps must be ...`, `env_config 'w1' must be ...` reads `--w1 must be ...`, `env_config 'maps': ...` reads
+    `--map: ...`, and one that names the field inside reads `--w1: ...` before it; as it was when it names no field,
+    or one given by no flag."""
     for name, flag in FIELD_FLAGS.items():
         given = any(a == flag or a.startswith(f"{flag}=") for a in argv)
         if not given or message.startswith(flag):
             continue
-        if message.startswith(f"{name} "):
-            return flag + message[len(name) :]
+        for said, join in ((f"{name} ", " "), (f"env_config '{name}' ", " "), (f"env_config '{name}': ", ": ")):
+            if message.startswith(said):
+                return flag + join + message[len(said) :]
         if f"'{name}'" in message:
             return f"{flag}: {message}"
     return message

@@ -52,7 +52,7 @@ def test_an_error_naming_a_field_names_the_flag_the_user_gave(capsys, tmp_path):
     from smorphi_rl.cli import main
 
     cases = {
-        ("--w1", "0"): "--w1: env_config 'w1' must be",
+        ("--w1", "0"): "--w1 must be",
         ("--checkpoint-every", "0"): "error: --checkpoint-every must be a positive integer, got 0",
         ("--envs-per-runner", "0"): "error: --envs-per-runner must be a positive integer, got 0",
     }

@@ -116,7 +116,7 @@ def test_design_loads_without_torch_or_ray(policy):
     (["--plot", "x.txt"], "give a file name ending in .png"),
     (["--plot", str(FLOOR / "x.png")], "is not a folder this process can write into"),
     (["--map", "/no/map.yaml"], "map file not found"),
-    (["--start-xy", "100", "1"], "--start-xy: env_config 'start_xy': map mixed-0900002: point (100.0, 1.0) m lies"),
+    (["--start-xy", "100", "1"], "--start-xy: map mixed-0900002: point (100.0, 1.0) m lies"),
 ])  # fmt: skip
 def test_bad_design_input_is_one_line(policy, capsys, tmp_path, argv, message):
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), *argv)

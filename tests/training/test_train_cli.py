@@ -32,6 +32,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         (["--timesteps", "-10"], 1, "timesteps must be a positive integer, got -10"),
         (["--timesteps", "ten"], 2, "invalid int value: 'ten'"),
         (["--map", "/no/such/map.yaml"], 1, "map file not found: /no/such/map.yaml"),
+        (["--map", "/no/such/*.yaml"], 1, "error: --map: map glob '/no/such/*.yaml' matches no map YAML"),
         (["--address", "127.0.0.1:1"], 1, "cannot reach a Ray cluster at 127.0.0.1:1"),
         (["--address", "nonsense"], 1, "--address must be HOST:PORT, 'auto' or ray://HOST:PORT"),
         (["--pretrained", "/no/such/checkpoint"], 1, "checkpoint not found: /no/such/checkpoint"),
