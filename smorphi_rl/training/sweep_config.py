@@ -22,7 +22,7 @@ from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, is_finite_number, strict_yaml
-from smorphi_rl.map_sources import map_set_label
+from smorphi_rl.map_sources import map_set_label, name_clash
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import INTEGER_HYPERPARAMETERS, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -258,10 +258,14 @@ def load_sweep(path: str | Path) -> SweepConfig:
         raise fail(f"stop.{spent}", f"must be above 0 (a trial would stop before it trained), got {doc.stop[spent]}")
     if "maps" in doc.env:
         raise fail("env.maps", "give maps at the top level ('maps')")
-    try:
-        EnvConfig.from_dict({**doc.env, "maps": list(map_sets[0])})
-    except SmorphiError as exc:
-        raise fail("env", str(exc)) from None
+    for i, maps in enumerate(map_sets):
+        try:
+            EnvConfig.from_dict({**doc.env, "maps": list(maps)})
+        except SmorphiError as exc:
+            said = str(exc)
+            if said.startswith("env_config 'maps'"):  # an entry of this set, not an env override
+                raise fail(f"maps[{i}]", said.removeprefix("env_config 'maps'").lstrip(": ")) from None
+            raise fail(sweep_key(said, doc.env, "env"), said) from None
     spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in doc.search.items()}
     for k, space in spaces.items():  # num_epochs: {grid: [1e1, 2e1]}, whole numbers YAML read as floats
         if k in INTEGER_HYPERPARAMETERS and space.kind in ("constant", "grid", "choice"):
@@ -294,18 +298,34 @@ def load_sweep(path: str | Path) -> SweepConfig:
                    "trials: give more seeds, or a choice, uniform or loguniform part")  # fmt: skip
     if cfg.num_grid_trials > MAX_TRIALS:
         raise fail("num_samples", f"{cfg.num_grid_trials:,} trials; at most {MAX_TRIALS:,} (a typo?)")
+    first = (cfg.algorithms[0], list(cfg.map_sets[0]), cfg.seeds[0])
+    drawn: set[tuple[tuple[str, Any], ...]] = set()
+    for t in (t for t in cfg.trials() if (t["algo"], t["maps"], t["seed"]) == first):
+        values = tuple(sorted(t["hp"].items()))
+        if values in drawn:  # a choice drawn alike: the same trials twice, and one group's seeds counted twice
+            shown = ", ".join(f"{k}={v:g}" for k, v in values)
+            raise fail("num_samples", f"two of the {cfg.num_samples} samples draw the same values ({shown}), so their "
+                       "trials would run twice: fewer samples, a choice of more values, or a uniform part")  # fmt: skip
+        drawn.add(values)
     for i, maps in enumerate(map_sets):  # a trial's folder is named for its maps: one the file system takes
         named = {"maps": maps, "seed": max(cfg.seeds), "index": 0}
         longest = max(len(trial_dirname(named | {"algo": a}).encode()) for a in cfg.algorithms)
         if longest > MAX_TRIAL_NAME:
             raise fail(f"maps[{i}]", f"its trials' folders would be named {longest} bytes long (algorithm, map names, "
                        f"seed); at most {MAX_TRIAL_NAME}: give the map files shorter names")  # fmt: skip
+    files: list[str] = []
     for i, maps in enumerate(map_sets):  # every trial is measured against its evaluated maps' exact optima
         try:
             trial = cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {})
         except SmorphiError as exc:
-            raise fail(sweep_key(str(exc), cfg.env, f"maps[{i}]"), str(exc)) from None
+            key = sweep_key(str(exc), cfg.env, f"maps[{i}]")
+            raise fail(key, said_as(str(exc), key)) from None
         _check_evaluable(trial, f"maps[{i}]", fail)
+        files += [*trial.env.map_files, *trial.evaluation_maps]
+    clash = name_clash(tuple(files))
+    if clash is not None:  # groups, tables, optima and the resume's digests are keyed by a map's name
+        raise fail("maps", f"{clash[0]} and {clash[1]} share the name {Path(clash[1]).stem!r}, which names the "
+                   "trials, the groups of the tables and the optima: rename one")  # fmt: skip
     for algo in cfg.algorithms:  # every value of every space must suit every algorithm
         for key, space in spaces.items():
             for value in space.examples():
@@ -351,6 +371,7 @@ TRIAL_KEYS = {
     "env_runners": "env_runners", "eval_every": "evaluation.every", "eval_starts": "evaluation.starts",
     "select_starts": "evaluation.select_starts", "design_budget": "evaluation.design_budget",
     "max_iterations": "max_iterations", "record_every": "record_every", "checkpoint_every": "checkpoint.every",
+    "eval_maps": "evaluation.maps",
 }  # fmt: skip
 """A trial's configuration field, as its complaints begin, and the sweep file's key that sets it."""
 
@@ -362,6 +383,15 @@ def sweep_key(message: str, env: dict[str, Any], default: str) -> str:
     if named:
         return f"env.{named[1]}" if named[1] in env else default
     return TRIAL_KEYS.get(re.split(r"[\s:]", message, maxsplit=1)[0], default)
+
+
+def said_as(message: str, key: str) -> str:
+    """A trial's complaint in the sweep file's words: the configuration field it begins with (`eval_starts must
+    be ...`) said as the file's key (`evaluation.starts must be ...`), and no key twice (`eval_maps: ...`)."""
+    field = re.split(r"[\s:]", message, maxsplit=1)[0]
+    if TRIAL_KEYS.get(field) != key:
+        return message
+    return message.removeprefix(f"{field}: ") if message.startswith(f"{field}: ") else key + message[len(field) :]
 
 
 def _check_evaluable(trial: TrainConfig, key: str, fail: Any) -> None:
@@ -449,8 +479,8 @@ def _space(value: Any, key: str, fail: Any) -> Space:
     ((kind, args),) = value.items()
     if not isinstance(args, list) or not args or not all(is_finite_number(a) for a in args):
         raise fail(key, f"{kind} takes a list of numbers, got {args!r}")
-    if kind == "grid" and len(set(args)) < len(args):
-        raise fail(key, f"grid {args!r} gives a value twice: its trials would run twice")
+    if kind in ("grid", "choice") and len(set(args)) < len(args):
+        raise fail(key, f"{kind} {args!r} gives a value twice: its trials would run twice")
     if kind in ("uniform", "loguniform"):
         if len(args) != 2 or not args[0] < args[1] or (kind == "loguniform" and args[0] <= 0):
             raise fail(key, f"{kind} takes [low, high] with low < high{' and low > 0' if kind == 'loguniform' else ''}")
