@@ -197,6 +197,18 @@ def test_a_checkpoint_resolves_next_to_the_sweep_file_and_a_bad_one_names_the_ke
     assert not (tmp_path / "logs").exists()
 
 
+def test_two_map_files_of_one_name_in_different_map_sets_are_refused(tmp_path):
+    """Each trial alone is fine, but the tables grouped both floors as seeds of one map 'map-1'."""
+    other = tmp_path / "other"
+    other.mkdir()
+    (other / "map-1.yaml").write_text(Path(MAP_2).read_text())
+    (other / "map-2.pgm").write_bytes(Path(MAP_2).with_suffix(".pgm").read_bytes())
+    sweep = tmp_path / "s.yaml"
+    sweep.write_text(f"algorithms: [ppo]\nseeds: [0]\nmaps: [{MAP_1}, {other / 'map-1.yaml'}]\n")
+    with pytest.raises(SweepConfigError, match=r"key 'maps': .* share the name 'map-1', which names the trials"):
+        load_sweep(sweep)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(SweepConfigError, match="no such sweep file"):
         load_sweep(tmp_path / "absent.yaml")
