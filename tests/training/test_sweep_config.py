@@ -209,6 +209,14 @@ def test_two_map_files_of_one_name_in_different_map_sets_are_refused(tmp_path):
         load_sweep(sweep)
 
 
+def test_a_file_name_that_is_no_folder_name_is_said_to_be_the_files(tmp_path):
+    """With no `name` key the experiment takes the file's name; the complaint says so rather than blame a key."""
+    sweep = tmp_path / "my sweep.yaml"
+    sweep.write_text(base())
+    with pytest.raises(SweepConfigError, match="key 'name': missing, and the file's name 'my sweep', the default,"):
+        load_sweep(sweep)
+
+
 def test_missing_file(tmp_path):
     with pytest.raises(SweepConfigError, match="no such sweep file"):
         load_sweep(tmp_path / "absent.yaml")
