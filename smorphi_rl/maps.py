@@ -303,7 +303,9 @@ def load_map(yaml_path: str | Path) -> Map:
             raise MapError(f"{path}: {path.stat().st_size:,} bytes; a map YAML is at most {MAX_YAML_BYTES:,}")
         text = path.read_text()
     except FileNotFoundError:
-        raise MapError(f"map file not found: {path}") from None
+        generator = str(yaml_path).startswith("generate:")  # map_sources' floor generators: no file to read
+        hint = " (a generator is for train and sweep; `maps generate` writes floors to files)" if generator else ""
+        raise MapError(f"map file not found: {path}{hint}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MapError(f"{path}: cannot read map YAML ({exc})") from None
     try:

@@ -182,6 +182,7 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
     [
         (["--map", "{missing.yaml}", "--angles", "1", "2", "3"], "map file not found"),
         (["--map", "{folder}", "--angles", "1", "2", "3"], "folder is a folder: give one map YAML (train and sweep"),
+        (["--map", "generate:mixed", "--angles", "1", "2", "3"], "(a generator is for train and sweep;"),
         (["--map", "{malformed.yaml}", "--angles", "1", "2", "3"], "malformed YAML"),
         (["--map", "{nores.yaml}", "--angles", "1", "2", "3"], "missing key 'resolution'"),
         (["--map", "{zero.yaml}", "--angles", "1", "2", "3"], "'resolution' must be 0.001-10 m a cell"),

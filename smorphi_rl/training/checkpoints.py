@@ -19,6 +19,8 @@ import numpy as np
 
 from smorphi_rl.inputs import check_not_special
 from smorphi_rl.policy_file import (
+    POLICY_JSON,
+    WEIGHTS_NPZ,
     PolicyFile,
     PolicyFileError,
     action_problem,
@@ -69,6 +71,10 @@ def find_checkpoint(path: str | Path) -> Path:
         raise CheckpointError(f"{root}: not a directory (give a checkpoint, trial or run directory)")
     if is_policy_dir(root):
         return root
+    half = [n for n in (POLICY_JSON, WEIGHTS_NPZ) if (root / n).is_file()]
+    if half:  # one of an exported policy's two files: the other is missing, not a checkpoint
+        other = WEIGHTS_NPZ if half == [POLICY_JSON] else POLICY_JSON
+        raise CheckpointError(f"{root}: an exported policy's {half[0]} without its {other} (export-policy writes both)")
     try:
         found = checkpoints_under(root)
     except (OSError, RuntimeError) as exc:  # a symlink loop, an unreadable folder

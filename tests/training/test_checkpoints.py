@@ -23,6 +23,7 @@ from smorphi_rl.training.checkpoints import (
     MODULE_SUBDIR,
     CheckpointError,
     build_module,
+    find_checkpoint,
     load_module,
     safe_unpickle,
 )
@@ -516,3 +517,12 @@ def test_evaluate_policy_shows_a_maps_name_escaped(genuine, tmp_path, capsys):
     code = main(["evaluate-policy", "--checkpoint", str(genuine), "--episodes", "1", "--map", str(odd)])
     out = capsys.readouterr().out  # an episode's line (the protocol's, --starts, needs the exact optimum: seconds)
     assert code == 0 and "a\\x1b[2Jb" in out and "\x1b" not in out, out
+
+
+@pytest.mark.parametrize("kept", ["policy.json", "weights.npz"])
+def test_half_an_exported_policy_names_the_missing_file(tmp_path, kept):
+    """It was taken for a folder holding no checkpoint at all."""
+    (tmp_path / kept).write_bytes((ROOT / "smorphi_rl" / "policies" / "designer" / kept).read_bytes())
+    other = "weights.npz" if kept == "policy.json" else "policy.json"
+    with pytest.raises(CheckpointError, match=f"an exported policy's {kept} without its {other}"):
+        find_checkpoint(tmp_path)

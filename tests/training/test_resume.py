@@ -254,6 +254,17 @@ def test_a_damaged_copy_of_the_sweep_file_is_one_line(sweep, tmp_path, copy):
         prepare_experiment(sweep, tmp_path / "logs", resume=True)
 
 
+def test_a_sweep_folder_that_lost_its_copy_of_the_sweep_file_says_so(sweep, tmp_path):
+    """It said the folder held no sweep at all, beside the trials and records of one."""
+    from smorphi_rl.training.sweep import MAPS_RECORD, prepare_experiment
+
+    exp = tmp_path / "logs" / sweep.name
+    exp.mkdir(parents=True)
+    (exp / MAPS_RECORD).write_text("{}")
+    with pytest.raises(RunDirError, match=r"has lost sweep\.yaml, the copy of the sweep file it ran"):
+        prepare_experiment(sweep, tmp_path / "logs", resume=True)
+
+
 def test_a_sweep_folder_holding_a_link_is_refused_before_the_resume_claims_it(sweep, tmp_path):
     """Tune wrote its tuner.pkl through a planted link, outside the folder the user named."""
     from smorphi_rl.rundir import MARKER
