@@ -68,7 +68,8 @@ def flag_named(message: str, argv: list[str]) -> str:
         given = any(a == flag or a.startswith(f"{flag}=") for a in argv)
         if not given or message.startswith(flag):
             continue
-        for said, join in ((f"{name} ", " "), (f"env_config '{name}' ", " "), (f"env_config '{name}': ", ": ")):
+        for said, join in ((f"{name} ", " "), (f"{name}: ", ": "), (f"env_config '{name}' ", " "),
+                           (f"env_config '{name}': ", ": ")):  # fmt: skip
             if message.startswith(said):
                 return flag + join + message[len(said) :]
         if f"'{name}'" in message:

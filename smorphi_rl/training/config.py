@@ -112,6 +112,10 @@ class TrainConfig:
                 object.__setattr__(self, "eval_maps", resolve([str(m) for m in self.eval_maps]))
             except MapSourceError as exc:
                 raise TrainConfigError(f"eval_maps: {exc}") from None
+            files = [str(Path(m).resolve()) for m in self.eval_maps]
+            twice = next((m for i, m in enumerate(files) if m in files[:i]), None)
+            if twice is not None:  # its starts would count twice in every pooled figure
+                raise TrainConfigError(f"eval_maps: {twice} is given twice")
         from smorphi_rl.map_sources import name_clash
         from smorphi_rl.protocol import clashing_map_name
 
@@ -140,6 +144,9 @@ class TrainConfig:
             raise TrainConfigError(f"env runners must be 0 (sample in the trial process) or more, got {runners!r}")
         if self.max_iterations is not None and (not isinstance(self.max_iterations, int) or self.max_iterations < 1):
             raise TrainConfigError(f"max_iterations must be a positive integer, got {self.max_iterations!r}")
+        if self.max_iterations is not None and self.max_iterations > MAX_TIMESTEPS:  # an iteration is 1+ env steps
+            raise TrainConfigError(f"max_iterations {self.max_iterations:,}: at most {MAX_TIMESTEPS:,}, the most env "
+                                   "steps a run takes")  # fmt: skip
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
         if self.seed > MAX_SEED:

@@ -33,6 +33,7 @@ def test_paper_preset_is_table_1():
         ({"overrides": {"minibatch_size": 4000}}, r"minibatch_size \(4000\) must not exceed train_batch_size"),
         ({"algo": "impala", "overrides": {"minibatch_size": 120}}, "must be a multiple of the rollout fragment"),
         ({"overrides": {"minibatch_size": 0}}, "'minibatch_size' must be a positive integer, got 0"),
+        ({"max_iterations": 10**20}, "max_iterations 100,000,000,000,000,000,000: at most 1,000,000,000"),
         ({"overrides": {"num_epochs": 0}}, "'num_epochs' must be a positive integer, got 0"),
         ({"overrides": {"train_batch_size": 0}}, "'train_batch_size' must be a positive integer, got 0"),
     ],
