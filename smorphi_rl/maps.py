@@ -267,17 +267,26 @@ def cells_from_image(
     occupied_thresh: float,
     free_thresh: float,
 ) -> np.ndarray:
-    """nav2's map_io (and ROS 1's map_server): p = (max - v) / max (v / max if negate); p > occupied is
-    occupied, p < free is free, both strictly. Scale-mode values in between are known but not free: occupied
-    here. A cell is free only where nav2's OccupancyGrid would hold 0."""
+    """nav2's map_io, to its arithmetic: a pixel's shade is the mean of its colour channels over `max_value` (in
+    trinary mode the alpha averaged in as a fourth channel), p = 1 - shade (shade if negate); p > occupied is
+    occupied and p < free is free, both strictly, else unknown. Scale: a pixel not opaque is unknown, and one in
+    between holds rint(100 (p - free) / (occupied - free)), free where that is 0, occupied (known, not free)
+    otherwise. Raw: round(255 shade) is 0 free, 1-100 occupied, else unknown. A cell is free only where nav2's
+    OccupancyGrid would hold 0."""
     cells = np.full(gray.shape, Cell.UNKNOWN, dtype=np.uint8)
     if mode is MapMode.RAW:
-        cells[gray == 0] = Cell.FREE
-        cells[(gray > 0) & (gray <= 100)] = Cell.OCCUPIED
+        value = np.floor(gray * (255.0 / max_value) + 0.5)  # std::round: halves away from zero
+        cells[value == 0] = Cell.FREE
+        cells[(value > 0) & (value <= 100)] = Cell.OCCUPIED
     else:
-        p = gray / max_value if negate else (max_value - gray) / max_value
+        if mode is MapMode.TRINARY and alpha is not None:  # nav2 averages alpha in as a channel (grey: three copies)
+            gray = (3.0 * gray + alpha) / 4.0
+        shade = gray / max_value
+        p = shade if negate else 1.0 - shade
         occupied, free = p > occupied_thresh, p < free_thresh
         if mode is MapMode.SCALE:
+            between = ~occupied & ~free
+            free |= between & (np.rint(100.0 * (p - free_thresh) / (occupied_thresh - free_thresh)) == 0)
             cells[:] = Cell.OCCUPIED
         cells[occupied] = Cell.OCCUPIED
         cells[free & ~occupied] = Cell.FREE
@@ -349,8 +358,9 @@ def load_map(yaml_path: str | Path) -> Map:
         raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
     occupied_thresh = _number(meta, "occupied_thresh", path, hint=CLASSIFYING_HINT)
     free_thresh = _number(meta, "free_thresh", path, hint=CLASSIFYING_HINT)
-    if not 0.0 <= free_thresh < occupied_thresh <= 1.0:
-        raise MapError(f"{path}: need 0 <= free_thresh < occupied_thresh <= 1, got {free_thresh} and {occupied_thresh}")
+    if not 0.0 < free_thresh < occupied_thresh < 1.0:  # compared strictly: at 0 no grey is free, at 1 none occupied
+        raise MapError(f"{path}: need 0 < free_thresh < occupied_thresh < 1 (a cell is free where p < free_thresh and "
+                       f"occupied where p > occupied_thresh), got {free_thresh} and {occupied_thresh}")  # fmt: skip
     check_not_special(path.parent / image, "map image", MapError)
     try:
         (path.parent / image).stat()

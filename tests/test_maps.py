@@ -41,10 +41,43 @@ def test_trinary_thresholds_are_strict_like_nav2(tmp_path):
     pixels = np.array([[89, 90, 191, 192, 0, 255]])
     m = load_map(write_map(tmp_path, pixels, occupied_thresh=0.65, free_thresh=0.25))
     assert m.cells[0].tolist() == [Cell.OCCUPIED, Cell.UNKNOWN, Cell.UNKNOWN, Cell.FREE, Cell.OCCUPIED, Cell.FREE]
-    # exactly at a threshold is neither (nav2's map_io compares strictly): p = 51/255 = 0.2 with free_thresh 0.2,
-    # p = 153/255 = 0.6 with occupied_thresh 0.6
+    # at a threshold, nav2's own arithmetic decides: p = 1 - 204/255 = 0.19999999999999996 < 0.2 is free (ROS 1's
+    # (255 - 204)/255 = 0.2 would not be); p = 1 - 102/255 = 0.5999999999999999778 is not above 0.6: unknown
     m = load_map(write_map(tmp_path, np.array([[204, 102, 0, 255]]), name="edge", free_thresh=0.2, occupied_thresh=0.6))
-    assert m.cells[0].tolist() == [Cell.UNKNOWN, Cell.UNKNOWN, Cell.OCCUPIED, Cell.FREE]
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.UNKNOWN, Cell.OCCUPIED, Cell.FREE]
+
+
+def test_trinary_mode_averages_alpha_in_as_nav2_does(tmp_path):
+    """A transparent white pixel: (3 x 255 + 0) / 4 = 191.25, p = 0.25, unknown under 0.65 / 0.196 (it read free)."""
+    pixels = np.stack([np.array([[255, 255, 0]]), np.array([[0, 255, 255]])], axis=-1)
+    m = load_map(write_map(tmp_path, pixels, suffix="png"))
+    assert m.cells[0].tolist() == [Cell.UNKNOWN, Cell.FREE, Cell.OCCUPIED]
+
+
+def test_scale_mode_frees_a_grey_whose_occupancy_rounds_to_0(tmp_path):
+    """nav2 writes rint(100 (p - free) / (occupied - free)) between the thresholds: just above free_thresh that is 0,
+    which an OccupancyGrid reads as free. Grey 205 under 0.65 / 0.196: p = 0.19608, 0.0 after rounding."""
+    gray = np.array([[205, 128, 255]])
+    alpha = np.full((1, 3), 255)
+    m = load_map(write_map(tmp_path, np.stack([gray, alpha], axis=-1), suffix="png", mode="scale", free_thresh=0.196))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.FREE]
+
+
+def test_raw_mode_reads_a_16_bit_image_on_nav2_s_0_255_scale(tmp_path):
+    """nav2 takes round(255 shade): 16-bit 100 is 0.39 -> 0, free; 25,700 is 100, occupied; 26,000 is 101, unknown."""
+    Image.fromarray(np.array([[100, 25_700, 26_000, 65_535]], dtype=np.uint16)).save(tmp_path / "raw16.png")
+    doc = {"image": "raw16.png", "resolution": 0.05, "mode": "raw"} | THRESHOLDS
+    (tmp_path / "raw16.yaml").write_text(yaml.safe_dump(doc))
+    m = load_map(tmp_path / "raw16.yaml")
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.UNKNOWN, Cell.UNKNOWN]
+
+
+@pytest.mark.parametrize(("free", "occupied"), [(0.0, 0.65), (0.196, 1.0)])
+def test_a_threshold_no_grey_can_pass_is_refused(tmp_path, free, occupied):
+    """Compared strictly, p < 0 frees nothing and p > 1 occupies nothing (every wall would read unknown)."""
+    path = write_map(tmp_path, np.array([[254, 0]]), free_thresh=free, occupied_thresh=occupied)
+    with pytest.raises(MapError, match=r"need 0 < free_thresh < occupied_thresh < 1"):
+        load_map(path)
 
 
 def test_negate_flips_the_probability(tmp_path):
