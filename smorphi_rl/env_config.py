@@ -132,10 +132,11 @@ class EnvConfig:
             raise EnvConfigError(
                 f"env_config 'planner': unknown planner '{self.planner}' (choose from {', '.join(PLANNERS)})"
             )
-        if not 0 < self.w1 <= MAX_WEIGHT or not 0 <= self.w2 <= MAX_WEIGHT:
-            top = f"{MAX_WEIGHT:g}"
-            raise EnvConfigError(f"env_config 'w1' must be in (0, {top}] and 'w2' in [0, {top}] (R1 rewards "
-                                 f"coverage and charges the path), got w1 {self.w1:g}, w2 {self.w2:g}")  # fmt: skip
+        why = "(R1 rewards coverage and charges the path)"  # each weight named alone: the flag the user gave
+        if not 0 < self.w1 <= MAX_WEIGHT:
+            raise EnvConfigError(f"env_config 'w1' must be in (0, {MAX_WEIGHT:g}] {why}, got {self.w1:g}")
+        if not 0 <= self.w2 <= MAX_WEIGHT:
+            raise EnvConfigError(f"env_config 'w2' must be in [0, {MAX_WEIGHT:g}] {why}, got {self.w2:g}")
         for name in ("step_cost", "move_cost", "beta"):
             if not 0 <= getattr(self, name) <= MAX_WEIGHT:
                 raise EnvConfigError(f"env_config '{name}' must be in [0, {MAX_WEIGHT:g}], got {getattr(self, name)}")

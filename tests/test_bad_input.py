@@ -378,7 +378,7 @@ def test_an_image_pillow_warns_about_is_refused_in_our_line_alone(tmp_path, caps
     (["maps", "generate", "--kind", "rooms", "--count", "2", "--seed", "4294967295", "--out", "{tmp}/k"],
      "passes 2^32-1"),
     (["maps", "generate", "--kind", "hall", "--out", "{tmp}/k", "--density", "0.5"], "--density: options of the rect"),
-    (["search", "random", "--w2", "-1"], "'w2' in [0, 1e+06]"),
+    (["search", "random", "--w2", "-1"], "--w2 must be in [0, 1e+06]"),
     (["search", "random", "--w1", "1e300"], "--w1 must be in (0, 1e+06]"),
     (["search", "random", "--log-dir", ""], "expected a name, got an empty string"),
     (["search", "random", "--name", ""], "expected a name, got an empty string"),
