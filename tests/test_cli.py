@@ -235,6 +235,14 @@ def test_a_missing_subcommand_is_named_by_its_choices(capsys, argv, named):
     assert exc.value.code == 2 and f"the following arguments are required: {named}" in err and "_command" not in err
 
 
+def test_an_unknown_subcommand_lists_the_choices_once_without_the_dest(capsys):
+    with pytest.raises(SystemExit):
+        main(["maps", "bogus"])
+    err = capsys.readouterr().err
+    assert "error: invalid choice: 'bogus' (choose from 'generate'," in err and err.count("generate") == 1
+    assert "maps_command" not in err
+
+
 def test_usage_errors_are_one_line(capsys):
     with pytest.raises(SystemExit) as exc:
         main(["evaluate", "--angles", "1", "2"])

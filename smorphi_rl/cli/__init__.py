@@ -35,7 +35,7 @@ def build_parser(command: str | None = None) -> Parser:
     for group, commands in GROUPS.items():
         if command is None or command in commands:
             group.register(sub)
-    name_choices(sub)
+    name_choices(parser, sub)
     return parser
 
 

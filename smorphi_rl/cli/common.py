@@ -30,10 +30,13 @@ class Parser(argparse.ArgumentParser):
     option names a file, a folder, a name or a number, and '' read as a path is the working directory."""
 
     def error(self, message: str) -> NoReturn:
+        for dest, choices in self.subcommands.items():  # a missing subcommand by its choices, not argparse's dest
+            message = message.replace(f"required: {dest}", f"required: {choices}").replace(f"argument {dest}: ", "")
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see --help)\n")
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         self.named: dict[str, str] = {}  # each argument's dest, as argparse names the argument (before --help's)
+        self.subcommands: dict[str, str] = {}  # each subcommand group's dest and its choices, `name_choices`
         super().__init__(*args, **kwargs)
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
@@ -51,9 +54,10 @@ class Parser(argparse.ArgumentParser):
         return parsed, rest
 
 
-def name_choices(sub: Any) -> None:
-    """Have a missing subcommand named by its choices, as `--help` lists them, not by its internal dest."""
-    sub.metavar = "{" + ",".join(sub.choices) + "}"
+def name_choices(parser: Parser, sub: Any) -> None:
+    """Have a missing subcommand of `parser` named by its choices, as `--help` lists them, not by its internal dest
+    (a metavar would do it, but doubles the list in the invalid-choice message)."""
+    parser.subcommands[sub.dest] = "{" + ",".join(sub.choices) + "}"
 
 
 EMPTY_ALLOWED = ("command",)

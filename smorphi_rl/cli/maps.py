@@ -57,7 +57,7 @@ def register(sub: Any) -> None:
     crop.add_argument("--margin", type=finite, default=CROP_MARGIN_M, metavar="M",
                       help="metres kept around the known cells (default 0.2)")  # fmt: skip
     resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
-    name_choices(maps_sub)
+    name_choices(maps, maps_sub)
     resample.add_argument("--resolution", type=finite, required=True, metavar="R",
                           help="metres a cell; a coarse cell is free only if every cell under it is")  # fmt: skip
     for tool, run in ((crop, cmd_maps_crop), (resample, cmd_maps_resample)):

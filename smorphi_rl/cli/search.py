@@ -50,7 +50,7 @@ def register(sub: Any) -> None:
             m.add_argument("--address", help="plan on the Ray cluster at HOST:PORT (or auto), one actor per CPU, "
                            "with the same results; default: this machine's cores")  # fmt: skip
         m.set_defaults(func=cmd_search)
-    name_choices(se_sub)
+    name_choices(se, se_sub)
 
     co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
     co.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
