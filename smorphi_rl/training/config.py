@@ -115,7 +115,8 @@ class TrainConfig:
             files = [str(Path(m).resolve()) for m in self.eval_maps]
             twice = next((m for i, m in enumerate(files) if m in files[:i]), None)
             if twice is not None:  # its starts would count twice in every pooled figure
-                raise TrainConfigError(f"eval_maps: {twice} is given twice")
+                raise TrainConfigError(f"eval_maps: {twice} is named twice (by two entries, or a folder or glob and "
+                                       "a file)")  # fmt: skip
         from smorphi_rl.map_sources import name_clash
         from smorphi_rl.protocol import clashing_map_name
 

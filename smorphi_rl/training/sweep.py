@@ -265,9 +265,9 @@ def prepare_experiment(sweep: SweepConfig, log_dir: str | Path, resume: bool) ->
         raise RunDirError(f"log directory {log_dir} cannot be used ({exc})") from None
     copy = exp / SWEEP_COPY
     if copy.is_symlink() or not copy.is_file():
-        lost = exp.is_dir() and (exp / MAPS_RECORD).is_file()  # a sweep's folder that lost the copy of its file
-        why = (f"has lost {SWEEP_COPY}, the copy of the sweep file it ran, which a resume checks the file against"
-               if lost else "holds no sweep started by smorphi-rl")  # fmt: skip
+        lost = (exp / MAPS_RECORD).is_file() and not copy.exists() and not copy.is_symlink()  # a sweep's, less it
+        why = (f"has lost {SWEEP_COPY}, the copy of the sweep file it ran, which a resume checks the file against: "
+               f"copy the sweep file there to resume" if lost else "holds no sweep started by smorphi-rl")  # fmt: skip
         raise RunDirError(f"nothing to resume: {exp} {why}")
     try:
         if copy.stat().st_size > MAX_YAML_BYTES:

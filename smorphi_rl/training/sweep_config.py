@@ -479,8 +479,8 @@ def _space(value: Any, key: str, fail: Any) -> Space:
     ((kind, args),) = value.items()
     if not isinstance(args, list) or not args or not all(is_finite_number(a) for a in args):
         raise fail(key, f"{kind} takes a list of numbers, got {args!r}")
-    if kind in ("grid", "choice") and len(set(args)) < len(args):
-        raise fail(key, f"{kind} {args!r} gives a value twice: its trials would run twice")
+    if kind == "grid" and len(set(args)) < len(args):  # a choice may repeat a value to weight it
+        raise fail(key, f"grid {args!r} gives a value twice: its trials would run twice")
     if kind in ("uniform", "loguniform"):
         if len(args) != 2 or not args[0] < args[1] or (kind == "loguniform" and args[0] <= 0):
             raise fail(key, f"{kind} takes [low, high] with low < high{' and low > 0' if kind == 'loguniform' else ''}")

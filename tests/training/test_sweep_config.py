@@ -105,7 +105,7 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (f"algorithms: [ppo]\nmaps: [[{MAP_1}, {MAP_2}], [{MAP_2}, {MAP_1}]]\nseeds: [1]\n", "key 'maps[1]': "),
         (base("env: {move_cost: 1.0e+300}\n"), "key 'env.move_cost': env_config 'move_cost' must be in [0, 1e+06]"),
         (base("env: {max_step: 10}\n"), "key 'env': env_config: unknown key 'max_step'"),
-        (base("search: {lr: {choice: [0.001, 0.001]}}\nnum_samples: 2\n"), "choice [0.001, 0.001] gives a value twice"),
+        (base("search: {lr: {choice: [0.001, 0.001]}}\nnum_samples: 2\n"), "two of the 2 samples draw the same values"),
         (
             base("search: {lr: {choice: [0.001]}}\nnum_samples: 3\n"),
             "key 'num_samples': two of the 3 samples draw the same values (lr=0.001), so their trials would run twice",

@@ -50,7 +50,7 @@ def run(capsys, *argv: str) -> tuple[int, str]:
         ),
         (["--eval-maps", "generate:rooms"], 1, "--eval-maps must be map files"),
         (["--eval-maps", "/no/such/map.yaml"], 1, "/no/such/map.yaml"),
-        (["--eval-maps", MAP_1, MAP_1], 1, f"--eval-maps: {MAP_1} is given twice"),
+        (["--eval-maps", MAP_1, MAP_1], 1, f"--eval-maps: {MAP_1} is named twice"),
     ],
 )
 def test_train_rejects_bad_input(capsys, tmp_path, argv, code, message):
