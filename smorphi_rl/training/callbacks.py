@@ -300,7 +300,7 @@ class DivergedError(RuntimeError):
 
 def diverged(module: Any) -> str:
     """The first of `module`'s parameters holding a NaN, an infinity or a value beyond MAX_WEIGHT (whose forward pass
-    overflows, and which no loader reads), or '' (a check of about a millisecond)."""
+    overflows, and which no loader reads), or '' (one pass over the weights: a few milliseconds)."""
     for name, p in module.named_parameters():
         if p.numel() and not float(p.detach().abs().max()) <= MAX_WEIGHT:  # one pass: a NaN compares false
             return name
