@@ -9,6 +9,7 @@ import argparse
 import math
 import re
 import stat
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -96,6 +97,11 @@ def is_finite_number(value: Any) -> bool:
 
 MAX_TREE_NODES = 100_000
 """More values than any configuration of ours holds (a policy's model_config has a few dozen)."""
+
+
+def first_repeat(items: Sequence[Any]) -> int | None:
+    """The index of the first item equal to an earlier one (a seed, a map, a value given twice), or None."""
+    return next((i for i, v in enumerate(items) if v in items[:i]), None)
 
 
 def is_plain_tree(value: Any, max_nodes: int = MAX_TREE_NODES) -> bool:

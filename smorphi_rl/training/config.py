@@ -15,7 +15,7 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_SEED
+from smorphi_rl.inputs import MAX_SEED, first_repeat
 from smorphi_rl.policy_file import MAX_FREQUENCIES
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
@@ -113,10 +113,10 @@ class TrainConfig:
             except MapSourceError as exc:
                 raise TrainConfigError(f"eval_maps: {exc}") from None
             files = [str(Path(m).resolve()) for m in self.eval_maps]
-            twice = next((m for i, m in enumerate(files) if m in files[:i]), None)
+            twice = first_repeat(files)
             if twice is not None:  # its starts would count twice in every pooled figure
-                raise TrainConfigError(f"eval_maps: {twice} is named twice (by two entries, or a folder or glob and "
-                                       "a file)")  # fmt: skip
+                raise TrainConfigError(f"eval_maps: {files[twice]} is named twice (by two entries, or a folder or "
+                                       "glob and a file)")  # fmt: skip
         from smorphi_rl.map_sources import name_clash
         from smorphi_rl.protocol import clashing_map_name
 

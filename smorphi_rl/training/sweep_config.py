@@ -21,7 +21,14 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_SEED, MAX_YAML_BYTES, check_not_special, is_finite_number, strict_yaml
+from smorphi_rl.inputs import (
+    MAX_SEED,
+    MAX_YAML_BYTES,
+    check_not_special,
+    first_repeat,
+    is_finite_number,
+    strict_yaml,
+)
 from smorphi_rl.map_sources import map_set_label, name_clash
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import INTEGER_HYPERPARAMETERS, TrainConfig
@@ -243,7 +250,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
     sets = [tuple(sorted(s)) for s in map_sets]  # one set of maps in another order trains the same policies
     for key, items, given in (("algorithms", doc.algorithms, doc.algorithms), ("seeds", doc.seeds, doc.seeds),
                               ("maps", sets, doc.maps)):  # fmt: skip
-        twice = next((i for i, v in enumerate(items) if v in items[:i]), None)
+        twice = first_repeat(items)
         if twice is not None:
             shown = repr(given[twice])
             shown = shown if len(shown) <= 80 else shown[:77] + "..."

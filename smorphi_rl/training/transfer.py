@@ -17,6 +17,7 @@ from typing import Any
 
 from smorphi_rl import jsontext
 from smorphi_rl.env_config import EnvConfig
+from smorphi_rl.inputs import first_repeat
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import (
     FEW_SEEDS_NOTE,
@@ -108,9 +109,9 @@ class TransferJob:
                 raise TrainConfigError(f"--maps {m}: transfer is measured on map files (against each map's exact "
                                        "optimum), not generated floors; write some with `maps generate`")  # fmt: skip
         for name, items in (("seeds", self.seeds), ("maps", tuple(str(Path(m).resolve()) for m in self.maps))):
-            repeated = sorted({str(v) for v in items if items.count(v) > 1})
-            if repeated:
-                raise TrainConfigError(f"--{name} names {repeated[0]} twice: each run would be trained twice")
+            twice = first_repeat(items)
+            if twice is not None:
+                raise TrainConfigError(f"--{name} names {items[twice]} twice: each run would be trained twice")
         clash = name_clash(tuple(map(str, self.maps)), lambda m: safe_name(Path(m).stem))  # runs, folders, rows
         if clash is not None:
             raise TrainConfigError(f"--maps {clash[0]} and {clash[1]} share the name {safe_name(Path(clash[1]).stem)!r}"
