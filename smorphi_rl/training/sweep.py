@@ -47,7 +47,7 @@ from smorphi_rl.training.run import (
     training_optima,
     trial_callbacks,
 )
-from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, said_as, sweep_key, trial_dirname
+from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, complaint, trial_dirname
 from smorphi_rl.training.sweep_report import (
     TrialRow,
     group_curves,
@@ -313,8 +313,8 @@ def run_sweep(
         try:
             MorphologyEnv(base.env.to_dict())
         except SmorphiError as exc:
-            key = sweep_key(str(exc), sweep.env, f"maps[{i}]")
-            raise SweepConfigError(f"{sweep.path}: key '{key}': {said_as(str(exc), key)}") from None
+            key, said = complaint(str(exc), sweep.env, f"maps[{i}]")
+            raise SweepConfigError(f"{sweep.path}: key '{key}': {said}") from None
         digests[map_set_label(maps)] = map_digests(base)  # every evaluated map too, before any optimum
     cluster.check_reachable(address)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]

@@ -325,8 +325,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         try:
             trial = cfg.base_config(cfg.algorithms[0], maps, cfg.seeds[0], {})
         except SmorphiError as exc:
-            key = sweep_key(str(exc), cfg.env, f"maps[{i}]")
-            raise fail(key, said_as(str(exc), key)) from None
+            raise fail(*complaint(str(exc), cfg.env, f"maps[{i}]")) from None
         _check_evaluable(trial, f"maps[{i}]", fail)
         files += [*trial.env.map_files, *trial.evaluation_maps]
     clash = name_clash(tuple(files))
@@ -390,6 +389,12 @@ def sweep_key(message: str, env: dict[str, Any], default: str) -> str:
     if named:
         return f"env.{named[1]}" if named[1] in env else default
     return TRIAL_KEYS.get(re.split(r"[\s:]", message, maxsplit=1)[0], default)
+
+
+def complaint(message: str, env: dict[str, Any], default: str) -> tuple[str, str]:
+    """A trial's complaint as the sweep file's key it is about (`sweep_key`) and in the file's words (`said_as`)."""
+    key = sweep_key(message, env, default)
+    return key, said_as(message, key)
 
 
 def said_as(message: str, key: str) -> str:
