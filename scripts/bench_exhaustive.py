@@ -44,7 +44,7 @@ from smorphi_rl.search.exhaustive import run_exhaustive
 
 TARGET_S = {Planner.PAPER: 300.0, Planner.FIT: 120.0}
 CROP_MARGIN_M, CROP_MIN_ISLAND_M2 = 0.2, 0.05
-"""What the README's `maps crop ... --min-island 0.05` does (its default margin)."""
+"""What `maps crop ... --min-island 0.05` does (its default margin)."""
 
 
 def main() -> None:

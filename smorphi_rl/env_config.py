@@ -35,7 +35,7 @@ class RewardMode(str, Enum):
 REWARD_MODES = tuple(m.value for m in RewardMode)
 DEFAULT_MOVE_COST = 0.0
 """`level`/`peak` move cost, off by default: 0.03 took PPO on map-1 from 30 to 47 % of the protocol's starts within
-1 % but map-2 from 40 to 32 % with twice the median gap, and IMPALA's gaps grew on both (README, Learning)."""
+1 % but map-2 from 40 to 32 % with twice the median gap, and IMPALA's gaps grew on both (docs/decisions.md)."""
 
 
 class ObservationLayout(str, Enum):
@@ -99,7 +99,7 @@ class EnvConfig:
     block_side_m: float = DEFAULT_BLOCK_SIDE_M
     """Side of one block in metres."""
     reward: str = RewardMode.PEAK.value
-    """Reward mode: peak (level with the top stretched: learns best, see the README), level (standardised R1 of
+    """Reward mode: peak (level with the top stretched: learns best, see docs/decisions.md), level (standardised R1 of
     each shape reached), paper (R1 + R2, for reproduction), improvement (R1 gained, scaled) or commit (R1 of the
     committed shape)."""
     step_cost: float = 0.0

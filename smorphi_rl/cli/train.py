@@ -65,7 +65,7 @@ def register(sub: Any) -> None:
     tf.set_defaults(func=cmd_transfer)
 
     sw = sub.add_parser("sweep", help="a Ray Tune sweep from a tune_configs/*.yaml file (resumable)")
-    sw.add_argument("config", help="sweep file (schema in the README; examples in tune_configs/)")
+    sw.add_argument("config", help="sweep file (keys in docs/commands.md; examples in tune_configs/)")
     sw.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     sw.add_argument("--resume", action="store_true", help="continue the interrupted experiment of this sweep")
     sw.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR,

@@ -83,7 +83,7 @@ class MorphologyCallbacks(RLlibCallback):
         learns: its learner has the machine to itself and takes LEARNER_THREADS (fixed, so a seeded run's bits do
         not depend on the machine's cores). IMPALA and APPO learn while their
         env runners sample, so a second thread only contends with them; on 2 cores IMPALA trained 5,208 ->
-        6,644 env steps/s and APPO 5,008 -> 6,187 with one (README, Training throughput)."""
+        6,644 env steps/s and APPO 5,008 -> 6,187 with one."""
         import torch
 
         torch.set_num_threads(1 if _is_async(algorithm) else LEARNER_THREADS)

@@ -38,7 +38,7 @@ from smorphi_rl.training.presets import ANGLE_FREQUENCIES
 # gives it the plain angles only. With the critic's 8 frequencies a policy can draw a sink at every ripple of
 # the landscape, and PPO's greedy roll-outs settled in whichever basin a start fell into (map-1, 150,000 steps:
 # 5-13 of the 20 protocol starts within 1 % of the optimum); smooth in the angles it learns one flow towards the
-# best region (README, Learning). IMPALA did worse without them and keeps them. A checkpoint whose model_config
+# best region (docs/decisions.md). IMPALA did worse without them and keeps them. A checkpoint whose model_config
 # lacks the key was written with 8 (the layout before the key existed).
 
 MAP_KEY = "map"
