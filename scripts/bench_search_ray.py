@@ -25,6 +25,7 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.planning import Planning, lattice_thetas
 from smorphi_rl.search.exhaustive import footprint_classes, run_exhaustive
 from smorphi_rl.search.lattice_tasks import footprint_keys
+from smorphi_rl.words import counted
 
 ROOT = Path(__file__).resolve().parent.parent
 REALMAPS = ROOT.parent / "shared" / "realmaps"
@@ -55,7 +56,8 @@ def main() -> None:
             there = run_exhaustive(args.map, args.step, planning, address=address)
             walls[cpus], planning_s[cpus] = time.perf_counter() - t0, there.wall_s
         same = all(np.array_equal(getattr(here, f), getattr(there, f)) for f in ("thetas", "P_c", "P_len", "feasible"))
-        print(f"local Ray, {cpus} CPU(s), {there.params['workers']} actor(s): planning {planning_s[cpus]:.1f} s, "
+        actors = counted(there.params["workers"], "actor")
+        print(f"local Ray, {counted(cpus, 'CPU')}, {actors}: planning {planning_s[cpus]:.1f} s, "
               f"{walls[cpus]:.1f} s end to end (connect, actors start, planning, shutdown); results identical to the "
               f"pool: {same}")  # fmt: skip
     ratio = planning_s[2] / local_planning

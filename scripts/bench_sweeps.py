@@ -29,6 +29,7 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training.run import fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
 from smorphi_rl.training.sweep_report import read_sweep, sweep_group_lines
+from smorphi_rl.words import counted
 
 ROOT = Path(__file__).resolve().parent.parent
 CONFIGS = ROOT / "tune_configs"
@@ -100,7 +101,7 @@ def main() -> None:
     t0 = time.perf_counter()
     for path, sweep in zip(paths, sweeps, strict=True):
         bench(path, sweep, root)
-    print(f"{len(paths)} sweep(s) in {fmt_duration(time.perf_counter() - t0)}; experiments under {root}")
+    print(f"{counted(len(paths), 'sweep')} in {fmt_duration(time.perf_counter() - t0)}; experiments under {root}")
 
 
 if __name__ == "__main__":

@@ -12,6 +12,7 @@ from typing import Any
 
 from smorphi_rl import interrupts
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.words import counted
 
 CONNECT_TIMEOUT_S = 3.0
 MIN_LOCAL_CPUS = 2
@@ -190,6 +191,6 @@ def check_capacity(cpus: float, env_runners: int, address: str | None, fix: str 
     if cpus > have + 1e-9:
         where = "this machine's local Ray" if address is None else f"the Ray cluster at {address}"
         raise ClusterError(
-            f"{env_runners} env runner(s) need {cpus:g} CPUs (1 for the trial, 0.5 per runner) and {where} has "
-            f"{have:g}: {fix}"
+            f"{counted(env_runners, 'env runner')} need {cpus:g} CPUs (1 for the trial, 0.5 per runner) and {where} "
+            f"has {have:g}: {fix}"
         )

@@ -538,7 +538,7 @@ def test_a_sweep_whose_trials_need_more_cpus_than_there_are_is_refused_before_ra
     sweep.write_text(f"name: wide\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\n"
                      "env_runners: 1000\n")  # fmt: skip
     code, _, err = run(capsys, "sweep", str(sweep), "--log-dir", str(tmp_path / "logs"))
-    assert code == 1 and "1000 env runner(s) need 501 CPUs" in one_line(err)
+    assert code == 1 and "1,000 env runners need 501 CPUs" in one_line(err)
     assert f"set fewer `env_runners` in {sweep}" in err  # the file's key, not a flag the sweep has not
     assert not (tmp_path / "logs").exists()
 

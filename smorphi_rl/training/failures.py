@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from smorphi_rl.training.checkpoints import STAGING_PREFIX, CheckpointError, checkpoints_under, read_module_files
+from smorphi_rl.words import counted
 
 FULL_MARKERS = ("No space left on device", "Disk quota exceeded", f"[Errno {errno.ENOSPC}]", f"errno {errno.ENOSPC}")
 """How ENOSPC and EDQUOT read in an error's text (Python's OSError and pyarrow's status alike)."""
@@ -82,7 +83,7 @@ def _disk_full_failure(folder: Path, what: str) -> Failure:
     kept = checkpoints_under(folder)
     free = _free_bytes(folder)
     left = f", {free / 2**20:.1f} MiB free" if free is not None else ""
-    cut = f"; removed {len(dropped)} checkpoint(s) cut short" if dropped else ""
+    cut = f"; removed {counted(len(dropped), 'checkpoint')} cut short" if dropped else ""
     whole = f"the last whole checkpoint is {kept[-1]}" if kept else "no checkpoint was written whole"
     return Failure(f"{what} stopped: the disk holding {folder} is full{left}{cut}; {whole}", True)
 

@@ -66,7 +66,7 @@ def test_a_full_disk_removes_the_checkpoint_cut_short_and_names_the_folder(tmp_p
     failed = failure(_Results([OSError(28, "No space left on device")]), tmp_path, "the sweep")
     assert failed is not None and failed.disk_full
     assert failed.line.startswith(f"the sweep stopped: the disk holding {tmp_path} is full")
-    assert "removed 1 checkpoint(s) cut short; no checkpoint was written whole" in failed.line
+    assert "removed 1 checkpoint cut short; no checkpoint was written whole" in failed.line
     assert not cut.exists()
 
 

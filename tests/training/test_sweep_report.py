@@ -51,7 +51,7 @@ def test_a_trial_cut_short_is_left_out_of_its_group_and_said_so(tmp_path):
     cut = replace(_trial(2, 1e-3, 70.0, None), finished=False)
     write_sweep_groups([_trial(0, 1e-3, 88.0, 4_000), _trial(1, 1e-3, 88.6, 6_000), cut], tmp_path / "groups.md")
     text = (tmp_path / "groups.md").read_text()
-    assert "1 unfinished trial(s) (sweep.md) are left out" in text and "| 2 of 2 |" in text
+    assert "1 unfinished trial (sweep.md) is left out" in text and "| 2 of 2 |" in text
 
 
 def test_trials_on_a_map_without_an_optimum_are_not_measured_rather_than_not_converged(tmp_path):

@@ -164,7 +164,7 @@ def test_record_every_must_not_be_negative(capsys, tmp_path):
 
 def test_train_refuses_more_env_runners_than_the_local_ray_can_place(capsys, tmp_path):
     got, err = run(capsys, "train", "--log-dir", str(tmp_path), "--env-runners", "8", "--timesteps", "1000")
-    assert got == 1 and "8 env runner(s) need 5 CPUs" in err and "use fewer --env-runners" in err
+    assert got == 1 and "8 env runners need 5 CPUs" in err and "use fewer --env-runners" in err
     assert not list(tmp_path.iterdir())  # the refused run's folder is gone again
 
 
