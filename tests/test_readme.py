@@ -85,9 +85,10 @@ def prose_words(text: str) -> int:
 
 
 def test_the_readme_reads_in_ten_minutes():
-    """The mission's README, read in ten minutes: its prose at most 2,800 words (about 250 a minute; the console
-    examples are looked at, not read); every option and rule lives in docs/commands.md."""
-    assert prose_words((ROOT / "README.md").read_text()) <= 2800
+    """The mission's README, read in ten minutes: its prose at most 2,500 words, a quarter of them table cells that
+    are scanned (a reviewer read 2,620 such words attentively in 13-14 minutes); the console examples are looked at,
+    not read. Every option and rule lives in docs/commands.md."""
+    assert prose_words((ROOT / "README.md").read_text()) <= 2500
 
 
 def help_text(argv: list[str], capsys) -> str:
