@@ -10,6 +10,9 @@ import shlex
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import TypeVar
+
+T = TypeVar("T")
 
 DOCS = Path(__file__).resolve().parent.parent / "docs" / "benchmarks.md"
 HEADER = """# Benchmarks
@@ -65,6 +68,14 @@ class _Tee:
         self.stream.flush()  # type: ignore[attr-defined]
 
 
+def whole(summary: T) -> T:
+    """A training run's summary, or a stop where the run was cut short (Ctrl-C, SIGTERM: `train` then ends at the
+    next report and returns): a benchmark's partial figures must never replace its section of docs/benchmarks.md."""
+    if getattr(summary, "interrupted", False):
+        raise KeyboardInterrupt
+    return summary
+
+
 def run_documented(name: str, title: str, main: object) -> None:
     """Run a benchmark's `main()`; with `--write-docs` on the command line, its printed report becomes the
     section `name` of docs/benchmarks.md (the flag is taken off before the script parses its own)."""
@@ -77,6 +88,10 @@ def run_documented(name: str, title: str, main: object) -> None:
     sys.stdout = tee  # type: ignore[assignment]
     try:
         main()  # type: ignore[operator]
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM, or a run `whole` found cut short: nothing written
+        sys.stdout = tee.stream  # type: ignore[assignment]
+        print(f"{Path(sys.argv[0]).name}: interrupted; docs/benchmarks.md left as it was", file=sys.stderr)
+        raise SystemExit(130) from None
     except SmorphiError as exc:  # a bad option or input: one line, as the CLI gives it, and nothing written
         sys.stdout = tee.stream  # type: ignore[assignment]
         print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)

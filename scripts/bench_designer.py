@@ -29,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import write_section
+from _benchdocs import whole, write_section
 
 from smorphi_rl.design import run_design
 from smorphi_rl.designer import designer_env, load_designer
@@ -130,7 +130,7 @@ def per_map_ppo(designer_dir: Path, maps: list[str], steps: int, log_dir: Path, 
                 pretrained = str(designer_dir) if mode == "fine-tune" else None
                 cfg = TrainConfig(env=env, timesteps=steps, eval_every=5, eval_starts=20, select_starts=0,
                                   record_every=0, pretrained=pretrained)  # fmt: skip
-                summary = train(cfg, name=f"{name}-{mode}", log_dir=log_dir, out=quiet)
+                summary = whole(train(cfg, name=f"{name}-{mode}", log_dir=log_dir, out=quiet))
                 ev = summary.evaluation
                 best = summary.best.R1 if summary.best else math.nan
                 opt = optima[name]
@@ -297,7 +297,7 @@ def training_cost(steps: int, log_dir: Path) -> list[str]:
     os.environ.setdefault(CACHE_ENV, str(ROOT / "logs" / ".cache"))  # the validation floors' optima, computed once
     t0 = time.perf_counter()
     with PeakMemory() as mem, open(os.devnull, "w") as quiet:
-        summary = train(cfg, name="designer-cost", log_dir=log_dir, out=quiet)
+        summary = whole(train(cfg, name="designer-cost", log_dir=log_dir, out=quiet))
     wall = time.perf_counter() - t0
     rate = summary.env_steps / summary.wall_s
     full = 2_000_000 / rate / 60
@@ -357,4 +357,8 @@ def plot_curves(report: dict, methods: list[str], png: Path) -> Path:
 
 
 if __name__ == "__main__":
-    main()
+    try:
+        main()
+    except KeyboardInterrupt:  # Ctrl-C, SIGTERM, or a training run `whole` found cut short: nothing written
+        print("bench_designer.py: interrupted; docs/benchmarks.md left as it was", file=sys.stderr)
+        raise SystemExit(130) from None

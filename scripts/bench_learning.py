@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import run_documented
+from _benchdocs import run_documented, whole
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import EnvConfig
@@ -183,7 +183,7 @@ def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timeste
     cfg = run_config(algo, reward, seed, map_path, timesteps, overrides, layout)
     name = f"{algo}-{reward}-{Path(map_path).stem}-seed{seed}"
     with open(os.devnull, "w") as devnull:
-        summary = train(cfg, name=name, log_dir=out / "runs", out=devnull)
+        summary = whole(train(cfg, name=name, log_dir=out / "runs", out=devnull))
     module = load_module(summary.checkpoint)
     (ev,) = evaluate_policy(module, cfg.env, starts, {optimum_name(map_path): optimum})
     curve = summary_curve(summary.run_dir)

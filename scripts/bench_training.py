@@ -34,7 +34,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import run_documented
+from _benchdocs import run_documented, whole
 from _memory import PeakMemory
 
 from smorphi_rl import cluster
@@ -112,7 +112,7 @@ def learner_seconds(run_dir: Path) -> float:
 def run_train(cfg: TrainConfig, tmp: str, name: str) -> object:
     """`train` as the command runs it, its output discarded: the RunSummary."""
     with open(os.devnull, "w") as devnull:
-        return train(cfg, name=name, log_dir=tmp, out=devnull)
+        return whole(train(cfg, name=name, log_dir=tmp, out=devnull))
 
 
 def peak_memory(cfg: TrainConfig, tmp: str, name: str) -> PeakMemory:

@@ -26,7 +26,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from _benchdocs import run_documented
+from _benchdocs import run_documented, whole
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.maps import load_map
@@ -99,7 +99,7 @@ def main() -> None:
         pretrained = Path(args.pretrained)
         print(f"reusing the pretrained run {pretrained}")
     else:
-        pre = train(pre_cfg, name="pretrain", log_dir=root, out=sys.stderr, label="PPO pretrain")
+        pre = whole(train(pre_cfg, name="pretrain", log_dir=root, out=sys.stderr, label="PPO pretrain"))
         pretrained = pre.run_dir
         print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
     held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)

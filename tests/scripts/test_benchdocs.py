@@ -40,3 +40,25 @@ def test_run_documented_writes_what_the_benchmark_printed(docs, monkeypatch, cap
     _benchdocs.run_documented("x", "X", main)
     assert seen == [["bench_x.py", "--n", "3"]]  # the flag is taken off before the script parses its own
     assert "figure 42" in docs.read_text() and "figure 42" in capsys.readouterr().out
+
+
+def test_a_benchmark_whose_run_was_cut_short_writes_nothing(docs, monkeypatch, capsys):
+    """A training run stopped by Ctrl-C or SIGTERM returns its summary marked interrupted; the benchmark stops
+    (exit 130) and its partial figures never replace its section (one did, before `whole`)."""
+    _benchdocs.write_section("x", "## X\n\nthe last whole figures")
+    before = docs.read_text()
+    monkeypatch.setattr(sys, "argv", ["bench_x.py", "--write-docs"])
+
+    class Summary:
+        interrupted = True
+
+    def main() -> None:
+        print("partial figure 7")
+        _benchdocs.whole(Summary())
+
+    with pytest.raises(SystemExit) as stop:
+        _benchdocs.run_documented("x", "X", main)
+    assert stop.value.code == 130 and docs.read_text() == before
+    assert "interrupted; docs/benchmarks.md left as it was" in capsys.readouterr().err
+    Summary.interrupted = False
+    assert _benchdocs.whole(Summary()) is not None
