@@ -168,6 +168,8 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         "short.csv": "1,2,3\n4,5\n",
         "words.csv": "1,2,3\na,b,c\n",
         "spaces.csv": "90 90 90\n",  # once read as a header, then "no angles in the file"
+        "nan_first.csv": "nan,90,90\n10,20,30\n",  # the fast reading once skipped row 1 as a header, silently
+        "semicolons.csv": "90;90;90\n10,20,30\n",
     }
     for name, text in files.items():
         (tmp_path / name).write_text(text)
@@ -197,6 +199,8 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["--angles-file", "{words.csv}"], "line 2: expected three numbers"),
         (["--angles-file", "{spaces.csv}"], "line 1: expected three numbers t1,t2,t3, got '90 90 90'"),
         (["--angles-file", "{nothere.csv}"], "angles file not found"),
+        (["--angles-file", "{nan_first.csv}"], "line 1: expected three numbers t1,t2,t3, got 'nan,90,90'"),
+        (["--angles-file", "{semicolons.csv}"], "line 1: expected three numbers t1,t2,t3, got '90;90;90'"),
         ([], "give either --angles"),
         (["--angles", "1", "2", "3", "--block-side", "0"], "--block-side must be > 0"),
         (["--angles", "1", "2", "3", "--start", "tile:x,1"], "tile indices must be integers"),

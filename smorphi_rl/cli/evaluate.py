@@ -76,7 +76,7 @@ def read_angles_file(path: Path) -> np.ndarray:
     try:
         with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
             first = fh.readline()
-        header = 0 if _is_numeric_row(first.split(",")) else 1
+        header = int(_is_header(first.split(",")))
         with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
             warnings.simplefilter("ignore")  # an empty file: reported below, with its name
             values = np.loadtxt(fh, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
@@ -99,9 +99,8 @@ def _read_angles_rows(path: Path) -> np.ndarray:
         raise SmorphiError(f"angles file not found: {path}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
-    first = rows[0][1] if rows else []
-    if not any(_is_number(c) for c in first) and any(ch.isalpha() for c in first for ch in c):
-        rows = rows[1:]  # a header: no number, and words (a row with a NaN, or `90;90;90`, is data named below)
+    if rows and _is_header(rows[0][1]):
+        rows = rows[1:]
     if not rows:
         raise SmorphiError(f"{path}: no angles in the file (expected rows of t1,t2,t3)")
     out = np.empty((len(rows), 3))
@@ -121,6 +120,12 @@ def _is_numeric_row(row: Sequence[str]) -> bool:
         return all(math.isfinite(float(c)) for c in row)
     except ValueError:
         return False
+
+
+def _is_header(cells: Sequence[str]) -> bool:
+    """A first row of words and no number (`t1,t2,t3`); a row with a NaN, an infinity or `90;90;90` is data, and
+    refused with its line, as on any other line (the fast reading once skipped it as a header)."""
+    return not any(_is_number(c) for c in cells) and any(ch.isalpha() for c in cells for ch in c)
 
 
 def _is_number(cell: str) -> bool:
