@@ -18,6 +18,8 @@ from smorphi_rl.geometry import Morphology, all_corners
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.rundir import atomic_path
 
+matplotlib.rcParams["text.parse_math"] = False  # names are the user's (a map `r$1_$2.yaml`): text, never TeX
+
 BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 # free, occupied, unknown, covered free
 MAP_COLOURS = ListedColormap(["#ffffff", "#202020", "#b0b0b0", "#7bd389"])

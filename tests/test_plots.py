@@ -19,3 +19,14 @@ def test_a_sweep_without_a_finished_trial_draws_a_figure_that_says_so(tmp_path, 
     monkeypatch.setattr(plt.Axes, "text", lambda self, x, y, s, **kw: texts.append(s) or original(self, x, y, s, **kw))
     out = plot_sweep_curves({}, tmp_path / "sweep_curves.png")
     assert out.is_file() and texts and all("no finished trial yet" in t for t in texts)
+
+
+def test_a_name_with_dollar_signs_is_drawn_as_text_not_tex(tmp_path):
+    """A map file `map_$1_$2.yaml` once raised matplotlib's mathtext error in every command that draws."""
+    import numpy as np
+
+    from smorphi_rl.maps import Map
+    from smorphi_rl.plots import plot_map
+
+    grid = Map(np.zeros((20, 20), dtype=np.uint8), 0.1, name="map_$1_$2")
+    assert plot_map(grid, tmp_path / "m.png").stat().st_size > 0
