@@ -120,6 +120,8 @@ def read_policy(path: str | Path) -> PolicyFile:
     except Exception as exc:  # a damaged or foreign archive, or one that holds objects
         raise PolicyFileError(f"{weights_file}: not readable weights ({type(exc).__name__}: {exc})") from None
     for name, value in weights.items():
+        if not isinstance(value, np.ndarray):  # numpy hands an entry that is no .npy file over as its raw bytes
+            raise PolicyFileError(f"{weights_file}: entry {name} is not an array")
         if value.dtype != np.float32:
             raise PolicyFileError(f"{weights_file}: weight {name} is not float32")
     problem = weights_problem(weights)

@@ -1,0 +1,29 @@
+"""Exported policy folders: what `read_policy` refuses, in one line, before any weight is used."""
+
+from __future__ import annotations
+
+import shutil
+import zipfile
+from pathlib import Path
+
+import pytest
+
+import smorphi_rl
+from smorphi_rl.policy_file import PolicyFileError, read_policy
+
+DESIGNER = Path(smorphi_rl.__file__).parent / "policies" / "designer"
+
+
+@pytest.mark.parametrize("entry", ["README.txt", "sub/"])
+def test_an_archive_entry_that_is_not_an_array_is_named(tmp_path, entry):
+    """numpy hands a non-.npy entry over as raw bytes; reading its dtype was an AttributeError traceback."""
+    folder = tmp_path / "policy"
+    shutil.copytree(DESIGNER, folder)
+    with zipfile.ZipFile(folder / "weights.npz", "a") as archive:
+        archive.writestr(entry, "" if entry.endswith("/") else "hi")
+    with pytest.raises(PolicyFileError, match=f"weights.npz: entry {entry} is not an array"):
+        read_policy(folder)
+
+
+def test_the_shipped_designer_reads(tmp_path):
+    assert read_policy(DESIGNER).weights
