@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
+import smorphi_rl
 from smorphi_rl.cli import main
 from smorphi_rl.coverage import sweep_positions
 
@@ -40,6 +41,19 @@ def test_evaluate_json(capsys):
     assert code == 0 and doc.keys() >= JSON_KEYS
     assert doc["theta"] == [0, 180, 0] and doc["footprint_cells"] == [3, 3] and doc["feasible"] is True
     assert doc["P_c"] == 100.0  # the O-shape fills its tile
+
+
+def test_json_output_stays_json_with_a_plot(capsys, tmp_path):
+    """`--json --plot`: evaluate names its plot in the object (as design does); evaluate-policy's stdout stays one
+    JSON object per episode (its plot line went to stdout, so a JSON reader failed on the last line)."""
+    code, out, _ = run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--json", "--plot",
+                       str(tmp_path / "e.png"))  # fmt: skip
+    assert code == 0 and json.loads(out)["plot"] == str(tmp_path / "e.png") and (tmp_path / "e.png").exists()
+    designer = str(Path(smorphi_rl.__file__).parent / "policies" / "designer")
+    code, out, err = run(capsys, "evaluate-policy", "--checkpoint", designer, "--map", MAP_1, "--episodes", "2",
+                         "--json", "--plot", str(tmp_path / "p.png"))  # fmt: skip
+    assert code == 0 and [json.loads(line)["episode"] for line in out.splitlines()] == [0, 1]
+    assert f"plot        {tmp_path / 'p.png'}" in err and (tmp_path / "p.png").exists()
 
 
 @pytest.mark.parametrize("planner", ["paper", "fit"])

@@ -254,6 +254,8 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, 
         plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
     if args.json:
         record = result.to_dict() | {"R1": float(score.r1(result.P_c, result.P_len)), "weights": score.formula()}
+        if plot_path is not None:  # as design's --json names its plot
+            record["plot"] = str(plot_path)
         if args.path:
             record["footprint"] = [] if result.footprint is None else result.footprint.astype(int).tolist()
             record["placements"] = [] if result.placements is None else result.placements.tolist()

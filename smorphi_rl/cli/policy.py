@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -259,7 +260,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         base.reset(seed=args.seed)  # back to the first episode's map
         png = plot_coverage(base.plan(theta), base.grid_map, Morphology.of(theta), base.config.block_side_m,
                             args.plot)  # fmt: skip
-        print(f"plot        {png}")
+        print(f"plot        {png}", file=sys.stderr if args.json else sys.stdout)  # --json: stdout is JSON lines
     if args.record is not None and not args.json:
         print(f"recordings  {rel(Path(args.record))} (smorphi-rl replay {rel(Path(args.record))})")
     return 0
