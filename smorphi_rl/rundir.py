@@ -191,8 +191,13 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
         raise RunDirError(_taken(run_dir)) from None
     except OSError as exc:
         raise RunDirError(f"log directory {rel(root)} is not writable ({exc.strerror or exc})") from None
-    with os.fdopen(fd, "w") as fh:
-        fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+    except OSError as exc:  # a full disk: the claim is taken back and the file named, as every full disk is
+        discard_run_dir(run_dir)
+        (run_dir / MARKER).unlink(missing_ok=True)
+        raise OSError(exc.errno, exc.strerror, str(run_dir / MARKER)) from None
     if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:  # a user's folder that filled meanwhile
         (run_dir / MARKER).unlink(missing_ok=True)
         raise RunDirError(_taken(run_dir))

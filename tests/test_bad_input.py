@@ -324,6 +324,7 @@ def _rewrite(run_dir: Path, **arrays) -> None:
     ["maps", "crop", MAP_1, "--out", "{disk}/m.yaml"],
     ["maps", "show", MAP_1, "--png", "{disk}/m.png"],
     ["evaluate", "--map", MAP_1, "--angles", "1", "2", "3", "--plot", "{disk}/m.png"],
+    ["search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", "{disk}/runs"],
 ])  # fmt: skip
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_made(small_disk, capsys, argv):
     from conftest import fill_disk
@@ -333,6 +334,23 @@ def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_made(sm
     line = one_line(err)
     assert code == 1 and line.startswith("smorphi-rl: error: No space left on device: ") and str(small_disk) in line
     assert sorted(p.name for p in small_disk.rglob("*") if p.is_file()) == ["filler"]
+
+
+@pytest.mark.parametrize("left", [4096, 12288, 24576])
+def test_a_search_the_disk_cuts_short_leaves_a_whole_run_or_none(small_disk, capsys, left):
+    """Out of room part-way (its results, its summary, its plot): either no folder and the name free, or the run whole
+    and said so (a folder without summary.json once kept the name, and `compare` refused it)."""
+    from conftest import fill_disk
+
+    fill_disk(small_disk, left)
+    code, _, err = run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(small_disk))
+    line, run_dir = one_line(err), small_disk / "random-map-1-seed0"
+    assert code == 1 and line.startswith("smorphi-rl: error: No space left on device: ")
+    if run_dir.exists():
+        assert (run_dir / "summary.json").is_file() and "the search's results are whole in" in line
+    (small_disk / "filler").unlink()
+    assert run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(small_disk),
+               *(["--name", "again"] if run_dir.exists() else []))[0] == 0  # fmt: skip
 
 
 @pytest.mark.parametrize("argv", [

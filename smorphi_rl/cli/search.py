@@ -119,19 +119,27 @@ def cmd_search(args: argparse.Namespace) -> int:
 
     best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
     cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
-    files = save(result, run_dir, on_map, cover)
+    try:
+        files = save(result, run_dir, on_map, cover)
+    except BaseException:  # a full disk mid-way: no whole run to keep (`compare` reads summary.json), the name freed
+        discard_run_dir(run_dir)
+        raise
     if cfg.method == "optimum" and cfg.step == 1.0 and result.map_digest == grid_map.digest:  # the map unchanged
         from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum  # what `train` searches first
 
         found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
         remember_optimum(grid_map, on_map, planning, optimum_cache(args.log_dir), found)
     front_rows = result.front_records(on_map)
-    files["plot"] = plot_pareto(
-        {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
-        run_dir / "pareto.png",
-        f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
-        best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
-    )
+    try:
+        files["plot"] = plot_pareto(
+            {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
+            run_dir / "pareto.png",
+            f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
+            best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
+        )
+    except OSError as exc:  # the run is whole without its picture: kept, and said so
+        raise SmorphiError(f"{exc.strerror or exc}: {rel(run_dir / 'pareto.png')}; the search's results are whole "
+                           f"in {rel(run_dir)} (`compare` reads them), only its plot is missing") from None  # fmt: skip
     from smorphi_rl.score import degenerate_warning
 
     if args.json:
