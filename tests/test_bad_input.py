@@ -325,6 +325,8 @@ def _rewrite(run_dir: Path, **arrays) -> None:
     ["maps", "show", MAP_1, "--png", "{disk}/m.png"],
     ["evaluate", "--map", MAP_1, "--angles", "1", "2", "3", "--plot", "{disk}/m.png"],
     ["search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", "{disk}/runs"],
+    ["evaluate-policy", "--checkpoint", str(ROOT / "smorphi_rl" / "policies" / "designer"), "--map", MAP_1,
+     "--episodes", "2", "--record", "{disk}/rec"],
 ])  # fmt: skip
 def test_a_full_disk_is_one_line_naming_the_file_and_leaves_nothing_half_made(small_disk, capsys, argv):
     from conftest import fill_disk

@@ -5,6 +5,8 @@ from __future__ import annotations
 import json
 import time
 import uuid
+from collections.abc import Iterator
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -69,24 +71,47 @@ class EpisodeWriter:
         self.part = path.with_name(path.name.removesuffix(SUFFIX) + PART_SUFFIX)
         self.part.parent.mkdir(parents=True, exist_ok=True)
         self._fh = self.part.open("wb")
-        self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
-        self._writer.start(profile="", library="smorphi-rl")
-        self._channels: dict[str, int] = {}
-        for topic, name, schema in ((TOPIC_STEP, "smorphi_rl.Step", json.dumps(STEP_SCHEMA).encode()),
-                                    (TOPIC_MAP, "foxglove.Grid", foxglove_schema("Grid")),
-                                    (TOPIC_SCENE, "foxglove.SceneUpdate", foxglove_schema("SceneUpdate")),
-                                    (TOPIC_LOG, "foxglove.Log", foxglove_schema("Log"))):  # fmt: skip
-            schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=schema)
-            self._channels[topic] = self._writer.register_channel(topic, message_encoding="json", schema_id=schema_id)
-        self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+        self.broken = False
+        """Set when a write failed (a full disk): the file is left as its last flushed chunk, and every later call
+        does nothing, so closing the env after the failure does not fail again."""
         self.flush_steps = flush_steps
         self.steps = 0
+        self._channels: dict[str, int] = {}
+        with self._writing():
+            self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
+            self._writer.start(profile="", library="smorphi-rl")
+            for topic, name, schema in ((TOPIC_STEP, "smorphi_rl.Step", json.dumps(STEP_SCHEMA).encode()),
+                                        (TOPIC_MAP, "foxglove.Grid", foxglove_schema("Grid")),
+                                        (TOPIC_SCENE, "foxglove.SceneUpdate", foxglove_schema("SceneUpdate")),
+                                        (TOPIC_LOG, "foxglove.Log", foxglove_schema("Log"))):  # fmt: skip
+                schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=schema)
+                self._channels[topic] = self._writer.register_channel(topic, message_encoding="json",
+                                                                      schema_id=schema_id)  # fmt: skip
+            self._writer.add_metadata(METADATA_NAME, {k: str(v) for k, v in metadata.items()})
+
+    @contextmanager
+    def _writing(self) -> Iterator[None]:
+        """Run a write; an OSError (a full disk) names the file, as every other write's does, and leaves the file at
+        its last flushed chunk (which replays), or removes it when nothing reached the disk."""
+        try:
+            yield
+        except OSError as exc:
+            self.broken = True
+            with suppress(OSError):
+                self._fh.close()
+            with suppress(OSError):
+                if self.part.stat().st_size == 0:
+                    self.part.unlink()
+            raise OSError(exc.errno, exc.strerror, str(self.part)) from None
 
     def write(self, topic: str, message: dict[str, Any] | bytes, ns: int) -> None:
         """One message, a dict (JSON-encoded here) or JSON already encoded."""
         data = message if isinstance(message, bytes) else json.dumps(message, separators=JSON_SEPARATORS).encode()
         ns = int(ns)  # a float or negative log_time corrupts the whole file (the notes)
-        self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, data=data)
+        if self.broken:
+            return
+        with self._writing():
+            self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, data=data)
 
     def end_step(self) -> None:
         """Count a step; flush the chunk every `flush_steps` steps."""
@@ -95,14 +120,20 @@ class EpisodeWriter:
             self.flush()
 
     def flush(self) -> None:
-        self._writer.flush()
-        self._fh.flush()
+        if self.broken:
+            return
+        with self._writing():
+            self._writer.flush()
+            self._fh.flush()
 
     def finish(self) -> Path:
-        """Write the summary, close and rename to NAME.mcap."""
-        self._writer.finish()
-        self._fh.close()
-        self.part.replace(self.final)
+        """Write the summary, close and rename to NAME.mcap (a file a failed write left is kept as NAME.mcap.part)."""
+        if self.broken:
+            return self.part
+        with self._writing():
+            self._writer.finish()
+            self._fh.close()
+            self.part.replace(self.final)
         return self.final
 
 
