@@ -36,6 +36,10 @@ class PolicyFileError(SmorphiError):
     """A folder that holds no readable smorphi-rl policy."""
 
 
+LAYOUT_KEYS = ("format", "version", "observation", "action_nvec", "model_config")
+"""The keys of policy.json that `write_policy` writes from the weights themselves; every other key is `about`."""
+
+
 @dataclass(frozen=True)
 class PolicyFile:
     """A policy read from disk: its description and its weights."""
@@ -43,6 +47,12 @@ class PolicyFile:
     path: Path
     meta: dict[str, Any]
     weights: dict[str, np.ndarray]
+
+    @property
+    def about(self) -> dict[str, Any]:
+        """What the description says of where the weights came from and what was measured of them (its checkpoint,
+        command, env steps, the designer's `accepts` and `held_out`): all but the format and the nets' layout."""
+        return {k: v for k, v in self.meta.items() if k not in LAYOUT_KEYS}
 
     @property
     def observation_shapes(self) -> dict[str, tuple[int, ...]]:

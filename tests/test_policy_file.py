@@ -27,3 +27,19 @@ def test_an_archive_entry_that_is_not_an_array_is_named(tmp_path, entry):
 
 def test_the_shipped_designer_reads(tmp_path):
     assert read_policy(DESIGNER).weights
+
+
+def test_an_exported_policy_exported_again_keeps_what_was_said_of_it(tmp_path, capsys):
+    """The same weights: its env steps, the designer's `accepts` and `held_out` and its source travel (they were
+    dropped, and `design --policy` then described the copy without its training)."""
+    import json
+
+    from smorphi_rl.cli import main
+
+    assert main(["export-policy", "--checkpoint", str(DESIGNER), "--out", str(tmp_path / "again")]) == 0
+    again, shipped = (json.loads((d / "policy.json").read_text()) for d in (tmp_path / "again", DESIGNER))
+    assert again == shipped
+    assert main(["export-policy", "--checkpoint", str(DESIGNER), "--out", str(tmp_path / "said"), "--command",
+                 "my words"]) == 0  # fmt: skip
+    said = read_policy(tmp_path / "said").about
+    assert said["command"] == "my words" and said["held_out"] == shipped["held_out"]

@@ -95,11 +95,14 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
             EnvConfig.recorded(dict(raw))
         except SmorphiError as exc:
             raise SmorphiError(f"{checkpoint}: {exc}") from None
+    from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ, is_policy_dir, read_policy
+
     about: dict[str, Any] = {"checkpoint": str(checkpoint.resolve()), "command": args.command}
+    if is_policy_dir(checkpoint):  # an exported policy again: the same weights, so what was said of them holds
+        about = read_policy(checkpoint).about | ({"command": args.command} if args.command else {})
     trained = run_record(checkpoint)  # the run's env steps, where its summary names this checkpoint
     if trained is not None:
         about["trained"] = trained
-    from smorphi_rl.policy_file import POLICY_JSON, WEIGHTS_NPZ
     from smorphi_rl.rundir import claimed_files
 
     with claimed_files([out / POLICY_JSON, out / WEIGHTS_NPZ], taken="another export is writing there: choose another "
