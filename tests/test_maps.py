@@ -146,6 +146,30 @@ def test_generator_is_seeded_dense_as_asked_and_connected():
     assert _free_is_connected(a.cells == Cell.OCCUPIED)
 
 
+def test_a_generator_needing_more_than_twenty_thousand_rectangles_still_reaches_its_density():
+    """1-cell obstacles on a 40 m square: 32,000 of them; a fixed cap of 20,000 tries once ended it at 12.5 %."""
+    m = generate_map(np.random.default_rng(1), 40, 40, 0.1, 0.2, min_obstacle_m=0.1, max_obstacle_m=0.1)
+    from smorphi_rl.maps import _free_is_connected
+
+    assert m.fraction(Cell.OCCUPIED) == 0.2 and _free_is_connected(m.cells == Cell.OCCUPIED)
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_the_local_connectivity_tests_decide_as_the_whole_map_flood_fill(seed):
+    """`_keeps_free_connected` answers from the ring and a window where it can; each answer, on dense random maps
+    whose rectangles touch and enclose, is the flood fill's of the whole map."""
+    from smorphi_rl.maps import _free_is_connected, _keeps_free_connected
+
+    rng = np.random.default_rng(seed)
+    occupied = generate_map(rng, 12, 3, 0.1, 0.55, min_obstacle_m=0.1, max_obstacle_m=0.5).cells == Cell.OCCUPIED
+    for _ in range(300):
+        rh, rw = (int(v) for v in rng.integers(1, 6, size=2))
+        r, c = int(rng.integers(0, occupied.shape[0] - rh + 1)), int(rng.integers(0, occupied.shape[1] - rw + 1))
+        trial = occupied.copy()
+        trial[r : r + rh, c : c + rw] = True
+        assert _keeps_free_connected(occupied, r, c, rh, rw) == _free_is_connected(trial)
+
+
 def test_map_from_text_orientation(room12):
     assert room12.cells.shape == (12, 12)
     assert room12.cells[0, 2] == Cell.FREE and room12.cells[2, 2] == Cell.OCCUPIED  # '#' at text rows 9-10

@@ -17,6 +17,9 @@ from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, finite, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
 
+PROGRESS_FROM_CELLS = 1_000_000
+"""`maps generate` shows its progress on maps of more cells than this (a few seconds' work)."""
+
 CROP_MARGIN_M = 0.2
 """`maps crop`'s margin around the known cells, metres."""
 
@@ -90,8 +93,10 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     if not args.force and (out.exists() or image.exists()):
         raise SmorphiError(f"{out if out.exists() else image} exists; pass --force to overwrite it")
     rng = np.random.default_rng(args.seed)
+    from smorphi_rl.progress import progress_line
     from smorphi_rl.rundir import claimed_files
 
+    large = args.width_m * args.height_m / args.resolution**2 > PROGRESS_FROM_CELLS
     grid_map = generate_map(
         rng,
         width_m=args.width_m,
@@ -99,12 +104,16 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
         resolution_m=args.resolution,
         obstacle_density=args.density,
         name=out.stem,
+        progress=progress_line("obstacle cells placed") if large else None,
     )
     with claimed_files([out], args.force):  # of two runs writing one map at once, exactly one writes it
         save_map(grid_map, out, image_format=args.format)
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
+    if grid_map.counts[Cell.OCCUPIED] < round(args.density * grid_map.width * grid_map.height):
+        print(f"smorphi-rl: warning: {out}: occupied {occupied:.2f} % where --density asked {100 * args.density:g} %: "
+              "no more rectangles fitted without cutting the free space in two", file=sys.stderr)  # fmt: skip
     warn_coarser_than_a_block(args.resolution)
     return 0
 
