@@ -454,34 +454,59 @@ def _ring(occupied: np.ndarray, r: int, c: int, rh: int, rw: int) -> tuple[np.nd
 
 
 LOCAL_MARGIN = 16
-"""Cells around a rectangle within which `_joins_nearby` looks for the paths that join its neighbours."""
+"""Cells around a rectangle in the first window `_keeps_free_connected` labels; each next window is four times as
+wide, up to the whole map."""
 
 
 def _keeps_free_connected(occupied: np.ndarray, r: int, c: int, rh: int, rw: int) -> bool:
     """Whether adding the rectangle leaves the free cells one 4-connected region (they are one before). Every path
-    the rectangle cuts enters and leaves it through free cells of the ring around it, so it suffices that those stay
-    joined: first along the ring itself (one unbroken run of free cells), then within LOCAL_MARGIN cells around it,
-    and only then by a flood fill of the whole map. Each test is exact where it answers, so the maps are the whole-map
-    flood fill's, at a fraction of its cost on large maps."""
+    the rectangle cuts enters and leaves it through free cells of the ring around it, so the question is whether
+    those stay joined. Joined along the ring itself (one unbroken run of free cells): yes. Else the free cells of a
+    window around it are labelled, the window growing until it answers: the ring's cells all in one region, yes; one
+    of them in a region that reaches no cut edge of the window (closed within it), no; the window the whole map,
+    no. Each answer is exact, so the maps are a whole-map flood fill's, at a fraction of its cost."""
     rows, cols, free = _ring(occupied, r, c, rh, rw)
     if free.all() or (free.any() and int((free & ~np.roll(free, 1)).sum()) == 1):  # the runs' starts, around it
         return True
-    if free.any():
-        from scipy.ndimage import label
+    if not free.any():  # no path crosses it (already occupied, or the map's only free cells): the whole map decides
+        trial = occupied.copy()
+        trial[r : r + rh, c : c + rw] = True
+        return _free_is_connected(trial)
+    from scipy.ndimage import label
 
-        r0, c0 = max(0, r - 1 - LOCAL_MARGIN), max(0, c - 1 - LOCAL_MARGIN)
-        window = occupied[r0 : r + rh + 1 + LOCAL_MARGIN, c0 : c + rw + 1 + LOCAL_MARGIN].copy()
+    h, w = occupied.shape
+    margin = LOCAL_MARGIN
+    while True:
+        r0, c0 = max(0, r - 1 - margin), max(0, c - 1 - margin)
+        r1, c1 = min(h, r + rh + 1 + margin), min(w, c + rw + 1 + margin)
+        window = occupied[r0:r1, c0:c1].copy()
         window[r - r0 : r - r0 + rh, c - c0 : c - c0 + rw] = True
-        labels = label(~window)[0][rows[free] - r0, cols[free] - c0]
-        if (labels == labels[0]).all():
+        labels = label(~window)[0]
+        ring = np.unique(labels[rows[free] - r0, cols[free] - c0])
+        if len(ring) == 1:
             return True
-    trial = occupied.copy()
-    trial[r : r + rh, c : c + rw] = True
-    return _free_is_connected(trial)
+        cut = [
+            edge
+            for edge, inside in (
+                (labels[0], r0 > 0),
+                (labels[-1], r1 < h),
+                (labels[:, 0], c0 > 0),
+                (labels[:, -1], c1 < w),
+            )
+            if inside
+        ]  # the map's own edges bound all paths
+        if not np.isin(ring, np.concatenate(cut) if cut else []).all():  # a region closed within the window
+            return False
+        margin *= 4
 
 
 MAX_GENERATED_CELLS = 25_000_000
 """`maps generate` refuses larger maps (5,000 x 5,000 cells is a 500 m square at 0.1 m)."""
+
+
+def obstacle_target(density: float, width: int, height: int) -> int:
+    """The occupied cells `generate_map` places for a density on a map of so many cells."""
+    return round(density * width * height)
 
 
 def generate_map(
@@ -516,7 +541,7 @@ def generate_map(
     lo = max(1, round(min_obstacle_m / resolution_m))
     hi = max(lo, min(round(max_obstacle_m / resolution_m), h - 1, w - 1))
     occupied = np.zeros((h, w), dtype=bool)
-    target = round(obstacle_density * h * w)
+    target = obstacle_target(obstacle_density, w, h)
     count = 0
     tries = max(20_000, 20 * target // ((lo + hi) ** 2 // 4))  # twenty times the rectangles of a mean size it takes
     for n in range(tries):

@@ -56,7 +56,7 @@ def progress_line(
         if not tty and done < total and now - last[0] < 5:
             return
         last[0] = now
-        frac = done / total
+        frac = done / total if total else 1.0  # nothing to do (a density of 0) is done
         bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""

@@ -340,3 +340,13 @@ def test_a_floor_set_refused_for_a_file_there_names_the_file_that_is(tmp_path, c
     err = capsys.readouterr().err
     assert f"{tmp_path / 'rooms-0001000.png'} exists (1 of the 1 floors have a file there); pass --force" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rooms-0001000.png"]
+
+
+def test_a_large_map_shows_its_progress_and_a_density_of_zero_is_done(tmp_path, capsys):
+    """Past a million cells `maps generate` draws a progress bar; with nothing to place it once divided by zero."""
+    from smorphi_rl.cli import main
+
+    assert main(["maps", "generate", "--out", str(tmp_path / "z.yaml"), "--width-m", "101", "--height-m", "100",
+                 "--density", "0"]) == 0  # fmt: skip
+    out, err = capsys.readouterr()
+    assert "occupied 0.00 %" in out and "obstacle cells placed" in err and "warning" not in err

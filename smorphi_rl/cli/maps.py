@@ -15,7 +15,7 @@ from smorphi_rl.cli.fields import param_default
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, finite, output_file, resolved
-from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs
+from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs, obstacle_target
 
 PROGRESS_FROM_CELLS = 1_000_000
 """`maps generate` shows its progress on maps of more cells than this (a few seconds' work)."""
@@ -106,12 +106,15 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
         name=out.stem,
         progress=progress_line("obstacle cells placed") if large else None,
     )
+    short = grid_map.counts[Cell.OCCUPIED] < obstacle_target(args.density, grid_map.width, grid_map.height)
+    if large and short and sys.stderr.isatty():
+        sys.stderr.write("\n")  # the bar, rewritten in place, ends its line only when full
     with claimed_files([out], args.force):  # of two runs writing one map at once, exactly one writes it
         save_map(grid_map, out, image_format=args.format)
     occupied = 100 * grid_map.fraction(Cell.OCCUPIED)
     print(f"wrote {out} and {image}: {grid_map.width} x {grid_map.height} cells at {args.resolution:g} m, "
           f"occupied {occupied:.2f} % (seed {args.seed})")  # fmt: skip
-    if grid_map.counts[Cell.OCCUPIED] < round(args.density * grid_map.width * grid_map.height):
+    if short:
         print(f"smorphi-rl: warning: {out}: occupied {occupied:.2f} % where --density asked {100 * args.density:g} %: "
               "no more rectangles fitted without cutting the free space in two", file=sys.stderr)  # fmt: skip
     warn_coarser_than_a_block(args.resolution)
