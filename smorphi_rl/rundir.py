@@ -194,10 +194,13 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
-    except OSError as exc:  # a full disk: the claim is taken back and the file named, as every full disk is
-        discard_run_dir(run_dir)
+    except OSError as exc:  # a full disk: the claim is taken back (a user's folder keeps whatever else is in it)
         (run_dir / MARKER).unlink(missing_ok=True)
-        raise OSError(exc.errno, exc.strerror, str(run_dir / MARKER)) from None
+        if run_dir in _MADE:
+            _MADE.discard(run_dir)
+            with contextlib.suppress(OSError):
+                run_dir.rmdir()
+        raise naming(exc, run_dir / MARKER) from None
     if sorted(p.name for p in run_dir.iterdir()) != [MARKER]:  # a user's folder that filled meanwhile
         (run_dir / MARKER).unlink(missing_ok=True)
         raise RunDirError(_taken(run_dir))
@@ -214,6 +217,7 @@ def discard_run_dir(run_dir: Path) -> None:
     if run_dir.is_symlink() or not (run_dir / MARKER).is_file():
         return
     if run_dir in _MADE:
+        _MADE.discard(run_dir)
         shutil.rmtree(run_dir, ignore_errors=True)
         return
     for child in run_dir.iterdir():
@@ -236,6 +240,23 @@ def atomic_text(path: Path) -> Iterator[io.StringIO]:
     write_text_atomic(path, buffer.getvalue())
 
 
+def naming(exc: OSError, path: Path) -> OSError:
+    """`exc` as the error of `path`: a failed write (a full disk) names the file the user asked for, never a
+    temporary name or a stream's missing one."""
+    return OSError(exc.errno, exc.strerror or str(exc), str(path))
+
+
+@contextmanager
+def discarded_on_failure(run_dir: Path) -> Iterator[None]:
+    """Within the block, any failure or interruption discards the run folder (`discard_run_dir`): a run with no
+    whole result leaves its name free."""
+    try:
+        yield
+    except BaseException:
+        discard_run_dir(run_dir)
+        raise
+
+
 @contextmanager
 def atomic_path(path: Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that needs a file name (a figure, an animation); renamed over
@@ -247,7 +268,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
         os.replace(tmp, path)
     except OSError as exc:  # a full disk: name the file the user asked for, not our temporary one
         if exc.filename is None or Path(exc.filename) == tmp:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+            raise naming(exc, path) from None
         raise
     finally:
         tmp.unlink(missing_ok=True)
@@ -266,7 +287,7 @@ def _fresh_temporary(path: Path, suffix: str) -> tuple[int, Path]:
         except FileExistsError:
             continue
         except OSError as exc:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+            raise naming(exc, path) from None
     raise FileExistsError(errno.EEXIST, "no fresh temporary name beside it", str(path))
 
 
@@ -282,7 +303,7 @@ def write_atomic(path: Path, data: bytes) -> None:
         os.replace(tmp, path)
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) == tmp:
-            raise OSError(exc.errno, exc.strerror or str(exc), str(path)) from None
+            raise naming(exc, path) from None
         raise
     finally:
         tmp.unlink(missing_ok=True)

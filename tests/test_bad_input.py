@@ -355,6 +355,19 @@ def test_a_search_the_disk_cuts_short_leaves_a_whole_run_or_none(small_disk, cap
                *(["--name", "again"] if run_dir.exists() else []))[0] == 0  # fmt: skip
 
 
+def test_a_search_whose_plot_cannot_be_written_keeps_its_whole_run_and_says_so(tmp_path, capsys, monkeypatch):
+    import smorphi_rl.plots
+
+    def full(*_: object, **__: object) -> None:
+        raise OSError(28, "No space left on device", "pareto.png")
+
+    monkeypatch.setattr(smorphi_rl.plots, "plot_pareto", full)
+    code, _, err = run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(tmp_path))
+    run_dir = tmp_path / "random-map-1-seed0"
+    assert code == 1 and "the search's results are whole in" in one_line(err) and str(run_dir) in one_line(err)
+    assert (run_dir / "summary.json").is_file() and (run_dir / "results.npz").is_file()
+
+
 @pytest.mark.parametrize("argv", [
     ["evaluate", "--map", MAP_1, "--angles", "90", "90", "90", "--plot", "{loop}.png"],
     ["maps", "show", MAP_1, "--png", "{loop}.png"],

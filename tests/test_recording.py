@@ -146,6 +146,30 @@ def test_a_file_cut_short_is_recovered_up_to_its_last_flush(tmp_path, capsys):
     assert partial.steps == json.loads(json.dumps(produced[: len(partial.steps)]))
 
 
+def test_a_recording_whose_disk_fills_mid_episode_keeps_what_it_flushed(tmp_path, monkeypatch):
+    """A full disk at a chunk's flush: the error names the file, the file keeps its flushed chunks (and replays),
+    and the steps and the close after it write nothing and raise nothing (closing once failed again)."""
+    env = recorded_env(tmp_path, flush_steps=10, max_steps=200)
+    produced = play(env, 5, np.random.default_rng(5), steps=25)  # flushed at steps 10 and 20
+    writer = env._writer
+    assert writer is not None
+
+    def full(*_: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(writer._writer, "flush", full)
+    with pytest.raises(OSError) as exc:
+        for _ in range(10):  # the episode goes on; its next flush fails
+            env.step(np.array([1, 1, 1]))
+    assert exc.value.filename == str(writer.part) and writer.broken
+    env.step(np.array([1, 1, 1]))
+    env.close()
+    assert writer.finish() is None and not writer.final.exists()
+    ep = read_episode(writer.part)
+    assert ep.truncated and 20 <= len(ep.steps) <= 26
+    assert ep.steps == json.loads(json.dumps(produced[: len(ep.steps)]))
+
+
 def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     env = recorded_env(tmp_path, max_steps=30)
     for seed in range(2):

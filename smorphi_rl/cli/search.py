@@ -86,7 +86,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     """Random shapes, NSGA-II, local search or the exhaustive lattice on a map; results, front and plot under
     LOG_DIR/<run>/."""
     from smorphi_rl.plots import plot_pareto
-    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir
+    from smorphi_rl.rundir import discarded_on_failure, prepare_run_dir
     from smorphi_rl.search.config import METHOD_FIELDS, SearchConfig, run_search
     from smorphi_rl.search.results import save
 
@@ -107,23 +107,16 @@ def cmd_search(args: argparse.Namespace) -> int:
         cluster.check_reachable(address)  # no cluster there: one line, nothing written
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
     hint = cut_hint(args.method)
-    try:
+    with discarded_on_failure(run_dir):  # interrupted, failed, or a full disk mid-way: no whole run, the name free
         result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
-    except BaseException:  # interrupted or failed before any result: the folder holds nothing, the name is free
-        discard_run_dir(run_dir)
-        raise
-    if planning.start_xy is not None:
-        result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
-    b = result.best(on_map)
-    from smorphi_rl.geometry import Morphology
+        if planning.start_xy is not None:
+            result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
+        b = result.best(on_map)
+        from smorphi_rl.geometry import Morphology
 
-    best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
-    cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
-    try:
-        files = save(result, run_dir, on_map, cover)
-    except BaseException:  # a full disk mid-way: no whole run to keep (`compare` reads summary.json), the name freed
-        discard_run_dir(run_dir)
-        raise
+        best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
+        cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
+        files = save(result, run_dir, on_map, cover)  # `compare` reads summary.json, written last
     if cfg.method == "optimum" and cfg.step == 1.0 and result.map_digest == grid_map.digest:  # the map unchanged
         from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum  # what `train` searches first
 
@@ -222,7 +215,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         start_of_run,
         write_report,
     )
-    from smorphi_rl.rundir import discard_run_dir, prepare_run_dir, safe_name
+    from smorphi_rl.rundir import discarded_on_failure, prepare_run_dir, safe_name
     from smorphi_rl.search.config import LOCAL_METHODS
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -292,7 +285,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         ok = exact.feasible
         check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, args.exhaustive)
     run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
-    try:
+    with discarded_on_failure(run_dir):  # no report: the name stays free
         if exact is None:
             exact = run_exhaustive(
                 str(args.map),
@@ -302,9 +295,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
             )
         exact_score, methods = score_methods(exact, runs, on_map)
         files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
-    except BaseException:
-        discard_run_dir(run_dir)  # no report: the name stays free
-        raise
     print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0

@@ -36,6 +36,7 @@ from smorphi_rl.recording.messages import (
     scene_message,
     step_record,
 )
+from smorphi_rl.rundir import naming
 
 
 @dataclass(frozen=True)
@@ -65,8 +66,6 @@ class EpisodeWriter:
     """One episode's MCAP file, crash-safe: NAME.mcap.part until `finish` renames it to NAME.mcap."""
 
     def __init__(self, path: Path, metadata: dict[str, str], flush_steps: int) -> None:
-        from mcap.writer import CompressionType, Writer
-
         self.final = path
         self.part = path.with_name(path.name.removesuffix(SUFFIX) + PART_SUFFIX)
         self.part.parent.mkdir(parents=True, exist_ok=True)
@@ -77,6 +76,16 @@ class EpisodeWriter:
         self.flush_steps = flush_steps
         self.steps = 0
         self._channels: dict[str, int] = {}
+        try:
+            self._start(metadata)
+        except Exception:  # no writer comes of it: its file closed and, when empty, removed
+            self.broken = True
+            self._abandon()
+            raise
+
+    def _start(self, metadata: dict[str, str]) -> None:
+        from mcap.writer import CompressionType, Writer
+
         with self._writing():
             self._writer = Writer(self._fh, compression=CompressionType.ZSTD)
             self._writer.start(profile="", library="smorphi-rl")
@@ -97,12 +106,16 @@ class EpisodeWriter:
             yield
         except OSError as exc:
             self.broken = True
-            with suppress(OSError):
-                self._fh.close()
-            with suppress(OSError):
-                if self.part.stat().st_size == 0:
-                    self.part.unlink()
-            raise OSError(exc.errno, exc.strerror, str(self.part)) from None
+            self._abandon()
+            raise naming(exc, self.part) from None
+
+    def _abandon(self) -> None:
+        """Close the file as it stands (its last flushed chunk replays); remove it when nothing reached the disk."""
+        with suppress(OSError):
+            self._fh.close()
+        with suppress(OSError):
+            if self.part.stat().st_size == 0:
+                self.part.unlink()
 
     def write(self, topic: str, message: dict[str, Any] | bytes, ns: int) -> None:
         """One message, a dict (JSON-encoded here) or JSON already encoded."""
@@ -126,10 +139,11 @@ class EpisodeWriter:
             self._writer.flush()
             self._fh.flush()
 
-    def finish(self) -> Path:
-        """Write the summary, close and rename to NAME.mcap (a file a failed write left is kept as NAME.mcap.part)."""
+    def finish(self) -> Path | None:
+        """Write the summary, close and rename to NAME.mcap; None after a failed write (which kept NAME.mcap.part as
+        far as it was flushed, or removed it empty)."""
         if self.broken:
-            return self.part
+            return None
         with self._writing():
             self._writer.finish()
             self._fh.close()
