@@ -12,7 +12,7 @@ from typing import Any
 
 from smorphi_rl import interrupts
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.words import counted
+from smorphi_rl.words import counted, verb
 
 CONNECT_TIMEOUT_S = 3.0
 MIN_LOCAL_CPUS = 2
@@ -191,6 +191,6 @@ def check_capacity(cpus: float, env_runners: int, address: str | None, fix: str 
     if cpus > have + 1e-9:
         where = "this machine's local Ray" if address is None else f"the Ray cluster at {address}"
         raise ClusterError(
-            f"{counted(env_runners, 'env runner')} need {cpus:g} CPUs (1 for the trial, 0.5 per runner) and {where} "
-            f"has {have:g}: {fix}"
+            f"{counted(env_runners, 'env runner')} {verb(env_runners, 'needs', 'need')} {cpus:g} CPUs (1 for the "
+            f"trial, 0.5 per runner) and {where} has {have:g}: {fix}"
         )

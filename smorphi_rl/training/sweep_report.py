@@ -31,7 +31,7 @@ from smorphi_rl.training.convergence import (
     measured,
 )
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests
-from smorphi_rl.words import counted
+from smorphi_rl.words import counted, verb
 
 CURVE_POINTS = 100
 
@@ -267,8 +267,8 @@ def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
     """Each algorithm and hyperparameters on each map set over its seeds, means with 95 % bootstrap intervals;
     a trial that never converged is counted as such, not as a number (a note, a blank line, the table)."""
     unfinished = sum(not r.finished for r in rows)
-    verb = "is" if unfinished == 1 else "are"
-    left_out = f" {counted(unfinished, 'unfinished trial')} (sweep.md) {verb} left out." if unfinished else ""
+    are = verb(unfinished, "is", "are")
+    left_out = f" {counted(unfinished, 'unfinished trial')} (sweep.md) {are} left out." if unfinished else ""
     lines = ["Over seeds: median [95 % bootstrap interval]. Converged: from some evaluation on, at least 90 % of the "
              "protocol's starts settle within 1 % of the optimum; a trial that never converged counts as "
              "converging past its budget, so a median that depends on it reads \"> x\" (at least x) and an "
