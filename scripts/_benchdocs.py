@@ -10,7 +10,7 @@ import shlex
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import TypeVar
+from typing import NoReturn, TypeVar
 
 T = TypeVar("T")
 
@@ -76,6 +76,13 @@ def whole(summary: T) -> T:
     return summary
 
 
+def stop_interrupted() -> NoReturn:
+    """End a benchmark that Ctrl-C, SIGTERM or a cut-short run (`whole`) stopped: one line, exit 130, and its section
+    of docs/benchmarks.md as it was."""
+    print(f"{Path(sys.argv[0]).name}: interrupted; docs/benchmarks.md left as it was", file=sys.stderr)
+    raise SystemExit(130)
+
+
 def run_documented(name: str, title: str, main: object) -> None:
     """Run a benchmark's `main()`; with `--write-docs` on the command line, its printed report becomes the
     section `name` of docs/benchmarks.md (the flag is taken off before the script parses its own)."""
@@ -90,8 +97,7 @@ def run_documented(name: str, title: str, main: object) -> None:
         main()  # type: ignore[operator]
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM, or a run `whole` found cut short: nothing written
         sys.stdout = tee.stream  # type: ignore[assignment]
-        print(f"{Path(sys.argv[0]).name}: interrupted; docs/benchmarks.md left as it was", file=sys.stderr)
-        raise SystemExit(130) from None
+        stop_interrupted()
     except SmorphiError as exc:  # a bad option or input: one line, as the CLI gives it, and nothing written
         sys.stdout = tee.stream  # type: ignore[assignment]
         print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)

@@ -29,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import whole, write_section
+from _benchdocs import stop_interrupted, whole, write_section
 
 from smorphi_rl.design import run_design
 from smorphi_rl.designer import designer_env, load_designer
@@ -360,5 +360,4 @@ if __name__ == "__main__":
     try:
         main()
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM, or a training run `whole` found cut short: nothing written
-        print("bench_designer.py: interrupted; docs/benchmarks.md left as it was", file=sys.stderr)
-        raise SystemExit(130) from None
+        stop_interrupted()

@@ -25,10 +25,6 @@ def test_an_archive_entry_that_is_not_an_array_is_named(tmp_path, entry):
         read_policy(folder)
 
 
-def test_the_shipped_designer_reads(tmp_path):
-    assert read_policy(DESIGNER).weights
-
-
 def test_an_exported_policy_exported_again_keeps_what_was_said_of_it(tmp_path, capsys):
     """The same weights: its env steps, the designer's `accepts` and `held_out` and its source travel (they were
     dropped, and `design --policy` then described the copy without its training)."""
