@@ -15,7 +15,7 @@ IN_MEMORY_OR_TEMPORARY = {"buffer", "tmp"}
 """First arguments that are an in-memory buffer or `rundir.atomic_path`'s temporary name."""
 ALLOWED = {
     ("recording/writer.py", "self.part.open('wb')"): "an MCAP recording streams into NAME.mcap.part, renamed when "
-    "it finishes (README: recordings are atomic when they finish)",
+    "it finishes (docs/commands.md: recordings are atomic when they finish)",
     ("training/resume.py", "shutil.move(str(p), str(aside / p.name))"): "a rename into before-resume-N/, no content "
     "written",
 }
