@@ -159,7 +159,7 @@ def _generate_floors(args: argparse.Namespace) -> int:
             save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
             cells += grid_map.cells.size
     print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
-          f"{cells / len(names):,.0f} cells a floor on average, free or not)")  # fmt: skip
+          f"on average {cells / len(names):,.0f} cells a floor, unknown margin included)")  # fmt: skip
     return 0
 
 
