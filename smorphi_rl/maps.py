@@ -466,12 +466,12 @@ def _keeps_free_connected(occupied: np.ndarray, r: int, c: int, rh: int, rw: int
     of them in a region that reaches no cut edge of the window (closed within it), no; the window the whole map,
     no. Each answer is exact, so the maps are a whole-map flood fill's, at a fraction of its cost."""
     rows, cols, free = _ring(occupied, r, c, rh, rw)
-    if free.all() or (free.any() and int((free & ~np.roll(free, 1)).sum()) == 1):  # the runs' starts, around it
-        return True
     if not free.any():  # no path crosses it (already occupied, or the map's only free cells): the whole map decides
         trial = occupied.copy()
         trial[r : r + rh, c : c + rw] = True
         return _free_is_connected(trial)
+    if int((free & ~np.roll(free, 1)).sum()) <= 1:  # the runs' starts around it: none (all free) or one
+        return True
     from scipy.ndimage import label
 
     h, w = occupied.shape
