@@ -279,7 +279,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
             spaces[k] = Space(space.kind, tuple(map(whole, space.values)))
     cfg = SweepConfig(
         path=file,
-        name=_name(file.stem, fail, file.stem) if doc.name is None else _name(doc.name, fail),
+        name=_name(file.stem, fail, from_file=True) if doc.name is None else _name(doc.name, fail),
         algorithms=tuple(doc.algorithms),
         map_sets=map_sets,
         seeds=tuple(doc.seeds),
@@ -500,14 +500,14 @@ def _space(value: Any, key: str, fail: Any) -> Space:
     return Space(kind, tuple(args))
 
 
-def _name(value: Any, fail: Any, stem: str | None = None) -> str:
-    """The experiment's folder name: the `name` key's, else (`stem`) the file's name without its suffix."""
+def _name(value: Any, fail: Any, from_file: bool = False) -> str:
+    """The experiment's folder name: the `name` key's, else (`from_file`) the file's name without its suffix."""
     from smorphi_rl.rundir import RUN_NAME
 
     if not isinstance(value, str) or not RUN_NAME.fullmatch(value):
         rule = "letters, digits and _ . + -, not first; at most 128 characters; no / or .."
-        if stem is not None:  # no `name` key: the file's own name is the one refused
-            raise fail("name", f"missing, and the file's name {stem!r}, the default, is not a plain folder name "
+        if from_file:  # no `name` key: the file's own name is the one refused
+            raise fail("name", f"missing, and the file's name {value!r}, the default, is not a plain folder name "
                        f"({rule}): add a name")  # fmt: skip
         raise fail("name", f"expected a plain folder name ({rule}), got {value!r}")
     return value
