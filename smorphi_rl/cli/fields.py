@@ -55,8 +55,14 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
     kwargs["help"] = f"{doc} (default: {said})".strip() if doc else f"default: {said}"
     kwargs["default"] = UNSET if unset else default
     flags = flags or (f"--{name.replace('_', '-')}",)
-    FIELD_FLAGS[name] = flags[0]
+    field_flag(name, flags[0])
     return parser.add_argument(*flags, **kwargs)
+
+
+def field_flag(name: str, flag: str) -> None:
+    """Record that `flag` sets configuration field `name`, for an option not made by `option` (`train --map` sets the
+    env's `maps`), so a complaint about the field names the flag (`flag_named`)."""
+    FIELD_FLAGS[name] = flag
 
 
 def flag_named(message: str, argv: list[str]) -> str:

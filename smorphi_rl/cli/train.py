@@ -22,7 +22,7 @@ from smorphi_rl.cli.common import (
     seed_arg,
     weight_options,
 )
-from smorphi_rl.cli.fields import FIELD_FLAGS, option
+from smorphi_rl.cli.fields import field_flag, option
 from smorphi_rl.config_fields import field_docs
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.maps import load_map
@@ -98,7 +98,7 @@ def _register_train(sub: Any) -> None:
     tr.add_argument(
         "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
     )
-    FIELD_FLAGS["maps"] = "--map"  # the env's field it sets: a complaint about `maps` names the flag
+    field_flag("maps", "--map")
     option(tr, TrainConfig, "algo", unset=True, choices=ALGORITHMS, default_text="the pretrained policy's, else ppo")
     option(tr, TrainConfig, "timesteps", metavar="N")
     option(tr, TrainConfig, "seed", type=seed_arg, metavar="S")
