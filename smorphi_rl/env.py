@@ -73,13 +73,13 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
-from smorphi_rl.coverage import CoverageResult
+from smorphi_rl.coverage import CoverageResult, Planner
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout, RewardMode
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import MapError, MorphologyError, SmorphiError
 from smorphi_rl.floorplans import generate_floor
-from smorphi_rl.geometry import Morphology, check_block_side
+from smorphi_rl.geometry import Morphology
 from smorphi_rl.map_sources import generators
-from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.planning import Evaluator, Planning
 from smorphi_rl.score import Scored, Weights
 
@@ -262,12 +262,15 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._last = self._best = UNSCORED  # until the first reset
 
     def _build(self, grid_map: Map, path: str | None) -> Floor:
-        """A map's Floor; a block under one cell or a start off the floor fails here and names the map."""
+        """A map's Floor; a block under one cell, a floor smaller than the robot or a start off the floor fails here
+        and names the map."""
         cfg = self.config
-        try:
-            check_block_side(cfg.block_side_m, grid_map.resolution_m)
-        except SmorphiError as exc:
+        try:  # and a floor smaller than the robot, here rather than at its first plan (`paper` plans none to build)
+            check_fits(grid_map, cfg.block_side_m, whole_footprint=cfg.planner == Planner.FIT.value)
+        except MorphologyError as exc:
             raise EnvConfigError(f"env_config 'block_side_m' on {grid_map.name}: {exc}") from None
+        except MapError as exc:
+            raise EnvConfigError(f"env_config 'maps': {exc}") from None
         try:
             cfg.planning.start_on(grid_map)
         except SmorphiError as exc:
@@ -448,6 +451,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         scored = self._score_current()
         self._record(scored)
         stats = self._floor.stats  # type: ignore[union-attr]  # set by reset
+        threshold = self.config.coverage_threshold
+        terminated = threshold is not None and scored.P_c >= threshold
         if self._mode is RewardMode.PAPER:
             reward = scored.R1 - (self.config.beta if unchanged else 0.0)
         elif self._mode is RewardMode.LEVEL:
@@ -456,10 +461,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             reward = stats.peak(scored.R1) - (0.0 if unchanged else self.config.move_cost)
         elif self._mode is RewardMode.IMPROVEMENT:
             reward = (scored.R1 - before.R1) / stats.sigma
-        else:
-            reward = -self.config.step_cost + (scored.R1 / stats.sigma if truncated else 0.0)
-        threshold = self.config.coverage_threshold
-        terminated = threshold is not None and scored.P_c >= threshold
+        else:  # `commit`: an episode that ends without a commit is paid the design it ends on, as one that commits
+            reward = -self.config.step_cost + (scored.R1 / stats.sigma if truncated or terminated else 0.0)
         return self._observe(), float(reward), bool(terminated), bool(truncated), self._info()
 
 

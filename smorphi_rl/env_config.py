@@ -165,11 +165,31 @@ class EnvConfig:
             raise EnvConfigError(f"env_config 'coverage_threshold' must be in (0, 100], got {self.coverage_threshold}")
         if self.block_side_m <= 0:
             raise EnvConfigError(f"env_config 'block_side_m' must be > 0, got {self.block_side_m}")
+        self._check_generated()
         if self.start_theta is not None:
             try:
                 Morphology.of(self.start_theta)
             except SmorphiError as exc:
                 raise EnvConfigError(f"env_config 'start_theta': {exc}") from None
+
+    def _check_generated(self) -> None:
+        """What every `generate:` floor must allow, checked now: such a floor is first built when it is drawn, in an
+        env runner mid-run, where a block too small for its cells or a start off its floor would stop training."""
+        from smorphi_rl.map_sources import is_generator
+
+        if not any(is_generator(m) for m in self.maps):
+            return
+        if self.start_xy is not None:
+            raise EnvConfigError("env_config 'start_xy' cannot be used with generate: floors (a fixed point is free "
+                                 "on some and not on others); leave it unset")  # fmt: skip
+        from smorphi_rl.floorplans import DEFAULT_RANGE
+        from smorphi_rl.geometry import MAX_BLOCK_CELLS
+
+        fine, coarse = DEFAULT_RANGE.min_resolution_m, DEFAULT_RANGE.max_resolution_m
+        if not coarse <= self.block_side_m <= MAX_BLOCK_CELLS * fine:
+            raise EnvConfigError(f"env_config 'block_side_m' must be in [{coarse:g}, {MAX_BLOCK_CELLS * fine:g}] m "
+                                 f"with generate: floors (1 to {MAX_BLOCK_CELLS} cells of every such floor, whose "
+                                 f"cells are {fine:g}-{coarse:g} m), got {self.block_side_m:g}")  # fmt: skip
 
     @classmethod
     def from_dict(cls, raw: dict[str, Any] | None) -> EnvConfig:

@@ -14,6 +14,7 @@ from smorphi_rl.coverage import Planner
 from smorphi_rl.env import ENV_ID, MorphologyEnv, resample
 from smorphi_rl.env_config import EnvConfig, EnvConfigError
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.maps import Cell, Map, save_map
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 NOOP = np.array([1, 1, 1])
@@ -186,6 +187,15 @@ def test_commit_truncation_pays_the_final_shape():
     assert truncated and not terminated and paid == pytest.approx(info["R1"] / env.sigma_map)
 
 
+def test_commit_ended_by_the_coverage_threshold_pays_the_shape_it_reached():
+    """The threshold ends the episode as a commit would: it once paid -step_cost alone, so a policy learned to
+    keep away from the coverage it was asked to reach."""
+    env = MorphologyEnv({"reward": "commit", "step_cost": 0.01, "coverage_threshold": 1.0, "start_theta": [9, 9, 9]})
+    env.reset(seed=0)
+    _, paid, terminated, truncated, info = env.step(np.array([2, 2, 2]))
+    assert terminated and not truncated and paid == pytest.approx(-0.01 + info["R1"] / env.sigma_map)
+
+
 def test_level_reward_is_standardised_r1_without_penalty():
     from smorphi_rl.env import r1_stats
 
@@ -261,6 +271,31 @@ def test_fit_planner_scores_every_step_with_the_footprint_safe_plan():
 def test_block_smaller_than_a_cell_is_refused_before_any_planning():
     with pytest.raises(EnvConfigError, match="smaller than one cell"):
         MorphologyEnv({"block_side_m": 0.01})
+
+
+@pytest.mark.parametrize(
+    ("config", "message"),
+    [
+        ({"block_side_m": 0.06}, r"'block_side_m' must be in \[0.1, 20\] m with generate: floors"),
+        ({"block_side_m": 25.0}, r"'block_side_m' must be in \[0.1, 20\] m with generate: floors"),
+        ({"start_xy": [1.0, 1.0]}, "'start_xy' cannot be used with generate: floors"),
+    ],
+)
+def test_what_a_generated_floor_must_allow_is_checked_when_the_config_is_read(config, message):
+    """Seed 8 of `rooms` has 0.065 m cells: a block of 0.06 m built, then failed at a reset mid-run."""
+    with pytest.raises(EnvConfigError, match=message):
+        EnvConfig.from_dict({"maps": ["generate:rooms:0-10"], **config})
+    assert EnvConfig.from_dict({"maps": ["maps/map-1.yaml"], **config})  # a map file is checked as it is built
+
+
+@pytest.mark.parametrize("reward", ["paper", "peak"])
+def test_a_floor_smaller_than_the_robot_is_refused_when_the_env_is_built(tmp_path, reward):
+    """Under `paper` no shape is planned to build the env, so the refusal waited for the first reset."""
+    cells = np.full((20, 20), Cell.OCCUPIED, dtype=np.uint8)
+    cells[5:7, 5:7] = Cell.FREE
+    path = save_map(Map(cells, 0.1, (0.0, 0.0, 0.0), "closet"), tmp_path / "closet.yaml")
+    with pytest.raises(EnvConfigError, match="env_config 'maps': map closet: its 4 free cells are fewer than"):
+        MorphologyEnv({"maps": [str(path)], "reward": reward})
 
 
 def test_sibling_shares_tables_but_not_state():
