@@ -64,9 +64,9 @@ action; truncated after `max_steps`.
 from __future__ import annotations
 
 import copy
+import hashlib
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
-from functools import lru_cache
 from typing import Any, NamedTuple
 
 import gymnasium as gym
@@ -95,7 +95,8 @@ MAP_LEVELS = 255
 GENERATED_SIGMA_SAMPLES = 128
 """Random shapes that scale the rewards on a generated floor (its build is most of an episode's cost)."""
 SCORE_CACHE_SIZE = 1 << 17
-"""Scored lattice points kept per env (a few hundred bytes each) before the memo starts again."""
+"""Scored lattice points kept per floor (a few hundred bytes each) before the memo starts again; the floor's planner
+keeps as many footprints (a fine map has up to 954,707 distinct ones, docs/spec/fbcpp.md)."""
 PLAN_CACHE_SIZE = 4096
 """Full plans (path and covered mask, a few KB each) kept per env before the cache starts again."""
 
@@ -140,10 +141,22 @@ class R1Stats(NamedTuple):
         return float(peak_reward(value, self.q90, self.sigma))
 
 
-@lru_cache(maxsize=64)
-def r1_stats(map_path: str, weights: Weights, planning: Planning) -> R1Stats:
-    """`map_r1_stats` of a map file (computed once per map and weights in each process)."""
-    return map_r1_stats(load_map(map_path), weights, planning)
+_R1_STATS: OrderedDict[tuple[Any, ...], R1Stats] = OrderedDict()
+"""`r1_stats` of the 64 maps used last in this process."""
+
+
+def r1_stats(grid_map: Map, weights: Weights, planning: Planning) -> R1Stats:
+    """`map_r1_stats` of a map file's map, computed once per map, weights and planning in each process: keyed by
+    the map's cells, not its path, so a file changed on disk is scaled anew."""
+    digest = hashlib.blake2b(grid_map.cells.tobytes(), digest_size=16).digest()
+    key = (digest, grid_map.cells.shape, grid_map.resolution_m, tuple(grid_map.origin), weights, planning)
+    stats = _R1_STATS.get(key)
+    if stats is None:
+        if len(_R1_STATS) >= 64:
+            _R1_STATS.popitem(last=False)
+        stats = _R1_STATS[key] = map_r1_stats(grid_map, weights, planning)
+    _R1_STATS.move_to_end(key)
+    return stats
 
 
 def map_r1_stats(grid_map: Map, weights: Weights, planning: Planning, samples: int = SIGMA_SAMPLES) -> R1Stats:
@@ -236,7 +249,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         cfg = self.config
         self._mode = RewardMode(cfg.reward)
         self._layout = ObservationLayout(cfg.observation)
-        self._files: list[Floor] = [self._build(load_map(p), p) for p in cfg.map_files]
+        self._files: list[Floor] = [self._build(load_map(p), generated=False) for p in cfg.map_files]
         self._sources = generators(cfg.maps)
         self._generated: OrderedDict[tuple[int, int], Floor] = OrderedDict()
         self._floor: Floor | None = None
@@ -261,7 +274,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._steps = 0
         self._last = self._best = UNSCORED  # until the first reset
 
-    def _build(self, grid_map: Map, path: str | None) -> Floor:
+    def _build(self, grid_map: Map, generated: bool) -> Floor:
         """A map's Floor; a block under one cell, a floor smaller than the robot or a start off the floor fails here
         and names the map."""
         cfg = self.config
@@ -278,8 +291,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         weights = cfg.weights_on(grid_map)
         if self._mode is RewardMode.PAPER:
             stats = R1Stats(0.0, 1.0, 0.0)
-        elif path is not None:
-            stats = r1_stats(path, weights, cfg.planning)
+        elif not generated:
+            stats = r1_stats(grid_map, weights, cfg.planning)
         else:  # a generated floor, seen for an episode or a few: half the sample, half the cost of its build
             stats = map_r1_stats(grid_map, weights, cfg.planning, GENERATED_SIGMA_SAMPLES)
         floor = self._layout is ObservationLayout.FLOOR
@@ -310,7 +323,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if floor is None:
             if len(self._generated) >= FLOOR_CACHE_SIZE:
                 self._generated.popitem(last=False)
-            floor = self._generated[key] = self._build(generate_floor(source.kind, seed), None)
+            floor = self._generated[key] = self._build(generate_floor(source.kind, seed), generated=True)
         else:
             self._generated.move_to_end(key)
         return floor
@@ -325,7 +338,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     def _evaluator(self) -> Evaluator:
         floor = self.floor
         if floor.evaluator is None:
-            floor.evaluator = self.config.planning.evaluator(floor.grid_map)
+            floor.evaluator = self.config.planning.evaluator(floor.grid_map, cache_limit=SCORE_CACHE_SIZE)
         return floor.evaluator
 
     @property

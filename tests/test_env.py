@@ -201,7 +201,7 @@ def test_level_reward_is_standardised_r1_without_penalty():
 
     env = MorphologyEnv({"reward": "level", "start_theta": [90, 90, 90]})
     _, info = env.reset(seed=0)
-    mu, sigma, _ = r1_stats(env.config.maps[0], env.config.weights_on(env.grid_map), env.config.planning)
+    mu, sigma, _ = r1_stats(env.grid_map, env.config.weights_on(env.grid_map), env.config.planning)
     _, still, *_rest, info = env.step(NOOP)  # standing still costs nothing
     assert still == pytest.approx((info["R1"] - mu) / sigma)
 
@@ -211,7 +211,7 @@ def test_peak_reward_stretches_the_top_and_keeps_the_order():
 
     env = MorphologyEnv({"reward": "peak", "start_theta": [90, 90, 90]})
     env.reset(seed=0)
-    stats = r1_stats(env.config.maps[0], env.config.weights_on(env.grid_map), env.config.planning)
+    stats = r1_stats(env.grid_map, env.config.weights_on(env.grid_map), env.config.planning)
     _, paid, *_rest, info = env.step(NOOP)
     assert paid == pytest.approx(math.log1p(math.exp(PEAK_SHARPNESS * (info["R1"] - stats.q90) / stats.sigma)))
     low, q90, high = stats.q90 - stats.sigma, stats.q90, stats.q90 + 0.2 * stats.sigma
@@ -296,6 +296,31 @@ def test_a_floor_smaller_than_the_robot_is_refused_when_the_env_is_built(tmp_pat
     path = save_map(Map(cells, 0.1, (0.0, 0.0, 0.0), "closet"), tmp_path / "closet.yaml")
     with pytest.raises(EnvConfigError, match="env_config 'maps': map closet: its 4 free cells are fewer than"):
         MorphologyEnv({"maps": [str(path)], "reward": reward})
+
+
+def test_a_map_file_changed_on_disk_is_scaled_anew(tmp_path):
+    """The reward scales were cached by the file's path: a map redrawn in one process kept its old sigma."""
+    cells = np.full((60, 60), Cell.FREE, dtype=np.uint8)
+    cells[[0, -1]] = cells[:, [0, -1]] = Cell.OCCUPIED
+    path = save_map(Map(cells, 0.1, (0.0, 0.0, 0.0), "room"), tmp_path / "room.yaml")
+    before = MorphologyEnv({"maps": [str(path)]}).floor.stats
+    cells = cells.copy()  # a Map holds its cells read-only
+    cells[20:40, 10:50] = Cell.OCCUPIED
+    save_map(Map(cells, 0.1, (0.0, 0.0, 0.0), "room"), path)
+    after = MorphologyEnv({"maps": [str(path)]}).floor.stats
+    assert after != before and MorphologyEnv({"maps": [str(path)]}).floor.stats == after
+
+
+def test_the_planner_cache_of_a_floor_is_bounded(monkeypatch):
+    """A long run on a fine map visits up to 954,707 distinct footprints: the floor's planner keeps a bounded
+    number, as its score memo does."""
+    monkeypatch.setattr("smorphi_rl.env.SCORE_CACHE_SIZE", 4)
+    env = MorphologyEnv({"start_theta": [0, 0, 0], "moves": [1, 4, 16]})
+    env.reset(seed=0)
+    for _ in range(10):
+        env.step(np.array([6, 6, 6]))
+    evaluator = env.floor.evaluator
+    assert evaluator is not None and evaluator.misses >= 8 and 0 < evaluator.cache_size() <= 4
 
 
 def test_sibling_shares_tables_but_not_state():
