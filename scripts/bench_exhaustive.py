@@ -169,7 +169,8 @@ def real_floor(map_path: str, name: str, full: bool) -> Any:
         verdict = target_verdict(name, grid_map, wall, brute, full)
         print(f"  optimum ({label}, w2 {weights.w2:.4g}): {wall:.1f} s = {wall / brute:.3f} of brute force{verdict}; "
               f"{p['planned_footprints']:,} plans of {p['distinct_footprints']:,} distinct footprints "
-              f"({100 * p['planned_footprints'] / n_lattice:.2f} % of {n_lattice:,}); peak "
+              f"({100 * p['planned_footprints'] / p['distinct_footprints']:.1f} %; one plan serves every shape of its "
+              f"footprint); peak "
               f"{memory.peak_pss / 2**30:.2f} GiB PSS; best {tuple(int(t) for t in result.thetas[b])} "
               f"P_c {result.P_c[b]:.2f} % P_len {result.P_len[b]} R1 {r1:.2f}")  # fmt: skip
         if label == "per_area":

@@ -57,8 +57,9 @@ def register(sub: Any) -> None:
     ep.add_argument("--starts", type=int, default=None, metavar="N",
                     help=f"the evaluation protocol instead: greedy from N fixed seeded starts ({EVAL_STARTS} in "
                          "training) on each map, against the exact optimum")  # fmt: skip
-    ep.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR,
-                    help="where the exact optima are cached (LOG_DIR/.cache)")  # fmt: skip
+    ep.add_argument("--log-dir", type=nonempty, default=None,
+                    help="where the exact optima are cached (LOG_DIR/.cache; default: the log folder of the "
+                         f"checkpoint's run, where `train` cached them, else {DEFAULT_LOG_DIR})")  # fmt: skip
     ep.set_defaults(func=cmd_evaluate_policy, map_default="training")
 
     ex = sub.add_parser("export-policy", help="write a trained policy as plain files (policy.json, weights.npz)")
@@ -239,7 +240,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     base = MorphologyEnv(config.to_dict())
     check_fits(module, base)
     if args.starts is not None:
-        return _evaluate_protocol(args, module, base.config)
+        return _evaluate_protocol(args, module, base.config, checkpoint)
     rollouts = _rollouts(args, module, base, checkpoint)
     if args.json:
         for i, r in enumerate(rollouts):
@@ -286,7 +287,19 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
         env.close()
 
 
-def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -> int:
+def run_log_dir(checkpoint: Path) -> str:
+    """The log folder of the `train` run `checkpoint` lies in, where that run cached its maps' optima (a folder
+    holding the run's summary.json beside a `.cache`); DEFAULT_LOG_DIR for any other checkpoint or policy."""
+    from smorphi_rl.protocol import OPTIMUM_CACHE
+
+    here = checkpoint.resolve()
+    for folder in (here, *here.parents):
+        if (folder / "summary.json").is_file() and (folder.parent / OPTIMUM_CACHE).is_dir():
+            return str(folder.parent)
+    return DEFAULT_LOG_DIR
+
+
+def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, checkpoint: Path) -> int:
     """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
     from smorphi_rl.progress import optimum_progress
     from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache
@@ -297,7 +310,7 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any) -
         raise SmorphiError(f"{said} generated floors only ({', '.join(env_config.maps)}), which have no exact "
                            "optimum to measure against: give fixed floors with --map")  # fmt: skip
     env_config = replace(env_config, maps=env_config.map_files)  # a generated floor has no optimum: files only
-    cache = optimum_cache(args.log_dir)
+    cache = optimum_cache(args.log_dir if args.log_dir is not None else run_log_dir(checkpoint))
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
                                                      optimum_progress(m.name))
               for p in env_config.maps}  # fmt: skip

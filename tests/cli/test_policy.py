@@ -1,0 +1,46 @@
+"""`evaluate-policy --starts` reads and writes exact optima where the checkpoint's run cached them."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+from conftest import optima_under
+
+from smorphi_rl.cli import main
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR
+from smorphi_rl.cli.policy import run_log_dir
+from smorphi_rl.protocol import CACHE_ENV, OPTIMUM_CACHE
+
+ROOT = Path(__file__).resolve().parents[2]
+DESIGNER = ROOT / "smorphi_rl" / "policies" / "designer"
+MAP_1 = str(ROOT / "maps" / "map-1.yaml")
+
+
+def a_run(logs: Path, cache: bool) -> Path:
+    """A `train` run's folder under `logs` (its summary.json) holding a checkpoint, with `logs/.cache` if `cache`."""
+    checkpoint = logs / "ppo-map-1" / "ppo-0_00000" / "checkpoint_000000"
+    shutil.copytree(DESIGNER, checkpoint)
+    (logs / "ppo-map-1" / "summary.json").write_text("{}")
+    if cache:
+        (logs / OPTIMUM_CACHE).mkdir()
+    return checkpoint
+
+
+def test_the_log_folder_of_a_run_is_the_one_that_holds_its_cache(tmp_path):
+    assert run_log_dir(a_run(tmp_path / "logs", cache=True)) == str(tmp_path / "logs")
+    assert run_log_dir(a_run(tmp_path / "bare", cache=False)) == DEFAULT_LOG_DIR  # no cache there: nothing to reuse
+    assert run_log_dir(DESIGNER) == DEFAULT_LOG_DIR
+
+
+def test_the_protocol_on_a_run_writes_nothing_where_it_is_called_from(tmp_path, monkeypatch, capsys):
+    """It cached map-1's optimum in ./logs/.cache of whatever folder it was called from, and computed it again
+    there though the run had cached it beside itself."""
+    checkpoint = a_run(tmp_path / "logs", cache=True)
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    with optima_under(tmp_path / "logs"):  # the suite's optima, where the run would have cached them
+        monkeypatch.delenv(CACHE_ENV)
+        assert main(["evaluate-policy", "--checkpoint", str(checkpoint), "--map", MAP_1, "--starts", "2"]) == 0
+    assert "map-1" in capsys.readouterr().out and not any(elsewhere.iterdir())
