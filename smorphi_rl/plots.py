@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -249,8 +250,9 @@ def plot_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str], 
 
 
 def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str], out: str | Path,
-                   fps: int = 6) -> Path:  # fmt: skip
-    """A GIF of the morphology changing over the episode, one recorded step a frame."""
+                   fps: int = 6, progress: Callable[[int, int], None] | None = None) -> Path:  # fmt: skip
+    """A GIF of the morphology changing over the episode, one recorded step a frame; `progress(done, total)` after
+    each frame drawn (a long episode's GIF takes a while)."""
     from matplotlib.animation import FuncAnimation, PillowWriter
 
     fig, ax = plt.subplots(figsize=(5.6, 5.6))
@@ -259,7 +261,8 @@ def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a GIF
-        anim.save(str(tmp), writer=PillowWriter(fps=fps), dpi=90)
+        drawn = None if progress is None else (lambda i, n: progress(i + 1, n))
+        anim.save(str(tmp), writer=PillowWriter(fps=fps), dpi=90, progress_callback=drawn)
     plt.close(fig)
     return path
 

@@ -88,6 +88,17 @@ def test_compare_rejects_bad_runs(searches, capsys, tmp_path, argv, message):
     assert not list(tmp_path.iterdir())
 
 
+def test_a_compare_name_taken_is_refused_before_the_runs_are_read(searches, tmp_path, capsys):
+    """It read and planned every run again (5 s on a real map) before it said the name was taken."""
+    (tmp_path / "compare-map-1").mkdir()
+    (tmp_path / "compare-map-1" / "report.md").write_text("kept")
+    capsys.readouterr()
+    code = main(["compare", "--log-dir", str(tmp_path), "--random", str(searches)])  # a folder of runs: refused later
+    err = capsys.readouterr().err
+    assert code == 1 and "compare-map-1 already exists" in err and err.count("\n") == 1
+    assert (tmp_path / "compare-map-1" / "report.md").read_text() == "kept"
+
+
 def test_compare_given_a_sweeps_folder_names_one_of_its_trials(tmp_path, capsys):
     sweep = tmp_path / "logs" / "tiny"
     for trial in ("ppo-map-1-seed0_00000", "ppo-map-1-seed1_00001"):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
@@ -177,7 +178,8 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     first, second = episode_files(tmp_path / "episodes")
     png, gif = tmp_path / "r.png", tmp_path / "r.gif"
     assert main(["replay", str(first), "--steps", "--png", str(png), "--gif", str(gif)]) == 0
-    out = capsys.readouterr().out
+    out, err = capsys.readouterr()
+    assert re.search(r"gif: frames drawn \[#{30}\] (\d+)/\1 ", err), err  # a GIF takes a while: its bar, whole
     assert "map        map-1" in out and "run        unit (PPO, seed 7)" in out and "best       step" in out
     assert sum(1 for line in out.splitlines() if line[:5].strip().isdigit()) == 31  # the step table
     assert png.stat().st_size > 10_000 and gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")

@@ -186,6 +186,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
 def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
     """`replay --png/--gif`: the start, best and final steps side by side; the shape changing as a GIF."""
     from smorphi_rl.plots import animate_replay, plot_replay
+    from smorphi_rl.progress import progress_line
 
     grid_map = ep.grid_map()
     steps = ep.steps
@@ -202,7 +203,8 @@ def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
         print(f"png        {rel(out)}")
     if gif:
         changed = ep.changed_steps(GIF_MAX_FRAMES)
-        out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], gif)
+        out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], gif,
+                             progress=progress_line("gif: frames drawn"))  # fmt: skip
         print(f"gif        {rel(out)} ({len(changed)} frames)")
 
 

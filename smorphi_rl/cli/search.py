@@ -215,7 +215,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         start_of_run,
         write_report,
     )
-    from smorphi_rl.rundir import discarded_on_failure, prepare_run_dir, safe_name
+    from smorphi_rl.rundir import check_run_dir, discarded_on_failure, prepare_run_dir, safe_name
     from smorphi_rl.search.config import LOCAL_METHODS
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.results import load
@@ -229,6 +229,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if any(d.resolve() == earlier.resolve() for earlier in dirs[:i]):
             raise SmorphiError(f"{d} is given twice: the report would list it twice")
     grid_map = load_map(args.map)
+    name = args.name or safe_name(f"compare-{grid_map.name}")
+    check_run_dir(args.log_dir, name)  # a name taken is said before the runs are read and planned again
     given = {**{str(d): TRAINING_RUN for d in args.runs or []}, **{str(d): ("nsga2",) for d in args.nsga2 or []},
              **{str(d): ("random",) for d in args.random or []},
              **{str(d): LOCAL_METHODS for d in args.local or []}}  # fmt: skip
@@ -284,7 +286,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if exact is not None:
         ok = exact.feasible
         check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, args.exhaustive)
-    run_dir = prepare_run_dir(args.log_dir, args.name or safe_name(f"compare-{grid_map.name}"))
+    run_dir = prepare_run_dir(args.log_dir, name)
     with discarded_on_failure(run_dir):  # no report: the name stays free
         if exact is None:
             exact = run_exhaustive(
