@@ -46,7 +46,11 @@ def register(sub: Any) -> None:
     gen.set_defaults(func=cmd_maps_generate)
     show = maps_sub.add_parser("show", help="print a map's size and fractions and draw it")
     show.add_argument("map", help="map_server YAML")
-    show.add_argument("--png", help="where to draw it (default: logs/maps/NAME.png, redrawn each time)")
+    show.add_argument(
+        "--png",
+        help="where to draw it (default: logs/maps/NAME.png, redrawn each time; a file named here that "
+        "exists is replaced only with --force)",
+    )
     show.add_argument("--force", action="store_true", help=FORCE_HELP)
     show.set_defaults(func=cmd_maps_show)
     crop = maps_sub.add_parser("crop", help="cut a map to its recorded (known) area or to a rectangle")
