@@ -136,10 +136,12 @@ def cmd_train(args: argparse.Namespace) -> int:
                                "train without the evaluation protocol")  # fmt: skip
     from smorphi_rl.training.run import format_summary, train
 
-    summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address)
+    summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address, graceful=True)
     print(format_summary(summary))
     if summary.interrupted:
-        print(f"{PROG}: interrupted: checkpoints written so far are kept", file=sys.stderr)
+        kept = ("it ended early, its final policy checkpointed" if summary.ended_on_request and summary.checkpoint
+                else "checkpoints written so far are kept")  # fmt: skip
+        print(f"{PROG}: interrupted: {kept}", file=sys.stderr)
         return EXIT_INTERRUPTED
     return 0
 

@@ -43,6 +43,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
+from smorphi_rl.training.stopping import GracefulStop
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests, write_found
 from smorphi_rl.training.trial import resources, run_trial
@@ -77,6 +78,9 @@ class RunSummary:
     """`Map.digest` of every map file trained or evaluated on, by name: `compare` tells same-named maps apart."""
     budget: int | None = None
     """The env steps asked for (`--timesteps`): a run stops after the iteration that reaches them."""
+    ended_on_request: bool = False
+    """Interrupted by a first Ctrl-C that ended it as its budget's end would (`stopping.py`): its last checkpoint
+    holds the final policy."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -278,21 +282,28 @@ def trial_callbacks(cfg: TrainConfig, optima: dict[str, Optimum], base: type | N
                            cfg.design_budget)  # fmt: skip
 
 
-def _train_trainable(config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path) -> None:
+def _train_trainable(
+    config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path, stop_name: str | None
+) -> None:
     """`train`'s one trial: the project's one trainable, recording (if on) under the run's folder."""
-    run_trial(cfg, callbacks, run_dir)
+    run_trial(cfg, callbacks, run_dir, stop_name=stop_name)
 
 
-def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None) -> Any:
+def _fit(
+    cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None,
+    stopper: GracefulStop | None = None,
+) -> Any:  # fmt: skip
     """The Tune run itself (a local Ray or a cluster is already up): the progress kept and the wall time; a failed
-    trial raises TrainingError in one line."""
+    trial raises TrainingError in one line. With `stopper`, a first Ctrl-C ends the run as its budget's end would."""
     from ray import tune
 
     from smorphi_rl.training.tensorboard import TensorBoardLogger
 
     progress = _Progress(cfg, out, label)
+    stop_name = None if stopper is None else stopper.name
     trainable = tune.with_resources(
-        tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir), resources(cfg)
+        tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir, stop_name=stop_name),
+        resources(cfg),
     )
     tuner = tune.Tuner(
         trainable,
@@ -305,7 +316,11 @@ def _fit(cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, l
         ),
     )
     t0 = time.monotonic()
-    _, failed = fit(tuner, run_dir)
+    if stopper is None:
+        _, failed = fit(tuner, run_dir)
+    else:
+        with stopper.catching(reported=lambda: bool(progress.curve["env_steps"])):
+            _, failed = fit(tuner, run_dir)
     wall = time.monotonic() - t0
     progress.finish()
     if failed:
@@ -330,9 +345,11 @@ def train(
     out: Any = None,
     label: str | None = None,
     optima_log_dir: str | Path | None = None,
+    graceful: bool = False,
 ) -> RunSummary:
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`; the exact optima are cached under
-    `optima_log_dir` (default `log_dir`), so a job's runs share the cache of the folder the user named."""
+    `optima_log_dir` (default `log_dir`), so a job's runs share the cache of the folder the user named. `graceful`
+    (the `train` command): a first Ctrl-C ends the run as its budget's end would, its final policy checkpointed."""
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
     digests = map_digests(cfg)
@@ -352,7 +369,8 @@ def train(
             cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
             config = cfg.to_dict() | {"name": name, "address": address}
             write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
-            progress, wall = _fit(cfg, name, run_dir, callbacks, out, label)
+            stopper = GracefulStop(out) if graceful else None
+            progress, wall = _fit(cfg, name, run_dir, callbacks, out, label, stopper)
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException as exc:
@@ -385,6 +403,7 @@ def train(
         evaluation=progress.last_eval,
         map_digests=digests,
         budget=cfg.timesteps,
+        ended_on_request=stopper is not None and stopper.requested.is_set(),
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR

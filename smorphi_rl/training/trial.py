@@ -26,6 +26,7 @@ from smorphi_rl.training.config import (
 )
 from smorphi_rl.training.resume import ELAPSED, KEPT, STATE_KEYS, check_fits, load_state, save_state
 from smorphi_rl.training.runners import push_module_to_runners, reseed_runners
+from smorphi_rl.training.stopping import stop_requested
 
 
 def resources(cfg: TrainConfig) -> Any:
@@ -46,9 +47,10 @@ def stop_reached(stop: dict[str, float], iteration: int, steps: int, elapsed_s: 
 def run_trial(
     cfg: TrainConfig, callbacks: type | None = None, recording_dir: Path | None = None,
     resume_from: Path | None = None, stop: dict[str, float] | None = None, resumable: bool = False,
+    stop_name: str | None = None,
 ) -> None:  # fmt: skip
     """Inside a Tune trial: build the algorithm, continue from `resume_from`'s state (a resumed sweep), train to
-    the budget or `stop` (`stop_reached`).
+    the budget or `stop` (`stop_reached`), or until the driver asks the run `stop_name` to end (`stopping.py`).
 
     `callbacks`: the RLlib callbacks class (evaluation, fine-tuning), default ours; `recording_dir`: where the
     MCAP episodes go (default the trial's folder), when `cfg.record_every` is set; `resumable`: every checkpoint
@@ -81,7 +83,8 @@ def run_trial(
             elapsed += time.monotonic() - t0
             steps = int(result.get(keys.STEPS) or 0)
             done = (steps >= cfg.timesteps or (cfg.max_iterations is not None and algo.iteration >= cfg.max_iterations)
-                    or stop_reached(stop or {}, algo.iteration, steps, elapsed))  # fmt: skip
+                    or stop_reached(stop or {}, algo.iteration, steps, elapsed)
+                    or (stop_name is not None and stop_requested(stop_name)))  # fmt: skip
             if done:  # ended by a stop criterion too: evaluated and its policy chosen as at the budget's end
                 end_run(algo, result)
             metrics = {k: v for k, v in result.items() if k not in AUTO_RESULT_KEYS and k != "config"}

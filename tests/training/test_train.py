@@ -373,11 +373,20 @@ def test_attaches_to_a_running_cluster(tmp_path):
         assert json.loads((tmp_path / "logs" / "attached" / "config.json").read_text())["address"] == address
 
 
-def test_ctrl_c_stops_cleanly_and_keeps_checkpoints(tmp_path):
+def test_ctrl_c_ends_the_run_with_its_final_policy_checkpointed(tmp_path):
+    """Tune's own handler stopped the trial at its next report: with no checkpoint due yet, the summary named a
+    final policy that no checkpoint held. The first Ctrl-C now ends the run as its budget's end would."""
     run_dir = tmp_path / "logs" / "stopped"
-    argv = ["train", "--map", MAP_1, "--timesteps", "1000000", "--name", "stopped", "--checkpoint-every", "1"]
-    code, out, err = ctrl_c_after_checkpoint(argv, tmp_path, run_dir, "*/checkpoint_000000")
+    argv = ["train", "--map", MAP_1, "--timesteps", "1000000", "--name", "stopped", "--eval-every", "1"]
+
+    def reported() -> bool:
+        return any(f.stat().st_size for f in run_dir.glob("*/result.json"))
+
+    code, out, err = ctrl_c_after_checkpoint(argv, tmp_path, run_dir, "*/result.json", ready=reported)
     assert code == 130, err[-3000:]
-    assert "Traceback" not in err and "interrupted" in err
+    assert "Traceback" not in err and "stopping: the run ends after this iteration" in err
+    assert err.strip().splitlines()[-1] == "smorphi-rl: interrupted: it ended early, its final policy checkpointed"
     assert "interrupted after" in out
-    load_module(find_checkpoint(run_dir))  # what was written is intact
+    summary = json.loads((run_dir / "summary.json").read_text())
+    assert summary["interrupted"] and Path(summary["checkpoint"]).resolve() == find_checkpoint(run_dir).resolve()
+    _checkpoint_holds_the_reported_policy(run_dir)

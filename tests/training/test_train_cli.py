@@ -327,7 +327,7 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
 
     from smorphi_rl.training import run as run_module
 
-    def fit(cfg, name, run_dir, callbacks, out, label):
+    def fit(cfg, name, run_dir, callbacks, out, label, stopper):
         trial = run_dir / f"{cfg.algo}-trial_00000"
         trial.mkdir()
         (trial / "result.json").write_text("{}\n")  # it reported once

@@ -1,0 +1,93 @@
+"""`train`'s first Ctrl-C (or SIGTERM) ends the run at its trial's next iteration as its budget's end would: the final
+policy chosen, evaluated and checkpointed. Ray Tune's own handler stops the trial at its next report instead, before
+the policy the summary names is saved. A second signal stops the run at once.
+
+The driver asks by creating a named Ray actor (`ask`, from a thread: never Ray calls inside a signal handler); the
+trial looks the name up after every iteration (`stop_requested`), wherever on the cluster it runs.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import sys
+import threading
+import uuid
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from typing import Any, TextIO
+
+NAMESPACE = "smorphi-rl"
+"""The Ray namespace of the stop requests (the driver's and its trials' alike)."""
+TUNE_SIGINT = "TUNE_DISABLE_SIGINT_HANDLER"
+"""Ray Tune installs its own SIGINT handler in `fit` unless this is set (ray/tune/tune.py)."""
+
+
+def stop_requested(name: str) -> bool:
+    """Inside a trial: whether the driver asked the run `name` to end (`GracefulStop`)."""
+    import ray
+
+    try:
+        ray.get_actor(name, namespace=NAMESPACE)
+    except ValueError:  # no such actor: nobody asked
+        return False
+    return True
+
+
+class GracefulStop:
+    """Driver side: while `catching(reported)`, the first SIGINT or SIGTERM asks the trials to end (once `reported()`
+    says a trial has reported; before that the run stops at once, and nothing is kept); the next stops it at once."""
+
+    def __init__(self, out: TextIO | None = None) -> None:
+        self.name = f"stop-{uuid.uuid4().hex}"
+        self.reported: Callable[[], bool] = lambda: False
+        self.out = out or sys.stderr
+        self.requested = threading.Event()
+        self._asked: list[Any] = []  # the actor, held so that it lives as long as the run
+
+    def _on_signal(self, signum: int, frame: Any) -> None:
+        if not self.reported():
+            raise KeyboardInterrupt
+        signal.signal(signal.SIGINT, signal.default_int_handler)  # the next one stops at once
+        self.requested.set()
+        self.out.write("\nstopping: the run ends after this iteration, its final policy evaluated and checkpointed "
+                       "(Ctrl-C again to stop at once)\n")  # fmt: skip
+        self.out.flush()
+        threading.Thread(target=self._ask, daemon=True).start()
+
+    def _ask(self) -> None:
+        import ray
+
+        @ray.remote(num_cpus=0)
+        class _Stop:
+            def ping(self) -> bool:
+                return True
+
+        try:
+            actor = _Stop.options(name=self.name, namespace=NAMESPACE).remote()  # type: ignore[attr-defined]
+            ray.get(actor.ping.remote(), timeout=60)
+        except Exception as exc:  # Ray going down already: the next Ctrl-C stops the run at once
+            self.out.write(f"stopping: the run could not be asked to end ({type(exc).__name__}); Ctrl-C stops it at "
+                           "once\n")  # fmt: skip
+            return
+        self._asked.append(actor)
+
+    @contextmanager
+    def catching(self, reported: Callable[[], bool]) -> Iterator[GracefulStop]:
+        """SIGINT handled here rather than by Tune for the block (only the main thread may set handlers; SIGTERM
+        follows SIGINT's handler, `interrupts.install`)."""
+        self.reported = reported
+        if threading.current_thread() is not threading.main_thread():
+            yield self
+            return
+        before, env = signal.getsignal(signal.SIGINT), os.environ.get(TUNE_SIGINT)
+        os.environ[TUNE_SIGINT] = "1"
+        signal.signal(signal.SIGINT, self._on_signal)
+        try:
+            yield self
+        finally:
+            signal.signal(signal.SIGINT, before)
+            if env is None:
+                os.environ.pop(TUNE_SIGINT, None)
+            else:
+                os.environ[TUNE_SIGINT] = env
