@@ -186,8 +186,13 @@ def format_search(
             lines.append(f"  {theta:<17} P_c {p_c:7.2f} %  P_len {p_len:4d}  R1 {r1:7.2f}")
     if result.params.get("address") is not None:  # said, as the summary records it: the run was not this machine's
         address = result.params["address"]
-        lines.insert(1, "on the running Ray cluster (--address auto)" if address == "auto" else
-                     f"on the Ray cluster at {address}")  # fmt: skip
+        if address == "auto":
+            from smorphi_rl.cluster import auto_address
+
+            found = auto_address()
+            lines.insert(1, "on the running Ray cluster" + (f" at {found}" if found else "") + " (--address auto)")
+        else:
+            lines.insert(1, f"on the Ray cluster at {address}")
     b = result.best(weights)
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "
