@@ -164,6 +164,10 @@ def plot_top_morphologies(
     return _save(fig, out)
 
 
+FEW_POINTS = 20
+"""A curve of fewer points is drawn with a dot at each: a line through one point draws nothing."""
+
+
 def plot_learning_curves(
     curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None
 ) -> Path:
@@ -179,7 +183,8 @@ def plot_learning_curves(
             if key in c:
                 x, y = np.asarray(c["env_steps"], dtype=float), np.asarray(c[key], dtype=float)
                 ok = np.isfinite(y)
-                (line,) = ax.plot(x[ok], y[ok], lw=1.4, marker="o" if key == "eval_R1" else None, ms=3, label=label)
+                dots = key == "eval_R1" or ok.sum() < FEW_POINTS  # a short run's one or two points show as dots
+                (line,) = ax.plot(x[ok], y[ok], lw=1.4, marker="o" if dots else None, ms=3, label=label)
                 if key == "eval_R1" and "final_R1" in c:
                     ax.plot(c["env_steps"], c["final_R1"], lw=0.8, alpha=0.4, color=line.get_color(),
                             label=f"{label}: stochastic final-shape R1")  # fmt: skip
@@ -189,7 +194,8 @@ def plot_learning_curves(
         ax.set_title(title, fontsize=10)
         ax.set_xlabel("env steps")
         ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
+        if ax.get_legend_handles_labels()[0]:  # a panel with nothing drawn (evaluation off) has no legend
+            ax.legend(fontsize=8)
     return _save(fig, out)
 
 
@@ -213,11 +219,14 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
             for label, c in lines.items():
                 if f"{key}_mean" not in c:
                     continue
-                (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, label=label)
+                dots = "o" if len(c["env_steps"]) < FEW_POINTS else None
+                (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, marker=dots, ms=3, label=label)
                 ax.fill_between(c["env_steps"], c[f"{key}_lo"], c[f"{key}_hi"], color=drawn.get_color(), alpha=0.15)
             ax.set_title(f"{maps}: {title}", fontsize=10)
             ax.set_xlabel("env steps")
             ax.grid(alpha=0.3)
+            if not ax.get_legend_handles_labels()[0]:
+                continue
             if crowded:
                 ax.legend(fontsize=6, loc="upper left", bbox_to_anchor=(1.01, 1.0))
             else:

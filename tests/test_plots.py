@@ -30,3 +30,19 @@ def test_a_name_with_dollar_signs_is_drawn_as_text_not_tex(tmp_path):
 
     grid = Map(np.zeros((20, 20), dtype=np.uint8), 0.1, name="map_$1_$2")
     assert plot_map(grid, tmp_path / "m.png").stat().st_size > 0
+
+
+def test_a_run_of_one_or_two_reports_draws_its_points(tmp_path, monkeypatch):
+    """A transfer at a small budget drew two of its three panels empty: a line through one point draws nothing."""
+    from smorphi_rl import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, out: figures.append(fig) or out)
+    curves = {"fine-tuned": {"env_steps": [2000.0], "episode_return_mean": [1.0], "best_R1": [80.0]}}
+    plots.plot_learning_curves(curves, tmp_path / "curves.png")
+    sweep = {"map-1": {"ppo": {"env_steps": [2000.0], "episode_return_mean_mean": [1.0], "episode_return_mean_lo":
+                               [0.5], "episode_return_mean_hi": [1.5]}}}  # fmt: skip
+    plots.plot_sweep_curves(sweep, tmp_path / "sweep.png")
+    drawn = [line for fig in figures for ax in fig.axes for line in ax.lines]
+    lines = [line for line in drawn if line.get_label() in ("fine-tuned", "ppo")]
+    assert len(lines) == 3 and all(line.get_marker() == "o" for line in lines)
