@@ -1,8 +1,9 @@
 """SIGTERM handled like Ctrl-C: what `timeout`, `kill` and cluster schedulers send must not lose a run.
 
-At the moment SIGTERM arrives it does what SIGINT would: Ray Tune's own handler while a run is going
-(trials stop at their next report; checkpoints, tables and the summary are written), a
-KeyboardInterrupt otherwise. Ray's core installs a C++ handler for SIGTERM in `ray.init` that
+At the moment SIGTERM arrives it does what SIGINT would: while `train` runs, its graceful stop
+(`training/stopping.py`: the run ends at its next iteration as at its budget's end); while a sweep or transfer
+runs, Ray Tune's own handler (trials stop at their next report; checkpoints, tables and the summary are
+written); a KeyboardInterrupt otherwise. Ray's core installs a C++ handler for SIGTERM in `ray.init` that
 prints raw stack lines and exits, so `install()` is called again once Ray has started.
 """
 

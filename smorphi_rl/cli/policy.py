@@ -290,14 +290,16 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
 
 
 def run_log_dir(checkpoint: Path) -> str:
-    """The log folder of the `train` run `checkpoint` lies in, where that run cached its maps' optima (a folder
-    holding the run's summary.json beside a `.cache`); DEFAULT_LOG_DIR for any other checkpoint or policy."""
+    """The log folder of the `train` run `checkpoint` lies in (the run's folder holds its summary.json, at most two
+    levels above the checkpoint), where that run cached its maps' optima: the `.cache` beside the run, or beside a
+    `transfer` job's folder. DEFAULT_LOG_DIR for any other checkpoint or policy."""
     from smorphi_rl.protocol import OPTIMUM_CACHE
 
     here = checkpoint.resolve()
-    for folder in (here, *here.parents):
-        if (folder / "summary.json").is_file() and (folder.parent / OPTIMUM_CACHE).is_dir():
-            return str(folder.parent)
+    run = next((d for d in (here, *here.parents[:2]) if (d / "summary.json").is_file()), None)
+    for folder in () if run is None else run.parents[:2]:
+        if (folder / OPTIMUM_CACHE).is_dir():
+            return str(folder)
     return DEFAULT_LOG_DIR
 
 

@@ -2,8 +2,9 @@
 policy chosen, evaluated and checkpointed. Ray Tune's own handler stops the trial at its next report instead, before
 the policy the summary names is saved. A second signal stops the run at once.
 
-The driver asks by creating a named Ray actor (`ask`, from a thread: never Ray calls inside a signal handler); the
-trial looks the name up after every iteration (`stop_requested`), wherever on the cluster it runs.
+The driver asks by creating a named Ray actor (from a watcher thread: a signal handler only flips state); the trial
+looks the name up after every iteration (`stop_requested`), wherever on a `HOST:PORT` cluster it runs. Under Ray
+Client (`ray://`) Tune runs the experiment remotely, no result reaches this process, and a first Ctrl-C stops at once.
 """
 
 from __future__ import annotations
@@ -21,15 +22,18 @@ NAMESPACE = "smorphi-rl"
 """The Ray namespace of the stop requests (the driver's and its trials' alike)."""
 TUNE_SIGINT = "TUNE_DISABLE_SIGINT_HANDLER"
 """Ray Tune installs its own SIGINT handler in `fit` unless this is set (ray/tune/tune.py)."""
+ASK_TIMEOUT_S = 30
+"""How long asking the trials may take (a new Ray worker process for the actor) before the request is given up."""
 
 
 def stop_requested(name: str) -> bool:
-    """Inside a trial: whether the driver asked the run `name` to end (`GracefulStop`)."""
+    """Inside a trial: whether the driver asked the run `name` to end (`GracefulStop`); a lookup that fails (no such
+    actor, or the cluster's directory slow to answer) is no request, never a failed trial."""
     import ray
 
     try:
         ray.get_actor(name, namespace=NAMESPACE)
-    except ValueError:  # no such actor: nobody asked
+    except Exception:
         return False
     return True
 
@@ -43,19 +47,27 @@ class GracefulStop:
         self.reported: Callable[[], bool] = lambda: False
         self.out = out or sys.stderr
         self.requested = threading.Event()
+        self._closing = threading.Event()
+        self._wake = threading.Event()
         self._asked: list[Any] = []  # the actor, held so that it lives as long as the run
 
     def _on_signal(self, signum: int, frame: Any) -> None:
+        """Flips state only: no output, thread or Ray call inside a signal handler (`_watch` does the asking)."""
         if not self.reported():
             raise KeyboardInterrupt
         signal.signal(signal.SIGINT, signal.default_int_handler)  # the next one stops at once
         self.requested.set()
+        self._wake.set()
+
+    def _watch(self) -> None:
+        """The watcher thread: once a stop is asked for while the run still goes, says so and asks the trials by
+        creating the named actor (`catching` waits for it before Ray can be shut down under it)."""
+        self._wake.wait()
+        if self._closing.is_set() or not self.requested.is_set():
+            return
         self.out.write("\nstopping: the run ends after this iteration, its final policy evaluated and checkpointed "
                        "(Ctrl-C again to stop at once)\n")  # fmt: skip
         self.out.flush()
-        threading.Thread(target=self._ask, daemon=True).start()
-
-    def _ask(self) -> None:
         import ray
 
         @ray.remote(num_cpus=0)
@@ -65,8 +77,8 @@ class GracefulStop:
 
         try:
             actor = _Stop.options(name=self.name, namespace=NAMESPACE).remote()  # type: ignore[attr-defined]
-            ray.get(actor.ping.remote(), timeout=60)
-        except Exception as exc:  # Ray going down already: the next Ctrl-C stops the run at once
+            ray.get(actor.ping.remote(), timeout=ASK_TIMEOUT_S)
+        except Exception as exc:  # Ray not answering: the next Ctrl-C stops the run at once
             self.out.write(f"stopping: the run could not be asked to end ({type(exc).__name__}); Ctrl-C stops it at "
                            "once\n")  # fmt: skip
             return
@@ -75,18 +87,24 @@ class GracefulStop:
     @contextmanager
     def catching(self, reported: Callable[[], bool]) -> Iterator[GracefulStop]:
         """SIGINT handled here rather than by Tune for the block (only the main thread may set handlers; SIGTERM
-        follows SIGINT's handler, `interrupts.install`)."""
+        follows SIGINT's handler, `interrupts.install`). On leaving, the watcher is waited for, so that no Ray call
+        of its is left running when the caller shuts Ray down."""
         self.reported = reported
         if threading.current_thread() is not threading.main_thread():
             yield self
             return
         before, env = signal.getsignal(signal.SIGINT), os.environ.get(TUNE_SIGINT)
-        os.environ[TUNE_SIGINT] = "1"
-        signal.signal(signal.SIGINT, self._on_signal)
+        watcher = threading.Thread(target=self._watch, name="smorphi-rl-stop", daemon=True)
         try:
+            watcher.start()
+            os.environ[TUNE_SIGINT] = "1"
+            signal.signal(signal.SIGINT, self._on_signal)
             yield self
         finally:
             signal.signal(signal.SIGINT, before)
+            self._closing.set()
+            self._wake.set()
+            watcher.join(ASK_TIMEOUT_S + 5)
             if env is None:
                 os.environ.pop(TUNE_SIGINT, None)
             else:

@@ -31,6 +31,9 @@ def test_the_log_folder_of_a_run_is_the_one_that_holds_its_cache(tmp_path):
     assert run_log_dir(a_run(tmp_path / "logs", cache=True)) == str(tmp_path / "logs")
     assert run_log_dir(a_run(tmp_path / "bare", cache=False)) == DEFAULT_LOG_DIR  # no cache there: nothing to reuse
     assert run_log_dir(DESIGNER) == DEFAULT_LOG_DIR
+    job = a_run(tmp_path / "tr" / "job", cache=False)  # a transfer's run: the cache is beside the job's folder
+    (tmp_path / "tr" / OPTIMUM_CACHE).mkdir()
+    assert run_log_dir(job) == str(tmp_path / "tr")
 
 
 def test_the_protocol_on_a_run_writes_nothing_where_it_is_called_from(tmp_path, monkeypatch, capsys):
