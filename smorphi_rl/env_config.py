@@ -182,14 +182,14 @@ class EnvConfig:
         if self.start_xy is not None:
             raise EnvConfigError("env_config 'start_xy' cannot be used with generate: floors (a fixed point is free "
                                  "on some and not on others); leave it unset")  # fmt: skip
-        from smorphi_rl.floorplans import DEFAULT_RANGE
-        from smorphi_rl.geometry import MAX_BLOCK_CELLS
+        from smorphi_rl.floorplans import DEFAULT_RANGE, MAX_BLOCK_SIDE_M
 
         fine, coarse = DEFAULT_RANGE.min_resolution_m, DEFAULT_RANGE.max_resolution_m
-        if not coarse <= self.block_side_m <= MAX_BLOCK_CELLS * fine:
-            raise EnvConfigError(f"env_config 'block_side_m' must be in [{coarse:g}, {MAX_BLOCK_CELLS * fine:g}] m "
-                                 f"with generate: floors (1 to {MAX_BLOCK_CELLS} cells of every such floor, whose "
-                                 f"cells are {fine:g}-{coarse:g} m), got {self.block_side_m:g}")  # fmt: skip
+        if not coarse <= self.block_side_m <= MAX_BLOCK_SIDE_M:
+            raise EnvConfigError(f"env_config 'block_side_m' must be in [{coarse:g}, {MAX_BLOCK_SIDE_M:g}] m with "
+                                 f"generate: floors (a cell or more of every such floor, whose cells are {fine:g}-"
+                                 f"{coarse:g} m, and a robot that every such floor holds), got "
+                                 f"{self.block_side_m:g}")  # fmt: skip
 
     @classmethod
     def from_dict(cls, raw: dict[str, Any] | None) -> EnvConfig:

@@ -73,6 +73,9 @@ class FloorRange:
 
 
 DEFAULT_RANGE = FloorRange()
+MAX_BLOCK_SIDE_M = 0.5
+"""The largest block side every generated floor of DEFAULT_RANGE holds under both planners (checked on 10,000 floors,
+2,500 of each kind: none refused a 0.5 m block; at 0.75 m the fit planner refused 5, at 1 m 270)."""
 
 
 def floor_name(kind: FloorKind | str, seed: int) -> str:

@@ -276,8 +276,8 @@ def test_block_smaller_than_a_cell_is_refused_before_any_planning():
 @pytest.mark.parametrize(
     ("config", "message"),
     [
-        ({"block_side_m": 0.06}, r"'block_side_m' must be in \[0.1, 20\] m with generate: floors"),
-        ({"block_side_m": 25.0}, r"'block_side_m' must be in \[0.1, 20\] m with generate: floors"),
+        ({"block_side_m": 0.06}, r"'block_side_m' must be in \[0.1, 0.5\] m with generate: floors"),
+        ({"block_side_m": 3.0}, r"'block_side_m' must be in \[0.1, 0.5\] m with generate: floors"),
         ({"start_xy": [1.0, 1.0]}, "'start_xy' cannot be used with generate: floors"),
     ],
 )
