@@ -393,7 +393,7 @@ def train(
         env_steps=steps,
         iterations=len(progress.curve["env_steps"]),
         wall_s=wall,
-        interrupted=steps < cfg.timesteps and len(progress.curve["env_steps"]) != cfg.max_iterations,
+        interrupted=(cut := steps < cfg.timesteps and len(progress.curve["env_steps"]) != cfg.max_iterations),
         best=best[0] if best else None,
         optimum=optima,
         checkpoint=checkpoints[-1] if checkpoints else None,
@@ -403,7 +403,7 @@ def train(
         evaluation=progress.last_eval,
         map_digests=digests,
         budget=cfg.timesteps,
-        ended_on_request=stopper is not None and stopper.requested.is_set(),
+        ended_on_request=cut and stopper is not None and stopper.requested.is_set(),  # not a request at the end
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR

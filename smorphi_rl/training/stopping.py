@@ -53,7 +53,7 @@ class GracefulStop:
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         """Flips state only: no output, thread or Ray call inside a signal handler (`_watch` does the asking)."""
-        if not self.reported():
+        if not self.reported():  # nothing to keep yet: out of Tune's loop at once (Ray's shutdown ends the trial)
             raise KeyboardInterrupt
         signal.signal(signal.SIGINT, signal.default_int_handler)  # the next one stops at once
         self.requested.set()
