@@ -99,12 +99,13 @@ def cmd_search(args: argparse.Namespace) -> int:
     check_fits(grid_map, planning.block_side_m, whole_footprint=planning.planner is Planner.FIT)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     address = getattr(args, "address", None)
-    cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options, address=address)
-    on_map = w.weights_on(grid_map)
     if address is not None:
         from smorphi_rl import cluster
 
         cluster.check_reachable(address)  # no cluster there: one line, nothing written
+        address = cluster.auto_address() if address == "auto" else address  # the run records the cluster it used
+    cfg = SearchConfig(args.method, str(args.map), planning, w.w1, w.w2, w.path_term, **options, address=address)
+    on_map = w.weights_on(grid_map)
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
     hint = cut_hint(args.method)
     with discarded_on_failure(run_dir):  # interrupted, failed, or a full disk mid-way: no whole run, the name free
@@ -185,14 +186,7 @@ def format_search(
             theta, p_c, p_len, r1 = angles_text(row["theta"]), row["P_c"], row["P_len"], row["R1"]
             lines.append(f"  {theta:<17} P_c {p_c:7.2f} %  P_len {p_len:4d}  R1 {r1:7.2f}")
     if result.params.get("address") is not None:  # said, as the summary records it: the run was not this machine's
-        address = result.params["address"]
-        if address == "auto":
-            from smorphi_rl.cluster import auto_address
-
-            found = auto_address()
-            lines.insert(1, "on the running Ray cluster" + (f" at {found}" if found else "") + " (--address auto)")
-        else:
-            lines.insert(1, f"on the Ray cluster at {address}")
+        lines.insert(1, f"on the Ray cluster at {result.params['address']}")
     b = result.best(weights)
     r1_best = float(weights.r1(result.P_c[b], result.P_len[b]))
     lines.append(f"best R1 (w1 {weights.w1:g}, w2 {weights.w2:.4g}): {angles_text(result.thetas[b])} "
