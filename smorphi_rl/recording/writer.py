@@ -119,10 +119,10 @@ class EpisodeWriter:
 
     def write(self, topic: str, message: dict[str, Any] | bytes, ns: int) -> None:
         """One message, a dict (JSON-encoded here) or JSON already encoded."""
-        data = message if isinstance(message, bytes) else json.dumps(message, separators=JSON_SEPARATORS).encode()
-        ns = int(ns)  # a float or negative log_time corrupts the whole file (the notes)
         if self.broken:
             return
+        data = message if isinstance(message, bytes) else json.dumps(message, separators=JSON_SEPARATORS).encode()
+        ns = int(ns)  # a float or negative log_time corrupts the whole file (the notes)
         with self._writing():
             self._writer.add_message(self._channels[topic], log_time=ns, publish_time=ns, data=data)
 
