@@ -227,7 +227,7 @@ def plan_into(
             edge_e[t] = t % nc + 1 < nc and trav[t + 1]
             edge_n[t] = t // nc + 1 < nr and trav[t + nc]
     n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, f, nr, nc, edge_e, edge_n, start, 0, 0, path, covered, h, wd,
-                                             False)  # fmt: skip
+                                             False, np.empty(0, np.int32), 0)  # fmt: skip
     return STATUS_OK, n_cov, p_len, n_ew, n_ns, n_path
 
 
@@ -242,6 +242,28 @@ def _joined(t: int, a: int, b: int, k: int, nr: int, nc: int, edge_e: np.ndarray
     if k == 2:
         return t - 1 if b > 0 and edge_e[t - 1] else -1
     return t - nc if a > 0 and edge_n[t - nc] else -1
+
+
+@njit(cache=True)
+def _distances(nr: int, nc: int, edge_e: np.ndarray, edge_n: np.ndarray, start: int, dist: np.ndarray,
+               queue: np.ndarray) -> int:  # fmt: skip
+    """The distance transform: each node's moves from `start` into `dist` (all -1 on entry; -1 stays where not
+    reached), by breadth-first search; returns how many nodes it reaches."""
+    dist[start] = 0
+    queue[0] = start
+    head, tail = 0, 1
+    while head < tail:
+        t = queue[head]
+        head += 1
+        a = t // nc
+        b = t - a * nc
+        for k in range(4):
+            u = _joined(t, a, b, k, nr, nc, edge_e, edge_n)
+            if u >= 0 and dist[u] < 0:
+                dist[u] = dist[t] + 1
+                queue[tail] = u
+                tail += 1
+    return tail
 
 
 @njit(cache=True)
@@ -260,33 +282,25 @@ def _walk(
     h: int,
     wd: int,
     all_free: bool,
+    known_dist: np.ndarray,
+    known_reach: int,
 ) -> tuple[int, int, int, int, int]:
     """docs/spec/fbcpp.md sections 5-6 on an nr x nc lattice of nodes whose node (a, b) puts F's corner at cell
     (oy + a l, ox + b w), joined where `edge_e` (to b + 1) and `edge_n` (to a + 1) say: distance transform,
     greedy walk with breadth-first escapes from dead ends, and the footprint swept along every move.
     Returns (covered free cells, P_len, east/west moves, north/south moves, path nodes). `all_free`: every
     cell the walk sweeps is free (the fit planner's moves pass safe placements only), so the sweep is ORed into
-    64-cell words and counted once at the end instead of cell by cell."""
+    64-cell words and counted once at the end instead of cell by cell. `known_dist` (nr * nc long, or empty) holds
+    the distance transform from `start` already, and `known_reach` how many nodes it reaches (`_reach`)."""
     l, w = f.shape
     stride = padded.shape[1]
     n = nr * nc
-    dist = np.full(n, -1, np.int32)
     queue = np.empty(n, np.int32)
-    dist[start] = 0
-    queue[0] = start
-    head, tail = 0, 1
-    while head < tail:
-        t = queue[head]
-        head += 1
-        a = t // nc
-        b = t - a * nc
-        for k in range(4):
-            u = _joined(t, a, b, k, nr, nc, edge_e, edge_n)
-            if u >= 0 and dist[u] < 0:
-                dist[u] = dist[t] + 1
-                queue[tail] = u
-                tail += 1
-    reachable = tail
+    if known_dist.shape[0] == n:
+        dist, reachable = known_dist, known_reach
+    else:
+        dist = np.full(n, -1, np.int32)
+        reachable = _distances(nr, nc, edge_e, edge_n, start, dist, queue)
     # swept masks: F shifted by 0..w columns (east/west moves) and by 0..l rows (north/south)
     swept_x = np.zeros((l, 2 * w), np.bool_)
     swept_y = np.zeros((2 * l, w), np.bool_)
@@ -829,12 +843,13 @@ def _and_down(row: np.ndarray, s: int) -> None:
 @njit(cache=True)
 def _reach(
     east: np.ndarray, north: np.ndarray, oy: int, ox: int, l: int, w: int, nr: int, nc: int, start: int,
-    seen: np.ndarray, queue: np.ndarray,
+    dist: np.ndarray, queue: np.ndarray,
 ) -> int:  # fmt: skip
-    """How many nodes of the lattice through (oy, ox) breadth-first search reaches from node `start` (`seen`
+    """How many nodes of the lattice through (oy, ox) breadth-first search reaches from node `start`; fills
+    dist[: nr * nc] with each node's moves from it (-1: not reached), the distance transform `_walk` reads (`dist`
     and `queue`: buffers at least nr * nc long)."""
-    seen[: nr * nc] = False
-    seen[start] = True
+    dist[: nr * nc] = -1
+    dist[start] = 0
     queue[0] = start
     head, tail = 0, 1
     while head < tail:
@@ -843,20 +858,21 @@ def _reach(
         a = t // nc
         b = t - a * nc
         y, x = oy + a * l, ox + b * w
-        if b + 1 < nc and _bit(east, y, x) and not seen[t + 1]:
-            seen[t + 1] = True
+        d = dist[t] + 1
+        if b + 1 < nc and _bit(east, y, x) and dist[t + 1] < 0:
+            dist[t + 1] = d
             queue[tail] = t + 1
             tail += 1
-        if a + 1 < nr and _bit(north, y, x) and not seen[t + nc]:
-            seen[t + nc] = True
+        if a + 1 < nr and _bit(north, y, x) and dist[t + nc] < 0:
+            dist[t + nc] = d
             queue[tail] = t + nc
             tail += 1
-        if b > 0 and _bit(east, y, x - w) and not seen[t - 1]:
-            seen[t - 1] = True
+        if b > 0 and _bit(east, y, x - w) and dist[t - 1] < 0:
+            dist[t - 1] = d
             queue[tail] = t - 1
             tail += 1
-        if a > 0 and _bit(north, y - l, x) and not seen[t - nc]:
-            seen[t - nc] = True
+        if a > 0 and _bit(north, y - l, x) and dist[t - nc] < 0:
+            dist[t - nc] = d
             queue[tail] = t - nc
             tail += 1
     return tail
@@ -994,7 +1010,7 @@ def plan_fit_into(
     east, north = _moves(safe, h, wd, l, w, y_lo, y_hi)
     best, best_reach = -1, -1
     n_nodes = ((h + l - 1) // l) * ((wd + w - 1) // w)  # the most nodes a lattice has
-    seen, queue = np.zeros(n_nodes, np.bool_), np.empty(n_nodes, np.int64)
+    dist, best_dist, queue = np.empty(n_nodes, np.int32), np.empty(n_nodes, np.int32), np.empty(n_nodes, np.int64)
     for c in np.argsort(-upper, kind="mergesort"):
         if upper[c] < best_reach:
             break
@@ -1003,9 +1019,10 @@ def plan_fit_into(
         y0, x0 = candidates[c] // wd, candidates[c] % wd
         oy, ox = y0 % l, x0 % w
         nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
-        reach = _reach(east, north, oy, ox, l, w, nr, nc, (y0 // l) * nc + x0 // w, seen, queue)
+        reach = _reach(east, north, oy, ox, l, w, nr, nc, (y0 // l) * nc + x0 // w, dist, queue)
         if reach > best_reach or (reach == best_reach and c < best):
             best, best_reach = c, reach
+            dist, best_dist = best_dist, dist  # the best lattice's distances are kept for the walk
     y0, x0 = candidates[best] // wd, candidates[best] % wd
     oy, ox = y0 % l, x0 % w
     nr, nc = (h - oy + l - 1) // l, (wd - ox + w - 1) // w
@@ -1021,7 +1038,7 @@ def plan_fit_into(
             fd[i, j] = f[i, j] != 0
     start = (y0 // l) * nc + x0 // w
     n_cov, p_len, n_ew, n_ns, n_path = _walk(padded, fd, nr, nc, edge_e, edge_n, start, oy, ox, path, covered, h, wd,
-                                             True)  # fmt: skip
+                                             True, best_dist[: nr * nc], best_reach)  # fmt: skip
     for m in range(min(n_path, path.shape[0])):  # lattice nodes as placements
         path[m, 0], path[m, 1] = oy + path[m, 0] * l, ox + path[m, 1] * w
     n_bound = 0 if prune.shape[0] > 0 else _bound(row_start, x0s, x1s, label, cand_label[best], h, wd, l, w, f_start,
