@@ -431,16 +431,22 @@ def _patterns(mask: np.ndarray) -> np.ndarray:
 
 @njit(cache=True)
 def _or_pattern(rows: np.ndarray, pattern: np.ndarray, y: int, x: int) -> None:
-    """rows |= `pattern` (`_patterns`) with its cell (0, 0) on cell (y, x)."""
+    """rows |= `pattern` (`_patterns`) with its cell (0, 0) on cell (y, x) (indexed, not sliced: no view a row)."""
     q0, b = x >> 6, np.uint64(x & 63)
+    nq = pattern.shape[1]
+    if b == 0:
+        for i in range(pattern.shape[0]):
+            for q in range(nq):
+                rows[y + i, q0 + q] |= pattern[i, q]
+        return
+    back = np.uint64(64) - b
     for i in range(pattern.shape[0]):
-        row = rows[y + i]
         carry = np.uint64(0)
-        for q in range(pattern.shape[1]):
+        for q in range(nq):
             v = pattern[i, q]
-            row[q0 + q] |= (v << b) | carry
-            carry = (v >> (np.uint64(64) - b)) if b != 0 else np.uint64(0)
-        row[q0 + pattern.shape[1]] |= carry
+            rows[y + i, q0 + q] |= (v << b) | carry
+            carry = v >> back
+        rows[y + i, q0 + nq] |= carry
 
 
 _ONE = np.uint64(1)
@@ -806,38 +812,47 @@ def _moves(
 ) -> tuple[np.ndarray, np.ndarray]:  # fmt: skip
     """Bit rows of the placements a lattice move may leave from: east (every placement x .. x + w of the row
     safe) and north (every placement y .. y + l of the column safe). West and south moves are those of the
-    neighbour they reach. Only rows y_lo .. y_hi - 1 hold safe placements; the others stay clear."""
+    neighbour they reach. Only rows y_lo .. y_hi - 1 hold safe placements; the others stay clear. Both are
+    ANDs over spans doubled each pass (log2 of the span passes, not one a cell)."""
     nws = safe.shape[1]
     east = np.zeros((h, nws), np.uint64)
     north = np.zeros((h, nws), np.uint64)
-    run = np.empty(nws, np.uint64)
+    if y_hi <= y_lo:
+        return east, north
     for y in range(y_lo, y_hi):
-        run[:] = safe[y]  # run: every placement x .. x + span - 1 safe
+        east[y] = safe[y]  # east[y]: every placement x .. x + span - 1 safe
         span = 1
         while 2 * span <= w + 1:
-            _and_down(run, span)
+            _and_down(east, y, span)
             span *= 2
-        east[y] = run
-        _and_down(east[y], w + 1 - span)  # every placement x .. x + w safe
+        _and_down(east, y, w + 1 - span)  # every placement x .. x + w safe
+    n_rows = y_hi - y_lo + l  # the rows y_lo .. y_hi + l - 1 a north move from rows y_lo .. y_hi - 1 passes
+    run = safe[y_lo : y_lo + n_rows].copy()  # run[r]: rows y_lo + r .. y_lo + r + span - 1 all safe
+    span = 1
+    while 2 * span <= l + 1:
+        for r in range(n_rows - span):  # upwards: run[r + span] is still the shorter span's
+            for k in range(nws):
+                run[r, k] &= run[r + span, k]
+        span *= 2
+    last = l + 1 - span
+    for y in range(y_lo, y_hi):
         for k in range(nws):
-            v = safe[y, k]
-            for i in range(1, l + 1):
-                v &= safe[y + i, k]
-            north[y, k] = v
+            north[y, k] = run[y - y_lo, k] & run[y - y_lo + last, k]
     return east, north
 
 
 @njit(cache=True)
-def _and_down(row: np.ndarray, s: int) -> None:
-    """row &= row moved down by s cells (bit x keeps its value only if bit x + s is set), in place."""
+def _and_down(rows: np.ndarray, y: int, s: int) -> None:
+    """Row y of `rows` &= itself moved down by s cells (bit x keeps its value only if bit x + s is set), in place
+    (indexed, not sliced: a view a call costs more than the words it ANDs)."""
     if s == 0:
         return
     q, b = s >> 6, s & 63
-    n = row.shape[0]
+    n = rows.shape[1]
     for k in range(n):
-        hi = row[k + q] if k + q < n else np.uint64(0)
-        lo = row[k + q + 1] if k + q + 1 < n else np.uint64(0)
-        row[k] &= hi if b == 0 else (hi >> np.uint64(b)) | (lo << np.uint64(64 - b))
+        hi = rows[y, k + q] if k + q < n else np.uint64(0)
+        lo = rows[y, k + q + 1] if k + q + 1 < n else np.uint64(0)
+        rows[y, k] &= hi if b == 0 else (hi >> np.uint64(b)) | (lo << np.uint64(64 - b))
 
 
 @njit(cache=True)
