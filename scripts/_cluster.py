@@ -29,8 +29,10 @@ def local_ray_cluster(num_cpus: int) -> Iterator[str]:
     temp_dir = tempfile.mkdtemp(prefix="ray-", dir="/tmp")  # short: Ray's socket paths must fit 107 bytes
     # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
-    start = [ray, "start", "--head", f"--num-cpus={num_cpus}", f"--port={port}", "--include-dashboard=false",
-             f"--ray-client-server-port={client_port}", "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
+    # On loopback alone: Ray would advertise the node on the host's routable address.
+    start = [ray, "start", "--head", "--node-ip-address=127.0.0.1", f"--num-cpus={num_cpus}", f"--port={port}",
+             "--include-dashboard=false", f"--ray-client-server-port={client_port}", "--disable-usage-stats",
+             f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
     try:
         yield f"127.0.0.1:{port}"

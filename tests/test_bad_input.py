@@ -435,7 +435,8 @@ def test_an_image_pillow_warns_about_is_refused_in_our_line_alone(tmp_path, caps
     (["search", "nsga2", "--pop", "100000000"], "(a smaller --pop or fewer --generations)"),
     (["search", "random", "--samples", "60000000"], "(fewer --samples)"),
 ])  # fmt: skip
-def test_nonsense_is_refused_in_one_line(tmp_path, capsys, argv, message):
+def test_nonsense_is_refused_in_one_line(tmp_path, capsys, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)  # a default folder (`logs`) a refused command wrote would be under tmp_path too
     code, _, err = run(capsys, *(a.format(tmp=tmp_path) for a in argv))
     assert code in (1, 2) and message.format(tmp=tmp_path) in one_line(err)
     assert not [p for p in tmp_path.rglob("*") if p.is_file()]

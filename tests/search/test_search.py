@@ -171,16 +171,18 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
     ):
         time.sleep(0.2)
     workers = [int(p) for p in subprocess.run(listing, capture_output=True, text=True).stdout.split()]
-    time.sleep(1.0)
-    t0 = time.monotonic()
+    assert workers, "the search started no pool workers within 60 s"
+    time.sleep(1.0)  # into the planning; the signal is handled alike at any point of it
     if group:
         os.killpg(proc.pid, getattr(signal, signame))
     else:
         proc.send_signal(getattr(signal, signame))
-    _, err = proc.communicate(timeout=30)
-    assert proc.returncode == 130 and time.monotonic() - t0 < 15, err  # a hang, not a speed: the cores may be busy
+    _, err = proc.communicate(timeout=60)  # a hang guard, not a speed: the cores may be busy
+    assert proc.returncode == 130, err
     assert "Traceback" not in err and err.strip().splitlines()[-1] == "smorphi-rl: interrupted"
-    time.sleep(0.5)
+    deadline = time.monotonic() + 10  # the parent has exited: its workers are reaped, or dying
+    while time.monotonic() < deadline and [w for w in workers if _running(w)]:
+        time.sleep(0.1)
     assert not [w for w in workers if _running(w)]
     assert not (tmp_path / "ex").exists()  # nothing finished: the name is free again
 

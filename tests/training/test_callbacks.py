@@ -97,22 +97,25 @@ def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_op
 
     thread = threading.Thread(target=learn, daemon=True)
     thread.start()
+    deadline = time.monotonic() + 60  # a hang guard: each loop ends on what it waits for, however busy the cores
     try:
-        plain, snapshots = [], []
-        for copies, copy in ((plain, lambda: {k: v.clone() for k, v in module.state_dict().items()}),
-                             (snapshots, lambda: snapshot_state(learner))):  # fmt: skip
-            end = time.monotonic() + 0.3
-            while time.monotonic() < end:
-                copies.append(torn(copy()))
-                time.sleep(0.0002)
+        plain: list[bool] = []
+        while not any(plain) and time.monotonic() < deadline:  # until an unguarded copy is torn
+            plain.append(torn({k: v.clone() for k, v in module.state_dict().items()}))
+            time.sleep(0.0002)
+        snapshots: list[bool] = []
+        k0 = optimizer.k
+        while (optimizer.k < k0 + 10 or len(snapshots) < 100) and time.monotonic() < deadline:
+            snapshots.append(torn(snapshot_state(learner)))  # while the learner takes 10 steps or more
+            time.sleep(0.0002)
         twin = snapshot_module(learner)
     finally:
         stop.set()
         thread.join()
     assert any(plain)  # the test can fail: unguarded copies are torn
+    assert optimizer.k >= k0 + 10 and len(snapshots) >= 100  # the learner kept learning while snapshots were taken
     assert not any(snapshots)
     assert twin is not module and not torn(twin.state_dict())
-    assert optimizer.k > 10  # the learner kept learning meanwhile
 
 
 def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_convergence(monkeypatch):

@@ -118,7 +118,8 @@ def test_design_loads_without_torch_or_ray(policy):
     (["--map", "/no/map.yaml"], "map file not found"),
     (["--start-xy", "100", "1"], "--start-xy: map mixed-0900002: point (100.0, 1.0) m lies"),
 ])  # fmt: skip
-def test_bad_design_input_is_one_line(policy, capsys, tmp_path, argv, message):
+def test_bad_design_input_is_one_line(policy, capsys, tmp_path, monkeypatch, argv, message):
+    monkeypatch.chdir(tmp_path)  # the relative --plot, or any default folder, would be written here
     code, _, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), *argv)
     assert code == 1 and err.count("\n") == 1 and message in err and "Traceback" not in err
     assert not list(tmp_path.iterdir())

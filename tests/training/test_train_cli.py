@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from smorphi_rl.cli import main
+from smorphi_rl.cluster import local_cpus
 
 ROOT = Path(__file__).resolve().parents[2]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")
@@ -163,8 +164,10 @@ def test_record_every_must_not_be_negative(capsys, tmp_path):
 
 
 def test_train_refuses_more_env_runners_than_the_local_ray_can_place(capsys, tmp_path):
-    got, err = run(capsys, "train", "--log-dir", str(tmp_path), "--env-runners", "8", "--timesteps", "1000")
-    assert got == 1 and "8 env runners need 5 CPUs" in err and "use fewer --env-runners" in err
+    runners = 2 * local_cpus()  # 1 CPU for the trial and 0.5 a runner: one more than the local Ray has, on any machine
+    got, err = run(capsys, "train", "--log-dir", str(tmp_path), "--env-runners", str(runners), "--timesteps", "1000")
+    assert got == 1 and f"{runners} env runners need {local_cpus() + 1} CPUs" in err
+    assert "use fewer --env-runners" in err
     assert not list(tmp_path.iterdir())  # the refused run's folder is gone again
 
 
