@@ -193,7 +193,8 @@ class EnvConfig:
 
     @classmethod
     def from_dict(cls, raw: dict[str, Any] | None) -> EnvConfig:
-        """From the plain dict RLlib passes (extra RLlib attributes such as worker_index ignored)."""
+        """From the plain dict RLlib passes (its EnvContext's worker_index and the like are attributes, not keys); an
+        unknown key is refused in one line naming the known ones."""
         raw = dict(raw or {})
         known = {f.name: f for f in fields(cls)}
         unknown = sorted(set(raw) - set(known))

@@ -32,7 +32,8 @@ from smorphi_rl.maps import Cell, Map
 HELD_OUT_SEED = 1_000_000
 """Held-out floors have seeds from here up; training floors, below it."""
 MAX_CELLS = 40_000
-"""A floor's grid, margin included, stays under this many cells (a 15 m floor is drawn at 0.08 m or coarser)."""
+"""A floor's area, margin included, is at most this many cells before its sides are rounded to whole cells (which
+adds up to about 1.3 %; a 15 m floor is drawn at 0.08 m or coarser)."""
 FOUR_CONNECTED = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]])
 
 

@@ -176,12 +176,14 @@ def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
 
 
 def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
-    """`map_key` of a map already loaded."""
+    """`map_key` of a map already loaded. A start given in metres (`--start-xy`) lands on a cell through the map's
+    origin, so the origin is keyed with it: a map saved again with another origin starts its plans elsewhere."""
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
-    h.update(
-        json.dumps([grid_map.cells.shape, grid_map.resolution_m, weights.w1, weights.w2, *planning.key()]).encode()
-    )
+    fields = [grid_map.cells.shape, grid_map.resolution_m, weights.w1, weights.w2, *planning.key()]
+    if planning.start_xy is not None:
+        fields.append(list(grid_map.origin[:2]))
+    h.update(json.dumps(fields).encode())
     return h.hexdigest()
 
 

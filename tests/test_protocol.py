@@ -53,6 +53,24 @@ def test_map_summary_counts_gaps_and_the_1_percent_band():
     assert json.loads(json.dumps(ev.to_dict()))["starts"] == 4
 
 
+def test_a_start_in_metres_keys_the_cache_on_the_maps_origin():
+    """A map saved again with another origin keeps its cells, yet `--start-xy` then lands on another cell and the
+    plans score differently: the two must not share a cached optimum. Without a start point the origin is moot."""
+    from dataclasses import replace
+
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import Planning
+    from smorphi_rl.protocol import key_of
+
+    grid_map = load_map(MAP_1)
+    moved = replace(grid_map, origin=(-1.0, -1.0, 0.0))
+    weights, start = Weights(1.0, 0.1), Planning(0.17, start_xy=(0.05, 2.15))
+    assert start.start_on(grid_map) != start.start_on(moved)
+    assert key_of(grid_map, weights, start) != key_of(moved, weights, start)
+    assert key_of(grid_map, weights, Planning(0.17)) == key_of(moved, weights, Planning(0.17))
+    assert key_of(grid_map, weights, Planning(0.17)) == map_key(MAP_1, weights, Planning(0.17))
+
+
 @pytest.mark.slow
 def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     from smorphi_rl.maps import load_map
