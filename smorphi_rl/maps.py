@@ -30,6 +30,14 @@ MIN_RESOLUTION_M, MAX_RESOLUTION_M = 0.001, 10.0
 """A map file's cell size: a millimetre to ten metres (ROS maps are 0.01-0.1 m); beyond, the file is wrong."""
 
 
+def check_resolution(resolution_m: float, what: str) -> None:
+    """Refuse a cell size a map file may not hold (MIN_RESOLUTION_M-MAX_RESOLUTION_M): what reads maps refuses it,
+    and what writes them refuses it before any work, rather than leave a map no command can read."""
+    if not (is_finite_number(resolution_m) and MIN_RESOLUTION_M <= resolution_m <= MAX_RESOLUTION_M):
+        shown = f"{resolution_m:g}" if isinstance(resolution_m, int | float) else repr(resolution_m)
+        raise MapError(f"{what} must be {MIN_RESOLUTION_M:g}-{MAX_RESOLUTION_M:g} m a cell, got {shown}")
+
+
 class Cell(enum.IntEnum):
     """State of one map cell."""
 
@@ -329,12 +337,10 @@ def load_map(yaml_path: str | Path) -> Map:
     if not isinstance(image, str) or not image:
         raise MapError(f"{path}: 'image' must be a file name, got {_shown(image)}")
     if Path(image).suffix.lower() not in READ_IMAGE_SUFFIXES:
-        raise MapError(f"{path}: 'image' {_shown(image)} is not an image file name (give one ending in "
-                       f"{', '.join(READ_IMAGE_SUFFIXES)})")  # fmt: skip
+        raise MapError(f"{path}: 'image' {_shown(image)} is not an image file name (map images are read as PGM "
+                       "or PNG, as map_saver writes them)")  # fmt: skip
     resolution = _number(meta, "resolution", path)
-    if not MIN_RESOLUTION_M <= resolution <= MAX_RESOLUTION_M:
-        raise MapError(f"{path}: 'resolution' must be {MIN_RESOLUTION_M:g}-{MAX_RESOLUTION_M:g} m a cell, got "
-                       f"{resolution:g}")  # fmt: skip
+    check_resolution(resolution, f"{path}: 'resolution'")
     origin = meta.get("origin", [0.0, 0.0, 0.0])
     origin = [_as_number(v) for v in origin] if isinstance(origin, list) and len(origin) == 3 else origin
     if (
@@ -390,14 +396,25 @@ def map_inputs(yaml_path: str | Path) -> tuple[Path, ...]:
     return (path, path.parent / image) if isinstance(image, str) and image else (path,)
 
 
+def check_not_folders(paths: list[Path]) -> None:
+    """Refuse, before anything is written, a map file or image to be written where a folder is: found only mid-way,
+    it left part of a map, or of a set of maps, behind."""
+    folders = [p for p in paths if p.is_dir()]
+    if folders:
+        more = f" (and {len(folders) - 1} more of the files to write)" if len(folders) > 1 else ""
+        raise MapError(f"cannot write {folders[0]}: a folder is there{more}; nothing was written")
+
+
 def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") -> Path:
     """Write `NAME.yaml` and `NAME.pgm|png` as map_saver does (trinary: 254/0/205), each through a temporary file
     and a rename."""
     from PIL import Image
 
     path = Path(yaml_path)
+    check_resolution(grid_map.resolution_m, f"map {grid_map.name}: its resolution (to be written to {path})")
     if image_format not in ("pgm", "png"):
         raise MapError(f"image format must be pgm or png, got {image_format!r}")
+    check_not_folders([path, path.with_suffix(f".{image_format}")])
     pixels = np.zeros(grid_map.cells.shape, dtype=np.uint8)
     for cell, value in SAVED_PIXEL.items():
         pixels[grid_map.cells == cell] = value
@@ -525,12 +542,13 @@ def generate_map(
     of it: its caller says so); `progress(occupied cells, target)` now and then."""
     if not 0.0 <= obstacle_density < 0.9:
         raise MapError(f"obstacle density must be in [0, 0.9), got {obstacle_density}")
-    if width_m <= 0 or height_m <= 0 or resolution_m <= 0:
-        raise MapError("map width, height and resolution must be > 0")
+    check_resolution(resolution_m, "a map's resolution")
+    if width_m <= 0 or height_m <= 0:
+        raise MapError("map width and height must be > 0")
     if not 0 < min_obstacle_m <= max_obstacle_m:
         raise MapError("need 0 < min obstacle size <= max obstacle size")
     if not all(math.isfinite(v) for v in (width_m, height_m, resolution_m)):
-        raise MapError("map width, height and resolution must be finite numbers")
+        raise MapError("map width and height must be finite numbers")
     rows, cols = height_m / resolution_m, width_m / resolution_m  # floats: 1e308 / 0.05 is inf, not an integer
     if rows * cols > MAX_GENERATED_CELLS:
         raise MapError(f"a {width_m:g} x {height_m:g} m map at {resolution_m:g} m is {cols:,.0f} x {rows:,.0f} cells; "

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import ndimage
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.maps import Cell, Map
+from smorphi_rl.maps import Cell, Map, check_resolution
 
 FOUR_CONNECTED = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]])
 
@@ -97,6 +97,7 @@ def resample(grid_map: Map, resolution_m: float) -> Map:
     if abs(factor - round(factor)) > 1e-6:
         own = grid_map.resolution_m
         raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m")
+    check_resolution(resolution_m, "--resolution")  # a map no map file may hold: refused before it is written
     return coarsen(grid_map, round(factor))
 
 

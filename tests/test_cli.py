@@ -215,7 +215,6 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["--angles-file", "{nothere.csv}"], "angles file not found"),
         (["--angles-file", "{nan_first.csv}"], "line 1: expected three numbers t1,t2,t3, got 'nan,90,90'"),
         (["--angles-file", "{semicolons.csv}"], "line 1: expected three numbers t1,t2,t3, got '90;90;90'"),
-        ([], "give either --angles"),
         (["--angles", "1", "2", "3", "--block-side", "0"], "--block-side must be > 0"),
         (["--angles", "1", "2", "3", "--start", "tile:x,1"], "tile indices must be integers"),
         (["--angles", "1", "2", "3", "--start", "corner"], "use tile:A,B or xy:X,Y"),
@@ -251,6 +250,17 @@ def test_a_missing_subcommand_is_named_by_its_choices(capsys, argv, named):
         main(argv)
     err = capsys.readouterr().err
     assert exc.value.code == 2 and f"the following arguments are required: {named}" in err and "_command" not in err
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    ([], "one of the arguments --angles --angles-file is required"),
+    (["--angles", "1", "2", "3", "--angles-file", "a.csv"], "argument --angles-file: not allowed with argument"),
+])  # fmt: skip
+def test_evaluate_without_angles_or_with_both_kinds_is_a_usage_error(capsys, argv, message):
+    with pytest.raises(SystemExit) as exc:
+        main(["evaluate", "--map", MAP_1, *argv])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and message in err, err
 
 
 def test_an_unknown_subcommand_lists_the_choices_once_without_the_dest(capsys):
@@ -372,3 +382,18 @@ def test_evaluate_policy_takes_a_folder_of_maps_as_train_does(capsys, tmp_path):
     assert code == 0, err
     (episode,) = [json.loads(line) for line in out.splitlines()]
     assert episode["map"] == "map-1" and episode["settled"]["R1"] > 0
+
+
+def test_a_list_option_given_twice_holds_both_lists_and_replaces_its_default():
+    """`compare --random a --random b` compared only b, without a word (argparse keeps the last list)."""
+    from smorphi_rl.cli import build_parser
+
+    parse = build_parser().parse_args
+    assert parse(["compare", "--random", "a", "--random", "b", "c"]).random == ["a", "b", "c"]
+    assert parse(["compare", "--runs", "r"]).runs == ["r"] and parse(["compare"]).runs is None
+    seeds = parse(["transfer", "--pretrained", "p", "--maps", "m", "--seeds", "4", "--seeds", "5"]).seeds
+    assert seeds == [4, 5]  # the default seeds replaced, not extended
+    assert parse(["transfer", "--pretrained", "p", "--maps", "m", "--maps", "n"]).maps == ["m", "n"]
+    args = parse(["train", "--map", "a.yaml", "--map", "b.yaml", "--eval-maps", "c.yaml", "--eval-maps", "d.yaml"])
+    assert args.map == ["a.yaml", "b.yaml"] and args.eval_maps == ["c.yaml", "d.yaml"]
+    assert parse(["evaluate-policy", "--checkpoint", "x", "--map", "a", "--map", "b"]).map == ["a", "b"]

@@ -342,6 +342,41 @@ def test_a_floor_set_refused_for_a_file_there_names_the_file_that_is(tmp_path, c
     assert sorted(p.name for p in tmp_path.iterdir()) == ["rooms-0001000.png"]
 
 
+@pytest.mark.parametrize("resolution", ["0", "-0", "1e-170", "1e200", "0.0005", "10.5"])
+def test_a_map_no_map_file_may_hold_is_refused_before_it_is_written(tmp_path, capsys, resolution):
+    """`--resolution 0` divided by zero, 1e200 overflowed (tracebacks), and 0.0005 or 10.5 wrote a map that every
+    command then refused to read."""
+    from smorphi_rl.cli import main
+
+    out = tmp_path / "g" / "a.yaml"
+    assert main(["maps", "generate", "--out", str(out), "--resolution", resolution, "--width-m", "1",
+                 "--height-m", "1"]) == 1  # fmt: skip
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--resolution must be 0.001-10 m a cell" in err, err
+    assert not (tmp_path / "g").exists()
+    big = save_map(Map(np.zeros((100, 100), np.uint8), 1.0, name="big"), tmp_path / "big.yaml")
+    argv = ["maps", "resample", str(big), "--resolution", "20", "--out", str(tmp_path / "b20.yaml")]
+    assert main(argv) == 1 and "--resolution must be 0.001-10 m a cell, got 20" in capsys.readouterr().err
+    assert not (tmp_path / "b20.yaml").exists()
+
+
+def test_a_folder_where_a_floor_file_goes_is_refused_before_any_floor_is_written(tmp_path, capsys):
+    """With --force, a folder in place of the second floor's image left the first floor written and said only
+    "Is a directory"."""
+    from smorphi_rl.cli import main
+
+    (tmp_path / "rooms-0000001.pgm").mkdir()
+    assert main(["maps", "generate", "--kind", "rooms", "--count", "3", "--out", str(tmp_path), "--force"]) == 1
+    err = capsys.readouterr().err
+    assert f"cannot write {tmp_path / 'rooms-0000001.pgm'}: a folder is there; nothing was written" in err
+    assert [p.name for p in tmp_path.iterdir()] == ["rooms-0000001.pgm"]
+    (tmp_path / "one").mkdir()
+    (tmp_path / "one" / "a.pgm").mkdir()
+    assert main(["maps", "generate", "--out", str(tmp_path / "one" / "a.yaml"), "--force"]) == 1
+    assert "a folder is there; nothing was written" in capsys.readouterr().err
+    assert [p.name for p in (tmp_path / "one").iterdir()] == ["a.pgm"]
+
+
 def test_a_large_map_shows_its_progress_and_a_density_of_zero_is_done(tmp_path, capsys):
     """Past a million cells `maps generate` draws a progress bar; with nothing to place it once divided by zero."""
     from smorphi_rl.cli import main

@@ -147,6 +147,31 @@ def test_a_file_cut_short_is_recovered_up_to_its_last_flush(tmp_path, capsys):
     assert partial.steps == json.loads(json.dumps(produced[: len(partial.steps)]))
 
 
+def test_a_finished_recording_damaged_inside_is_refused_not_read_as_cut_short(tmp_path, capsys):
+    """Two bytes changed inside a chunk of a whole file were reported as "0 steps from a file cut short", exit 0."""
+    env = recorded_env(tmp_path, flush_steps=10, max_steps=40)
+    play(env, 5, np.random.default_rng(5))
+    env.close()
+    (done,) = episode_files(tmp_path / "episodes")
+    data = bytearray(done.read_bytes())
+    at = data.index(b"\x28\xb5\x2f\xfd", data.index(b"\x28\xb5\x2f\xfd") + 4) + 200  # inside the second chunk
+    data[at : at + 2] = bytes(255 - b for b in data[at : at + 2])
+    damaged = tmp_path / "damaged.mcap"
+    damaged.write_bytes(bytes(data))
+    assert main(["replay", str(damaged)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"{damaged}: is damaged" in err, err
+    data[at : at + 2] = bytes(255 - b for b in data[at : at + 2])  # mended, then cut short after that chunk
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(bytes(data[: at + 1000]))
+    assert read_episode(cut).truncated  # a file cut short is read up to its cut
+    crc = data.index(b"\x28\xb5\x2f\xfd") - 8 - 8 - 4  # the first chunk's CRC, before "zstd" (4 + 4) and a length (8)
+    data[crc : crc + 4] = bytes(255 - b for b in data[crc : crc + 4])  # a checksum that no longer matches
+    damaged.write_bytes(bytes(data))
+    assert main(["replay", str(damaged)]) == 1
+    assert "does not match its checksum" in capsys.readouterr().err
+
+
 def test_a_recording_whose_disk_fills_mid_episode_keeps_what_it_flushed(tmp_path, monkeypatch):
     """A full disk at a chunk's flush: the error names the file, the file keeps its flushed chunks (and replays),
     and the steps and the close after it write nothing and raise nothing (closing once failed again)."""

@@ -25,6 +25,16 @@ DEFAULT_MAP = Path("maps") / SHIPPED_DEFAULT_MAP.name
 EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
 
 
+class Repeated(argparse.Action):
+    """A list option (`nargs="+"`) that a repeated flag extends: `--random a --random b` is both runs, where argparse
+    keeps only the last list and drops the others without a word. The first use replaces the default."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace, values: Any,
+                 option_string: str | None = None) -> None:  # fmt: skip
+        held = getattr(namespace, self.dest, None)
+        setattr(namespace, self.dest, [*(() if held is self.default or held is None else held), *values])
+
+
 class Parser(argparse.ArgumentParser):
     """argparse that reports a usage error as one line, like every other error, and refuses an empty value: every
     option names a file, a folder, a name or a number, and '' read as a path is the working directory."""
@@ -40,7 +50,16 @@ class Parser(argparse.ArgumentParser):
         super().__init__(*args, **kwargs)
 
     def add_argument(self, *args: Any, **kwargs: Any) -> argparse.Action:
-        action = super().add_argument(*args, **kwargs)
+        return self._named(super().add_argument(*args, **kwargs))
+
+    def add_one_of(self, required: bool = False) -> Any:
+        """A mutually exclusive group whose arguments are named like the parser's own (an empty value refused)."""
+        group = self.add_mutually_exclusive_group(required=required)
+        add = group.add_argument
+        group.add_argument = lambda *args, **kwargs: self._named(add(*args, **kwargs))  # type: ignore[method-assign]
+        return group
+
+    def _named(self, action: argparse.Action) -> argparse.Action:
         shown = action.metavar if isinstance(action.metavar, str) else action.dest  # a positional, as argparse says
         self.named[action.dest] = "/".join(action.option_strings) or shown
         return action

@@ -31,8 +31,9 @@ def register(sub: Any) -> None:
     """Add `evaluate` to the command line."""
     ev = sub.add_parser("evaluate", help="coverage (P_c) and path length (P_len) of morphologies on a map")
     ev.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
-    ev.add_argument("--angles", nargs=3, metavar=("T1", "T2", "T3"), help="hinge angles in degrees, each 0-180")
-    ev.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
+    which = ev.add_one_of(required=True)  # neither, or both: a usage error (exit 2)
+    which.add_argument("--angles", nargs=3, metavar=("T1", "T2", "T3"), help="hinge angles in degrees, each 0-180")
+    which.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
     ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
     ev.add_argument("--force", action="store_true", help=FORCE_HELP)
@@ -171,8 +172,6 @@ FILE_CHUNK = 50_000
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
-    if (args.angles is None) == (args.angles_file is None):
-        raise SmorphiError("give either --angles T1 T2 T3 or --angles-file FILE")
     if args.start is not None and not args.start.strip():
         raise SmorphiError(EMPTY_START)
     if args.angles_file is not None and args.plot is not None:

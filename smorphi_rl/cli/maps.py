@@ -83,7 +83,7 @@ def register(sub: Any) -> None:
 
 def cmd_maps_generate(args: argparse.Namespace) -> int:
     """Write an indoor-like map of rectangular obstacles, or with --kind a set of floor plans."""
-    from smorphi_rl.maps import save_map
+    from smorphi_rl.maps import check_resolution, save_map
 
     if args.kind is not None:
         return _generate_floors(args)
@@ -96,6 +96,7 @@ def cmd_maps_generate(args: argparse.Namespace) -> int:
     image = out.with_suffix(f".{args.format}")
     if not args.force and (out.exists() or image.exists()):
         raise SmorphiError(f"{out if out.exists() else image} exists; pass --force to overwrite it")
+    check_resolution(args.resolution, "--resolution")  # before the size it divides by
     rng = np.random.default_rng(args.seed)
     from smorphi_rl.progress import progress_line
     from smorphi_rl.rundir import claimed_files
@@ -154,8 +155,10 @@ def _generate_floors(args: argparse.Namespace) -> int:
             floors = len({f.stem for f in taken})
             raise SmorphiError(f"{taken[0]} exists ({floors} of the {len(names)} floors have a file there); pass "
                                "--force to overwrite them")  # fmt: skip
+    from smorphi_rl.maps import check_not_folders
     from smorphi_rl.rundir import claimed_files
 
+    check_not_folders([f for n in names for f in (out / f"{n}.yaml", out / f"{n}.{args.format}")])
     cells = 0
     with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
         for i, name in enumerate(names):

@@ -12,6 +12,7 @@ from typing import Any
 from smorphi_rl import jsontext
 from smorphi_rl.cli.common import (
     DEFAULT_LOG_DIR,
+    Repeated,
     clipped,
     map_paths,
     nonempty,
@@ -47,7 +48,8 @@ def register(sub: Any) -> None:
 
     ep = sub.add_parser("evaluate-policy", help="roll a trained policy out greedily on a map")
     ep.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
-    ep.add_argument("--map", nargs="+", default=None, help="map(s) to roll out on (default: the training maps)")
+    ep.add_argument("--map", nargs="+", action=Repeated, default=None,
+                    help="map(s) to roll out on (default: the training maps)")  # fmt: skip
     ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
     ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")

@@ -14,6 +14,7 @@ from smorphi_rl import jsontext
 from smorphi_rl.cli.common import (
     DEFAULT_MAP,
     Parser,
+    Repeated,
     name_choices,
     planner_option,
     planning_of,
@@ -54,10 +55,10 @@ def register(sub: Any) -> None:
 
     co = sub.add_parser("compare", help="every method against the exact Pareto front of a map")
     co.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
-    co.add_argument("--runs", nargs="+", help="training run directories (logs/<run>)")
-    co.add_argument("--nsga2", nargs="+", help="`search nsga2` run directories")
-    co.add_argument("--random", nargs="+", help="`search random` run directories")
-    co.add_argument("--local", nargs="+", help="`search hillclimb` / `search anneal` run directories")
+    co.add_argument("--runs", nargs="+", action=Repeated, help="training run directories (logs/<run>)")
+    co.add_argument("--nsga2", nargs="+", action=Repeated, help="`search nsga2` run directories")
+    co.add_argument("--random", nargs="+", action=Repeated, help="`search random` run directories")
+    co.add_argument("--local", nargs="+", action=Repeated, help="`search hillclimb` / `search anneal` run directories")
     co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
     option(co, SearchConfig, "step", unset=True, default_text=f"{SearchConfig.step:g}, when the front is computed here")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")

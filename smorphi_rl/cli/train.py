@@ -14,6 +14,7 @@ from smorphi_rl.cli.common import (
     DEFAULT_MAP,
     EXIT_INTERRUPTED,
     PROG,
+    Repeated,
     map_paths,
     nonempty,
     planner_option,
@@ -49,8 +50,9 @@ def register(sub: Any) -> None:
 
     tf = sub.add_parser("transfer", help="fine-tune vs from scratch on held-out maps (the paper's Table 5)")
     tf.add_argument("--pretrained", required=True, metavar="PATH", help=field_docs(TransferJob)["pretrained"])
-    tf.add_argument("--maps", nargs="+", required=True, metavar="MAP", help=field_docs(TransferJob)["maps"])
-    option(tf, TransferJob, "seeds", nargs="+", type=seed_arg, metavar="S")
+    tf.add_argument("--maps", nargs="+", action=Repeated, required=True, metavar="MAP",
+                    help=field_docs(TransferJob)["maps"])  # fmt: skip
+    option(tf, TransferJob, "seeds", nargs="+", action=Repeated, type=seed_arg, metavar="S")
     option(tf, TransferJob, "timesteps", metavar="N")
     option(tf, TransferJob, "algo", unset=True, choices=ALGORITHMS, default_text="the pretrained policy's, else ppo")
     option(tf, TransferJob, "preset", choices=tuple(PRESETS))
@@ -96,7 +98,11 @@ def _register_train(sub: Any) -> None:
 
     tr = sub.add_parser("train", help="train PPO / IMPALA / APPO on maps through Ray Tune (the main job)")
     tr.add_argument(
-        "--map", nargs="+", default=None, help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})"
+        "--map",
+        nargs="+",
+        action=Repeated,
+        default=None,
+        help=f"map_server YAML(s), one drawn per episode (default: {DEFAULT_MAP})",
     )
     field_flag("maps", "--map")
     option(tr, TrainConfig, "algo", unset=True, choices=ALGORITHMS, default_text="the pretrained policy's, else ppo")
@@ -115,7 +121,8 @@ def _register_train(sub: Any) -> None:
            default_text="the preset's: 2")  # fmt: skip
     for name in ("envs_per_runner", "eval_every", "eval_starts", "select_starts"):
         option(tr, TrainConfig, name, metavar="N")
-    option(tr, TrainConfig, "eval_maps", nargs="+", type=str, metavar="MAP", default_text="the --map files")
+    option(tr, TrainConfig, "eval_maps", nargs="+", action=Repeated, type=str, metavar="MAP",
+           default_text="the --map files")  # fmt: skip
     record_option(tr)
     tr.set_defaults(func=cmd_train)
 

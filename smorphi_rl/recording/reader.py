@@ -6,6 +6,7 @@ import base64
 import io
 import json
 import math
+import zlib
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -153,6 +154,8 @@ def _chunk_records(chunk: Any, budget: list[int], path: Path) -> Iterator[Any]:
     data = chunk.data
     if chunk.compression == "zstd":
         data = zstandard.ZstdDecompressor().decompress(chunk.data, max_output_size=chunk.uncompressed_size)
+    if chunk.uncompressed_crc and zlib.crc32(data) != chunk.uncompressed_crc:  # 0: the writer computed none
+        raise RecordingError(f"{path}: is damaged: a chunk's content does not match its checksum")
     stream = ReadDataStream(io.BytesIO(data))
     while stream.count < len(data):
         opcode, length = stream.read1(), stream.read8()
@@ -187,6 +190,17 @@ def _message(data: bytes, topic: str, path: Path, budget: list[int]) -> Any:
         return json.loads(data)
     except (ValueError, RecursionError):
         raise RecordingError(f"{path}: a message on {topic} is not the JSON smorphi-rl writes") from None
+
+
+def _ends_whole(fh: Any) -> bool:
+    """Whether the open file ends in MCAP's closing magic, as a finished recording does (one cut short does not)."""
+    try:
+        if fh.seek(0, io.SEEK_END) < 2 * len(MCAP_MAGIC):  # the opening magic alone, or less
+            return False
+        fh.seek(-len(MCAP_MAGIC), io.SEEK_END)
+        return bool(fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC)
+    except OSError:
+        return False
 
 
 def read_episode(path: str | Path) -> Episode:
@@ -232,7 +246,10 @@ def read_episode(path: str | Path) -> Episode:
                     complete = True
         except RecordingError:
             raise
-        except Exception:  # a cut-short file ends in a partial record: keep what came before it
+        except Exception as exc:  # a cut-short file ends in a partial record: keep what came before it
+            if _ends_whole(fh):  # but one that ends as a finished file does was damaged inside, not cut
+                raise RecordingError(f"{path}: is damaged: it ends as a finished recording does, yet a record inside "
+                                     f"it cannot be read ({type(exc).__name__})") from None  # fmt: skip
             complete = False
     if not topics or not any(t in OUR_TOPICS for t in topics.values()):
         cut = not complete and not topics

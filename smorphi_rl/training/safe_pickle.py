@@ -329,8 +329,12 @@ class SafeUnpickler(_Unpickler):  # type: ignore[misc]
 def safe_unpickle(path: Path) -> Any:
     """The object a checkpoint pickle holds, read by `SafeUnpickler`; refused in one line otherwise."""
     try:
-        if path.is_symlink() or not path.is_file():
-            raise CheckpointError(f"{path}: missing or not a plain file (a checkpoint's files are never links)")
+        if path.is_symlink():
+            raise CheckpointError(f"{path}: a link, refused (a checkpoint's files are never links)")
+        if not path.exists():
+            raise CheckpointError(f"{path}: missing (not a whole checkpoint: its module's files are not all there)")
+        if not path.is_file():
+            raise CheckpointError(f"{path}: not a plain file, as every file of a checkpoint is")
         if path.stat().st_size > MAX_PICKLE_BYTES:
             raise CheckpointError(f"{path}: {path.stat().st_size:,} bytes, larger than any smorphi-rl policy "
                                   f"({MAX_PICKLE_BYTES:,} at most)")  # fmt: skip

@@ -44,7 +44,7 @@ def test_the_command_lines_defaults_are_the_configurations():
     nsga2 = parser.parse_args(["search", "nsga2"])
     assert (nsga2.pop, nsga2.generations, nsga2.seed) == (SearchConfig.pop, SearchConfig.generations, 0)
     assert parser.parse_args(["search", "exhaustive"]).step == SearchConfig.step
-    assert parser.parse_args(["evaluate"]).block_side == EnvConfig.block_side_m
+    assert parser.parse_args(["evaluate", "--angles", "1", "2", "3"]).block_side == EnvConfig.block_side_m
 
 
 def test_an_error_naming_a_field_names_the_flag_the_user_gave(capsys, tmp_path):

@@ -251,7 +251,13 @@ def test_a_linked_state_file_is_refused(genuine, tmp_path):
     checkpoint = plant(genuine, tmp_path, "module_state.pkl", b"")
     (checkpoint / MODULE_SUBDIR / "module_state.pkl").unlink()
     (checkpoint / MODULE_SUBDIR / "module_state.pkl").symlink_to(genuine / MODULE_SUBDIR / "module_state.pkl")
-    with pytest.raises(CheckpointError, match="not a plain file"):
+    with pytest.raises(CheckpointError, match=r"module_state\.pkl: a link, refused"):
+        load_module(checkpoint)
+    (checkpoint / MODULE_SUBDIR / "module_state.pkl").unlink()
+    with pytest.raises(CheckpointError, match=r"module_state\.pkl: missing \(not a whole checkpoint"):
+        load_module(checkpoint)
+    (checkpoint / MODULE_SUBDIR / "module_state.pkl").mkdir()
+    with pytest.raises(CheckpointError, match=r"module_state\.pkl: not a plain file"):
         load_module(checkpoint)
 
 
