@@ -331,8 +331,17 @@ class Planning:
             where, cell = "in the largest free area", None
         else:
             return f"planner paper ({spec}): plans start at the first traversable tile"
-        share = free_area_share(grid_map, cell)
+        share = self.reach_share(grid_map, cell)
         return f"planner {self.planner.value} ({spec}): plans start {where}, {share:.1f} % of the free cells"
+
+    def reach_share(self, grid_map: Map, cell: tuple[int, int] | None) -> float:
+        """Percent of the free cells plans from the start can reach at most. `fit`: the free area holding `cell`
+        (None: the largest). `paper`: its robot may stand over obstacles (a tile is traversable when any of its
+        cells is free), so a wall thinner than a tile is crossed: the more of the O's and the I's coverage."""
+        if self.planner is Planner.FIT:
+            return free_area_share(grid_map, cell)
+        evaluator = self.evaluator(grid_map, cache=False)
+        return max(evaluator.evaluate(Morphology(*theta)).coverage_free_pct for theta in (O_SHAPE, I_SHAPE))
 
     def start_warning(self, grid_map: Map) -> str | None:
         """One line when plans start in a free area holding under START_AREA_MIN_PCT of the free cells (the paper's
@@ -346,7 +355,7 @@ class Planning:
         else:
             free = np.argwhere(grid_map.cells == Cell.FREE)
             cell = (int(free[0, 0]), int(free[0, 1])) if len(free) else None
-        share = free_area_share(grid_map, cell)
+        share = self.reach_share(grid_map, cell)
         if share >= START_AREA_MIN_PCT:
             return None
         x, y = grid_map.world_of(*cell) if cell is not None else (0.0, 0.0)
@@ -366,6 +375,8 @@ class Planning:
         return key
 
 
+O_SHAPE, I_SHAPE = (0.0, 180.0, 0.0), (0.0, 0.0, 0.0)
+"""The O (2 x 2 blocks) and the I along x (4 x 1): the paper planner's smallest and longest tiles."""
 START_AREA_MIN_PCT = 50.0
 """A start area holding less of the free floor than this is named in a warning (`Planning.start_warning`)."""
 SPECK_PCT = 10.0
