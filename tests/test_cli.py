@@ -397,3 +397,13 @@ def test_a_list_option_given_twice_holds_both_lists_and_replaces_its_default():
     args = parse(["train", "--map", "a.yaml", "--map", "b.yaml", "--eval-maps", "c.yaml", "--eval-maps", "d.yaml"])
     assert args.map == ["a.yaml", "b.yaml"] and args.eval_maps == ["c.yaml", "d.yaml"]
     assert parse(["evaluate-policy", "--checkpoint", "x", "--map", "a", "--map", "b"]).map == ["a", "b"]
+
+
+def test_evaluate_takes_start_xy_as_every_other_command_spells_it(capsys):
+    """The start-area warning and `search`, `design`, `train` say `--start-xy X Y`; `evaluate` refused it."""
+    args = ["evaluate", "--map", MAP_1, "--angles", "0", "180", "0", "--planner", "fit", "--json"]
+    code, out, _ = run(capsys, *args, "--start-xy", "2.5", "2.5")
+    assert code == 0
+    assert run(capsys, *args, "--start", "xy:2.5,2.5") == (0, out, "")
+    text = run(capsys, *args[:-1], "--start-xy", "2.5", "2.5")[1]
+    assert "\nstart        cell (25, 25)" in text and "largest free area" in run(capsys, *args[:-1])[1]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, weight_options, weights
+from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, start_option, weight_options, weights
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -38,8 +38,10 @@ def register(sub: Any) -> None:
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
     ev.add_argument("--force", action="store_true", help=FORCE_HELP)
     option(ev, EnvConfig, "block_side_m", "--block-side", metavar="M")
-    ev.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
-                    "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
+    where = ev.add_one_of()
+    where.add_argument("--start", help="start tile 'tile:A,B' (paper planner) or free point 'xy:X,Y' in metres "
+                       "(default: paper, the first traversable tile; fit, in the largest free area)")  # fmt: skip
+    start_option(where)  # --start-xy X Y, as `search`, `design`, `train` and their warnings spell it
     planner_option(ev, start=False)
     weight_options(ev)
     ev.add_argument("--path", action="store_true",
@@ -172,6 +174,8 @@ FILE_CHUNK = 50_000
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
+    if args.start_xy is not None:  # --start-xy X Y is --start xy:X,Y
+        args.start = f"xy:{args.start_xy[0]!r},{args.start_xy[1]!r}"
     if args.start is not None and not args.start.strip():
         raise SmorphiError(EMPTY_START)
     if args.angles_file is not None and args.plot is not None:
