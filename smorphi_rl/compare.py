@@ -282,24 +282,26 @@ def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
     return lines
 
 
-def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights) -> list[str]:
-    """The comparison as Markdown lines: title, how to read it, and the table (what `compare` prints)."""
+def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights,
+                 planning: str) -> list[str]:  # fmt: skip
+    """The comparison as Markdown lines: title, how to read it, and the table (what `compare` prints); `planning`
+    is `Planning.describe`'s line, so reports of two planners on one map say which is which."""
     return [
         f"# Every method against the exact optimum on {map_name}",
         "",
-        f"{weights.formula()}. Hypervolume in (P_len, P_c) against the lattice nadir "
-        "(longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
+        f"{planning[0].upper()}{planning[1:]}. {weights.formula()}. Hypervolume in (P_len, P_c) against the "
+        "lattice nadir (longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
         "",
         *method_table(exact, methods),
     ]
 
 
 def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights,
-                 run_dir: Path) -> dict[str, Path]:  # fmt: skip
+                 planning: str, run_dir: Path) -> dict[str, Path]:  # fmt: skip
     """report.md (`report_lines` and the plot) and compare.png under `run_dir`."""
     from smorphi_rl.plots import plot_pareto
 
-    lines = report_lines(exact, methods, map_name, weights)
+    lines = report_lines(exact, methods, map_name, weights, planning)
     files = {"report": run_dir / "report.md"}
     files["plot"] = plot_pareto(
         {m.label: (m.front_len, m.front_pc) for m in methods},

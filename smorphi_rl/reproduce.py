@@ -111,6 +111,7 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     from smorphi_rl.compare import points_of_run, score_methods, write_report
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import PAPER_PLANNING
     from smorphi_rl.rundir import prepare_run_dir, safe_name
     from smorphi_rl.score import Weights
     from smorphi_rl.search.exhaustive import run_exhaustive
@@ -191,7 +192,8 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         by_seed = dict(zip(keys, every, strict=True))
         scores = [by_seed[(m, 0)] for m in (*b.algorithms, "nsga2", "random")]  # the tables: the first seed's
         cmp_dir = prepare_run_dir(root, safe_name(f"compare-{map_name}"))
-        files = write_report(exact_score, scores, map_name, weights[map_name], cmp_dir)
+        planning = PAPER_PLANNING.describe(load_map(_map(map_name)))  # the paper's planner, as every run here
+        files = write_report(exact_score, scores, map_name, weights[map_name], planning, cmp_dir)
         curves = {a.upper(): summary_curve(training[(a, map_name)][0]) for a in b.algorithms}
         sections += _map_section(map_name, training, b, exact_score, scores, files, curves, root)
         seeds = {a: [_seed_figures(d) for d in training[(a, map_name)]] for a in b.algorithms}

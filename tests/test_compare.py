@@ -44,6 +44,7 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
     out = capsys.readouterr().out
     assert code == 0
     report = (searches / "compare-map-1" / "report.md").read_text()
+    assert "Planner paper (docs/spec/fbcpp.md): plans start at the first traversable tile." in report  # which planner
     rows = [line for line in report.splitlines() if line.startswith("| ") and "---" not in line][1:]
     assert [r.split("|")[1].strip().split(" ")[0] for r in rows] == ["exact", "nsga2", "random", "hillclimb"]
     exact_row = rows[0].split("|")
@@ -164,6 +165,8 @@ def test_compare_refuses_runs_planned_from_another_start(tmp_path, capsys):
     assert "planned from (1, 1) m, the exact front here from the planner's default start: pass --start-xy 1 1" in err
     assert err.count("\n") == 1 and not (tmp_path / "compare-map-1").exists()
     assert main([*compare, "--start-xy", "1.0", "1.0"]) == 0
+    report = (tmp_path / "compare-map-1" / "report.md").read_text()
+    assert "Planner fit (docs/fbcpp-fit.md): plans start at (1, 1) m, 100.0 % of the free cells." in report
     import json
 
     for damaged in ("[1e400, 1.0]", "[1" + "0" * 400 + ", 1]"):  # a hint of `--start-xy inf 1`, or a traceback

@@ -66,7 +66,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         "coverage_free_pct": best.coverage_free_pct, "P_len": best.P_len, "R1": best.R1,
         "weights": env.floor.weights.formula(), "evaluations": result.evaluations,
         "planner_calls": result.planner_calls, "rollouts": result.rollouts, "refined": result.refined,
-        "budget": args.budget,
+        "budget": args.budget, "planner": env.config.planning.planner.value,
     }  # fmt: skip
     if start is not None:
         record["start_xy"] = list(start)
@@ -102,7 +102,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
         ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
-                   f"({record['weights']})"),
+                   f"({record['weights']}; planner {record['planner']})"),
         ("cost", f"{result.evaluations:,} planner evaluations of {args.budget:,} ({result.planner_calls:,} footprints "
                  f"planned): {result.rollouts} roll-out{'s' * (result.rollouts != 1)} of the policy, {result.refined} "
                  "shapes of compass search"),

@@ -296,7 +296,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
             )
         exact_score, methods = score_methods(exact, runs, on_map)
-        files = write_report(exact_score, methods, grid_map.name, on_map, run_dir)
-    print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map)))
+        planned = planning.describe(grid_map)
+        files = write_report(exact_score, methods, grid_map.name, on_map, planned, run_dir)
+    print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map, planned)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0
