@@ -133,14 +133,15 @@ def accepts(designer: Designer, grid_map: Map) -> None:
         hi = designer.env_config.block_side_m / limits["min_cells_per_block"]
         fix = " (`maps resample` coarsens a finer map)" if r < lo else ""
         raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell{fix}")
-    if max(sides) > limits["max_side_m"]:
-        raise SmorphiError(f"{name}: its known area is {max(sides):.1f} m across; this designer takes floors up to "
-                           f"{limits['max_side_m']:g} m (cut a part of it with `maps crop --rect X0 Y0 X1 Y1`, "
-                           "metres in the map frame)")  # fmt: skip
-    if free_m2 > limits["max_free_m2"]:
-        raise SmorphiError(f"{name}: {free_m2:.0f} m^2 of free floor; this designer takes up to "
-                           f"{limits['max_free_m2']:g} m^2 (cut a part of it with `maps crop --rect X0 Y0 X1 Y1`, "
-                           "metres in the map frame)")  # fmt: skip
+    wide, large = max(sides) > limits["max_side_m"], free_m2 > limits["max_free_m2"]
+    if wide or large:  # both limits named at once: a crop that meets one may still break the other
+        over = " and ".join(
+            text for text, past in ((f"its known area is {max(sides):.1f} m across", wide),
+                                    (f"it holds {free_m2:.0f} m^2 of free floor", large)) if past
+        )  # fmt: skip
+        raise SmorphiError(f"{name}: {over}; this designer takes floors up to {limits['max_side_m']:g} m across "
+                           f"holding up to {limits['max_free_m2']:g} m^2 of free floor (cut a part of it with `maps "
+                           "crop --rect X0 Y0 X1 Y1`, metres in the map frame)")  # fmt: skip
 
 
 def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:

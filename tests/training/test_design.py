@@ -130,7 +130,8 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
 
     big = save_map(Map(np.zeros((260, 260), dtype=np.uint8), 0.1, name="big"), tmp_path / "big.yaml")
     code, _, err = run(capsys, "design", "--map", str(big), "--policy", str(policy))
-    assert code == 1 and "takes floors up to 20 m" in err and "maps crop --rect X0 Y0 X1 Y1" in err
+    assert code == 1 and "its known area is 26.0 m across and it holds 676 m^2 of free floor" in err  # both at once
+    assert "takes floors up to 20 m across holding up to 200 m^2" in err and "maps crop --rect X0 Y0 X1 Y1" in err
     part = tmp_path / "part.yaml"  # the fix it names (a plain crop keeps a floor that has no unknown margin whole)
     assert run(capsys, "maps", "crop", str(big), "--rect", "0", "0", "12", "12", "--out", str(part))[0] == 0
     assert run(capsys, "design", "--map", str(part), "--policy", str(policy), "--log-dir", str(tmp_path / "l"))[0] == 0
@@ -139,7 +140,12 @@ def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_pa
     assert code == 1 and "resolution 0.02 m" in err and "maps resample" in err
     hall = save_map(Map(np.zeros((190, 190), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")  # 361 m^2
     code, _, err = run(capsys, "design", "--map", str(hall), "--policy", str(policy))
-    assert code == 1 and "361 m^2 of free floor; this designer takes up to 200 m^2 (cut a part of it with" in err
+    assert (
+        code == 1
+        and "hall: it holds 361 m^2 of free floor; this designer takes floors up to 20 m across holding"
+        " up to 200 m^2 of free floor (cut a part of it with"
+        in err
+    )
 
 
 def test_accepts_limits_the_wrong_way_round_are_named(policy, capsys, tmp_path):
