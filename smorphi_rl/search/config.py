@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from smorphi_rl.coverage import Planner
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.planning import PAPER_PLANNING, Planning
@@ -118,11 +119,13 @@ class SearchConfig:
 
     @property
     def run_name(self) -> str:
-        """The default run folder: method, map and the step (exhaustive, optimum) or the seed."""
+        """The default run folder: method, map, the planner where it is not the paper's (a run of each on one map
+        takes no --name) and the step (exhaustive, optimum) or the seed."""
         from smorphi_rl.rundir import safe_name
 
         suffix = f"step{self.step:g}" if self.method in LATTICE_METHODS else f"seed{self.seed}"
-        return safe_name(f"{self.method}-{Path(self.map_path).stem}-{suffix}")
+        planner = "" if self.planning.planner is Planner.PAPER else f"-{self.planning.planner.value}"
+        return safe_name(f"{self.method}-{Path(self.map_path).stem}{planner}-{suffix}")
 
 
 def run_search(cfg: SearchConfig, progress: Callable[[int, int], None] | None = None) -> SearchResult:

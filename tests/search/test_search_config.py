@@ -15,6 +15,12 @@ def test_defaults_come_from_their_homes():
     assert cfg.starts == EVAL_STARTS
     assert cfg.run_name == "hillclimb-map-1-seed0"
     assert SearchConfig("exhaustive", MAP, step=2.0).run_name == "exhaustive-map-1-step2"
+    from smorphi_rl.coverage import Planner
+    from smorphi_rl.planning import Planning
+
+    fit = Planning(planner=Planner.FIT)  # a run of each planner on one map needs no --name
+    assert SearchConfig("random", MAP, planning=fit).run_name == "random-map-1-fit-seed0"
+    assert SearchConfig("optimum", MAP, planning=fit).run_name == "optimum-map-1-fit-step1"
 
 
 @pytest.mark.parametrize(
