@@ -321,3 +321,22 @@ def test_an_episode_best_that_was_infeasible_is_no_shape_on_the_front(tmp_path, 
                                           "ppo,map-1,95,59,103,97.2400,90,-352.8,10,1\n")  # fmt: skip
     assert main([*argv, "--log-dir", str(tmp_path / "out")]) == 0
     assert "| PPO (ppo-map-1) | 10 env steps | (95, 59, 103) |" in capsys.readouterr().out
+
+
+def test_compare_reads_the_front_a_search_exhaustive_left_in_its_log_dir(tmp_path, capsys):
+    """It computed the front again beside a `search exhaustive` run of the same map (109-206 s on a real floor)."""
+    assert main(["search", "random", "--map", MAP_1, "--samples", "50", "--log-dir", str(tmp_path)]) == 0
+    assert main(["search", "exhaustive", "--map", MAP_1, "--step", "30", "--log-dir", str(tmp_path)]) == 0
+    capsys.readouterr()
+    argv = ["compare", "--map", MAP_1, "--random", str(tmp_path / "random-map-1-seed0"), "--log-dir", str(tmp_path)]
+    assert main([*argv, "--step", "30"]) == 0
+    err = capsys.readouterr().err
+    assert f"exact front: read from {tmp_path / 'exhaustive-map-1-step30'}" in err
+    computed = tmp_path / "computed"
+    assert main([*argv, "--step", "30", "--log-dir", str(computed)]) == 0  # no run there: computed, the same report
+    assert "exact front: read" not in capsys.readouterr().err
+    assert (computed / "compare-map-1" / "report.md").read_text() == (
+        tmp_path / "compare-map-1" / "report.md"
+    ).read_text()
+    assert main([*argv, "--step", "60", "--name", "other-step"]) == 0  # another lattice: not that run's front
+    assert "exact front: read" not in capsys.readouterr().err

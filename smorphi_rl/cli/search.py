@@ -6,7 +6,7 @@ import argparse
 import math
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -30,6 +30,10 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
 from smorphi_rl.score import Weights
+
+if TYPE_CHECKING:
+    from smorphi_rl.maps import Map
+    from smorphi_rl.planning import Planning
 
 
 def register(sub: Any) -> None:
@@ -199,6 +203,27 @@ def format_search(
     return "\n".join(lines)
 
 
+def front_here(log_dir: Path, map_path: str, grid_map: Map, planning: Planning, step: float) -> Path | None:
+    """The folder `search exhaustive` names by default under `log_dir`, when it holds that search's front of this
+    very map (cells and resolution), planner, start and lattice step; None otherwise (compare computes the front)."""
+    from smorphi_rl.compare import start_from
+    from smorphi_rl.search.config import SearchConfig
+    from smorphi_rl.search.results import load
+
+    folder = log_dir / SearchConfig("exhaustive", map_path, planning=planning, step=step).run_name
+    if not (folder / "summary.json").is_file():
+        return None
+    try:
+        run = load(folder)
+        same = (run.method == "exhaustive" and run.map_name == grid_map.name and run.map_digest == grid_map.digest
+                and run.params.get("planner", "paper") == planning.planner.value and run.feasible.any()
+                and run.params.get("step_deg") == step
+                and start_from(run.params.get("start_xy"), folder) == planning.start_xy)  # fmt: skip
+    except SmorphiError:
+        return None
+    return folder if same else None
+
+
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
@@ -243,6 +268,11 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     step = SearchConfig.step if args.step is UNSET else args.step
     check_step(step)
+    found = None if args.exhaustive else front_here(Path(args.log_dir), str(args.map), grid_map, planning, step)
+    if found is not None:  # the front a `search exhaustive` of this map, planner and step left here
+        args.exhaustive, args.step = str(found), UNSET
+        print(f"exact front: read from {found} (a `search exhaustive` run of this map, planner and step; "
+              "--exhaustive names another)", file=sys.stderr)  # fmt: skip
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None:
         feasible_of(exact, args.exhaustive)
