@@ -87,19 +87,29 @@ LOW_COVERAGE_WARNED = 50.0
 """The best shape covering less of the floor than this (P_c, %): part of the floor is out of its reach."""
 
 
+def swamped_warning(weights: Weights, p_c: float, p_len: float, path_term: str, map_name: str,
+                    whose: str = "best") -> str | None:  # fmt: skip
+    """One line when a shape's path term is over half its coverage term: on that floor the path, not coverage,
+    ranks the shapes (`whose` R1: the best shape's, or the one `evaluate` scored), naming the option that fixes it."""
+    coverage, path = weights.w1 * p_c, weights.w2 * p_len
+    if path_term == "per_area" or path <= PATH_SHARE_WARNED * coverage:
+        return None
+    return (
+        f"warning: on {map_name} the path term swamps coverage ({whose} R1 {coverage - path:.2f}: P_c {p_c:.1f} %, "
+        f"the path term {path:.2f} against coverage's {coverage:.2f}): the floor is larger than the weights were "
+        "meant for; --path-term per_area states w2 per 25 m^2 of free floor"
+    )
+
+
 def degenerate_warning(weights: Weights, p_c: float, p_len: float, path_term: str, map_name: str) -> str | None:
     """One line when the best shape's figures make the ranking mean little on a floor, naming what fixes it: its
     path term over half its coverage term (the path, not coverage, ranks the shapes), or its coverage under half
     the floor (the rest out of its reach); None otherwise."""
     if p_c <= 0:
         return f"warning: on {map_name} no shape covers any of the floor (best P_c 0 %): is it narrower than a block?"
-    coverage, path = weights.w1 * p_c, weights.w2 * p_len
-    if path_term != "per_area" and path > PATH_SHARE_WARNED * coverage:
-        return (
-            f"warning: on {map_name} the path term swamps coverage (best R1 {coverage - path:.2f}: P_c {p_c:.1f} %, "
-            f"the path term {path:.2f} against coverage's {coverage:.2f}): the floor is larger than the weights were "
-            "meant for; --path-term per_area states w2 per 25 m^2 of free floor"
-        )
+    swamped = swamped_warning(weights, p_c, p_len, path_term, map_name)
+    if swamped:
+        return swamped
     if p_c < LOW_COVERAGE_WARNED:
         return (
             f"warning: on {map_name} the best shape covers {p_c:.1f} % of the floor: the rest is out of its reach "

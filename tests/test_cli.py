@@ -407,3 +407,15 @@ def test_evaluate_takes_start_xy_as_every_other_command_spells_it(capsys):
     assert run(capsys, *args, "--start", "xy:2.5,2.5") == (0, out, "")
     text = run(capsys, *args[:-1], "--start-xy", "2.5", "2.5")[1]
     assert "\nstart        cell (25, 25)" in text and "largest free area" in run(capsys, *args[:-1])[1]
+
+
+def test_evaluate_warns_when_the_path_term_swamps_coverage_as_search_does(capsys, tmp_path):
+    """On a floor too large for the weights R1 was -282.70 with no word; `search` warned and named the fix."""
+    from smorphi_rl.maps import Map, save_map
+
+    hall = save_map(Map(np.zeros((300, 300), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")
+    code, out, err = run(capsys, "evaluate", "--map", str(hall), "--angles", "0", "180", "0", "--json")
+    assert code == 0 and json.loads(out)["R1"] < 0
+    assert err.startswith("warning: on hall the path term swamps coverage (its R1 -") and "--path-term per_area" in err
+    assert run(capsys, "evaluate", "--map", str(hall), "--angles", "0", "180", "0", "--path-term", "per_area")[2] == ""
+    assert run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0")[2] == ""

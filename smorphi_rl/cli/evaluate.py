@@ -255,6 +255,11 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, 
         from smorphi_rl.plots import plot_coverage
 
         plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
+    from smorphi_rl.score import swamped_warning
+
+    swamped = swamped_warning(score, result.P_c, result.P_len, weights(args).path_term, grid_map.name, "its")
+    if swamped:  # on stderr: --json's stdout stays one object
+        print(swamped, file=sys.stderr)
     if args.json:
         record = result.to_dict() | {"R1": float(score.r1(result.P_c, result.P_len)), "weights": score.formula()}
         if plot_path is not None:  # as design's --json names its plot
