@@ -54,9 +54,15 @@ def crop_to_known(grid_map: Map, margin_m: float = 0.0) -> Map:
     pad = int(np.ceil(margin_m / grid_map.resolution_m - 1e-9))
     r0, r1 = max(k0 - pad, 0), min(k1 + pad, grid_map.height)
     c0, c1 = max(j0 - pad, 0), min(j1 + pad, grid_map.width)
+    return Map(grid_map.cells[r0:r1, c0:c1], grid_map.resolution_m, _moved(grid_map, r0, c0), grid_map.name)
+
+
+def _moved(grid_map: Map, row: int, col: int) -> tuple[float, float, float]:
+    """The origin of a crop whose first cell is (`row`, `col`) of `grid_map`, rounded to a nanometre, so the YAML
+    says -3.15 and not -3.1499999999999995."""
     x0, y0, yaw = grid_map.origin
     r = grid_map.resolution_m
-    return Map(grid_map.cells[r0:r1, c0:c1], r, (x0 + c0 * r, y0 + r0 * r, yaw), grid_map.name)
+    return (round(x0 + col * r, 9), round(y0 + row * r, 9), yaw)
 
 
 def crop_to_rect(grid_map: Map, x0: float, y0: float, x1: float, y1: float) -> Map:
@@ -65,7 +71,7 @@ def crop_to_rect(grid_map: Map, x0: float, y0: float, x1: float, y1: float) -> M
     rect = f"crop rectangle ({x0:g}, {y0:g}) - ({x1:g}, {y1:g}) m"
     if not (x1 > x0 and y1 > y0):
         raise MapError(f"{rect} is empty: give X0 Y0 X1 Y1 with X1 > X0 and Y1 > Y0")
-    ox, oy, yaw = grid_map.origin
+    ox, oy, _ = grid_map.origin
     r = grid_map.resolution_m
     extent = (ox, oy, ox + grid_map.width * r, oy + grid_map.height * r)
     if x0 < extent[0] - 1e-9 or y0 < extent[1] - 1e-9 or x1 > extent[2] + 1e-9 or y1 > extent[3] + 1e-9:
@@ -78,7 +84,7 @@ def crop_to_rect(grid_map: Map, x0: float, y0: float, x1: float, y1: float) -> M
     cells = grid_map.cells[r0:r1, c0:c1]
     if not (cells == Cell.FREE).any():
         raise MapError(f"{rect} holds no free cell of {grid_map.name}")
-    return Map(cells, r, (ox + c0 * r, oy + r0 * r, yaw), grid_map.name)
+    return Map(cells, r, _moved(grid_map, r0, c0), grid_map.name)
 
 
 def resample(grid_map: Map, resolution_m: float) -> Map:

@@ -34,6 +34,14 @@ def test_crop_keeps_every_known_cell_at_its_world_position():
     assert crop_to_known(grid_map, margin_m=0.5).cells.shape == (5, 12)  # one cell each side, clipped
 
 
+def test_a_crops_origin_is_the_metres_a_user_wrote_not_their_float_sum():
+    """`maps crop` wrote `origin: [-3.8499999999999996, ...]` (23 cells of 0.05 m from -5.0)."""
+    from smorphi_rl.maptools import crop_to_rect
+
+    grid_map = Map(np.zeros((200, 200), dtype=np.uint8), 0.05, origin=(-5.0, -5.0, 0.0), name="m")
+    assert crop_to_rect(grid_map, -3.85, -2.8, 1.0, 1.0).origin == (-3.85, -2.8, 0.0)
+
+
 def test_coarsening_is_conservative():
     rng = np.random.default_rng(3)
     fine = random_map(rng, 30, 41, 0.05, 0.02)
