@@ -185,8 +185,11 @@ def plot_learning_curves(
                 ok = np.isfinite(y)
                 dots = key == "eval_R1" or ok.sum() < FEW_POINTS  # a short run's one or two points show as dots
                 (line,) = ax.plot(x[ok], y[ok], lw=1.4, marker="o" if dots else None, ms=3, label=label)
-                if key == "eval_R1" and "final_R1" in c:
-                    ax.plot(c["env_steps"], c["final_R1"], lw=0.8, alpha=0.4, color=line.get_color(),
+                final = np.asarray(c.get("final_R1", []), dtype=float) if key == "eval_R1" else np.zeros(0)
+                seen = np.isfinite(final) if len(final) == len(x) else np.zeros(0, dtype=bool)
+                if seen.any():  # no entry in the legend for a curve with nothing to draw
+                    ax.plot(x[seen], final[seen], lw=0.8, alpha=0.4, color=line.get_color(),
+                            marker="o" if seen.sum() < FEW_POINTS else None, ms=2,
                             label=f"{label}: stochastic final-shape R1")  # fmt: skip
         if optimum_r1 is not None and key != "episode_return_mean":
             ax.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")

@@ -46,3 +46,17 @@ def test_a_run_of_one_or_two_reports_draws_its_points(tmp_path, monkeypatch):
     drawn = [line for fig in figures for ax in fig.axes for line in ax.lines]
     lines = [line for line in drawn if line.get_label() in ("fine-tuned", "ppo")]
     assert len(lines) == 3 and all(line.get_marker() == "o" for line in lines)
+
+
+def test_a_curve_with_nothing_to_draw_has_no_legend_entry(tmp_path, monkeypatch):
+    """A short run on a real floor listed "PPO: stochastic final-shape R1" in the legend with no such line drawn."""
+    from smorphi_rl import plots
+
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, out: figures.append(fig) or out)
+    steps = [2000.0, 4000.0, 6000.0]
+    curve = {"env_steps": steps, "episode_return_mean": [1.0] * 3, "best_R1": [80.0] * 3, "eval_R1": [81.0] * 3}
+    plots.plot_learning_curves({"PPO": curve | {"final_R1": [float("nan")] * 3}}, tmp_path / "a.png")
+    plots.plot_learning_curves({"PPO": curve | {"final_R1": [79.0, float("nan"), 80.0]}}, tmp_path / "b.png")
+    labels = [[t.get_text() for t in fig.axes[2].get_legend().get_texts()] for fig in figures]
+    assert labels == [["PPO"], ["PPO", "PPO: stochastic final-shape R1"]]
