@@ -123,21 +123,32 @@ def _replay_listing(directory: Path) -> int:
     files = episode_files(directory)
     if not files:
         raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
-    print(f"{'episode':<44} {'map':<8} {'algo':<16} {'steps':>5}  {'best R1':>7}  best morphology     P_c %  P_len")
+    rows: list[tuple[str, ...] | str] = []  # read first: the columns are as wide as what they hold
     unreadable = 0
     for f in files:
         try:
             ep = read_episode(f)
         except RecordingError as exc:
-            print(one_line(f"{f.name:<44} unreadable: {str(exc).removeprefix(str(f) + ': ')}"))
+            rows.append(f"unreadable: {str(exc).removeprefix(str(f) + ': ')}")
             unreadable += 1
             continue
         b = ep.best
         assert b is not None
         flag = " (cut short)" if ep.truncated else ""
-        name, algorithm = clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16)
-        print(one_line(f"{f.name:<44} {name:<8} {algorithm:<16} {len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  "
-                       f"{angles_text(b['theta']):<18} {b['P_c']:>6.2f}  {b['P_len']:>5}{flag}"))  # fmt: skip
+        rows.append((f.name, clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16),
+                     f"{len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  "
+                     f"{b['P_len']:>5}{flag}"))  # fmt: skip
+    cells = [r for r in rows if isinstance(r, tuple)]
+    wide = [max([len(head), *(len(r[i]) for r in cells)]) for i, head in enumerate(("episode", "map", "algo"))]
+    print(f"{'episode':<{wide[0]}} {'map':<{wide[1]}} {'algo':<{wide[2]}} {'steps':>5}  {'best R1':>7}  best "
+          "morphology     P_c %  P_len")  # fmt: skip
+    for f, row in zip(files, rows, strict=True):
+        text = (
+            f"{f.name:<{wide[0]}} {row}"
+            if isinstance(row, str)
+            else " ".join([*(cell.ljust(w) for cell, w in zip(row[:3], wide, strict=True)), row[3]])
+        )
+        print(one_line(text))
     print(f"{len(files)} recordings in {rel(directory)}")
     if unreadable == len(files):
         raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
