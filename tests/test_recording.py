@@ -214,6 +214,8 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     listing = capsys.readouterr().out
     assert first.name in listing and second.name in listing and "2 recordings" in listing
+    head, row = listing.splitlines()[:2]  # columns as wide as what they hold: each row's map under "map"
+    assert row[head.index("map") :].startswith("map-1 ") and row[head.index("algo") :].startswith("ppo ")
 
 
 def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):
