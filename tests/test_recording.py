@@ -214,7 +214,9 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     listing = capsys.readouterr().out
     assert first.name in listing and second.name in listing and "2 recordings" in listing
-    head, row = listing.splitlines()[:2]  # columns as wide as what they hold: each row's map under "map"
+    lines = listing.splitlines()
+    at = next(i for i, line in enumerate(lines) if line.startswith("episode ") and " map " in line)
+    head, row = lines[at : at + 2]  # columns as wide as what they hold: each row's map under "map"
     assert row[head.index("map") :].startswith("map-1 ") and row[head.index("algo") :].startswith("ppo ")
 
 
