@@ -32,9 +32,10 @@ MAP_1 = str(ROOT / "maps" / "map-1.yaml")
 META = {"run": "unit", "algorithm": "ppo", "seed": "7", "config": "{}"}
 
 
-def recorded_env(tmp_path: Path, every: int = 1, flush_steps: int = 50, max_steps: int = 40) -> RecordingWrapper:
+def recorded_env(tmp_path: Path, every: int = 1, flush_steps: int = 50, max_steps: int = 40,
+                 map_path: str = MAP_1) -> RecordingWrapper:  # fmt: skip
     rec = RecordingConfig(str(tmp_path / "episodes"), every=every, flush_steps=flush_steps, metadata=META)
-    env = make_env({"maps": [MAP_1], "max_steps": max_steps, "recording": rec.to_dict()})
+    env = make_env({"maps": [map_path], "max_steps": max_steps, "recording": rec.to_dict()})
     assert isinstance(env, RecordingWrapper)
     return env
 
@@ -214,10 +215,21 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     listing = capsys.readouterr().out
     assert first.name in listing and second.name in listing and "2 recordings" in listing
-    lines = listing.splitlines()
-    at = next(i for i, line in enumerate(lines) if line.startswith("episode ") and " map " in line)
-    head, row = lines[at : at + 2]  # columns as wide as what they hold: each row's map under "map"
-    assert row[head.index("map") :].startswith("map-1 ") and row[head.index("algo") :].startswith("ppo ")
+
+
+def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys):
+    """A map named `turtlebot3_world` ran into the algorithm's column (the map column was 8 wide)."""
+    from smorphi_rl.maps import load_map, save_map
+
+    floor = save_map(load_map(MAP_1), tmp_path / "turtlebot3_world.yaml")
+    env = recorded_env(tmp_path, max_steps=10, map_path=str(floor))
+    play(env, 0, np.random.default_rng(0))
+    env.close()
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    head, row = capsys.readouterr().out.splitlines()[:2]
+    assert row[head.index(" map ") + 1 :].startswith("turtlebot3_world ") and row[
+        head.index(" algo ") + 1 :
+    ].startswith("ppo ")
 
 
 def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):
