@@ -250,7 +250,9 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
     except FileNotFoundError:
         raise MapError(f"map image not found: {path}") from None
     except (UnidentifiedImageError, OSError, ValueError) as exc:
-        raise MapError(f"{path}: not a readable PGM/PNG image ({exc})") from None
+        other = path.suffix.lower() not in IMAGE_SUFFIXES  # a .jpg a map YAML may name: never decoded as one
+        why = "map images are read as PGM or PNG only: convert it to one" if other else str(exc)
+        raise MapError(f"{path}: not a readable PGM/PNG image ({why})") from None
     max_value = 65535.0 if data.dtype == np.uint16 or mode.startswith("I") else 255.0
     alpha = None
     if mode in ("RGBA", "LA"):

@@ -335,18 +335,22 @@ class Planning:
         return f"planner {self.planner.value} ({spec}): plans start {where}, {share:.1f} % of the free cells"
 
     def reach_share(self, grid_map: Map, cell: tuple[int, int] | None) -> float:
-        """Percent of the free cells plans from the start can reach at most. `fit`: the free area holding `cell`
-        (None: the largest). `paper`: its robot may stand over obstacles (a tile is traversable when any of its
-        cells is free), so a wall thinner than a tile is crossed: the more of the O's and the I's coverage."""
+        """Percent of the free cells plans from the start reach. `fit`: the free area holding `cell` (None: the
+        largest), which no plan leaves. `paper`: its robot may stand over obstacles (a tile is traversable when any
+        of its cells is free), so a wall thinner than a tile is crossed and the reach is the shape's: the most any of
+        REACH_SHAPES covers (some other shape may reach further)."""
         if self.planner is Planner.FIT:
             return free_area_share(grid_map, cell)
         evaluator = self.evaluator(grid_map, cache=False)
-        return max(evaluator.evaluate(Morphology(*theta)).coverage_free_pct for theta in (O_SHAPE, I_SHAPE))
+        return max(evaluator.evaluate(Morphology(*theta)).coverage_free_pct for theta in REACH_SHAPES)
 
-    def start_warning(self, grid_map: Map) -> str | None:
+    def start_warning(self, grid_map: Map, covered_pct: float | None = None) -> str | None:
         """One line when plans start in a free area holding under START_AREA_MIN_PCT of the free cells (the paper's
         default start is the first free cell in row order, which on a SLAM map can be a speck of laser noise),
-        naming the options that fix it; None otherwise."""
+        naming the options that fix it; None otherwise, and None when a shape already covers `covered_pct` (a
+        search's best) of at least that much."""
+        if covered_pct is not None and covered_pct >= START_AREA_MIN_PCT:
+            return None
         start = self.start_on(grid_map)
         if self.start_xy is not None:
             cell: tuple[int, int] | None = (start.row, start.col)
@@ -375,8 +379,9 @@ class Planning:
         return key
 
 
-O_SHAPE, I_SHAPE = (0.0, 180.0, 0.0), (0.0, 0.0, 0.0)
-"""The O (2 x 2 blocks) and the I along x (4 x 1): the paper planner's smallest and longest tiles."""
+REACH_SHAPES = ((0.0, 180.0, 0.0), (0.0, 0.0, 0.0), (180.0, 180.0, 180.0), (45.0, 90.0, 90.0), (135.0, 90.0, 90.0))
+"""Shapes whose tiles bridge the most under the paper planner: the O, the I along x and along y, and the widest and
+the tallest footprints (0.89 m)."""
 START_AREA_MIN_PCT = 50.0
 """A start area holding less of the free floor than this is named in a warning (`Planning.start_warning`)."""
 SPECK_PCT = 10.0

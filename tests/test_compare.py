@@ -41,8 +41,8 @@ def test_compare_reports_every_method_against_the_exact_front(searches, capsys):
     runs = ["--random", str(searches / "random-map-1-seed0"), "--nsga2", str(searches / "nsga2-map-1-seed0"),
             "--local", str(searches / "hc")]  # fmt: skip
     code = main(["compare", "--map", MAP_1, *runs, "--step", "10", "--log-dir", str(searches)])
-    out = capsys.readouterr().out
-    assert code == 0
+    out, err = capsys.readouterr()
+    assert code == 0 and "exact front: read from" in err  # the module's `search exhaustive --step 10`'s front
     report = (searches / "compare-map-1" / "report.md").read_text()
     assert "Planner paper (docs/spec/fbcpp.md): plans start at the first traversable tile." in report  # which planner
     rows = [line for line in report.splitlines() if line.startswith("| ") and "---" not in line][1:]

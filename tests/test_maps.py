@@ -206,10 +206,15 @@ def test_map_from_text_orientation(room12):
             "image: black.pgm\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
             "has no free cell",
         ),
+        (
+            "image: m.jpg\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+            r"not a readable PGM/PNG image \(map images are read as PGM or PNG only: convert it to one\)",
+        ),
     ],
 )
 def test_bad_maps_raise_one_clear_error(tmp_path, yaml_text, message):
     Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.pgm")
+    Image.fromarray(np.full((4, 4), 254, np.uint8)).save(tmp_path / "m.jpg")  # a JPEG, as map_server reads
     Image.fromarray(np.zeros((4, 4), np.uint8)).save(tmp_path / "black.pgm")
     (tmp_path / "bad.pgm").write_bytes(b"P5 this is not an image")
     path = tmp_path / "x.yaml"

@@ -154,23 +154,26 @@ def test_planning_says_where_plans_start_and_what_share_that_area_holds():
     assert "first traversable tile" in Planning().describe(two_rooms) and Planning().is_paper_default
     fit = Planning(planner=Planner.FIT)
     assert "largest free area, 75.0 % of the free cells" in fit.describe(two_rooms) and not fit.is_paper_default
-    thick = Map.from_text("\n".join(["." * 40 + "#" * 20 + "." * 20] * 40), 0.05, name="thick")  # a 1 m wall
-    small = Planning(start_xy=(3.5, 0.5))  # the small room, right of the wall
-    assert "at (3.5, 0.5) m, 33.3 % of the free cells" in small.describe(thick)
+    thick = Map.from_text("\n".join(["." * 40 + "#" * 40 + "." * 20] * 40), 0.05, name="thick")  # a 2 m wall
+    small = Planning(start_xy=(4.5, 0.5))  # the small room, right of the wall
+    assert "at (4.5, 0.5) m, 33.3 % of the free cells" in small.describe(thick)
     assert "holding 33.3 % of the free cells" in (small.start_warning(thick) or "")
+    assert small.start_warning(thick, covered_pct=60.0) is None  # a shape found already covers more
 
 
 def test_the_paper_planners_start_warning_counts_the_walls_its_tiles_cross():
     """Under `paper` a tile is traversable when any of its cells is free, so a wall thinner than a tile is no
     border: a strip below a one-cell wall was warned of as "the rest is out of reach", and the --start-xy it
-    suggested lost coverage. A wall thicker than the longest tile (the I, 0.68 m) is one."""
+    suggested lost coverage. A wall over twice the longest tile (0.89 m: tiles straddle it) is one."""
     from smorphi_rl.coverage import Planner
     from smorphi_rl.maps import Map
     from smorphi_rl.planning import Planning
 
     floor = ["." * 40] * 30
     thin = Map.from_text("\n".join([*floor, "#" * 40, "." * 40]), 0.05, name="thin")  # the strip is row 0
-    thick = Map.from_text("\n".join([*floor, *["#" * 40] * 20, "." * 40]), 0.05, name="thick")
+    thick = Map.from_text("\n".join([*floor, *["#" * 40] * 40, "." * 40]), 0.05, name="thick")  # 2 m
     assert Planning().start_warning(thin) is None
     assert "plans start in a free area holding 3.2 % of the free cells" in (Planning().start_warning(thick) or "")
+    one_metre = Map.from_text("\n".join([*floor, *["#" * 40] * 20, "." * 40]), 0.05, name="one")
+    assert Planning().start_warning(one_metre) is None  # the I along y (0.68 m) straddles a 1 m wall
     assert Planning(planner=Planner.FIT).start_warning(thin) is None  # `fit` starts in the largest free area

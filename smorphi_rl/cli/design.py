@@ -89,7 +89,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     unfamiliar = unfamiliar_warning(designer, env.grid_map)  # after the design: a floor it refuses says one line
     warnings = (
         unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"),
-        env.config.planning.start_warning(env.grid_map)
+        env.config.planning.start_warning(env.grid_map, best.coverage_free_pct)
         or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
     )
     for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object

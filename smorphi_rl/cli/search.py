@@ -63,7 +63,8 @@ def register(sub: Any) -> None:
     co.add_argument("--nsga2", nargs="+", action=Repeated, help="`search nsga2` run directories")
     co.add_argument("--random", nargs="+", action=Repeated, help="`search random` run directories")
     co.add_argument("--local", nargs="+", action=Repeated, help="`search hillclimb` / `search anneal` run directories")
-    co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: compute it)")
+    co.add_argument("--exhaustive", help="a `search exhaustive` run to use as the exact front (default: the one "
+                    "`search exhaustive` names under --log-dir, where it holds this front; else computed)")  # fmt: skip
     option(co, SearchConfig, "step", unset=True, default_text=f"{SearchConfig.step:g}, when the front is computed here")
     run_options(co, "run name: the report goes to LOG_DIR/NAME (default: compare-MAP)")
     weight_options(co)
@@ -149,7 +150,7 @@ def cmd_search(args: argparse.Namespace) -> int:
         said = "" if planning.is_paper_default else planning.describe(grid_map)
         print(format_search(result, front_rows, on_map, files, said, cover))
 
-    line = planning.start_warning(grid_map) or degenerate_warning(
+    line = planning.start_warning(grid_map, best_plan.coverage_free_pct) or degenerate_warning(
         on_map, float(result.P_c[b]), float(result.P_len[b]), w.path_term, grid_map.name
     )  # a start on a speck explains a small coverage first
     if line:
@@ -205,20 +206,19 @@ def format_search(
 
 def front_here(log_dir: Path, map_path: str, grid_map: Map, planning: Planning, step: float) -> Path | None:
     """The folder `search exhaustive` names by default under `log_dir`, when it holds that search's front of this
-    very map (cells and resolution), planner, start and lattice step; None otherwise (compare computes the front)."""
-    from smorphi_rl.compare import start_from
+    very map (cells and resolution), planner and lattice step from the planner's own start; None otherwise (compare
+    computes the front). Not with --start-xy: a run does not record the origin that put its start on a cell."""
     from smorphi_rl.search.config import SearchConfig
     from smorphi_rl.search.results import load
 
     folder = log_dir / SearchConfig("exhaustive", map_path, planning=planning, step=step).run_name
-    if not (folder / "summary.json").is_file():
+    if planning.start_xy is not None or not (folder / "summary.json").is_file():
         return None
     try:
         run = load(folder)
         same = (run.method == "exhaustive" and run.map_name == grid_map.name and run.map_digest == grid_map.digest
                 and run.params.get("planner", "paper") == planning.planner.value and run.feasible.any()
-                and run.params.get("step_deg") == step
-                and start_from(run.params.get("start_xy"), folder) == planning.start_xy)  # fmt: skip
+                and run.params.get("step_deg") == step and run.params.get("start_xy") is None)  # fmt: skip
     except SmorphiError:
         return None
     return folder if same else None
@@ -271,8 +271,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     found = None if args.exhaustive else front_here(Path(args.log_dir), str(args.map), grid_map, planning, step)
     if found is not None:  # the front a `search exhaustive` of this map, planner and step left here
         args.exhaustive, args.step = str(found), UNSET
-        print(f"exact front: read from {found} (a `search exhaustive` run of this map, planner and step; "
-              "--exhaustive names another)", file=sys.stderr)  # fmt: skip
     exact = load(args.exhaustive) if args.exhaustive else None
     if exact is not None:
         feasible_of(exact, args.exhaustive)
@@ -316,6 +314,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if exact is not None:
         ok = exact.feasible
         check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, args.exhaustive)
+    if found is not None:  # said once it is known to be this map's front
+        print(f"exact front: read from {found} (a `search exhaustive` run of this map, planner and step; "
+              "--exhaustive names another)", file=sys.stderr)  # fmt: skip
     run_dir = prepare_run_dir(args.log_dir, name)
     with discarded_on_failure(run_dir):  # no report: the name stays free
         if exact is None:

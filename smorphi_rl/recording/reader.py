@@ -247,7 +247,9 @@ def read_episode(path: str | Path) -> Episode:
         except RecordingError:
             raise
         except Exception as exc:  # a cut-short file ends in a partial record: keep what came before it
-            if _ends_whole(fh):  # but one that ends as a finished file does was damaged inside, not cut
+            # a finished file was damaged inside, not cut (a .part file is still being written, or was cut: one
+            # finished since this read began ends whole, yet its read stopped at a record then half-written)
+            if not file.name.endswith(PART_SUFFIX) and _ends_whole(fh):
                 raise RecordingError(f"{path}: is damaged: it ends as a finished recording does, yet a record inside "
                                      f"it cannot be read ({type(exc).__name__})") from None  # fmt: skip
             complete = False
