@@ -217,7 +217,7 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert first.name in listing and second.name in listing and "2 recordings" in listing
 
 
-def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys):
+def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys, monkeypatch):
     """A map named `turtlebot3_world` ran into the algorithm's column (the map column was 8 wide)."""
     from smorphi_rl.maps import load_map, save_map
 
@@ -227,9 +227,13 @@ def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys):
     env.close()
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     head, row = capsys.readouterr().out.splitlines()[:2]
-    assert row[head.index(" map ") + 1 :].startswith("turtlebot3_world ") and row[
-        head.index(" algo ") + 1 :
-    ].startswith("ppo ")
+    algo = row[head.index(" algo ") + 1 :]
+    assert row[head.index(" map ") + 1 :].startswith("turtlebot3_world ") and algo.startswith("ppo ")
+    from smorphi_rl.cli import policy
+
+    monkeypatch.setattr(policy, "LISTING_PROGRESS_FROM", 0)  # a folder of hundreds: the reading shows its progress
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    assert "recordings read" in capsys.readouterr().err
 
 
 def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):

@@ -116,6 +116,10 @@ def cmd_export_policy(args: argparse.Namespace) -> int:
     return 0
 
 
+LISTING_PROGRESS_FROM = 200
+"""`replay DIR` shows its reading's progress past this many recordings (about 10 ms each)."""
+
+
 def _replay_listing(directory: Path) -> int:
     """`replay DIR`: every recording under DIR with its best step, one line each."""
     from smorphi_rl.recording import RecordingError, episode_files, read_episode
@@ -125,7 +129,12 @@ def _replay_listing(directory: Path) -> int:
         raise SmorphiError(f"{directory}: holds no MCAP recordings (*.mcap)")
     rows: list[tuple[str, ...] | str] = []  # read first: the columns are as wide as what they hold
     unreadable = 0
-    for f in files:
+    from smorphi_rl.progress import progress_line
+
+    show = progress_line("recordings read") if len(files) > LISTING_PROGRESS_FROM else None
+    for done, f in enumerate(files, start=1):
+        if show is not None:
+            show(done, len(files))
         try:
             ep = read_episode(f)
         except RecordingError as exc:
@@ -140,6 +149,7 @@ def _replay_listing(directory: Path) -> int:
                      f"{b['P_len']:>5}{flag}"))  # fmt: skip
     cells = [r for r in rows if isinstance(r, tuple)]
     wide = [max([len(head), *(len(r[i]) for r in cells)]) for i, head in enumerate(("episode", "map", "algo"))]
+    wide[0] = max(wide[0], *(len(f.name) for f in files))  # an unreadable file's name too
     print(f"{'episode':<{wide[0]}} {'map':<{wide[1]}} {'algo':<{wide[2]}} {'steps':>5}  {'best R1':>7}  best "
           "morphology     P_c %  P_len")  # fmt: skip
     for f, row in zip(files, rows, strict=True):
