@@ -199,7 +199,7 @@ class _SweepProgress:
         steps = int(result.get(keys.STEPS) or 0)
         maps = map_set_label(config.get("maps", []))
         self._show(f"{config.get('algo', '?').upper()} {maps} seed {config.get('seed')} "
-                   f"{steps:,}/{self.sweep.timesteps:,} steps")  # fmt: skip
+                   f"{steps:,}/{self.sweep.step_budget:,} steps")  # fmt: skip
 
     def complete(self, trial: str) -> None:
         self.done.add(trial)
@@ -353,7 +353,7 @@ def run_sweep(
     if failed and (failed.disk_full or results is None):
         raise TrainingError(failed.line)  # no tables either
     rows = read_sweep(exp)
-    write_trial_files(exp, rows, optima, digests, sweep.timesteps)
+    write_trial_files(exp, rows, optima, digests, sweep.step_budget)
     files = write_sweep_outputs(exp, rows)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")

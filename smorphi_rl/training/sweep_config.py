@@ -160,6 +160,13 @@ class SweepConfig:
     envs_per_runner: int = TrainConfig.envs_per_runner
 
     @property
+    def step_budget(self) -> int:
+        """The env steps a trial runs for: `timesteps`, or a `stop` on env steps below it (what the progress line
+        counts to, and what a run that never converged is reported past)."""
+        caps = [math.ceil(v) for k, v in self.stop.items() if k in (keys.STEPS, keys.TIMESTEPS_TOTAL)]
+        return min([self.timesteps, *caps])
+
+    @property
     def num_grid_trials(self) -> int:
         """Trials before random sampling: algorithms x map sets x seeds x grid points, times num_samples."""
         grid = math.prod(len(s.values) for s in self.search.values() if s.kind == "grid")

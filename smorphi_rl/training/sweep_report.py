@@ -205,7 +205,8 @@ def read_sweep(experiment_dir: Path) -> list[TrialRow]:
 
 
 def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> None:
-    """sweep.csv (every column) and sweep.md (the same, sorted by best R1)."""
+    """sweep.csv (every column) and sweep.md (the same), a row per trial, best R1 first; a figure in R1 or a share
+    to 2 decimals (4.00, not 4 beside 3.15)."""
     hp_keys = sorted({k for r in rows for k in r.hyperparameters})
     design = _designed(rows)
     header = ["trial", "algo", "maps", "seed", *hp_keys, "env_steps", "iterations", "wall_s", "best_R1", "best_theta",
@@ -219,9 +220,10 @@ def write_sweep_tables(rows: list[TrialRow], csv_path: Path, md_path: Path) -> N
         table.append([r.trial, r.algo, r.maps, r.seed, *[_exact(r.hyperparameters.get(k)) for k in hp_keys],
                       r.env_steps, r.iterations, cell(r.wall_s, ".0f"), f"{b.R1:.2f}" if b else "",
                       b.angles if b else "", b.map if b else "", f"{b.P_c:.2f}" if b else "", b.P_len if b else "",
-                      cell(r.median_gap), cell(r.share_within_1pct), cell(r.trained_share_within_1pct),
-                      *([cell(r.design_gap_pct)] if design else []), converged_text(r.converged_at, r.curve),
-                      cell(r.settled_R1_plateau, ".2f"), "yes" if r.finished else "no"])  # fmt: skip
+                      cell(r.median_gap, ".2f"), cell(r.share_within_1pct, ".2f"),
+                      cell(r.trained_share_within_1pct, ".2f"), *([cell(r.design_gap_pct, ".3f")] if design else []),
+                      converged_text(r.converged_at, r.curve), cell(r.settled_R1_plateau, ".2f"),
+                      "yes" if r.finished else "no"])  # fmt: skip
     with atomic_text(csv_path) as fh:
         writer = csv.writer(fh)
         writer.writerow(header)

@@ -85,7 +85,7 @@ def test_sweep_table_and_curves(tmp_path):
     assert lines[0].endswith("kept_median_gap,kept_share_within_1pct,trained_share_within_1pct,"
                              "converged_at_env_steps,settled_R1_plateau,finished")  # fmt: skip
     assert lines[1].startswith("ppo-a,ppo,map-1,0,0.001,5000,5,10,90.00,")  # sorted by best R1
-    assert lines[1].endswith(",5,0.5,0.5,not converged,85.00,yes")  # the last evaluation: gap 90 - 85, half within 1 %
+    assert lines[1].endswith(",5.00,0.50,0.50,not converged,85.00,yes")  # the last evaluation: gap 5, half within 1 %
     assert lines[2].endswith(",no")
     groups = group_curves(rows)
     (lines_by_label,) = groups.values()
@@ -126,7 +126,7 @@ def test_a_trial_that_ends_on_an_earlier_policy_shows_both_shares(tmp_path):
     write_sweep_tables(read_sweep(tmp_path), tmp_path / "s.csv", tmp_path / "s.md")
     header, row = csv.reader((tmp_path / "s.csv").read_text().splitlines())
     figures = dict(zip(header, row, strict=True))
-    assert figures["kept_share_within_1pct"] == "0.95" and figures["trained_share_within_1pct"] == "0.5"
+    assert figures["kept_share_within_1pct"] == "0.95" and figures["trained_share_within_1pct"] == "0.50"
     assert figures["converged_at_env_steps"] == "not converged"
 
 

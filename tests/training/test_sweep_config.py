@@ -51,6 +51,15 @@ def test_multimap_trains_one_policy_on_both_maps(monkeypatch):
     assert len(trial.env.maps) == 2
 
 
+def test_a_stop_on_env_steps_below_the_budget_is_the_trials_budget(tmp_path):
+    """The progress line counted to `timesteps` (60,000) while every trial stopped at its `stop` (30,000)."""
+    assert load_sweep(write(tmp_path, base("timesteps: 60000\n"))).step_budget == 60_000
+    capped = base("timesteps: 60000\nstop: {num_env_steps_sampled_lifetime: 30000, time_total_s: 5}\n")
+    assert load_sweep(write(tmp_path, capped)).step_budget == 30_000
+    above = base("timesteps: 60000\nstop: {num_env_steps_sampled_lifetime: 90000}\n")
+    assert load_sweep(write(tmp_path, above)).step_budget == 60_000
+
+
 def test_search_space_kinds_and_overrides(tmp_path):
     cfg = load_sweep(write(tmp_path, base(
         "search:\n  lr: {loguniform: [0.0001, 0.01]}\n  entropy_coeff: {choice: [0.0, 0.01]}\n"
