@@ -75,7 +75,10 @@ def check_reachable(address: str | None) -> None:
             answers = _answers_grpc(sock) if not _tls() else True  # under TLS a plain preface is no question
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
-        raise ClusterError(f"cannot reach a Ray cluster at {address} ({reason})") from None
+        raise ClusterError(
+            f"cannot reach a Ray cluster at {address} ({reason}): start one there (`ray start --head "
+            "--port=PORT`), or leave --address out to run on a Ray of this machine's own"
+        ) from None
     if not answers:  # Ray itself would retry for a minute and more, printing its C++ core's log lines
         raise ClusterError(f"{address} answers, but not as a Ray cluster (no gRPC reply within {CONNECT_TIMEOUT_S:g} "
                            "s): give the port `ray start --head --port` printed")  # fmt: skip

@@ -274,7 +274,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
                       "best": r.best}  # fmt: skip
             print(jsontext.dumps(record, default=float))
     else:
-        print(f"policy      {checkpoint}")
+        print(f"policy      {rel(checkpoint)}")
         for i, r in enumerate(rollouts):
             print(one_line(f"episode {i} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
                            f"return {r.episode_return:.1f})"))  # fmt: skip
@@ -341,6 +341,8 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
                                                      optimum_progress(m.name))
               for p in env_config.maps}  # fmt: skip
+    if not args.json:  # which checkpoint a run folder resolved to, as the episodes' report says
+        print(f"policy  {rel(checkpoint)}")
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
         if args.json:
             for o in ev.outcomes:

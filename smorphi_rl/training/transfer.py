@@ -198,13 +198,13 @@ def run_transfer(
 
     try:
         with cluster.ray_session(address):  # the job's runs share one Ray: it starts (or attaches) once
-            for map_name, seed, mode, run_cfg, run_name in planned:
+            for number, (map_name, seed, mode, run_cfg, run_name) in enumerate(planned, start=1):
                 if run_name in finished:
                     continue
                 if (job_dir / run_name).exists():
                     rename_cut_run(job_dir / run_name)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
-                                label=f"{run_cfg.algo.upper()} {run_name}",
+                                label=f"{run_cfg.algo.upper()} {run_name} (run {number} of {len(planned)})",
                                 optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir)  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.interrupted:

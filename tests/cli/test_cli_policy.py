@@ -46,4 +46,5 @@ def test_the_protocol_on_a_run_writes_nothing_where_it_is_called_from(tmp_path, 
     with optima_under(tmp_path / "logs"):  # the suite's optima, where the run would have cached them
         monkeypatch.delenv(CACHE_ENV)
         assert main(["evaluate-policy", "--checkpoint", str(checkpoint), "--map", MAP_1, "--starts", "2"]) == 0
-    assert "map-1" in capsys.readouterr().out and not any(elsewhere.iterdir())
+    out = capsys.readouterr().out
+    assert out.startswith(f"policy  {checkpoint}\n") and "map-1" in out and not any(elsewhere.iterdir())

@@ -57,6 +57,7 @@ def test_no_cluster_there_is_one_line_and_writes_nothing(tmp_path):
     for method in RUNS:
         proc = search(method, tmp_path, "--address", "127.0.0.1:1")
         assert proc.returncode == 1 and proc.stderr.strip() == (
-            "smorphi-rl: error: cannot reach a Ray cluster at 127.0.0.1:1 (Connection refused)"
+            "smorphi-rl: error: cannot reach a Ray cluster at 127.0.0.1:1 (Connection refused): start one there "
+            "(`ray start --head --port=PORT`), or leave --address out to run on a Ray of this machine's own"
         ), proc.stderr
     assert not (tmp_path / "logs").exists()
