@@ -124,7 +124,7 @@ def test_a_sweep_that_measured_the_designer_shows_its_gap_per_trial_and_group(tm
     write_sweep_tables(rows, tmp_path / "sweep.csv", tmp_path / "sweep.md")
     header, *lines = (tmp_path / "sweep.md").read_text().splitlines()
     column = [c.strip() for c in header.strip("|").split("|")].index("design_median_gap_pct")
-    assert sorted(line.strip("|").split("|")[column].strip() for line in lines[1:]) == ["0.2", "0.3", "0.4"]
+    assert sorted(line.strip("|").split("|")[column].strip() for line in lines[1:]) == ["0.200", "0.300", "0.400"]
     write_sweep_groups(rows, tmp_path / "groups.md")
     text = (tmp_path / "groups.md").read_text()
     assert "| design median gap (%) |" in text and "| 0.30 [0.20, 0.40] |" in text
