@@ -256,6 +256,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             optima[grid_map.name] = found or NO_OPTIMUM
             if found is None:
                 continue  # (`search optimum` warns when it finds it)
+        elif (known := cached_optimum(grid_map, weights, cfg.env.planning, cache)) is not None:
+            out.write(f"exact optimum of {grid_map.name}: read from {rel(cache)}\n")  # a transfer's later runs
+            optima[grid_map.name] = known
         else:
             out.write(f"exact optimum of {grid_map.name} (every 1-degree shape; cached under {rel(cache)})\n")
             out.flush()

@@ -83,3 +83,14 @@ def test_the_progress_line_shows_the_policy_of_its_step_not_the_one_the_run_keep
     assert "2,000/20,000" in first and "greedy: gap 4.83, 0 % within 1 %" in first
     assert "20,000/20,000" in last and "greedy: gap 18.99, 5 % within 1 %" in last
     assert progress.last_eval["median_gap"] == 4.83  # the summary still reads the kept policy
+
+
+def test_an_optimum_in_the_cache_is_said_to_be_read_not_searched(tmp_path, monkeypatch):
+    """Each of a transfer's runs said "exact optimum of val-1 (every 1-degree shape; ...)", searched once."""
+    monkeypatch.delenv(CACHE_ENV, raising=False)
+    cfg = TrainConfig(env=EnvConfig(maps=(str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml"),)))
+    first, again = io.StringIO(), io.StringIO()
+    found = training_optima(cfg, tmp_path, first)
+    assert "exact optimum of map-1 (every 1-degree shape; cached under" in first.getvalue()
+    assert training_optima(cfg, tmp_path, again) == found
+    assert again.getvalue() == f"exact optimum of map-1: read from {tmp_path / '.cache'}\n"
