@@ -179,7 +179,7 @@ class _SweepProgress:
         self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
         self.done: set[str] = set()
-        self.best = (float("-inf"), "")
+        self.best = (float("-inf"), float("-inf"), "")  # R1, P_c (the tables' tie-break), the shape's text
         self._last = 0.0
 
     def __getstate__(self) -> dict[str, Any]:
@@ -189,10 +189,11 @@ class _SweepProgress:
         self.__dict__.update(state, out=sys.stderr)
 
     def found(self, bests: list[Any]) -> None:
-        """Take the best of these shapes (each with R1, angles and map) if it beats the one shown."""
+        """Take the best of these shapes (each with R1, P_c, angles and map) if it beats the one shown: higher R1,
+        then higher P_c, as the tables rank a tie."""
         for b in bests:
-            if self.best[0] < b.R1:
-                self.best = (b.R1, f"{b.angles} on {b.map}")
+            if self.best[:2] < (b.R1, b.P_c):
+                self.best = (b.R1, b.P_c, f"{b.angles} on {b.map}")
 
     def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
         self.found(episode_bests(result))
@@ -212,7 +213,7 @@ class _SweepProgress:
         self._last = now
         frac = len(self.done) / max(1, self.total)
         bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
-        best = f"best R1 {self.best[0]:.2f} {self.best[1]}" if self.best[1] else "best R1 -"
+        best = f"best R1 {self.best[0]:.2f} {self.best[2]}" if self.best[2] else "best R1 -"
         line = (f"sweep {self.sweep.name} [{bar}] {len(self.done)}/{self.total} trials  "
                 f"{fmt_duration(now - self.t0)}  {current}  {best}")  # fmt: skip
         self.out.write(("\r" + line[:160].ljust(160)) if self.tty else line + "\n")

@@ -145,3 +145,20 @@ def test_draws_that_round_alike_are_two_groups_each_named_exactly(tmp_path):
     write_sweep_tables(rows, tmp_path / "sweep.csv", tmp_path / "sweep.md")
     lrs = {line.split(",")[4] for line in (tmp_path / "sweep.csv").read_text().splitlines()[1:]}
     assert lrs == {"0.99999", "0.999995", "0.0003"}
+
+
+def test_the_progress_line_breaks_a_tie_in_r1_as_the_tables_do():
+    """A sweep's line showed one shape of R1 89.50 and its tables another: the tables rank a tie by P_c."""
+    import io
+    from types import SimpleNamespace
+
+    from smorphi_rl.training.sweep import _SweepProgress
+    from smorphi_rl.training.topk import EpisodeBest
+
+    out = io.StringIO()
+    progress = _SweepProgress(SimpleNamespace(name="tie", timesteps=2000), 1, out)  # type: ignore[arg-type]
+    first, covering = EpisodeBest("map-1", (175, 80, 110), 96.4, 69, 89.5), EpisodeBest("map-1", (180, 104, 81),
+                                                                                     97.4, 79, 89.5)  # fmt: skip
+    progress.found([first, covering])
+    progress.complete("trial 0")
+    assert "best R1 89.50 (180, 104, 81) on map-1" in out.getvalue()
