@@ -148,8 +148,8 @@ def _replay_listing(directory: Path) -> int:
                      f"{len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  "
                      f"{b['P_len']:>5}{flag}"))  # fmt: skip
     cells = [r for r in rows if isinstance(r, tuple)]
-    wide = [max([len(head), *(len(r[i]) for r in cells)]) for i, head in enumerate(("episode", "map", "algo"))]
-    wide[0] = max(wide[0], *(len(f.name) for f in files))  # an unreadable file's name too
+    wide = [max(len("episode"), *(len(f.name) for f in files))]  # every file's name, an unreadable one's too
+    wide += [max([len(head), *(len(r[i]) for r in cells)]) for i, head in ((1, "map"), (2, "algo"))]
     print(f"{'episode':<{wide[0]}} {'map':<{wide[1]}} {'algo':<{wide[2]}} {'steps':>5}  {'best R1':>7}  best "
           "morphology     P_c %  P_len")  # fmt: skip
     for f, row in zip(files, rows, strict=True):
