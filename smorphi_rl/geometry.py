@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from smorphi_rl.errors import MorphologyError
+from smorphi_rl.errors import MorphologyError, SmorphiError
 from smorphi_rl.inputs import is_finite_number
 
 DEFAULT_BLOCK_SIDE_M = 0.17
@@ -226,3 +226,13 @@ def check_block_side(block_side_m: float, resolution_m: float) -> float:
         raise MorphologyError(f"a block of {block_side_m:g} m spans {many} cells of this map "
                               f"({resolution_m:g} m); at most {MAX_BLOCK_CELLS}: resample the map coarser")  # fmt: skip
     return float(block_side_m)
+
+
+def check_step(step_deg: float) -> float:
+    """A lattice step must divide 180 exactly (so 0 and 180 are both on it)."""
+    if not (math.isfinite(step_deg) and 0 < step_deg <= 180):
+        raise SmorphiError(f"--step must be in (0, 180], got {step_deg:g}")
+    n = 180 / step_deg
+    if not math.isfinite(n) or not math.isclose(n, round(n), abs_tol=1e-9):  # 5e-324: 180 / step overflows
+        raise SmorphiError(f"--step {step_deg:g} does not divide 180")
+    return float(step_deg)

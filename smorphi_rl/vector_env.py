@@ -160,21 +160,20 @@ class MorphologyVectorEnv(VectorEnv):
         return columns
 
 
-def make_env(env_config: dict[str, Any] | None) -> gym.Env | VectorEnv:
-    """RLlib's env creator: one MorphologyEnv, or with `num_envs` a MorphologyVectorEnv of them sharing
-    their tables; each wrapped for recording when env_config carries a recording configuration."""
+def make_env(
+    env_config: dict[str, Any] | None, wrap: Callable[[MorphologyEnv, int], gym.Env] | None = None
+) -> gym.Env | VectorEnv:
+    """One MorphologyEnv, or with `num_envs` a MorphologyVectorEnv of them sharing their tables; `wrap(env,
+    worker_index)` wraps each (training's env creator records episodes with it). The recording key is the
+    caller's to read, and is dropped here."""
     raw = dict(env_config or {})
-    recording = raw.pop(RECORDING_KEY, None)
+    raw.pop(RECORDING_KEY, None)
     run_seed = raw.pop(SEED_KEY, None)
     num_envs = raw.pop(NUM_ENVS_KEY, None)
     worker = int(getattr(env_config, "worker_index", 0) or 0)
-    wrap: Callable[[MorphologyEnv], gym.Env] = lambda env: env  # noqa: E731
-    if recording:
-        from smorphi_rl.recording import RecordingConfig, RecordingWrapper
-
-        wrap = lambda env: RecordingWrapper(env, RecordingConfig(**recording), worker_index=worker)  # noqa: E731
+    wrapped: Callable[[MorphologyEnv], gym.Env] = (lambda env: env) if wrap is None else (lambda env: wrap(env, worker))
     if num_envs is None:
-        return wrap(MorphologyEnv(raw))
+        return wrapped(MorphologyEnv(raw))
     first = MorphologyEnv(raw)
     envs = [first] + [first.sibling() for _ in range(int(num_envs) - 1)]
-    return MorphologyVectorEnv([wrap(e) for e in envs], run_seed=run_seed, worker_index=worker)
+    return MorphologyVectorEnv([wrapped(e) for e in envs], run_seed=run_seed, worker_index=worker)

@@ -25,7 +25,7 @@ from smorphi_rl.recording import (
     read_episode,
     step_record,
 )
-from smorphi_rl.vector_env import make_env
+from smorphi_rl.training.config import make_env
 
 ROOT = Path(__file__).resolve().parents[1]
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")

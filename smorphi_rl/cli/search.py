@@ -25,7 +25,7 @@ from smorphi_rl.cli.common import (
 )
 from smorphi_rl.cli.fields import UNSET, option
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import angles_text
+from smorphi_rl.geometry import angles_text, check_step
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
@@ -264,7 +264,6 @@ def cmd_compare(args: argparse.Namespace) -> int:
     on_map = weights(args).weights_on(grid_map)
     planning = planning_of(args, grid_map)
     from smorphi_rl.search.config import SearchConfig
-    from smorphi_rl.search.exhaustive import check_step
 
     step = SearchConfig.step if args.step is UNSET else args.step
     check_step(step)

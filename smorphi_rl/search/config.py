@@ -11,6 +11,7 @@ from pathlib import Path
 from smorphi_rl.coverage import Planner
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import check_step
 from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.search.results import MAX_EVALUATIONS, SearchResult
@@ -87,8 +88,6 @@ class SearchConfig:
         if self.method not in METHODS:
             raise SearchConfigError(f"unknown search method '{self.method}' (choose from {', '.join(METHODS)})")
         if self.method in LATTICE_METHODS:
-            from smorphi_rl.search.exhaustive import check_step
-
             try:
                 check_step(self.step)
             except SmorphiError as exc:

@@ -24,6 +24,7 @@ import numpy as np
 
 from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import check_step
 from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
@@ -38,16 +39,6 @@ IN_FLIGHT_PER_WORKER = 2
 CHUNK_SHAPES = 4096
 """At most about this many shapes a chunk: on a large floor a chunk takes seconds, so progress (and a stop) comes
 within seconds too."""
-
-
-def check_step(step_deg: float) -> float:
-    """A lattice step must divide 180 exactly (so 0 and 180 are both on it)."""
-    if not (math.isfinite(step_deg) and 0 < step_deg <= 180):
-        raise SmorphiError(f"--step must be in (0, 180], got {step_deg:g}")
-    n = 180 / step_deg
-    if not math.isfinite(n) or not math.isclose(n, round(n), abs_tol=1e-9):  # 5e-324: 180 / step overflows
-        raise SmorphiError(f"--step {step_deg:g} does not divide 180")
-    return float(step_deg)
 
 
 _worker: Evaluator | None = None

@@ -14,6 +14,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import check_step
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
@@ -183,8 +184,6 @@ def load(run_dir: str | Path) -> SearchResult:
         raise bad(f"angles, coverage or path lengths out of range (path lengths 0..{MAX_P_LEN:,} tile moves)")
     params = summary.get("params", {})
     if summary["method"] == "exhaustive":
-        from smorphi_rl.search.exhaustive import check_step  # exhaustive imports this module
-
         step = params.get("step_deg")
         try:
             whole = isinstance(step, int | float) and check_step(float(step)) > 0

@@ -370,11 +370,23 @@ def default_run_name(cfg: TrainConfig, stamp: str) -> str:
     return safe_name(f"{cfg.algo}-{label}{more}-{stamp}")
 
 
+def make_env(env_config: dict[str, Any] | None) -> Any:
+    """RLlib's env creator: `vector_env.make_env`, each env wrapped for recording when env_config carries a
+    RecordingConfig (the recording package reads the env, so the env does not import it)."""
+    from smorphi_rl import vector_env
+
+    recording = (env_config or {}).get(vector_env.RECORDING_KEY)
+    if not recording:
+        return vector_env.make_env(env_config)
+    from smorphi_rl.recording import RecordingConfig, RecordingWrapper
+
+    config = RecordingConfig(**recording)
+    return vector_env.make_env(env_config, lambda env, worker: RecordingWrapper(env, config, worker_index=worker))
+
+
 def register_env() -> None:
     """Register the env with Ray Tune under TUNE_ENV_NAME (safe to call again)."""
     from ray.tune.registry import register_env as tune_register
-
-    from smorphi_rl.vector_env import make_env
 
     tune_register(TUNE_ENV_NAME, make_env)
 
