@@ -26,7 +26,7 @@ import numpy as np
 from scipy import ndimage
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.inputs import MAX_SEED, is_finite_number
+from smorphi_rl.inputs import check_seed, is_finite_number
 from smorphi_rl.maps import Cell, Map
 
 HELD_OUT_SEED = 1_000_000
@@ -87,9 +87,7 @@ def floor_name(kind: FloorKind | str, seed: int) -> str:
 def generate_floor(kind: FloorKind | str, seed: int, floor_range: FloorRange = DEFAULT_RANGE) -> Map:
     """The floor of this kind and seed (the same bits on every machine)."""
     kind = FloorKind(kind)
-    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed <= MAX_SEED:
-        raise MapError(f"a floor seed must be an integer in [0, 2^32-1], got {seed!r}")
-    rng = np.random.default_rng([int(seed), list(FloorKind).index(kind)])
+    rng = np.random.default_rng([check_seed(seed, "a floor seed", MapError), list(FloorKind).index(kind)])
     drawn = DRAWN_KINDS[int(rng.integers(len(DRAWN_KINDS)))] if kind is FloorKind.MIXED else kind
     plan = _Plan.draw(rng, floor_range)
     {

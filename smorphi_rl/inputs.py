@@ -5,7 +5,6 @@ Every check raises a SmorphiError naming the input and the problem, before any w
 
 from __future__ import annotations
 
-import argparse
 import math
 import re
 import stat
@@ -13,6 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import yaml
 
 from smorphi_rl.errors import MapError, SmorphiError
@@ -159,22 +159,12 @@ def check_image_size(path: Path) -> None:
                          "(cut it down with an image editor: no command here reads it)")  # fmt: skip
 
 
-def finite(text: str) -> float:
-    """argparse type of every real-valued option: a finite number."""
-    try:
-        value = float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
-    if not math.isfinite(value):
-        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
-    return value
-
-
-def check_seed(seed: Any, what: str = "seed") -> int:
-    """A seed is a whole number in [0, MAX_SEED]."""
-    if isinstance(seed, bool) or not isinstance(seed, int) or not 0 <= seed <= MAX_SEED:
-        raise InputError(f"{what} must be a whole number in [0, 2^32-1], got {seed!r}")
-    return seed
+def check_seed(seed: Any, what: str = "seed", error: type[SmorphiError] | None = None) -> int:
+    """A seed is a whole number in [0, MAX_SEED], what numpy, torch, RLlib and Tune all take; `error` (default
+    InputError) is the exception the caller's input raises."""
+    if isinstance(seed, bool) or not isinstance(seed, int | np.integer) or not 0 <= seed <= MAX_SEED:
+        raise (error or InputError)(f"{what} must be a whole number in [0, 2^32-1], got {seed!r}")
+    return int(seed)
 
 
 def resolved(path: Path, what: str) -> Path:

@@ -7,10 +7,10 @@ import math
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
-from smorphi_rl.cli.fields import option
+from smorphi_rl.cli.fields import finite_arg, option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
-from smorphi_rl.inputs import MAX_SEED, finite
+from smorphi_rl.inputs import MAX_SEED
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
@@ -171,7 +171,7 @@ def start_option(parser: argparse.ArgumentParser) -> None:
     """--start-xy X Y: where plans start (the env's field; None when not given: the planner's own start)."""
     from smorphi_rl.env_config import EnvConfig
 
-    option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=finite, metavar=("X", "Y"),
+    option(parser, EnvConfig, "start_xy", unset=True, nargs=2, type=finite_arg, metavar=("X", "Y"),
            default_text="the planner's")  # fmt: skip
 
 

@@ -6,11 +6,11 @@ from __future__ import annotations
 
 import argparse
 import inspect
+import math
 from collections.abc import Callable
 from typing import Any
 
 from smorphi_rl.config_fields import field_default, field_docs
-from smorphi_rl.inputs import finite
 
 FIELD_FLAGS: dict[str, str] = {}
 """Each configuration field an option sets, and its flag: an error that names the field names the flag too."""
@@ -18,6 +18,17 @@ FIELD_FLAGS: dict[str, str] = {}
 UNSET: Any = None
 """What an option holds when the user did not give it and the field's default is applied later (by the
 configuration, a checkpoint's configuration or a preset), rather than by argparse."""
+
+
+def finite_arg(text: str) -> float:
+    """argparse type of every real-valued option: a finite number."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number, got {text!r}") from None
+    if not math.isfinite(value):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {text!r}")
+    return value
 
 
 def param_default(func: Callable[..., Any], name: str) -> Any:
@@ -48,7 +59,7 @@ def option(parser: argparse.ArgumentParser, cls: type, name: str, *flags: str, u
     if kwargs.get("type") is None and "action" not in kwargs:
         kwargs["type"] = type(default) if isinstance(default, int | float | str) else None
     if kwargs.get("type") is float:  # no NaN or infinity reaches a configuration
-        kwargs["type"] = finite
+        kwargs["type"] = finite_arg
     doc = field_docs(cls).get(name, "").replace("%", "%%")  # argparse formats help with %
     doc = doc.replace("; None: ", "; not given: ")  # a field's unset value, which no flag spells
     said = default_text if default_text is not None else shown(default)

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, seed_arg
-from smorphi_rl.cli.fields import param_default
+from smorphi_rl.cli.fields import finite_arg, param_default
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import FloorKind
-from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, finite, output_file, resolved
+from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs, obstacle_target
 
 PROGRESS_FROM_CELLS = 1_000_000
@@ -39,7 +39,7 @@ def register(sub: Any) -> None:
                               ("--resolution", "resolution_m", "metres per cell"),
                               ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
         default = param_default(generate_map, param)
-        gen.add_argument(flag, type=finite, default=default, help=f"{text} (default: {default:g})")
+        gen.add_argument(flag, type=finite_arg, default=default, help=f"{text} (default: {default:g})")
     gen.add_argument("--seed", type=seed_arg, default=0)
     gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
     gen.add_argument("--force", action="store_true", help="overwrite an existing map")
@@ -57,22 +57,22 @@ def register(sub: Any) -> None:
     crop.add_argument(
         "--rect",
         nargs=4,
-        type=finite,
+        type=finite_arg,
         metavar=("X0", "Y0", "X1", "Y1"),
         help="keep this rectangle, metres in the map frame (default: the known cells and a margin)",
     )
-    crop.add_argument("--margin", type=finite, default=CROP_MARGIN_M, metavar="M",
+    crop.add_argument("--margin", type=finite_arg, default=CROP_MARGIN_M, metavar="M",
                       help="metres kept around the known cells (default 0.2)")  # fmt: skip
     resample = maps_sub.add_parser("resample", help="coarsen a map to a whole multiple of its resolution")
     name_choices(maps, maps_sub)
-    resample.add_argument("--resolution", type=finite, required=True, metavar="R",
+    resample.add_argument("--resolution", type=finite_arg, required=True, metavar="R",
                           help="metres a cell; a coarse cell is free only if every cell under it is")  # fmt: skip
     for tool, run in ((crop, cmd_maps_crop), (resample, cmd_maps_resample)):
         tool.add_argument("map", help="map_server YAML to read (left as it is)")
         tool.add_argument("--out", required=True, help="YAML path to write (image written beside it)")
         tool.add_argument(
             "--min-island",
-            type=finite,
+            type=finite_arg,
             default=0.0,
             metavar="M2",
             help="also drop free areas smaller than this many square metres (default 0: keep all)",

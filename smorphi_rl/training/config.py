@@ -15,7 +15,7 @@ from typing import Any
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.inputs import MAX_SEED, first_repeat
+from smorphi_rl.inputs import check_seed, first_repeat
 from smorphi_rl.policy_file import MAX_FREQUENCIES
 from smorphi_rl.protocol import EVAL_EVERY, EVAL_STARTS
 from smorphi_rl.training.presets import (
@@ -148,10 +148,7 @@ class TrainConfig:
         if self.max_iterations is not None and self.max_iterations > MAX_TIMESTEPS:  # an iteration is 1+ env steps
             raise TrainConfigError(f"max_iterations {self.max_iterations:,}: at most {MAX_TIMESTEPS:,}, the most env "
                                    "steps a run takes")  # fmt: skip
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise TrainConfigError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if self.seed > MAX_SEED:
-            raise TrainConfigError(f"seed must be at most 2^32-1 = {MAX_SEED}, got {self.seed}")
+        check_seed(self.seed, error=TrainConfigError)
         for name in ("eval_every", "select_starts", "record_every", "design_budget"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:
