@@ -15,7 +15,7 @@ from matplotlib.colors import ListedColormap
 from matplotlib.patches import Polygon, Rectangle
 
 from smorphi_rl.coverage import CoverageResult, path_points_m
-from smorphi_rl.geometry import Morphology, all_corners
+from smorphi_rl.geometry import Morphology, all_corners, angles_text
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.rundir import atomic_path
 
@@ -95,9 +95,9 @@ def plot_footprint(ax: plt.Axes, result: CoverageResult, morphology: Morphology,
     ax.set_xlim(-0.05, max(result.footprint_m[0], w * r) + 0.05)
     ax.set_ylim(-0.05, max(result.footprint_m[1], l * r) + 0.05)
     ax.set_aspect("equal")
-    t = ", ".join(f"{v:g}" for v in result.theta)
     ax.set_title(
-        f"θ = ({t})\nfootprint {result.footprint_m[0]:.3f} × {result.footprint_m[1]:.3f} m, F {l} × {w} cells",
+        f"θ = {angles_text(result.theta)}\n"
+        f"footprint {result.footprint_m[0]:.3f} × {result.footprint_m[1]:.3f} m, F {l} × {w} cells",
         fontsize=9,
     )
     ax.set_xlabel("x [m]")
@@ -158,8 +158,7 @@ def plot_top_morphologies(
         ax.axis("off")
     for ax, (label, result, morphology) in zip(axes.flat, items, strict=False):
         draw_coverage(ax, result, grid_map, morphology, block_side_m, tiles=False)
-        t = ", ".join(f"{v:g}" for v in result.theta)
-        ax.set_title(f"{label}: ({t})\nP_c {result.P_c:.2f} %, P_len {result.P_len}", fontsize=9)
+        ax.set_title(f"{label}: {angles_text(result.theta)}\nP_c {result.P_c:.2f} %, P_len {result.P_len}", fontsize=9)
     fig.suptitle(f"Top morphologies on {grid_map.name}", fontsize=11)
     return _save(fig, out)
 
@@ -288,8 +287,7 @@ def plot_planners(
     for (grid_map, morphology, results), ax_row in zip(rows, axes, strict=True):
         for result, ax in zip(results, ax_row, strict=False):
             draw_coverage(ax, result, grid_map, morphology, block_side_m, tiles=False)
-            theta = ", ".join(f"{t:g}" for t in morphology.angles)
-            title = f"{grid_map.name}, ({theta}), planner {result.planner}"
+            title = f"{grid_map.name}, {angles_text(morphology.angles)}, planner {result.planner}"
             ax.set_title(f"{title}\nfree covered {result.coverage_free_pct:.1f} %, P_len {result.P_len}", fontsize=9)
     return _save(fig, out)
 

@@ -293,13 +293,12 @@ def _csv_row(r: CoverageResult, score: Weights) -> str:
 def format_result(result: CoverageResult, grid_map: Map, start: str, plot_path: Path | None, score: Weights) -> str:
     """The human-readable report of one evaluation."""
     pct = {c: 100 * grid_map.fraction(c) for c in Cell}
-    theta = ", ".join(f"{t:g}" for t in result.theta)
     l, w = result.footprint_cells
     size = f"{grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m"
     fractions = ", ".join(f"{c.name.lower()} {pct[c]:.1f} %" for c in Cell)
     rows = [
         ("map", f"{grid_map.name} ({size}; {fractions})"),
-        ("theta", f"({theta}) deg"),
+        ("theta", f"{angles_text(result.theta)} deg"),
         ("feasible", "yes" if result.feasible else "no: blocks overlap, metrics are 0"),
         ("footprint", f"{result.footprint_m[0]:.3f} x {result.footprint_m[1]:.3f} m (w x l), F {l} x {w} cells"),
         ("planner", result.planner),

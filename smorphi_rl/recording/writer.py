@@ -15,6 +15,7 @@ import gymnasium as gym
 
 from smorphi_rl.coverage import CoverageResult
 from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.recording.messages import (
     JSON_SEPARATORS,
     METADATA_NAME,
@@ -207,8 +208,8 @@ class RecordingWrapper(gym.Wrapper):
         self._t0 = time.time_ns()
         self._step = 0
         self._writer.write(TOPIC_MAP, grid_message(env.grid_map, self._t0), self._t0)
-        theta = ", ".join(f"{t:g}" for t in info["theta"])
-        self._writer.write(TOPIC_LOG, log_message(f"episode {episode} start on {env.grid_map.name} at ({theta})",
+        theta = angles_text(info["theta"])
+        self._writer.write(TOPIC_LOG, log_message(f"episode {episode} start on {env.grid_map.name} at {theta}",
                                                   self._t0), self._t0)  # fmt: skip
         self._write_step(step_record(0, info))
         self._writer.flush()

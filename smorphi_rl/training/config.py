@@ -338,7 +338,8 @@ def sample_maps(env: EnvConfig) -> list[Any]:
 
     maps = [load_map(p) for p in env.map_files]
     for source in generators(env.maps):
-        maps += [generate_floor(source.kind, seed) for seed in range(source.lo, min(source.hi, source.lo + 8))]
+        seeds = range(source.lo, min(source.hi, source.lo + GENERATED_SAMPLE))
+        maps += [generate_floor(source.kind, seed) for seed in seeds]
     return maps
 
 

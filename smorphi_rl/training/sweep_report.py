@@ -266,7 +266,7 @@ def write_sweep_groups(rows: list[TrialRow], md_path: Path) -> None:
 
 
 def sweep_group_lines(rows: list[TrialRow]) -> list[str]:
-    """Each algorithm and hyperparameters on each map set over its seeds, means with 95 % bootstrap intervals;
+    """Each algorithm and hyperparameters on each map set over its seeds, medians with 95 % bootstrap intervals;
     a trial that never converged is counted as such, not as a number (a note, a blank line, the table)."""
     unfinished = sum(not r.finished for r in rows)
     are = verb(unfinished, "is", "are")
