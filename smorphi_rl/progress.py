@@ -6,11 +6,61 @@ import math
 import sys
 import time
 from collections.abc import Callable
-from typing import TextIO
+from typing import Any, TextIO
 
 ETA_AFTER_S = 3.0
 """The time left is estimated from the rate since the first count reported, once that has run this long (the wait
 for the first count holds the work's start-up, such as compiling the planner, and says nothing of its rate)."""
+
+
+STATUS_WIDTH = 160
+"""A status line rewritten in place is cut (and padded) to this many characters, so a shorter one clears it."""
+
+
+def bar(fraction: float, width: int) -> str:
+    """`[####------]`: `fraction` (clamped to 0..1) of `width` filled."""
+    filled = int(width * min(1.0, max(0.0, fraction)))
+    return "[" + "#" * filled + "-" * (width - filled) + "]"
+
+
+class StatusLine:
+    """One status line on a stream (stderr): rewritten in place on a terminal; elsewhere (a log file) a new line at
+    most every `every_s` seconds, besides the ones forced. Pickled (Tune keeps its callbacks), it leaves the stream
+    behind and writes to the stderr of the process that loads it."""
+
+    def __init__(self, out: TextIO | None = None, every_s: float = 10.0) -> None:
+        self.out = out or sys.stderr  # the stream of the moment, not the one at import
+        self.tty = bool(getattr(self.out, "isatty", lambda: False)())
+        self.every_s = every_s
+        self._last = -math.inf
+
+    def __getstate__(self) -> dict[str, Any]:
+        return {k: v for k, v in self.__dict__.items() if k != "out"}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.__dict__.update(state, out=sys.stderr, tty=sys.stderr.isatty())
+
+    def due(self, force: bool = False) -> bool:
+        """Whether a line is to be written now (always on a terminal, or when forced); if so the clock restarts."""
+        now = time.monotonic()
+        if not self.tty and not force and now - self._last < self.every_s:
+            return False
+        self._last = now
+        return True
+
+    def write(self, line: str, end: bool = False) -> None:
+        """The line, in place on a terminal (ended there when `end`), else on a line of its own."""
+        if self.tty:
+            self.out.write("\r" + line[:STATUS_WIDTH].ljust(STATUS_WIDTH) + ("\n" if end else ""))
+        else:
+            self.out.write(line + "\n")
+        self.out.flush()
+
+    def finish(self) -> None:
+        """Leave the terminal's line: what follows starts on a line of its own."""
+        if self.tty:
+            self.out.write("\n")
+            self.out.flush()
 
 
 def progress_line(
@@ -57,10 +107,9 @@ def progress_line(
             return
         last[0] = now
         frac = done / total if total else 1.0  # nothing to do (a density of 0) is done
-        bar = "#" * int(30 * frac) + "-" * (30 - int(30 * frac))
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
-        line = f"{name} [{bar}] {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
+        line = f"{name} {bar(frac, 30)} {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
         out.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
         out.flush()
 

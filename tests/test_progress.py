@@ -1,5 +1,8 @@
 """`progress.py`: the progress bar names its pass and reads the time left from the work's own pace."""
 
+import io
+import pickle
+
 from smorphi_rl import progress
 
 
@@ -56,3 +59,41 @@ def test_an_exhaustive_search_shows_both_passes_when_its_plans_fit_one_chunk(cap
     assert main(["search", "exhaustive", "--map", map_1, "--step", "30", "--log-dir", str(tmp_path)]) == 0
     labels = [line.split(" [")[0] for line in capsys.readouterr().err.splitlines() if " [" in line]
     assert labels[0] == "exhaustive: shapes keyed by footprint" and labels[-1] == "exhaustive: shapes settled"
+
+
+class _Terminal(io.StringIO):
+    def isatty(self) -> bool:
+        return True
+
+
+def test_a_status_line_off_a_terminal_writes_every_so_often_and_when_forced(monkeypatch):
+    clock = iter([0.0, 4.0, 6.0, 11.0])
+    monkeypatch.setattr(progress.time, "monotonic", lambda: next(clock))
+    out = io.StringIO()
+    status = progress.StatusLine(out, every_s=10)
+    for when, force in ((0, False), (4, False), (6, True), (11, False)):
+        if status.due(force):
+            status.write(f"at {when}")
+    assert out.getvalue() == "at 0\nat 6\n"  # 11 s is 5 s after the forced line
+
+
+def test_a_status_line_on_a_terminal_is_rewritten_in_place_and_cleared():
+    out = _Terminal()
+    status = progress.StatusLine(out)
+    status.write("x" * 200)
+    status.write("short", end=True)
+    first, second = out.getvalue().split("\r")[1:]
+    assert first == "x" * progress.STATUS_WIDTH and second == "short".ljust(progress.STATUS_WIDTH) + "\n"
+
+
+def test_a_pickled_status_line_leaves_its_stream_behind(capsys):
+    """Tune pickles its callbacks with the experiment's state; a stream does not pickle, and the loader's stderr
+    (here not a terminal) is asked again whether it is one."""
+    again = pickle.loads(pickle.dumps(progress.StatusLine(_Terminal())))
+    again.write("restored")
+    assert capsys.readouterr().err == "restored\n"
+
+
+def test_a_bar_is_clamped_to_its_width():
+    assert progress.bar(0.5, 10) == "[#####-----]" and progress.bar(1.7, 4) == "[####]"
+    assert progress.bar(-1, 2) == "[--]"

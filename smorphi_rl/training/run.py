@@ -20,7 +20,7 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.maps import load_map
-from smorphi_rl.progress import optimum_progress
+from smorphi_rl.progress import StatusLine, bar, optimum_progress
 from smorphi_rl.protocol import (
     EVAL_KEY,
     NO_OPTIMUM,
@@ -120,26 +120,16 @@ class _Progress:
     """Driver-side Tune callback: collects episode bests and curves, and shows one progress line."""
 
     def __init__(self, cfg: TrainConfig, out: Any = None, label: str | None = None) -> None:
-        out = out or sys.stderr  # the stream of the moment, not the one at import
+        self.status = StatusLine(out)
         self.cfg = cfg
         self.label = label or cfg.algo.upper()
         self.top = TopMorphologies()
         self.curve: dict[str, list[float]] = {k: [] for k in CURVE_NAMES}
-        self.out = out
-        self.tty = bool(getattr(out, "isatty", lambda: False)())
         self.t0 = time.monotonic()
-        self._last_print = -math.inf
         self._last_mean = math.nan
         self.last_eval: dict[str, Any] = {}
         self.pretrained_in_runners: bool | None = None
         """Fine-tuning: whether every env runner held the checkpoint's policy before the first sample."""
-
-    def __getstate__(self) -> dict[str, Any]:
-        """Tune pickles its callbacks with the experiment state: leave the output stream behind."""
-        return {k: v for k, v in self.__dict__.items() if k != "out"}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state, out=sys.stderr)
 
     def on_result(self, result: dict[str, Any]) -> None:
         steps = int(result.get(keys.STEPS) or 0)
@@ -159,31 +149,22 @@ class _Progress:
         self._show(steps, done=steps >= self.cfg.timesteps)
 
     def _show(self, steps: int, done: bool) -> None:
-        now = time.monotonic()
-        if not self.tty and not done and now - self._last_print < 10:
+        if not self.status.due(force=done):
             return
-        self._last_print = now
         budget = self.cfg.timesteps
-        frac = min(1.0, steps / budget)
-        bar = "#" * int(24 * frac) + "-" * (24 - int(24 * frac))
         best = self.top.top(1)
         best_txt = f"best R1 {best[0].R1:.2f} {best[0].angles}" if best else "best R1 -"
         mean_txt = f"episode mean R1 {self._last_mean:.2f}" if math.isfinite(self._last_mean) else ""
         ev = self.last_eval.get(TRAINED_KEY) or self.last_eval  # the policy of `steps`, not the one a run keeps
         settled_txt = (f"greedy: gap {ev['median_gap']:.2f}, {ev['share_within_1pct'] * 100:.0f} % within 1 %"
                        if ev and math.isfinite(ev.get("share_within_1pct", math.nan)) else "")  # fmt: skip
-        line = (f"{self.label} [{bar}] {steps:,}/{budget:,} steps  {fmt_duration(now - self.t0)}  "
-                f"{best_txt}  {mean_txt}  {settled_txt}").rstrip()  # fmt: skip
-        if self.tty:
-            self.out.write("\r" + line[:160].ljust(160) + ("\n" if done else ""))
-        else:
-            self.out.write(line + "\n")
-        self.out.flush()
+        took = fmt_duration(time.monotonic() - self.t0)
+        line = (f"{self.label} {bar(steps / budget, 24)} {steps:,}/{budget:,} steps  {took}  {best_txt}  {mean_txt}  "
+                f"{settled_txt}").rstrip()  # fmt: skip
+        self.status.write(line, end=done)
 
     def finish(self) -> None:
-        if self.tty:
-            self.out.write("\n")
-            self.out.flush()
+        self.status.finish()
 
 
 def _tune_callback(progress: _Progress) -> Any:

@@ -21,6 +21,7 @@ from smorphi_rl import cluster, jsontext
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_set_label
+from smorphi_rl.progress import StatusLine, bar
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import (
@@ -175,18 +176,10 @@ class _SweepProgress:
     """One status line for the whole sweep: trials done, the running trial's steps, the best shape so far."""
 
     def __init__(self, sweep: SweepConfig, total: int, out: Any) -> None:
-        self.sweep, self.total, self.out = sweep, total, out
-        self.tty = bool(getattr(out, "isatty", lambda: False)())
+        self.sweep, self.total, self.status = sweep, total, StatusLine(out)
         self.t0 = time.monotonic()
         self.done: set[str] = set()
         self.best = (float("-inf"), float("-inf"), "")  # R1, P_c (the tables' tie-break), the shape's text
-        self._last = 0.0
-
-    def __getstate__(self) -> dict[str, Any]:
-        return {k: v for k, v in self.__dict__.items() if k != "out"}
-
-    def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state, out=sys.stderr)
 
     def found(self, bests: list[Any]) -> None:
         """Take the best of these shapes (each with R1, P_c, angles and map) if it beats the one shown: higher R1,
@@ -207,22 +200,15 @@ class _SweepProgress:
         self._show("", force=True)
 
     def _show(self, current: str, force: bool = False) -> None:
-        now = time.monotonic()
-        if not self.tty and not force and now - self._last < 10:
+        if not self.status.due(force):
             return
-        self._last = now
-        frac = len(self.done) / max(1, self.total)
-        bar = "#" * int(20 * frac) + "-" * (20 - int(20 * frac))
         best = f"best R1 {self.best[0]:.2f} {self.best[2]}" if self.best[2] else "best R1 -"
-        line = (f"sweep {self.sweep.name} [{bar}] {len(self.done)}/{self.total} trials  "
-                f"{fmt_duration(now - self.t0)}  {current}  {best}")  # fmt: skip
-        self.out.write(("\r" + line[:160].ljust(160)) if self.tty else line + "\n")
-        self.out.flush()
+        line = (f"sweep {self.sweep.name} {bar(len(self.done) / max(1, self.total), 20)} {len(self.done)}/{self.total} "
+                f"trials  {fmt_duration(time.monotonic() - self.t0)}  {current}  {best}")  # fmt: skip
+        self.status.write(line)
 
     def finish(self) -> None:
-        if self.tty:
-            self.out.write("\n")
-            self.out.flush()
+        self.status.finish()
 
 
 def _tune_callback(progress: _SweepProgress) -> Any:
