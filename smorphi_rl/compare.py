@@ -9,6 +9,7 @@ method's set is measured against the same point and the exact front scores 1.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -26,7 +27,8 @@ from smorphi_rl.search.results import SearchResult, load
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
 
 if TYPE_CHECKING:
-    from smorphi_rl.planning import Evaluator
+    from smorphi_rl.maps import Map
+    from smorphi_rl.planning import Evaluator, Planning
 
 
 @dataclass(frozen=True)
@@ -131,6 +133,76 @@ def another_floor(where: Path | str, map_name: str) -> SmorphiError:
     """A run, or an exact front, of another floor than --map's under the same name (its recorded digest differs)."""
     return SmorphiError(f"{where}: its map '{map_name}' is another floor than --map's (the cells differ): compare "
                         "runs of the same map file")  # fmt: skip
+
+
+def start_text(start: tuple[float, float] | None) -> str:
+    """Where plans start, as the refusals say it."""
+    return "the planner's default start" if start is None else f"({start[0]:g}, {start[1]:g}) m"
+
+
+def exact_front_under(log_dir: Path, map_path: str, grid_map: Map, planning: Planning, step: float) -> Path | None:
+    """The folder `search exhaustive` names by default under `log_dir`, when it holds that search's front of this
+    very map (cells and resolution), planner and lattice step from the planner's own start; None otherwise (compare
+    computes the front). Not with a start point: a run does not record the origin that put its start on a cell."""
+    from smorphi_rl.search.config import SearchConfig
+
+    folder = log_dir / SearchConfig("exhaustive", map_path, planning=planning, step=step).run_name
+    if planning.start_xy is not None or not (folder / "summary.json").is_file():
+        return None
+    try:
+        run = load(folder)
+        same = (run.method == "exhaustive" and run.map_name == grid_map.name and run.map_digest == grid_map.digest
+                and run.params.get("planner", "paper") == planning.planner.value and run.feasible.any()
+                and run.params.get("step_deg") == step and run.params.get("start_xy") is None)  # fmt: skip
+    except SmorphiError:
+        return None
+    return folder if same else None
+
+
+def check_exact_front(exact: SearchResult, where: str, step_given: bool) -> None:
+    """An exact front to compare against: a `search exhaustive` run with feasible shapes, whose lattice is its own
+    (`step_given`: a lattice step was asked for as well)."""
+    feasible_of(exact, Path(where))
+    if exact.method != "exhaustive":
+        raise SmorphiError(f"{where}: a `search {exact.method}` run, not an exact front (give a `search "
+                           "exhaustive` run)")  # fmt: skip
+    if step_given:
+        raise SmorphiError("--step: the exact front is computed here only without --exhaustive (its lattice is the "
+                           "run's own)")  # fmt: skip
+
+
+def check_comparable(
+    dirs: list[Path], planning: Planning, grid_map: Map, exact: SearchResult | None = None, where: str = ""
+) -> None:
+    """Refuse runs whose shapes cannot be set against this map's exact front (and the front at `where`, given):
+    scored by another planner, planned from another start or with another block, or of another floor."""
+    planners = {str(d): planner_of_run(d) for d in dirs}
+    if exact is not None:
+        planners[where] = str(exact.params.get("planner", "paper"))
+    if len(set(planners.values())) > 1:
+        told = ", ".join(f"{run}: {p}" for run, p in planners.items())
+        raise SmorphiError(f"the runs were scored by different planners ({told}): compare runs of one planner")
+    for run, made_with in planners.items():
+        if made_with != planning.planner.value:
+            raise SmorphiError(f"{run}: its shapes were scored by the {made_with} planner, the exact front here by "
+                               f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
+    starts = {str(d): start_of_run(d) for d in dirs}
+    if exact is not None:
+        starts[where] = start_from(exact.params.get("start_xy"), where)
+    for run, start in starts.items():
+        if start != planning.start_xy:
+            fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
+            raise SmorphiError(f"{run}: its shapes were planned from {start_text(start)}, the exact front here from "
+                               f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
+    for d in dirs:
+        if not math.isclose(block := block_of_run(d), planning.block_side_m):
+            raise SmorphiError(f"{d}: its shapes were planned with a {block:g} m block, the exact front here with "
+                               f"{planning.block_side_m:g} m (`search` and `compare` plan the default block): compare "
+                               "runs of the default block")  # fmt: skip
+    if exact is not None and exact.map_name != grid_map.name:
+        raise SmorphiError(f"{where}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
+    if exact is not None and exact.map_digest not in (None, grid_map.digest):
+        raise another_floor(where, grid_map.name)
 
 
 TRAINING_RUN = ("a training run",)

@@ -174,9 +174,10 @@ FILE_CHUNK = 50_000
 
 def cmd_evaluate(args: argparse.Namespace) -> int:
     """Evaluate one morphology (or a file of them) with FBCPP on a map."""
-    if args.start_xy is not None:  # --start-xy X Y is --start xy:X,Y
-        args.start = f"xy:{args.start_xy[0]!r},{args.start_xy[1]!r}"
-    if args.start is not None and not args.start.strip():
+    start_spec = args.start  # --start-xy X Y is --start xy:X,Y
+    if args.start_xy is not None:
+        start_spec = f"xy:{args.start_xy[0]!r},{args.start_xy[1]!r}"
+    if start_spec is not None and not start_spec.strip():
         raise SmorphiError(EMPTY_START)
     if args.angles_file is not None and args.plot is not None:
         raise SmorphiError("--plot draws one morphology: use it with --angles")
@@ -184,9 +185,10 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         raise SmorphiError("--path adds the plan to --json output of one morphology: use it with --angles and --json")
     if not args.block_side > 0:
         raise SmorphiError(f"--block-side must be > 0 m, got {args.block_side}")
+    plot_file = None
     if args.plot is not None:
         inputs = map_inputs(args.map) + ((Path(args.angles_file),) if args.angles_file else ())
-        args.plot = str(output_file(args.plot, "--plot", (".png",), inputs, args.force))
+        plot_file = str(output_file(args.plot, "--plot", (".png",), inputs, args.force))
     if args.angles_file == "":
         raise SmorphiError("--angles-file: give the path of a CSV of t1,t2,t3 rows")
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None
@@ -199,7 +201,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if thetas is not None:
         from smorphi_rl.planning import Evaluator
 
-        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
+        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(start_spec, grid_map),
                               planner=Planner(args.planner))  # fmt: skip
         if not args.json:
             sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w,"
@@ -221,16 +223,18 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
-    return _one_shape(args, grid_map, morphology, score)
+    return _one_shape(args, grid_map, morphology, score, start_spec, plot_file)
 
 
-def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, score: Weights) -> int:
-    """Report one shape. Without a plot, a path or a chosen start, a small map is planned in plain Python
+def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, score: Weights,
+               start_spec: str | None, plot_file: str | None) -> int:  # fmt: skip
+    """Report one shape, planned from `start_spec` (`--start`'s form) and drawn to `plot_file` (a checked path).
+    Without a plot, a path or a chosen start, a small map is planned in plain Python
     (`coverage_reference.quick_result`, equal to the kernels by test), so the answer skips numba's start-up."""
     planner = Planner(args.planner)
     check_block_side(args.block_side, grid_map.resolution_m)
     result: CoverageResult | None = None
-    if not (args.plot or args.path or args.start):
+    if not (plot_file or args.path or start_spec):
         from smorphi_rl.coverage_reference import largest_free_area_pct, quick_result
 
         result = quick_result(grid_map, morphology, args.block_side, planner)
@@ -239,22 +243,22 @@ def _one_shape(args: argparse.Namespace, grid_map: Map, morphology: Morphology, 
     if result is None:
         from smorphi_rl.planning import Evaluator
 
-        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(args.start, grid_map),
+        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(start_spec, grid_map),
                               planner=planner)  # fmt: skip
         start, prepared = evaluator.start, evaluator.prepared
         area_pct = 100 * prepared.n_area / max(prepared.n_free, 1)
         fit = planner is Planner.FIT
-        result = evaluator.plan(morphology) if args.plot or args.path or fit else evaluator.evaluate(morphology)
+        result = evaluator.plan(morphology) if plot_file or args.path or fit else evaluator.evaluate(morphology)
     if planner is Planner.FIT and result.feasible and result.placements is not None and not len(result.placements):
         where = "fits nowhere on" if start.kind == 0 else f"does not fit at {start.describe()} on"
         l, w = result.footprint_cells
         raise SmorphiError(f"shape {angles_text(morphology.angles)}: its footprint ({l} x {w} cells) {where} map "
                            f"{grid_map.name} without touching an occupied, unknown or outside cell")  # fmt: skip
     plot_path = None
-    if args.plot:
+    if plot_file:
         from smorphi_rl.plots import plot_coverage
 
-        plot_path = plot_coverage(result, grid_map, morphology, args.block_side, args.plot)
+        plot_path = plot_coverage(result, grid_map, morphology, args.block_side, plot_file)
     from smorphi_rl.score import swamped_warning
 
     swamped = swamped_warning(score, result.P_c, result.P_len, weights(args).path_term, grid_map.name, "its")

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import math
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,8 +31,7 @@ from smorphi_rl.rundir import rel
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
-    from smorphi_rl.maps import Map
-    from smorphi_rl.planning import Planning
+    pass
 
 
 def register(sub: Any) -> None:
@@ -158,11 +156,6 @@ def cmd_search(args: argparse.Namespace) -> int:
     return 0
 
 
-def start_text(start: tuple[float, float] | None) -> str:
-    """Where plans start, as the compare refusals say it."""
-    return "the planner's default start" if start is None else f"({start[0]:g}, {start[1]:g}) m"
-
-
 def format_search(
     result: Any,
     front_rows: list[dict[str, Any]],
@@ -204,40 +197,17 @@ def format_search(
     return "\n".join(lines)
 
 
-def front_here(log_dir: Path, map_path: str, grid_map: Map, planning: Planning, step: float) -> Path | None:
-    """The folder `search exhaustive` names by default under `log_dir`, when it holds that search's front of this
-    very map (cells and resolution), planner and lattice step from the planner's own start; None otherwise (compare
-    computes the front). Not with --start-xy: a run does not record the origin that put its start on a cell."""
-    from smorphi_rl.search.config import SearchConfig
-    from smorphi_rl.search.results import load
-
-    folder = log_dir / SearchConfig("exhaustive", map_path, planning=planning, step=step).run_name
-    if planning.start_xy is not None or not (folder / "summary.json").is_file():
-        return None
-    try:
-        run = load(folder)
-        same = (run.method == "exhaustive" and run.map_name == grid_map.name and run.map_digest == grid_map.digest
-                and run.params.get("planner", "paper") == planning.planner.value and run.feasible.any()
-                and run.params.get("step_deg") == step and run.params.get("start_xy") is None)  # fmt: skip
-    except SmorphiError:
-        return None
-    return folder if same else None
-
-
 def cmd_compare(args: argparse.Namespace) -> int:
     """Put training runs and search runs against the exact front of the map; report.md and compare.png."""
     from smorphi_rl.compare import (
         TRAINING_RUN,
-        another_floor,
-        block_of_run,
         check_best_as_planned,
-        feasible_of,
-        planner_of_run,
+        check_comparable,
+        check_exact_front,
+        exact_front_under,
         points_of_run,
         report_lines,
         score_methods,
-        start_from,
-        start_of_run,
         write_report,
     )
     from smorphi_rl.rundir import check_run_dir, discarded_on_failure, prepare_run_dir, safe_name
@@ -267,52 +237,18 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     step = SearchConfig.step if args.step is UNSET else args.step
     check_step(step)
-    found = None if args.exhaustive else front_here(Path(args.log_dir), str(args.map), grid_map, planning, step)
-    if found is not None:  # the front a `search exhaustive` of this map, planner and step left here
-        args.exhaustive, args.step = str(found), UNSET
-    exact = load(args.exhaustive) if args.exhaustive else None
+    found = None if args.exhaustive else exact_front_under(Path(args.log_dir), str(args.map), grid_map, planning, step)
+    exhaustive = str(found) if found is not None else args.exhaustive  # a front `search exhaustive` left here
+    exact = load(exhaustive) if exhaustive else None
     if exact is not None:
-        feasible_of(exact, args.exhaustive)
-    if exact is not None and exact.method != "exhaustive":
-        raise SmorphiError(f"{args.exhaustive}: a `search {exact.method}` run, not an exact front (give a `search "
-                           "exhaustive` run)")  # fmt: skip
-    if exact is not None and args.step is not UNSET:
-        raise SmorphiError("--step: the exact front is computed here only without --exhaustive (its lattice is the "
-                           "run's own)")  # fmt: skip
-    planners = {str(d): planner_of_run(d) for d in dirs}
-    if exact is not None:
-        planners[str(args.exhaustive)] = str(exact.params.get("planner", "paper"))
-    if len(set(planners.values())) > 1:
-        told = ", ".join(f"{where}: {p}" for where, p in planners.items())
-        raise SmorphiError(f"the runs were scored by different planners ({told}): compare runs of one planner")
-    for where, made_with in planners.items():  # shapes scored by another planner cannot be set against this front
-        if made_with != planning.planner.value:
-            raise SmorphiError(f"{where}: its shapes were scored by the {made_with} planner, the exact front here by "
-                               f"{planning.planner.value}: pass --planner {made_with}")  # fmt: skip
-    starts = {str(d): start_of_run(d) for d in dirs}
-    if exact is not None:
-        starts[str(args.exhaustive)] = start_from(exact.params.get("start_xy"), args.exhaustive)
-    for where, start in starts.items():  # shapes planned from another start cannot be set against this front
-        if start != planning.start_xy:
-            said = start_text(start)
-            fix = "leave --start-xy out" if start is None else f"pass --start-xy {start[0]:g} {start[1]:g}"
-            raise SmorphiError(f"{where}: its shapes were planned from {said}, the exact front here from "
-                               f"{start_text(planning.start_xy)}: {fix}")  # fmt: skip
-    for d in dirs:  # shapes planned with another block cannot be set against this front
-        if not math.isclose(block := block_of_run(d), planning.block_side_m):
-            raise SmorphiError(f"{d}: its shapes were planned with a {block:g} m block, the exact front here with "
-                               f"{planning.block_side_m:g} m (`search` and `compare` plan the default block): compare "
-                               "runs of the default block")  # fmt: skip
-    if exact is not None and exact.map_name != grid_map.name:
-        raise SmorphiError(f"{args.exhaustive}: the exact front is for map '{exact.map_name}', not '{grid_map.name}'")
-    if exact is not None and exact.map_digest not in (None, digest):
-        raise another_floor(args.exhaustive, grid_map.name)
+        check_exact_front(exact, exhaustive, step_given=found is None and args.step is not UNSET)
+    check_comparable(dirs, planning, grid_map, exact, exhaustive or "")
     evaluator = planning.evaluator(grid_map)  # each run's best shape planned again: the figures are the planner's
     for d, (_, _, thetas, p_c, p_len, _) in zip(dirs, runs, strict=True):
         check_best_as_planned(thetas, p_c, p_len, evaluator, on_map, d)
     if exact is not None:
         ok = exact.feasible
-        check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, args.exhaustive)
+        check_best_as_planned(exact.thetas[ok], exact.P_c[ok], exact.P_len[ok], evaluator, on_map, exhaustive)
     if found is not None:  # said once it is known to be this map's front
         print(f"exact front: read from {found} (a `search exhaustive` run of this map, planner and step; "
               "--exhaustive names another)", file=sys.stderr)  # fmt: skip
