@@ -10,6 +10,7 @@ EXIT_INTERRUPTED = 130
 
 
 def main() -> int:
+    """The console script: the CLI imported inside a Ctrl-C guard (its imports take seconds)."""
     try:
         from smorphi_rl.cli import main as cli_main
     except KeyboardInterrupt:

@@ -57,6 +57,7 @@ class FloorSource:
 
 
 def is_generator(entry: str) -> bool:
+    """Whether a map entry names generated floors (`generate:KIND[:LO-HI]`) rather than files."""
     return entry.startswith(GENERATE_PREFIX)
 
 
@@ -118,6 +119,7 @@ def map_files(entries: tuple[str, ...]) -> tuple[str, ...]:
 
 
 def generators(entries: tuple[str, ...]) -> tuple[FloorSource, ...]:
+    """The generated-floor sources among map entries."""
     return tuple(parse_generator(e) for e in entries if is_generator(e))
 
 

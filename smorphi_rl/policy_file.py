@@ -72,6 +72,7 @@ class PolicyFile:
 
 
 def is_policy_dir(path: Path) -> bool:
+    """Whether `path` holds an exported policy (policy.json and weights.npz)."""
     return (path / POLICY_JSON).is_file() and (path / WEIGHTS_NPZ).is_file()
 
 

@@ -40,6 +40,7 @@ def build_parser(command: str | None = None) -> Parser:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
+    """Run one command; bad input is one line on stderr and exit 1 (2 for usage, 130 interrupted), never a traceback."""
     interrupts.install()
     try:
         argv = list(sys.argv[1:] if argv is None else argv)

@@ -123,10 +123,12 @@ def number(text: str, what: str) -> float:
 
 
 def map_paths(value: object) -> list[str]:
+    """--map as a list of paths (one given, or several)."""
     return [str(v) for v in value] if isinstance(value, list) else [str(value)]
 
 
 def scored_text(d: dict[str, object]) -> str:
+    """A scored shape as the reports show it: angles, P_c, P_len and R1."""
     return f"{angles_text(d['theta'])} P_c {d['P_c']:.2f} %, P_len {d['P_len']}, R1 {d['R1']:.2f}"  # type: ignore[arg-type]
 
 

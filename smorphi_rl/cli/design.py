@@ -46,6 +46,7 @@ def register(sub: Any) -> None:
 
 
 def cmd_design(args: argparse.Namespace) -> int:
+    """A shape for the floor from the shipped (or a given) designer within a budget of planner evaluations."""
     from smorphi_rl.design import check_budget, run_design
     from smorphi_rl.designer import designer_env, load_designer, unfamiliar_warning
     from smorphi_rl.protocol import optimum_cache

@@ -170,4 +170,5 @@ def step_record(step: int, info: dict[str, Any], action: Any = None, reward: flo
 
 
 def foxglove_schema(name: str) -> bytes:
+    """The JSON schema of a Foxglove message type, as shipped in recording/schemas/."""
     return (SCHEMA_DIR / f"{name}.json").read_bytes()

@@ -99,6 +99,8 @@ class _Budgeted:
 
 
 def hill_climb(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    """Steepest ascent over the 26 one-step neighbours, restarting from a random shape at a local maximum; the
+    best shape scored within the budget."""
     current: Theta | None = start
     while current is not None:
         value = space.r1(current)
@@ -118,6 +120,8 @@ def hill_climb(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Thet
 
 
 def anneal(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    """Simulated annealing over the one-step neighbours, the temperature falling geometrically as the budget is
+    spent; the best shape scored."""
     current, value = start, space.r1(start)
     scale = space.env.sigma_map if space.env.config.reward != RewardMode.PAPER else 1.0
     t_hi, t_lo = 1.0 * scale, 0.01 * scale
@@ -137,6 +141,7 @@ def anneal(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
 
 
 def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    """Uniformly random moves for an episode (an untrained policy); the shape the protocol says it settled on."""
     history = [start]
     space.r1(start)
     for _ in range(space.env.config.max_steps):
@@ -149,6 +154,7 @@ def random_walk(space: _Budgeted, start: Theta, rng: np.random.Generator) -> The
 
 
 def random_search(space: _Budgeted, start: Theta, rng: np.random.Generator) -> Theta:
+    """Uniformly random shapes until the budget is spent; the best."""
     space.r1(start)
     while len(space.seen) < space.budget:
         space.r1(space.random_theta(rng))
@@ -164,6 +170,8 @@ search baseline draws a random shape. Measured on 40 validation floors (docs/dec
 
 
 def pattern(space: _Budgeted, start: Theta, rng: np.random.Generator, restart: Restart | None = None) -> Theta:
+    """Compass search with shrinking steps (+-32 lattice steps down to +-1), restarting where `restart` says (a
+    random shape by default) once the +-1 pass improves nothing; the best shape scored."""
     current: Theta = start
     path = [current]
     while True:

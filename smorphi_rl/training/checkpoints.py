@@ -50,6 +50,7 @@ ends (`failures.fit`)."""
 
 
 def is_checkpoint(path: Path) -> bool:
+    """Whether `path` is an RLlib Algorithm checkpoint (it holds the RLModule's state folder)."""
     return (path / MODULE_SUBDIR).is_dir()
 
 

@@ -112,6 +112,7 @@ class RunSummary:
 
 
 def fmt_duration(seconds: float) -> str:
+    """A duration as the progress lines show it: 45s, 3m 07s."""
     m, s = divmod(round(seconds), 60)
     return f"{m}m {s:02d}s" if m else f"{s}s"
 

@@ -17,6 +17,7 @@ _warned: list[bool] = []
 
 
 def installed(package: str) -> str:
+    """The installed version of `package`, or "not installed"."""
     try:
         return metadata.version(package)
     except metadata.PackageNotFoundError:
