@@ -86,7 +86,7 @@ def median_interval(values: np.ndarray, seed: int = 0) -> tuple[float, float, fl
     from smorphi_rl.stats import median_interval as over
 
     got = over([float(v) for v in np.asarray(values, dtype=float)], seed)
-    return got.mean, got.lo, got.hi
+    return got.point, got.lo, got.hi
 
 
 def summarise(gaps: np.ndarray) -> dict[str, float]:

@@ -89,7 +89,7 @@ def converged_cell(group: list[Row]) -> str:
     count = f"{sum(r.converged_at is not None for r in group)} of {len(group)}"
     steps = censored_steps([(r.converged_at, r.curve[0][-1] if r.curve and r.curve[0] else 0.0) for r in group])
     median = censored_median_interval(*steps)
-    return f"{count}, median {median.bound} {median.mean:,.0f} steps".replace("  ", " ")
+    return f"{count}, median {median.bound} {median.point:,.0f} steps".replace("  ", " ")
 
 
 def main() -> None:

@@ -37,7 +37,8 @@ def cell(value: float, spec: str = ".4g") -> str:
 class Interval:
     """A mean (or median) over seeds and its 95 % bootstrap interval (lo = hi = the value with one seed)."""
 
-    mean: float
+    point: float
+    """The mean or the median, as the function that made it says."""
     lo: float
     hi: float
     n: int
@@ -47,11 +48,11 @@ class Interval:
     """How many values were given, counting those left out as not finite (0: as many as `n`)."""
 
     def text(self, fmt: str = ".2f") -> str:
-        point = f"{self.bound} {self.mean:{fmt}}".lstrip()
+        point = f"{self.bound} {self.point:{fmt}}".lstrip()
         left_out = f" ({self.n} of {self.given} seeds)" if self.given > self.n else ""
         if self.n < 2 or not math.isfinite(self.lo):
             return (f"{point} (1 seed)" if self.n == 1 and not left_out else f"{point}{left_out}") if self.n else "-"
-        if self.bound == ">" and self.lo == self.mean and math.isinf(self.hi):
+        if self.bound == ">" and self.lo == self.point and math.isinf(self.hi):
             return point + left_out  # every resample past the budget: no interval to add
         return f"{point} [{self.lo:{fmt}}, {self.hi:{fmt}}]".replace(f"{math.inf:{fmt}}", "inf") + left_out
 
@@ -62,7 +63,7 @@ def mean_interval(values: Sequence[float], seed: int = 0) -> Interval:
 
 
 def median_interval(values: Sequence[float], seed: int = 0) -> Interval:
-    """Median of `values` (one per seed) with its 95 % percentile bootstrap interval (`Interval.mean` holds it)."""
+    """Median of `values` (one per seed) with its 95 % percentile bootstrap interval (`Interval.point` holds it)."""
     return _interval(values, np.median, seed)
 
 

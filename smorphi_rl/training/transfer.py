@@ -454,8 +454,8 @@ def speedup(ratio: Interval, unmeasured: bool = False) -> Speedup:
         return Speedup("no ratio: the map has no exact optimum (not measured)", False, False, False)
     if not ratio.n:
         return Speedup("no ratio: both medians lie past the budget, or the fine-tuned one is 0", False, False, False)
-    met = ratio.bound != "<" and ratio.mean >= SPEEDUP_TARGET  # "> x": at least x, a measured bound
-    missed = ratio.bound != ">" and ratio.mean < SPEEDUP_TARGET
+    met = ratio.bound != "<" and ratio.point >= SPEEDUP_TARGET  # "> x": at least x, a measured bound
+    missed = ratio.bound != ">" and ratio.point < SPEEDUP_TARGET
     whole = met and ratio.n >= 2 and ratio.lo >= SPEEDUP_TARGET  # one seed has no interval to agree
     below = missed and ratio.n >= 2 and ratio.hi < SPEEDUP_TARGET
     kind = {">": " (at least: the scratch median lies past the budget)",
