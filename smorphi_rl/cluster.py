@@ -144,8 +144,8 @@ def ray_session(address: str | None) -> Iterator[None]:
             if address is None:
                 from smorphi_rl import rllib_compat
 
-                with rllib_compat.daemons_in_their_own_session():
-                    ray.init(address=address, **kwargs)
+                with rllib_compat.daemons_in_their_own_session():  # "local": a new Ray, never a running one
+                    ray.init(address="local", **kwargs)  # (Ray's default attaches to a `ray start` of this machine)
             else:
                 ray.init(address=address, **kwargs)
         except (ConnectionError, RuntimeError, ValueError) as exc:

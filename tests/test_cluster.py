@@ -100,8 +100,11 @@ def test_a_version_mismatch_with_a_cluster_is_one_line_naming_both_versions():
     assert ray_error_line(RuntimeError("first\nsecond")) == "first" and ray_error_line(RuntimeError()) == "RuntimeError"
 
 
-def test_a_session_inside_one_of_the_same_address_shares_its_ray():
-    """A job of many runs starts Ray once: a run's session inside it neither starts nor stops Ray."""
+def test_a_session_inside_one_of_the_same_address_shares_its_ray(monkeypatch):
+    """A job of many runs starts Ray once: a run's session inside it neither starts nor stops Ray. Without --address
+    the run's Ray is its own even where RAY_ADDRESS (or a `ray start` of this machine) names another: Ray's default
+    attached to that one, and a dead one refused the run ("num_cpus and num_gpus must not be provided")."""
+    monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
     with cluster.ray_session(None):
         node = ray.get_runtime_context().get_node_id()
         with cluster.ray_session(None):
