@@ -19,19 +19,23 @@ MIN_LOCAL_CPUS = 2
 """A trial asks for 2 CPUs (1 for its own process, 0.5 per env runner); a 1-core machine still runs it."""
 
 
+CLIENT_SCHEME = "ray://"
+"""Ray Client's scheme: the driver's work runs on the cluster's head, and only what it returns comes back here."""
+
+
 class ClusterError(SmorphiError):
     """The Ray cluster named by --address cannot be reached."""
 
 
 def _host_port(address: str) -> tuple[str, int] | None:
-    """(host, port) of a `host:port` or `ray://host:port` address; None for `auto` and other schemes."""
+    """(host, port) of a `host:port` or `ray://host:port` address; None for `auto`. Any other scheme (http://,
+    grpc://) is refused: Ray would take it for a job server or fail inside its client."""
     if address == "auto":
         return None
-    if address.startswith("ray://"):
-        address = address.removeprefix("ray://")
-    elif "://" in address:
-        return None
+    address = address.removeprefix(CLIENT_SCHEME)
     host, sep, port = address.rpartition(":")
+    if "://" in host:
+        sep = ""  # another scheme: refused below
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ClusterError(f"--address must be HOST:PORT, 'auto' or ray://HOST:PORT, got '{address}'")
     return host, int(port)
@@ -56,17 +60,26 @@ def auto_address() -> str | None:
         return None
 
 
-def check_reachable(address: str | None) -> None:
+def check_reachable(address: str | None, client: bool = True) -> None:
     """Fail fast, before Ray starts (and before any optimum is computed), when the cluster an address names does
-    not answer; `auto` is resolved first (`auto_address`)."""
+    not answer; `auto` is resolved first (`auto_address`). `client` False (the training jobs) refuses Ray Client:
+    under `ray://` Tune runs the whole experiment on the head, so no result, progress or stop request reaches this
+    process, and its files are written on the head's disk."""
     if address is None:
         return
+    given = address
     if address == "auto":
         resolved = auto_address()
         if resolved is None:
             raise ClusterError("--address auto: no Ray cluster started on this machine (RAY_ADDRESS is unset and "
                                "`ray start --head` has left no address); start one or give HOST:PORT")  # fmt: skip
         address = resolved
+    if not client and address.startswith(CLIENT_SCHEME):
+        said = given if given == address else f"{given} ({address})"
+        raise ClusterError(f"--address {said}: training runs Tune from this process, and under Ray Client (ray://) "
+                           "Tune would run on the cluster's head with its results there: give the cluster's "
+                           "HOST:PORT (the GCS port `ray start --head --port` printed) from a machine of the "
+                           "cluster")  # fmt: skip
     target = _host_port(address)
     if target is None:
         return

@@ -341,7 +341,7 @@ def train(
     callbacks, pretrained = None, None
     if cfg.pretrained is not None:  # a bad checkpoint fails here, before Ray starts
         pretrained, callbacks = fine_tune_from(cfg.pretrained, cfg.env.to_dict())
-    cluster.check_reachable(address)
+    cluster.check_reachable(address, client=False)
     if address is None:
         cluster.check_capacity(cfg.cpus, cfg.env_runners, address)  # a local Ray's size is known before it starts
     out = out or sys.stderr

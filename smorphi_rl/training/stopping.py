@@ -3,8 +3,8 @@ policy chosen, evaluated and checkpointed. Ray Tune's own handler stops the tria
 the policy the summary names is saved. A second signal stops the run at once.
 
 The driver asks by creating a named Ray actor (from a watcher thread: a signal handler only flips state); the trial
-looks the name up after every iteration (`stop_requested`), wherever on a `HOST:PORT` cluster it runs. Under Ray
-Client (`ray://`) Tune runs the experiment remotely, no result reaches this process, and a first Ctrl-C stops at once.
+looks the name up after every iteration (`stop_requested`), wherever on a `HOST:PORT` cluster it runs (the training
+jobs refuse Ray Client, `ray://`, under which Tune would run the experiment on the head).
 """
 
 from __future__ import annotations

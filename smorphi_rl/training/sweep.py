@@ -303,7 +303,7 @@ def run_sweep(
             key, said = complaint(str(exc), sweep.env, f"maps[{i}]")
             raise SweepConfigError(f"{sweep.path}: key '{key}': {said}") from None
         digests[map_set_label(maps)] = map_digests(base)  # every evaluated map too, before any optimum
-    cluster.check_reachable(address)
+    cluster.check_reachable(address, client=False)
     layouts = [sweep.base_config(algo, sweep.map_sets[0], 0, {}) for algo in sweep.algorithms]
     widest = max(layouts, key=lambda cfg: cfg.cpus)  # a trial Ray cannot place would wait forever
     if address is None:

@@ -177,7 +177,7 @@ def run_transfer(
             earlier = finished_run(job_dir / run_name, run_cfg)
             if earlier is not None:
                 finished[run_name] = transfer_run(map_name, seed, mode, job_dir / run_name, earlier, reused=True)
-    cluster.check_reachable(address)  # no cluster there: one line, no folder
+    cluster.check_reachable(address, client=False)  # no cluster there: one line, no folder
     if address is None:  # a layout this machine cannot place: one line, no folder (a cluster's is checked attached)
         cluster.check_capacity(configs[0].cpus, configs[0].env_runners, None)
     if job_dir is None:
