@@ -275,16 +275,16 @@ def _train_trainable(
 
 
 def _fit(
-    cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, out: Any, label: str | None,
+    cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, progress: _Progress,
     stopper: GracefulStop | None = None,
-) -> Any:  # fmt: skip
-    """The Tune run itself (a local Ray or a cluster is already up): the progress kept and the wall time; a failed
-    trial raises TrainingError in one line. With `stopper`, a first Ctrl-C ends the run as its budget's end would."""
+) -> float:  # fmt: skip
+    """The Tune run itself (a local Ray or a cluster is already up), its results shown and kept by `progress`: the
+    wall time; a failed trial raises TrainingError in one line. With `stopper`, a first Ctrl-C ends the run as its
+    budget's end would."""
     from ray import tune
 
     from smorphi_rl.training.tensorboard import TensorBoardLogger
 
-    progress = _Progress(cfg, out, label)
     stop_name = None if stopper is None else stopper.name
     trainable = tune.with_resources(
         tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir, stop_name=stop_name),
@@ -310,13 +310,16 @@ def _fit(
     progress.finish()
     if failed:
         raise TrainingError(failed.line)
-    return progress, wall
+    return wall
 
 
-def reported_any(run_dir: Path, algo: str) -> bool:
-    """Whether a trial of the run reported a result or wrote a checkpoint: a run that failed or stopped before its
-    first iteration (its trial folder made, its result file empty, no checkpoint) holds nothing worth keeping. On a
-    full disk the result file can stay empty while checkpoints are whole: those are kept."""
+def reported_any(run_dir: Path, algo: str, progress: _Progress | None = None) -> bool:
+    """Whether a trial of the run reported a result (to `progress`, or in its result file) or wrote a checkpoint: a
+    run that failed or stopped before its first iteration holds nothing worth keeping. Tune stages a trial's result
+    file away from the run's folder and copies it there every few seconds, so `progress` knows of a report first. On
+    a full disk the result file can stay empty while checkpoints are whole: those are kept."""
+    if progress is not None and progress.curve["env_steps"]:
+        return True
     trials = list(run_dir.glob(f"{algo}-*"))
     rows = any((t / "result.json").is_file() and (t / "result.json").stat().st_size > 0 for t in trials)
     return rows or any(checkpoints_under(t) for t in trials)
@@ -345,6 +348,7 @@ def train(
     if address is None:
         cluster.check_capacity(cfg.cpus, cfg.env_runners, address)  # a local Ray's size is known before it starts
     out = out or sys.stderr
+    progress = _Progress(cfg, out, label)
     run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
     try:
         optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
@@ -355,17 +359,17 @@ def train(
             config = cfg.to_dict() | {"name": name, "address": address}
             write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
             stopper = GracefulStop(out) if graceful else None
-            progress, wall = _fit(cfg, name, run_dir, callbacks, out, label, stopper)
+            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper)
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException as exc:
-        if not reported_any(run_dir, cfg.algo):
+        if not reported_any(run_dir, cfg.algo, progress):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
         elif isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):  # a second Ctrl-C: at once
-            raise Interrupted(f"stopped at once; {rel(run_dir)} keeps the checkpoints and logs written so far, but "
-                              "no tables or summary.json") from None  # fmt: skip
+            raise Interrupted(f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any "
+                              "checkpoint), but no tables or summary.json") from None  # fmt: skip
         raise
-    if not reported_any(run_dir, cfg.algo):  # stopped (Ctrl-C, SIGTERM) before its first report: nothing to keep
+    if not reported_any(run_dir, cfg.algo, progress):  # stopped (Ctrl-C, SIGTERM) before its first report
         discard_run_dir(run_dir)
         raise KeyboardInterrupt
     files = write_outputs(run_dir, cfg, progress, optima)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 from pathlib import Path
 
@@ -324,16 +325,24 @@ def test_train_fine_tunes_a_policy_in_the_env_it_was_trained_in():
     assert plain.observation == "picture" and plain.moves == (1,) and algo == "appo"
 
 
-def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_path, monkeypatch, capsys):
-    """A second Ctrl-C ends `train` at once, before its tables and summary: it printed only 'interrupted'."""
+@pytest.mark.parametrize("staged", [False, True])
+def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_path, monkeypatch, capsys, staged):
+    """A second Ctrl-C ends `train` at once, before its tables and summary: it printed only 'interrupted'. Tune
+    stages a trial's result file elsewhere and copies it into the run's folder every few seconds: a run stopped
+    between its first report and that copy (`staged`) lost its whole folder, recordings included."""
     from contextlib import nullcontext
 
     from smorphi_rl.training import run as run_module
+    from smorphi_rl.training.result_keys import STEPS
 
-    def fit(cfg, name, run_dir, callbacks, out, label, stopper):
+    def fit(cfg, name, run_dir, callbacks, progress, stopper):
         trial = run_dir / f"{cfg.algo}-trial_00000"
         trial.mkdir()
-        (trial / "result.json").write_text("{}\n")  # it reported once
+        progress.status.out = io.StringIO()  # its progress line aside: the test reads stderr's last line
+        progress.on_result({STEPS: 2_000})  # it reported once, to the driver
+        (trial / "episode.mcap").write_bytes(b"recorded")
+        if not staged:
+            (trial / "result.json").write_text("{}\n")
         raise KeyboardInterrupt
 
     monkeypatch.setattr(run_module, "training_optima", lambda cfg, log_dir, out: {})
@@ -341,9 +350,10 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
     monkeypatch.setattr(run_module, "_fit", fit)
     code, err = run(capsys, "train", "--log-dir", str(tmp_path / "logs"), "--name", "cut", "--eval-every", "0")
     assert code == 130
-    kept = f"{tmp_path / 'logs' / 'cut'} keeps the checkpoints and logs written so far, but no tables or summary.json"
+    kept = (f"{tmp_path / 'logs' / 'cut'} keeps what was written so far (episodes, logs, any checkpoint), but no "
+            "tables or summary.json")  # fmt: skip
     assert err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: stopped at once; {kept}"
-    assert (tmp_path / "logs" / "cut" / "ppo-trial_00000" / "result.json").is_file()
+    assert (tmp_path / "logs" / "cut" / "ppo-trial_00000" / "episode.mcap").is_file()
 
 
 def test_a_sweep_stopped_at_once_names_its_folder_and_the_resume(tmp_path, monkeypatch, capsys):
