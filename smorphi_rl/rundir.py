@@ -13,6 +13,7 @@ import errno
 import io
 import os
 import re
+import shlex
 import shutil
 import time
 from collections.abc import Iterator
@@ -43,6 +44,11 @@ def rel(path: str | Path) -> str:
         except (ValueError, OSError, RuntimeError):
             continue
     return str(path)
+
+
+def shell_path(path: str | Path) -> str:
+    """`rel(path)` as a command a hint prints takes it: quoted for the shell where it holds spaces or the like."""
+    return shlex.quote(rel(path))
 
 
 def check_run_name(name: str, what: str = "run name") -> str:

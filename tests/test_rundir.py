@@ -9,7 +9,15 @@ import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
-from smorphi_rl.rundir import MARKER, RunDirError, check_run_name, prepare_run_dir, safe_name, write_atomic
+from smorphi_rl.rundir import (
+    MARKER,
+    RunDirError,
+    check_run_name,
+    prepare_run_dir,
+    safe_name,
+    shell_path,
+    write_atomic,
+)
 from smorphi_rl.search.results import load as load_result
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -234,3 +242,13 @@ def test_a_discarded_run_removes_only_a_folder_it_made(tmp_path):
     made = prepare_run_dir(tmp_path, "new")
     discard_run_dir(made)
     assert not made.exists()
+
+
+def test_a_path_in_a_printed_command_is_quoted_for_the_shell(tmp_path, monkeypatch):
+    """`train --log-dir "my logs"` printed `tensorboard --logdir my logs/run`, which runs on the wrong folders."""
+    import shlex
+
+    monkeypatch.chdir(tmp_path)
+    assert shell_path(tmp_path / "logs" / "run") == "logs/run"
+    assert shlex.split(f"replay {shell_path(tmp_path / 'my logs' / 'rün')}") == ["replay", "my logs/rün"]
+    assert shell_path("/elsewhere/it's") == "'/elsewhere/it'\"'\"'s'"

@@ -26,7 +26,7 @@ from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
 from smorphi_rl.map_sources import map_files, resolve
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
-from smorphi_rl.rundir import rel
+from smorphi_rl.rundir import rel, shell_path
 
 GIF_MAX_FRAMES = 120
 MAX_EPISODES = 10_000
@@ -291,7 +291,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
                             args.plot)  # fmt: skip
         print(f"plot        {png}", file=sys.stderr if args.json else sys.stdout)  # --json: stdout is JSON lines
     if args.record is not None and not args.json:
-        print(f"recordings  {rel(Path(args.record))} (smorphi-rl replay {rel(Path(args.record))})")
+        print(f"recordings  {rel(Path(args.record))} (smorphi-rl replay {shell_path(args.record)})")
     return 0
 
 

@@ -35,7 +35,7 @@ from smorphi_rl.protocol import (
     optimum_cache,
 )
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, rel, write_text_atomic
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, rel, shell_path, write_text_atomic
 from smorphi_rl.score import degenerate_warning
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -233,8 +233,8 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                 out.write(f"exact optimum of {grid_map.name}: read from {rel(cache)} (a `search optimum` run's)\n")
             else:
                 out.write(f"exact optimum of {grid_map.name}: not computed ({grid_map.cells.size:,} cells, over "
-                          f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {rel(Path(path))} --log-dir "
-                          f"{rel(Path(log_dir))}` finds it for train); gaps are not reported\n")  # fmt: skip
+                          f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {shell_path(path)} --log-dir "
+                          f"{shell_path(log_dir)}` finds it for train); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = found or NO_OPTIMUM
             if found is None:
                 continue  # (`search optimum` warns when it finds it)
@@ -454,7 +454,7 @@ def format_summary(s: RunSummary) -> str:
     if "episodes" in s.files:
         n = sum(1 for p in s.files["episodes"].iterdir() if p.name.endswith(".mcap"))
         lines.append(f"episodes: {rel(s.files['episodes'])} ({n} MCAP recordings; "
-                     f"smorphi-rl replay {rel(s.files['episodes'])})")  # fmt: skip
+                     f"smorphi-rl replay {shell_path(s.files['episodes'])})")  # fmt: skip
     lines.append(f"logs: {rel(s.run_dir)}")
-    lines.append(f"tensorboard --logdir {rel(s.run_dir)}")
+    lines.append(f"tensorboard --logdir {shell_path(s.run_dir)}")
     return "\n".join(lines)

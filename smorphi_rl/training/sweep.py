@@ -31,6 +31,7 @@ from smorphi_rl.rundir import (
     claim_again,
     prepare_run_dir,
     refuse_links,
+    shell_path,
     write_atomic,
     write_text_atomic,
 )
@@ -452,5 +453,5 @@ def format_sweep_summary(s: SweepSummary, rel: Any = str) -> str:
         if key in s.files:
             lines.append(f"{label}: {rel(s.files[key])}")
     lines.append(f"trials: {rel(s.experiment_dir)}")
-    lines.append(f"tensorboard --logdir {rel(s.experiment_dir)}")
+    lines.append(f"tensorboard --logdir {shell_path(s.experiment_dir)}")
     return "\n".join(lines)
