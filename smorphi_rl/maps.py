@@ -70,6 +70,12 @@ READ_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".jpg", ".jpeg", ".bmp", ".tif", ".tiff"
 """The image files a map YAML may name (what map_saver writes and what nav2's image loader is used with)."""
 
 
+SPARSE_FRAME_CELLS = 250_000
+"""Frames larger than this (500 x 500 cells) whose known area is small get `Map.frame_warning`."""
+SPARSE_SHARE = 0.25
+"""A known area under this share of such a frame is warned of."""
+
+
 @dataclass(frozen=True, eq=False)
 class Map:
     """An occupancy grid: `cells[row, col]` holds a `Cell` value, row 0 at the lowest y."""
@@ -125,6 +131,19 @@ class Map:
         holds, which is mostly unknown space around it (a map always has a free cell, so the box is never empty)."""
         rows, cols = np.nonzero(self.cells != Cell.UNKNOWN)
         return int(rows.min()), int(rows.max()) + 1, int(cols.min()), int(cols.max()) + 1
+
+    def frame_warning(self) -> str | None:
+        """A warning when the known area fills under SPARSE_SHARE of a frame of over SPARSE_FRAME_CELLS cells: the
+        planner works on the whole frame, so every plan (and an exact search above all) costs what the frame does."""
+        r0, r1, c0, c1 = self.known_box()
+        known = (r1 - r0) * (c1 - c0)
+        if self.cells.size <= SPARSE_FRAME_CELLS or known >= SPARSE_SHARE * self.cells.size:
+            return None
+        share = 100 * known / self.cells.size
+        return (f"warning: {self.name}: its known area ({c1 - c0} x {r1 - r0} cells) is {share:.1f} % of its "
+                f"{self.width} x {self.height} frame, and the planner works on the whole frame: `smorphi-rl maps crop` "
+                "cuts it to the known area and plans many times faster (under the paper planner the tiles then start "
+                "at the crop's corner, so scores move a little)")  # fmt: skip
 
     def known_sides_m(self) -> tuple[float, float]:
         """(height, width) of `known_box` in metres."""

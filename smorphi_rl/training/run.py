@@ -225,8 +225,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
         weights = cfg.env.weights_on(grid_map)
         start = cfg.env.planning.start_warning(grid_map)  # separate rooms: every shape covers the start's alone
-        if start:
-            out.write(start + "\n")
+        for line in (grid_map.frame_warning(), start):
+            if line:
+                out.write(line + "\n")
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
             found = cached_optimum(grid_map, weights, cfg.env.planning, cache)
             if found is not None:
