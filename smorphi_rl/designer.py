@@ -20,7 +20,7 @@ from smorphi_rl.errors import MapError, SmorphiError
 from smorphi_rl.floorplans import DEFAULT_RANGE
 from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.map_sources import is_generator
-from smorphi_rl.maps import Cell, Map, load_map
+from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
 from smorphi_rl.policy_file import PolicyFile, layout_problem, read_policy
 
@@ -169,6 +169,8 @@ def designer_env(designer: Designer, map_path: str, start_xy: tuple[float, float
         raise SmorphiError(f"{designer.path}: a designer sees the 'floor' observation; this policy was trained on "
                            f"'{designer.env_config.observation}' (evaluate it with evaluate-policy)")  # fmt: skip
     grid_map = load_map(map_path)
+    whole = designer.env_config.planner == "fit"
+    check_fits(grid_map, designer.env_config.block_side_m, whole_footprint=whole)  # said of the map, not the env
     accepts(designer, grid_map)
     config = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [map_path]}).maps, reward="paper")
     config = config if start_xy is None else replace(config, start_xy=start_xy)

@@ -109,6 +109,12 @@ def read_policy(path: str | Path) -> PolicyFile:
     """The policy in folder `path`, checked: its description names our format and version, its weights are
     finite float arrays (nothing in either file can run code)."""
     folder = Path(path)
+    if not folder.exists():
+        raise PolicyFileError(f"{folder}: not found (give an exported policy's folder)")
+    if folder.is_file():
+        ours = folder.name in (POLICY_JSON, WEIGHTS_NPZ)
+        inside = f"; give the folder that holds it, {folder.parent}" if ours else ""
+        raise PolicyFileError(f"{folder}: a file, not a policy's folder ({POLICY_JSON} and {WEIGHTS_NPZ}){inside}")
     if not is_policy_dir(folder):
         levels = ("", "*/", "*/*/")  # a checkpoint, a trial, a run: not a walk of whatever folder was given
         trained = folder.is_dir() and any(next(folder.glob(f"{k}rllib_checkpoint.json"), None) for k in levels)

@@ -22,6 +22,7 @@ from smorphi_rl.policy_file import SHIPPED_DESIGNER
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
 from smorphi_rl.score import degenerate_warning
+from smorphi_rl.words import counted
 
 
 def register(sub: Any) -> None:
@@ -74,6 +75,27 @@ def cmd_design(args: argparse.Namespace) -> int:
     }  # fmt: skip
     if start is not None:
         record["start_xy"] = list(start)
+    unfamiliar = unfamiliar_warning(designer, env.grid_map)  # after the design: a floor it refuses says one line
+    warnings = (
+        unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"),
+        env.config.planning.start_warning(env.grid_map, best.coverage_free_pct)
+        or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
+    )
+    for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
+        print(one_line(warning), file=sys.stderr)
+    grid_map, about = env.grid_map, clipped(designer.summary, 200)  # what a policy.json says of itself
+    walked = result.evaluations - result.refined
+    lines = [
+        ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
+        ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
+        ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
+                   f"({record['weights']}; planner {record['planner']})"),
+        ("cost", f"{counted(result.evaluations, 'planner evaluation')} of {args.budget:,} "
+                 f"({counted(result.planner_calls, 'footprint')} planned): {counted(result.rollouts, 'roll-out')} of "
+                 f"the policy ({counted(walked, 'shape')}), {counted(result.refined, 'shape')} of compass search"),
+    ]  # fmt: skip
+    if not args.json:  # the design before --exact's search: a stop during that search keeps it on the screen
+        _print(lines)
     if args.exact:
         from smorphi_rl.progress import optimum_progress
         from smorphi_rl.protocol import exact_optimum
@@ -83,40 +105,27 @@ def cmd_design(args: argparse.Namespace) -> int:
         gap = opt.R1 - best.R1
         record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,
                            "gap_pct": 100 * gap / abs(opt.R1) if opt.R1 else float("nan")}  # fmt: skip
+        pct = record["exact"]["gap_pct"]
+        said = ("the design ties the 1-degree optimum" if gap <= 0 else
+                f"the design is {gap:.2f} R1 ({pct:.2f} %) below the 1-degree optimum")  # fmt: skip
+        lines = [("exact", f"{angles_text(opt.theta)}  R1 {opt.R1:.2f}: {said}")]
+    else:
+        lines = []
     if plot is not None:
         from smorphi_rl.geometry import Morphology
         from smorphi_rl.plots import plot_coverage
 
         record["plot"] = str(plot_coverage(env.plan(best.theta), env.grid_map, Morphology.of(best.theta),
                                            env.config.block_side_m, plot))  # fmt: skip
+        lines.append(("plot", rel(Path(record["plot"]))))
     record["wall_s"] = round(time.perf_counter() - t0, 3)
-    unfamiliar = unfamiliar_warning(designer, env.grid_map)  # after the design: a floor it refuses says one line
-    warnings = (
-        unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"),
-        env.config.planning.start_warning(env.grid_map, best.coverage_free_pct)
-        or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
-    )
-    for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
-        print(one_line(warning), file=sys.stderr)
     if args.json:
         print(jsontext.dumps(record))
         return 0
-    grid_map, about = env.grid_map, clipped(designer.summary, 200)  # what a policy.json says of itself
-    lines = [
-        ("map", f"{grid_map.name} ({grid_map.width} x {grid_map.height} cells at {grid_map.resolution_m:g} m)"),
-        ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
-        ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
-                   f"({record['weights']}; planner {record['planner']})"),
-        ("cost", f"{result.evaluations:,} planner evaluations of {args.budget:,} ({result.planner_calls:,} footprints "
-                 f"planned): {result.rollouts} roll-out{'s' * (result.rollouts != 1)} of the policy, {result.refined} "
-                 "shapes of compass search"),
-    ]  # fmt: skip
-    if "exact" in record:
-        ex = record["exact"]
-        lines.append(("exact", f"{angles_text(ex['theta'])}  R1 {ex['R1']:.2f}: the design is {ex['gap']:.2f} R1 "
-                               f"({ex['gap_pct']:.2f} %) below the 1-degree optimum"))  # fmt: skip
-    if "plot" in record:
-        lines.append(("plot", rel(Path(record["plot"]))))
-    lines.append(("time", f"{record['wall_s']:.2f} s"))
-    print("\n".join(one_line(f"{k:<7} {v}") for k, v in lines))  # a policy's text never drives the terminal
+    _print([*lines, ("time", f"{record['wall_s']:.2f} s")])
     return 0
+
+
+def _print(lines: list[tuple[str, str]]) -> None:
+    """Labelled lines, each kept to one line (a policy's text never drives the terminal), at once."""
+    print("\n".join(one_line(f"{k:<7} {v}") for k, v in lines), flush=True)

@@ -117,6 +117,9 @@ def test_design_loads_without_torch_or_ray(policy):
     (["--plot", str(FLOOR / "x.png")], "is not a folder this process can write into"),
     (["--map", "/no/map.yaml"], "map file not found"),
     (["--start-xy", "100", "1"], "--start-xy: map mixed-0900002: point (100.0, 1.0) m lies"),
+    (["--policy", "/no/policy"], "/no/policy: not found (give an exported policy's folder)"),
+    (["--policy", str(ROOT / "smorphi_rl" / "policies" / "designer" / "policy.json")],
+     "policy.json: a file, not a policy's folder (policy.json and weights.npz); give the folder that holds it"),
 ])  # fmt: skip
 def test_bad_design_input_is_one_line(policy, capsys, tmp_path, monkeypatch, argv, message):
     monkeypatch.chdir(tmp_path)  # the relative --plot, or any default folder, would be written here
@@ -321,3 +324,42 @@ def test_a_designer_records_the_sides_of_the_floors_it_was_trained_on(tmp_path, 
     meta_file.write_text(json.dumps(meta | {TRAINED_SIDES_KEY: [15, 3]}))
     code, out, err = run(capsys, "design", "--policy", str(on_file.path), "--map", str(FLOOR), "--budget", "5")
     assert code == 1 and not out and err.count("\n") == 1 and f"'{TRAINED_SIDES_KEY}' must be" in err
+
+
+def test_design_prints_its_shape_before_the_exact_search_and_names_a_tie(capsys, tmp_path, monkeypatch):
+    """A stop during --exact's search (minutes on a large floor) printed nothing, though the design had taken 0.3 s;
+    a design as good as the optimum read 'the design is 0.00 R1 (0.00 %) below the 1-degree optimum'."""
+    from smorphi_rl import protocol
+
+    argv = ["design", "--map", str(FLOOR), "--exact", "--log-dir", str(tmp_path)]
+
+    def stopped(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(protocol, "exact_optimum", stopped)
+    assert main(argv) == 130
+    printed = capsys.readouterr().out
+    assert printed.startswith("map ") and "\ndesign  (" in printed and "\ncost " in printed and "exact" not in printed
+    design = json.loads(_json(capsys, [*argv[:-3], "--json"]))
+
+    def tied(*args, **kwargs):
+        return protocol.Optimum(tuple(design["theta"]), design["R1"], design["P_c"], design["P_len"])
+
+    monkeypatch.setattr(protocol, "exact_optimum", tied)
+    assert main(argv) == 0
+    assert "the design ties the 1-degree optimum" in capsys.readouterr().out
+
+
+def _json(capsys, argv: list[str]) -> str:
+    assert main(argv) == 0
+    return capsys.readouterr().out
+
+
+def test_a_floor_narrower_than_a_block_is_named_as_the_map(capsys, tmp_path):
+    """It read "env_config 'maps': map tiny (3 x 3 cells of 0.05 m) is narrower...": the env's words, not design's."""
+    from smorphi_rl.maps import Cell, Map, save_map
+
+    save_map(Map(np.full((3, 3), Cell.FREE, dtype=np.uint8), 0.05, (0.0, 0.0, 0.0), "tiny"), tmp_path / "tiny.yaml")
+    code, _, err = run(capsys, "design", "--map", str(tmp_path / "tiny.yaml"))
+    assert code == 1 and "map tiny (3 x 3 cells of 0.05 m) is narrower than one block" in err
+    assert "env_config" not in err
