@@ -497,3 +497,28 @@ def test_a_long_recorded_value_is_shown_shortened_with_its_length(tmp_path, caps
     assert max(len(line) for line in out.splitlines()) < 200, out
     assert main(["replay", str(tmp_path)]) == 0
     assert max(len(line) for line in capsys.readouterr().out.splitlines()) < 250
+
+
+def test_a_recording_says_whether_its_episode_ran_to_its_end(tmp_path, capsys):
+    """A run's last episodes end when its env closes: finished files whose steps replayed like a whole episode's;
+    and a finished file that lost only its index read "the rest of the episode was lost", though no step was."""
+    env = recorded_env(tmp_path, max_steps=40)
+    play(env, 3, np.random.default_rng(0))  # a whole episode
+    play(env, 4, np.random.default_rng(1), steps=12)  # then the run ends mid-episode
+    env.close()
+    whole, closed = sorted(episode_files(tmp_path / "episodes"), key=lambda f: len(read_episode(f).steps))[::-1]
+    assert read_episode(whole).ended and read_episode(whole).cut_short is None
+    assert read_episode(closed).cut_short == "cut short: the env was closed" and not read_episode(closed).truncated
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    listing = capsys.readouterr().out.splitlines()
+    assert sum(line.endswith("(cut short: the env was closed)") for line in listing) == 1
+    assert main(["replay", str(closed)]) == 0
+    assert "ended      cut short: the env was closed" in capsys.readouterr().out
+
+    indexless = tmp_path / "indexless.mcap"
+    data = whole.read_bytes()
+    indexless.write_bytes(data[: len(data) - 40])  # the footer and magic gone, every chunk whole
+    ep = read_episode(indexless)
+    assert ep.truncated and ep.ended and ep.cut_short is None and len(ep.steps) == 41
+    assert main(["replay", str(indexless)]) == 0
+    assert "40 steps from a file cut short (every step of the episode is here)" in capsys.readouterr().out

@@ -143,7 +143,7 @@ def _replay_listing(directory: Path) -> int:
             continue
         b = ep.best
         assert b is not None
-        flag = " (cut short)" if ep.truncated else ""
+        flag = f" ({ep.cut_short})" if ep.cut_short else ""
         rows.append((f.name, clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16),
                      f"{len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  "
                      f"{b['P_len']:>5}{flag}"))  # fmt: skip
@@ -192,7 +192,10 @@ def cmd_replay(args: argparse.Namespace) -> int:
         ("return", f"{ep.episode_return:,.1f}"),
     ]
     if ep.truncated:
-        rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short (the rest of the episode was lost)"))
+        lost = "every step of the episode is here" if ep.ended else "the rest of the episode was lost"
+        rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short ({lost})"))
+    if ep.cut_short and ep.logs and ep.cut_short == ep.logs[-1]:  # the env's note: the run ended mid-episode
+        rows.append(("ended", ep.cut_short))
     print("\n".join(one_line(f"{k:<10} {v}") for k, v in rows))  # a recording's text never drives the terminal
     if args.steps:
         print(f"\n{'step':>5}  {'theta':<18} {'action':<9} {'reward':>8} {'R1':>7} {'P_c %':>7} {'P_len':>5}  feasible")

@@ -22,6 +22,9 @@ FRAME = "map"
 STEP_PERIOD_NS = 100_000_000
 """Steps are 0.1 s apart on a recording's clock, so Foxglove plays an episode at 10 steps a second."""
 METADATA_NAME = "smorphi_rl"
+LOG_ENDED, LOG_CUT = "episode end after", "cut short"
+"""How the last /log line of an episode begins: it ran to its end (terminated, or its step limit), or the env was
+reset or closed before (a run that ended mid-episode)."""
 SUFFIX, PART_SUFFIX = ".mcap", ".mcap.part"
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 SCHEMA_DIR = Path(__file__).resolve().parents[1] / "schemas"

@@ -19,6 +19,8 @@ from smorphi_rl.errors import SmorphiError
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import MAX_ORIGIN_M, MAX_RESOLUTION_M, MIN_RESOLUTION_M, Cell, Map
 from smorphi_rl.recording.messages import (
+    LOG_CUT,
+    LOG_ENDED,
     MAX_MOVE,
     MCAP_MAGIC,
     METADATA_NAME,
@@ -47,6 +49,20 @@ class Episode:
     grid: dict[str, Any] | None
     logs: list[str]
     truncated: bool
+
+    @property
+    def ended(self) -> bool:
+        """Whether the episode ran to its end, as its last log line says (a file cut short after it lost its index
+        only)."""
+        return bool(self.logs) and self.logs[-1].startswith(LOG_ENDED)
+
+    @property
+    def cut_short(self) -> str | None:
+        """Why the recording stops before its episode's end: the env was reset or closed mid-episode (a run that
+        ended), or the file was cut short; None when the episode ran to its end."""
+        if self.logs and self.logs[-1].startswith(LOG_CUT):
+            return self.logs[-1]
+        return None if self.ended or not self.truncated else "file cut short"
 
     @property
     def best(self) -> dict[str, Any] | None:

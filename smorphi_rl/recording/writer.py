@@ -18,6 +18,8 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.recording.messages import (
     JSON_SEPARATORS,
+    LOG_CUT,
+    LOG_ENDED,
     METADATA_NAME,
     PART_SUFFIX,
     PATH_CACHE_SIZE,
@@ -172,7 +174,7 @@ class RecordingWrapper(gym.Wrapper):
         return self.env.unwrapped  # type: ignore[return-value]
 
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
-        self._end("cut short by a reset")
+        self._end(f"{LOG_CUT} by a reset")
         obs, info = self.env.reset(seed=seed, options=options)
         episode = self.episodes
         self.episodes += 1
@@ -187,13 +189,13 @@ class RecordingWrapper(gym.Wrapper):
             self._step += 1
             self._write_step(step_record(self._step, info, action, reward))
             if terminated or truncated:
-                best = f"({', '.join(f'{t:g}' for t in info['best_theta'])}) R1 {info['best_R1']:.2f}"
-                self._end(f"episode end after {self._step} steps ({'terminated' if terminated else 'truncated'}); "
+                best = f"{angles_text(info['best_theta'])} R1 {info['best_R1']:.2f}"
+                self._end(f"{LOG_ENDED} {self._step} steps ({'terminated' if terminated else 'truncated'}); "
                           f"best {best}")  # fmt: skip
         return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
-        self._end("cut short: the env was closed")
+        self._end(f"{LOG_CUT}: the env was closed")
         super().close()
 
     def _start(self, episode: int, seed: int | None, info: dict[str, Any]) -> None:
