@@ -215,6 +215,13 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert main(["replay", str(tmp_path / "episodes")]) == 0
     listing = capsys.readouterr().out
     assert first.name in listing and second.name in listing and "2 recordings" in listing
+    (tmp_path / "episodes" / "sub").mkdir()  # one in a subfolder is named with it; one unreadable is counted apart
+    shutil.copyfile(second, tmp_path / "episodes" / "sub" / second.name)
+    (tmp_path / "episodes" / "junk.mcap").write_bytes(b"not an mcap")
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    listing = capsys.readouterr().out.splitlines()
+    assert any(line.startswith(f"sub/{second.name} ") for line in listing)
+    assert listing[-1] == f"4 recordings in {tmp_path / 'episodes'} (1 unreadable)"
 
 
 def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys, monkeypatch):

@@ -27,6 +27,7 @@ from smorphi_rl.map_sources import map_files, resolve
 from smorphi_rl.maps import load_map, map_inputs
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.rundir import rel, shell_path
+from smorphi_rl.words import counted
 
 GIF_MAX_FRAMES = 120
 MAX_EPISODES = 10_000
@@ -120,6 +121,11 @@ LISTING_PROGRESS_FROM = 200
 """`replay DIR` shows its reading's progress past this many recordings (about 10 ms each)."""
 
 
+def _listed(file: Path, directory: Path) -> str:
+    """A recording's name in `replay DIR`'s listing: its path below DIR (one in a subfolder is named with it)."""
+    return str(file.relative_to(directory))
+
+
 def _replay_listing(directory: Path) -> int:
     """`replay DIR`: every recording under DIR with its best step, one line each."""
     from smorphi_rl.recording import RecordingError, episode_files, read_episode
@@ -144,22 +150,23 @@ def _replay_listing(directory: Path) -> int:
         b = ep.best
         assert b is not None
         flag = f" ({ep.cut_short})" if ep.cut_short else ""
-        rows.append((f.name, clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16),
+        rows.append((_listed(f, directory), clipped(b["map"], 40), clipped(ep.metadata.get("algorithm", "-"), 16),
                      f"{len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  "
                      f"{b['P_len']:>5}{flag}"))  # fmt: skip
     cells = [r for r in rows if isinstance(r, tuple)]
-    wide = [max(len("episode"), *(len(f.name) for f in files))]  # every file's name, an unreadable one's too
+    wide = [max(len("episode"), *(len(_listed(f, directory)) for f in files))]  # an unreadable one's name too
     wide += [max([len(head), *(len(r[i]) for r in cells)]) for i, head in ((1, "map"), (2, "algo"))]
     print(f"{'episode':<{wide[0]}} {'map':<{wide[1]}} {'algo':<{wide[2]}} {'steps':>5}  {'best R1':>7}  best "
           "morphology     P_c %  P_len")  # fmt: skip
     for f, row in zip(files, rows, strict=True):
         text = (
-            f"{f.name:<{wide[0]}} {row}"
+            f"{_listed(f, directory):<{wide[0]}} {row}"
             if isinstance(row, str)
             else " ".join([*(cell.ljust(w) for cell, w in zip(row[:3], wide, strict=True)), row[3]])
         )
         print(one_line(text))
-    print(f"{len(files)} recordings in {rel(directory)}")
+    bad = f" ({unreadable:,} unreadable)" if unreadable else ""
+    print(f"{counted(len(files), 'recording')} in {rel(directory)}{bad}")
     if unreadable == len(files):
         raise SmorphiError(f"{directory}: none of its {len(files)} *.mcap files is a readable recording")
     return 0
@@ -231,7 +238,7 @@ def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
         changed = ep.changed_steps(GIF_MAX_FRAMES)
         out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], gif,
                              progress=progress_line("gif: frames drawn"))  # fmt: skip
-        print(f"gif        {rel(out)} ({len(changed)} frames)")
+        print(f"gif        {rel(out)} ({counted(len(changed), 'frame')})")
 
 
 def cmd_evaluate_policy(args: argparse.Namespace) -> int:
