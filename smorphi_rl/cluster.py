@@ -36,6 +36,8 @@ def _host_port(address: str) -> tuple[str, int] | None:
     host, sep, port = address.rpartition(":")
     if "://" in host:
         sep = ""  # another scheme: refused below
+    if host.startswith("[") and host.endswith("]"):  # an IPv6 literal, [::1]:6379
+        host = host[1:-1]
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
         raise ClusterError(f"--address must be HOST:PORT, 'auto' or ray://HOST:PORT, got '{address}'")
     return host, int(port)
@@ -46,18 +48,28 @@ RAY_CURRENT_CLUSTER = "ray_current_cluster"
 `--address auto` attaches to (Ray 2.60), unless RAY_ADDRESS names one."""
 
 
+def _recorded_path() -> str:
+    return os.path.join(os.environ.get("RAY_TMPDIR", "/tmp/ray"), RAY_CURRENT_CLUSTER)
+
+
 def auto_address() -> str | None:
     """What `--address auto` attaches to: RAY_ADDRESS, else the address the latest `ray start` on this machine
     recorded; None when neither exists. (Ray itself would also attach to any Ray running here, such as another
     run's private local Ray, and fail inside it: not a cluster to share.)"""
     if os.environ.get("RAY_ADDRESS", "").strip() not in ("", "auto"):
         return os.environ["RAY_ADDRESS"].strip()
-    recorded = os.path.join(os.environ.get("RAY_TMPDIR", "/tmp/ray"), RAY_CURRENT_CLUSTER)
     try:
-        with open(recorded) as fh:
+        with open(_recorded_path()) as fh:
             return fh.read().strip() or None
     except OSError:
         return None
+
+
+def auto_source() -> str:
+    """Where `auto_address` found its address, as a message names it."""
+    if os.environ.get("RAY_ADDRESS", "").strip() not in ("", "auto"):
+        return "RAY_ADDRESS"
+    return f"{_recorded_path()} (left by the latest `ray start` here)"
 
 
 def check_reachable(address: str | None, client: bool = True) -> None:
@@ -83,13 +95,14 @@ def check_reachable(address: str | None, client: bool = True) -> None:
     target = _host_port(address)
     if target is None:
         return
+    found = "" if given == address else f", which --address auto found in {auto_source()}"
     try:
         with socket.create_connection(target, timeout=CONNECT_TIMEOUT_S) as sock:
             answers = _answers_grpc(sock) if not _tls() else True  # under TLS a plain preface is no question
     except OSError as exc:
         reason = exc.strerror or type(exc).__name__
         raise ClusterError(
-            f"cannot reach a Ray cluster at {address} ({reason}): start one there (`ray start --head "
+            f"cannot reach a Ray cluster at {address}{found} ({reason}): start one there (`ray start --head "
             "--port=PORT`), or leave --address out to run on a Ray of this machine's own"
         ) from None
     if not answers:  # Ray itself would retry for a minute and more, printing its C++ core's log lines

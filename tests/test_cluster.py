@@ -24,14 +24,28 @@ def test_auto_with_no_cluster_on_the_machine_is_refused(no_ray_here):
 
 def test_auto_follows_ray_address(no_ray_here, monkeypatch):
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
-    with pytest.raises(ClusterError, match=r"cannot reach a Ray cluster at 127\.0\.0\.1:1"):
+    with pytest.raises(
+        ClusterError,
+        match=r"cannot reach a Ray cluster at 127\.0\.0\.1:1, which --address auto found in RAY_ADDRESS \(",
+    ):
         check_reachable("auto")
 
 
 def test_auto_follows_the_address_ray_start_recorded(no_ray_here):
+    """The line named an address the user never typed without saying where it came from."""
     (no_ray_here / cluster.RAY_CURRENT_CLUSTER).write_text("127.0.0.1:1\n")
-    with pytest.raises(ClusterError, match=r"cannot reach a Ray cluster at 127\.0\.0\.1:1"):
+    with pytest.raises(
+        ClusterError,
+        match=r"127\.0\.0\.1:1, which --address auto found in .*ray_current_cluster \(left by the latest `ray start`",
+    ):
         check_reachable("auto")
+
+
+def test_an_ipv6_literal_is_tried_as_an_address_not_looked_up_as_a_name():
+    """`[::1]:PORT` read "Name or service not known": the brackets went to the resolver."""
+    with pytest.raises(ClusterError, match=r"cannot reach a Ray cluster at \[::1\]:1 \(") as refused:
+        check_reachable("[::1]:1")
+    assert "not known" not in str(refused.value)
 
 
 def test_a_port_where_something_else_listens_is_refused_in_one_line_not_retried(tmp_path, capsys):

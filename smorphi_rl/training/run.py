@@ -81,6 +81,8 @@ class RunSummary:
     ended_on_request: bool = False
     """Interrupted by a first Ctrl-C that ended it as its budget's end would (`stopping.py`): its last checkpoint
     holds the final policy."""
+    address: str | None = None
+    """The Ray cluster the run trained on (`--address`, `auto` resolved); None: a Ray of this machine's own."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -104,6 +106,7 @@ class RunSummary:
             "pretrained": None if self.pretrained is None else str(self.pretrained),
             "pretrained_in_runners": self.pretrained_in_runners,
             "files": {k: str(v) for k, v in self.files.items()},
+            "address": self.address,
         }
 
     def to_json(self) -> str:
@@ -326,6 +329,11 @@ def reported_any(run_dir: Path, algo: str, progress: _Progress | None = None) ->
     return rows or any(checkpoints_under(t) for t in trials)
 
 
+def nothing_kept(run_dir: Path) -> str:
+    """What a run stopped before its first report says: nothing of it was kept."""
+    return f"stopped before the run's first report: nothing was kept ({rel(run_dir)} was removed)"
+
+
 def train(
     cfg: TrainConfig,
     name: str | None = None,
@@ -366,13 +374,15 @@ def train(
     except BaseException as exc:
         if not reported_any(run_dir, cfg.algo, progress):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
+            if isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):
+                raise Interrupted(nothing_kept(run_dir)) from None
         elif isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):  # a second Ctrl-C: at once
             raise Interrupted(f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any "
                               "checkpoint), but no tables or summary.json") from None  # fmt: skip
         raise
     if not reported_any(run_dir, cfg.algo, progress):  # stopped (Ctrl-C, SIGTERM) before its first report
         discard_run_dir(run_dir)
-        raise KeyboardInterrupt
+        raise Interrupted(nothing_kept(run_dir))
     files = write_outputs(run_dir, cfg, progress, optima)
     steps = int(progress.curve["env_steps"][-1]) if progress.curve["env_steps"] else 0
     checkpoints = checkpoints_under(run_dir)
@@ -394,6 +404,7 @@ def train(
         map_digests=digests,
         budget=cfg.timesteps,
         ended_on_request=cut and stopper is not None and stopper.requested.is_set(),  # not a request at the end
+        address=cluster.auto_address() if address == "auto" else address,
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
@@ -408,7 +419,8 @@ def format_summary(s: RunSummary) -> str:
     iterations = f"{s.iterations} iteration{'' if s.iterations == 1 else 's'}"
     if s.budget is not None and s.env_steps > s.budget:  # whole iterations: the last one runs past the budget
         iterations += f", the last ending past the {s.budget:,} asked"
-    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} ({iterations})"]
+    lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} ({iterations})"
+             + (f" on the Ray cluster at {s.address}" if s.address else "")]  # fmt: skip
     if s.best is not None:
         b = s.best
         lines.append(f"best morphology: {b.angles} on {b.map}: P_c {b.P_c:.2f} %, P_len {b.P_len}, R1 {b.R1:.2f} "

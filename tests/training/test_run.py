@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import json
 from pathlib import Path
 
 import pytest
@@ -38,6 +39,15 @@ def test_the_summary_says_when_whole_iterations_ran_past_the_budget(steps, budge
     iterations = 1 if steps == 2000 else 50
     summary = RunSummary(Path("r"), "ppo", steps, iterations, 8.0, False, None, {}, None, {}, budget=budget)
     assert format_summary(summary).splitlines()[0] == f"PPO trained for {steps:,} env steps in 8s {said}"
+
+
+def test_the_summary_says_a_run_trained_on_a_cluster():
+    """`search` said "on the Ray cluster at ..."; `train` never did, though its results came from there."""
+    on = RunSummary(Path("r"), "ppo", 2000, 1, 8.0, False, None, {}, None, {}, address="127.0.0.1:6379")
+    assert format_summary(on).splitlines()[0].endswith("(1 iteration) on the Ray cluster at 127.0.0.1:6379")
+    assert json.loads(on.to_json())["address"] == "127.0.0.1:6379"
+    here = RunSummary(Path("r"), "ppo", 2000, 1, 8.0, False, None, {}, None, {})
+    assert "cluster" not in format_summary(here)
 
 
 def test_an_optimum_cache_that_cannot_be_made_is_named_before_any_optimum_line(tmp_path, monkeypatch):

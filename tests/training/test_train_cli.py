@@ -258,7 +258,8 @@ def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
     proc.send_signal(getattr(signal, signame))
     _, err = proc.communicate(timeout=180)
     assert "exact optimum" in first and proc.returncode == 130, (first, err)
-    assert err.strip().splitlines()[-1] == "smorphi-rl: interrupted" and "Traceback" not in err
+    nothing = f"smorphi-rl: interrupted: stopped before the run's first report: nothing was kept ({logs / name} was"
+    assert err.strip().splitlines()[-1] == f"{nothing} removed)" and "Traceback" not in err
     assert not (logs / name).exists()
 
 
@@ -282,7 +283,8 @@ def test_a_run_stopped_before_its_first_report_leaves_no_folder(cached_optimum):
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=180)
     assert not reported, "the first iteration finished before the signal"
-    assert proc.returncode == 130 and err.strip().splitlines()[-1] == "smorphi-rl: interrupted", err
+    nothing = f"stopped before the run's first report: nothing was kept ({logs / name} was removed)"
+    assert proc.returncode == 130 and err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: {nothing}", err
     assert not (logs / name).exists()
 
 
