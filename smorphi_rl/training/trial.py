@@ -14,6 +14,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import STAGING_PREFIX
 from smorphi_rl.training.config import (
@@ -44,6 +45,27 @@ def stop_reached(stop: dict[str, float], iteration: int, steps: int, elapsed_s: 
     return any(now[k] >= v for k, v in stop.items())
 
 
+class RunnersFailed(SmorphiError):
+    """No env runner could be started."""
+
+
+RUNNERS_FAILED = (
+    "no env runner started: each failed as it built its env (on a cluster: a map file missing on a node, or "
+    "smorphi-rl not installed there); each node's Ray worker logs (/tmp/ray/session_latest/logs) hold its error"
+)
+
+
+def no_runner_started(exc: IndexError) -> bool:
+    """Whether RLlib's IndexError is its reading of the spaces from the first env runner when none is alive: the
+    runners' own errors stay in their workers' logs, and the trial's line read "list index out of range"."""
+    frames = []
+    tb = exc.__traceback__
+    while tb is not None:
+        frames.append(tb.tb_frame.f_code.co_name)
+        tb = tb.tb_next
+    return bool(frames) and frames[-1] == "get_spaces"
+
+
 def run_trial(
     cfg: TrainConfig, callbacks: type | None = None, recording_dir: Path | None = None,
     resume_from: Path | None = None, stop: dict[str, float] | None = None, resumable: bool = False,
@@ -66,7 +88,12 @@ def run_trial(
     run_dir = recording_dir or trial_dir
     config = algorithm_config(cfg, callbacks, recording_settings(cfg, run_dir, run_dir.name))
     # The trial's own storage: an Algorithm built without one makes itself a folder under ~/ray_results
-    algo = config.algo_class(config=config, storage=tune.get_context().get_storage())
+    try:
+        algo = config.algo_class(config=config, storage=tune.get_context().get_storage())
+    except IndexError as exc:
+        if not no_runner_started(exc):
+            raise
+        raise RunnersFailed(RUNNERS_FAILED) from None
     elapsed = 0.0
     try:
         if resume_from is not None:

@@ -126,3 +126,28 @@ def test_a_staging_folder_a_stopped_trial_left_is_removed_when_the_run_ends(tmp_
     _, failed = fit(Tuner(), tmp_path)
     assert failed is None and not list(tmp_path.rglob(f"{STAGING_PREFIX}*"))
     assert (tmp_path / "ppo-1" / "checkpoint_000000").is_dir()  # the checkpoint itself stays
+
+
+def test_rllibs_error_when_no_env_runner_started_is_told_apart():
+    """A runner that fails as it builds its env dies in its worker's log; RLlib then reads the spaces from the first
+    of no runners, and the trial's line read "IndexError: list index out of range"."""
+    import inspect
+
+    from ray.rllib.env.env_runner_group import EnvRunnerGroup
+
+    from smorphi_rl.training.trial import no_runner_started
+
+    source = inspect.getsource(EnvRunnerGroup.get_spaces)  # RLlib indexes the runners' answers there
+    assert ")[0]" in source, "RLlib reads the spaces otherwise now: check `trial.no_runner_started`"
+
+    def get_spaces() -> None:
+        [][0]
+
+    def elsewhere() -> None:
+        [][0]
+
+    for fn, expected in ((get_spaces, True), (elsewhere, False)):
+        try:
+            fn()
+        except IndexError as exc:
+            assert no_runner_started(exc) is expected
