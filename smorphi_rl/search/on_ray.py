@@ -83,6 +83,22 @@ def ray_planners(
                 ray.kill(actor)
 
 
+@contextmanager
+def cluster_lost() -> Iterator[None]:
+    """A Ray call that fails because the cluster (or an actor's node) went away mid-search, said in one line: Ray's
+    own error is an actor's death, or a broken pipe to its core ("error: Broken pipe")."""
+    import ray
+
+    from smorphi_rl.cluster import ClusterError, ray_error_line
+
+    try:
+        yield
+    except (ray.exceptions.RayError, ConnectionError) as exc:
+        raise ClusterError(f"the Ray cluster stopped answering mid-search ({type(exc).__name__}: "
+                           f"{ray_error_line(exc)[:160]}); nothing of the search is kept: run it again once the "
+                           "cluster is up") from None  # fmt: skip
+
+
 class RayTasks:
     """Lattice tasks run by the actors, a few in flight each, as the local workers run them."""
 
@@ -104,13 +120,17 @@ class RayTasks:
 
         feed()
         while pending:
-            ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.1)
+            with cluster_lost():
+                ready, _ = ray.wait(list(pending), num_returns=1, timeout=0.1)
             if stop.is_set():
                 raise KeyboardInterrupt
             for ref in ready:
                 idle.append(pending.pop(ref))
-                yield ray.get(ref)
-                feed()
+                with cluster_lost():
+                    answer = ray.get(ref)
+                yield answer
+                with cluster_lost():
+                    feed()
 
 
 class RayEvaluator:
@@ -123,7 +143,8 @@ class RayEvaluator:
         import ray
 
         parts = [p for p in np.array_split(np.asarray(thetas, dtype=np.float64), len(self.actors)) if len(p)]
-        results: list[BatchResult] = ray.get([a.plan.remote(p) for a, p in zip(self.actors, parts, strict=False)])
+        with cluster_lost():
+            results: list[BatchResult] = ray.get([a.plan.remote(p) for a, p in zip(self.actors, parts, strict=False)])
         if len(results) == 1:
             return results[0]
         joined = {f.name: np.concatenate([getattr(r, f.name) for r in results])

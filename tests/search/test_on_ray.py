@@ -61,3 +61,16 @@ def test_no_cluster_there_is_one_line_and_writes_nothing(tmp_path):
             "(`ray start --head --port=PORT`), or leave --address out to run on a Ray of this machine's own"
         ), proc.stderr
     assert not (tmp_path / "logs").exists()
+
+
+def test_a_cluster_that_goes_away_mid_search_is_said_in_one_line():
+    """Its head killed mid-pass, `search exhaustive --address` said "error: Broken pipe"."""
+    import ray
+
+    from smorphi_rl.cluster import ClusterError
+    from smorphi_rl.search.on_ray import cluster_lost
+
+    for lost in (BrokenPipeError(32, "Broken pipe"), ray.exceptions.RayActorError()):
+        said = r"the Ray cluster stopped answering mid-search \(\w+: .*nothing of"
+        with pytest.raises(ClusterError, match=said), cluster_lost():
+            raise lost
