@@ -111,7 +111,9 @@ def main() -> None:
     parser.add_argument("--env-runners", type=int, default=None, metavar="N",
                         help="remote env runners (default: the preset's; 0: in the trial process)")  # fmt: skip
     parser.add_argument("--envs-per-runner", type=int, default=ENVS_PER_RUNNER, metavar="N")
-    parser.add_argument("--out", default=None, metavar="NAME", help="results go to logs/NAME")
+    parser.add_argument("--out", default=None, metavar="NAME", help="results go to LOG_DIR/NAME")
+    parser.add_argument("--log-dir", default=str(ROOT / "logs"), metavar="DIR",
+                        help="where results and the optima's cache go (default: the repository's logs/)")  # fmt: skip
     args = parser.parse_args()
     if (args.env_runners is not None and args.env_runners < 0) or args.envs_per_runner < 1:
         raise SystemExit("bench_learning.py: --env-runners must be at least 0 and --envs-per-runner at least 1")
@@ -121,7 +123,7 @@ def main() -> None:
         run_config(algo, reward, 0, map_path, args.timesteps, overrides, layout)
     names = {m: load_map(m).name for m in args.maps}  # a missing map is named before anything is written
     try:
-        out = prepare_run_dir(ROOT / "logs", args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
+        out = prepare_run_dir(Path(args.log_dir), args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")
     except RunDirError as exc:
         raise SystemExit(f"bench_learning.py: {exc}") from None
     starts = eval_starts()
@@ -131,7 +133,7 @@ def main() -> None:
         name = names[map_path]
         base_env = EnvConfig.from_dict({"maps": [map_path]})
         weights = base_env.weights_on(load_map(map_path))
-        optimum = exact_optimum(map_path, weights, base_env.planning, ROOT / "logs" / ".cache")
+        optimum = exact_optimum(map_path, weights, base_env.planning, Path(args.log_dir) / ".cache")
         print(f"{name}: exact optimum R1* {optimum.R1:.2f} at {optimum.theta} (1-degree lattice); "
               f"1 % band: R1 >= {optimum.R1 - 0.01 * abs(optimum.R1):.2f}", flush=True)  # fmt: skip
         for algo in args.algos:

@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 from pathlib import Path
@@ -25,14 +24,13 @@ def test_the_script_starts_and_prints_its_usage(script):
     (["--set", "min_time_s_per_iteration=0.4"], "bench_learning.py: error: unknown hyperparameter"),
     (["--maps", "map-1"], "bench_learning.py: error: map file not found: map-1"),  # its folder was written first
 ])  # fmt: skip
-def test_a_bad_setting_given_to_a_benchmark_is_one_line_and_writes_nothing(argv, message):
-    out = SCRIPTS.parent / "logs" / f"refused-{os.getpid()}"  # its own name: a benchmark may be running beside
+def test_a_bad_setting_given_to_a_benchmark_is_one_line_and_writes_nothing(argv, message, tmp_path):
     proc = subprocess.run([sys.executable, str(SCRIPTS / "bench_learning.py"), "--algos", "appo", "--no-ideal",
-                           "--out", out.name, *argv], capture_output=True, text=True, timeout=120,
-                          cwd=SCRIPTS.parent)  # fmt: skip
+                           "--log-dir", str(tmp_path / "logs"), "--out", "refused", *argv], capture_output=True,
+                          text=True, timeout=120, cwd=SCRIPTS.parent)  # fmt: skip
     assert proc.returncode == 1 and "Traceback" not in proc.stderr, proc.stderr[-2000:]
     assert proc.stderr.strip().splitlines()[-1].startswith(message)
-    assert not out.exists()
+    assert not (tmp_path / "logs").exists()
 
 
 def test_a_sweep_benchmark_of_a_missing_file_is_one_line(tmp_path):
