@@ -304,7 +304,7 @@ def _fit(
             verbose=0,
         ),
     )
-    t0 = time.monotonic()
+    t0 = progress.t0 = time.monotonic()  # the bar's clock and the summary's: training alone, from here
     if stopper is None:
         _, failed = fit(tuner, run_dir)
     else:
