@@ -205,6 +205,46 @@ def check_comparable(
         raise another_floor(where, grid_map.name)
 
 
+def weights_of_run(run_dir: Path, grid_map: Map) -> Weights | None:
+    """The R1 weights in effect on `grid_map` that a run measured its settled figures under: a training run's env
+    settings (w1, w2, path_term), a search run's recorded weights; None where the run records none."""
+    env = _env_of_run(run_dir)
+    if env is not None:
+        from smorphi_rl.env_config import EnvConfig
+
+        given: dict[str, Any] = {k: env[k] for k in ("w1", "w2", "path_term") if k in env}
+        try:
+            return EnvConfig.from_dict(given).weights_on(grid_map)
+        except SmorphiError:
+            return None
+    summary = run_dir / "summary.json"
+    recorded = read_json_object(summary, "search summary").get("weights") if summary.is_file() else None
+    if isinstance(recorded, dict) and all(is_finite_number(recorded.get(k)) for k in ("w1", "w2")):
+        return Weights(float(recorded["w1"]), float(recorded["w2"]))
+    return None
+
+
+def settled_under(
+    runs: list[Points], dirs: list[Path], weights: Weights, grid_map: Map
+) -> tuple[list[Points], list[str]]:
+    """The runs with the settled figures of those measured under other R1 weights than the table's left out (their
+    gaps are to another optimum), and a note naming each: the best shapes are scored again here, those figures not."""
+    kept, notes = [], []
+    for points, run_dir in zip(runs, dirs, strict=True):
+        own = weights_of_run(run_dir, grid_map)
+        if (
+            points[5] is not None
+            and own is not None
+            and not (math.isclose(own.w1, weights.w1) and math.isclose(own.w2, weights.w2))
+        ):
+            notes.append(f"{points[0]}: its settled figures were measured under {own.formula()}, not the "
+                         f"table's {weights.formula()}: left out (pass the run's --w1, --w2 and --path-term to "
+                         "read them)")  # fmt: skip
+            points = (*points[:5], None)
+        kept.append(points)
+    return kept, notes
+
+
 TRAINING_RUN = ("a training run",)
 """`points_of_run`'s `methods` for a folder given as a training run (`compare --runs`)."""
 
@@ -228,6 +268,10 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
         if not every:
             raise SmorphiError(f"{run_dir / FOUND_CSV}: holds no rows of the table smorphi-rl writes")
         rows = [f for f in every if f.map == map_name and f.P_c > 0]  # an episode that met only infeasible shapes
+        trained_on = sorted({f.map for f in every})
+        if map_name not in trained_on:
+            raise SmorphiError(f"{run_dir}: its shapes are of {', '.join(repr(m) for m in trained_on)}, not "
+                               f"'{map_name}': give --map the map it trained on")  # fmt: skip
         if not rows:  # records its best as P_c = P_len = 0: no shape to put on a front
             raise SmorphiError(f"{run_dir}: found no feasible morphologies on map '{map_name}'")
         summary = read_json_object(run_dir / "summary.json", "run summary")
@@ -355,9 +399,10 @@ def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
 
 
 def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights,
-                 planning: str) -> list[str]:  # fmt: skip
-    """The comparison as Markdown lines: title, how to read it, and the table (what `compare` prints); `planning`
-    is `Planning.describe`'s line, so reports of two planners on one map say which is which."""
+                 planning: str, notes: list[str] | None = None) -> list[str]:  # fmt: skip
+    """The comparison as Markdown lines: title, how to read it, the table (what `compare` prints) and `notes` (what
+    was left out of it); `planning` is `Planning.describe`'s line, so reports of two planners on one map say which
+    is which."""
     return [
         f"# Every method against the exact optimum on {map_name}",
         "",
@@ -365,15 +410,16 @@ def report_lines(exact: MethodScore, methods: list[MethodScore], map_name: str, 
         "lattice nadir (longest path, lowest coverage of any feasible shape), as a fraction of the exact front's.",
         "",
         *method_table(exact, methods),
+        *(["", *(f"- {note}" for note in notes)] if notes else []),
     ]
 
 
 def write_report(exact: MethodScore, methods: list[MethodScore], map_name: str, weights: Weights,
-                 planning: str, run_dir: Path) -> dict[str, Path]:  # fmt: skip
+                 planning: str, run_dir: Path, notes: list[str] | None = None) -> dict[str, Path]:  # fmt: skip
     """report.md (`report_lines` and the plot) and compare.png under `run_dir`."""
     from smorphi_rl.plots import plot_pareto
 
-    lines = report_lines(exact, methods, map_name, weights, planning)
+    lines = report_lines(exact, methods, map_name, weights, planning, notes)
     files = {"report": run_dir / "report.md"}
     files["plot"] = plot_pareto(
         {m.label: (m.front_len, m.front_pc) for m in methods},

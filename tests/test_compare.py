@@ -340,3 +340,44 @@ def test_compare_reads_the_front_a_search_exhaustive_left_in_its_log_dir(tmp_pat
     ).read_text()
     assert main([*argv, "--step", "60", "--name", "other-step"]) == 0  # another lattice: not that run's front
     assert "exact front: read" not in capsys.readouterr().err
+
+
+def _training_run(tmp_path: Path, env: dict, map_name: str = "map-1") -> Path:
+    """A training run's files as `train` writes them: one shape found, the protocol's figures, its env settings."""
+    import json
+
+    from smorphi_rl.maps import load_map
+
+    run = tmp_path / "ppo-run"
+    run.mkdir()
+    header = "algorithm,map,theta1,theta2,theta3,P_c,P_len,R1,first_seen_env_steps,variants\n"
+    (run / "morphologies.csv").write_text(header + f"ppo,{map_name},95,59,103,97.2400,90,88.24,10,1\n")
+    summary = {"env_steps": 10, "map_digests": {"map-1": load_map(MAP_1).digest},
+               "evaluation": {map_name: {"median_gap": 3.36, "share_within_1pct": 0.25}}}  # fmt: skip
+    (run / "summary.json").write_text(json.dumps(summary))
+    (run / "config.json").write_text(json.dumps({"env": env}))
+    return run
+
+
+def test_settled_figures_measured_under_other_weights_are_left_out_and_said(tmp_path, capsys):
+    """A run trained with `per_area` (a designer's fine-tune) showed its own gap, to its own optimum, under a table
+    headed by another optimum, and a `moves` run's gap under a `per_area` table."""
+    run = _training_run(tmp_path, {"path_term": "per_area"})
+    argv = ["compare", "--map", MAP_1, "--runs", str(run), "--step", "30"]
+    capsys.readouterr()
+    assert main([*argv, "--log-dir", str(tmp_path / "moves")]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| PPO (ppo-run)"))
+    assert row.endswith("| - |") and "PPO (ppo-run): its settled figures were measured under R1 = 1 P_c - " in out
+    assert "left out (pass the run's --w1, --w2 and --path-term to read them)" in out
+    assert main([*argv, "--path-term", "per_area", "--log-dir", str(tmp_path / "per_area")]) == 0
+    out = capsys.readouterr().out
+    assert "| 3.36 (25 %) |" in out and "settled figures were measured" not in out
+
+
+def test_a_training_run_of_another_map_names_the_map_it_trained_on(tmp_path, capsys):
+    """It read "found no feasible morphologies on map 'map-1'", as if its shapes could not fit."""
+    run = _training_run(tmp_path, {}, map_name="map-2")
+    capsys.readouterr()
+    assert main(["compare", "--map", MAP_1, "--runs", str(run), "--step", "30", "--log-dir", str(tmp_path)]) == 1
+    assert "its shapes are of 'map-2', not 'map-1': give --map the map it trained on" in capsys.readouterr().err

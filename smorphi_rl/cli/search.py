@@ -211,6 +211,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         points_of_run,
         report_lines,
         score_methods,
+        settled_under,
         write_report,
     )
     from smorphi_rl.rundir import check_run_dir, discarded_on_failure, prepare_run_dir, safe_name
@@ -264,9 +265,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 planning,
                 progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
             )
+        runs, notes = settled_under(runs, dirs, on_map, grid_map)
         exact_score, methods = score_methods(exact, runs, on_map)
         planned = planning.describe(grid_map)
-        files = write_report(exact_score, methods, grid_map.name, on_map, planned, run_dir)
-    print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map, planned)))
+        files = write_report(exact_score, methods, grid_map.name, on_map, planned, run_dir, notes)
+    print("\n".join(report_lines(exact_score, methods, grid_map.name, on_map, planned, notes)))
     print(f"\nreport: {rel(files['report'])}\nplot:   {rel(files['plot'])}")
     return 0
