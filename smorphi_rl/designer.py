@@ -51,11 +51,13 @@ class Designer:
         model = self.policy.model_config
         trained = self.policy.meta.get("trained")  # what its shipping recorded, if anything: read, never required
         steps = trained.get("env_steps") if isinstance(trained, dict) else None
+        start = trained.get("pretrained") if isinstance(trained, dict) else None
         text = f"{str(model.get('algorithm', 'policy')).upper()}"
         if isinstance(steps, int):
             text += f", {steps:,} env steps"
         maps = self.env_config.maps
-        return text + f" on {', '.join(maps[:2])}{' ...' if len(maps) > 2 else ''}"
+        text += f" on {', '.join(maps[:2])}{' ...' if len(maps) > 2 else ''}"
+        return text + (f", fine-tuned from {Path(start).name}" if isinstance(start, str) and start else "")
 
     def logits(self, observations: Any) -> np.ndarray:
         """The policy's action logits for a batch of observations (what `design.run_design` takes)."""

@@ -184,6 +184,29 @@ def test_export_records_the_runs_env_steps_when_its_summary_names_the_checkpoint
     capsys.readouterr()
 
 
+def test_export_records_the_kept_policys_steps_and_the_policy_a_fine_tune_started_from(tmp_path, capsys):
+    """A run that ended on the policy of 2,000 steps it evaluated best exported as "12,000 env steps", and a designer
+    fine-tuned on one 5 m floor said nothing of its start and warned of floors 5-5 m a side."""
+    from smorphi_rl.cli import main
+    from smorphi_rl.designer import load_designer
+
+    designer = Path(__file__).resolve().parents[2] / "smorphi_rl" / "policies" / "designer"
+    trial = tmp_path / "run" / "ppo-x_00000"
+    env = MorphologyEnv(FLOOR | {"maps": [str(Path(__file__).resolve().parents[2] / "maps" / "map-2.yaml")]})
+    module_for(env).save_to_path(str(trial / "checkpoint_000005" / MODULE_SUBDIR))
+    summary = {"checkpoint": str(trial / "checkpoint_000005"), "env_steps": 12_000, "pretrained": str(designer),
+               "evaluation": {"policy_env_steps": 2_000, "median_gap": 6.54}}  # fmt: skip
+    (tmp_path / "run" / "summary.json").write_text(json.dumps(summary))
+    assert main(["export-policy", "--checkpoint", str(trial / "checkpoint_000005"), "--out", str(tmp_path / "p")]) == 0
+    trained = json.loads((tmp_path / "p" / "policy.json").read_text())["trained"]
+    assert trained == {"env_steps": 2_000, "run_env_steps": 12_000, "pretrained": str(designer)}
+    exported, shipped = load_designer(tmp_path / "p"), load_designer(designer)
+    assert exported.trained_sides == shipped.trained_sides  # map-2's 5 m lie within the designer's floors
+    assert exported.summary.endswith("on " + env.config.maps[0] + ", fine-tuned from designer")
+    assert "PPO, 2,000 env steps" in exported.summary
+    capsys.readouterr()
+
+
 def test_a_plot_never_replaces_the_image_of_a_map_the_policy_rolls_out_on(tmp_path, capsys):
     """Without --map, the policy's own maps were not counted as inputs, and --force replaced the training map's image
     with the plot."""
