@@ -60,3 +60,19 @@ def test_one_event_per_result_holds_what_tunes_logger_writes(tmp_path):
     assert tune.Tags()["histograms"] == ours.Tags()["histograms"] == ["ray/tune/returns"]
     steps = [[e.step for e in acc.Histograms("ray/tune/returns")] for acc in (tune, ours)]
     assert steps[0] == steps[1] == [1, 2, 3]
+
+
+def test_the_eval_series_follow_the_trained_policy_to_their_last_point():
+    """A run's last result reports the policy it ends on (2,000 steps old) under eval/: the curve of a run at gap
+    7.74 dropped to 6.54 at its last point, a false improvement."""
+    from smorphi_rl.training.tensorboard import split_scalars
+
+    row = {"timesteps_total": 12_000, "training_iteration": 6, "eval": {
+        "median_gap": 6.54, "policy_env_steps": 2_000, "map-2": {"median_gap": 6.54},
+        "trained": {"median_gap": 7.74, "share_within_1pct": 0.0}}}  # fmt: skip
+    scalars, _ = split_scalars(row)
+    assert scalars["ray/tune/eval/median_gap"] == 7.74 and scalars["ray/tune/eval/share_within_1pct"] == 0.0
+    assert scalars["ray/tune/eval/kept/median_gap"] == 6.54 and scalars["ray/tune/eval/kept/map-2/median_gap"] == 6.54
+    assert "ray/tune/eval/map-2/median_gap" not in scalars and not any("trained" in tag for tag in scalars)
+    plain = {"timesteps_total": 2_000, "training_iteration": 1, "eval": {"median_gap": 6.54}}
+    assert split_scalars(plain)[0]["ray/tune/eval/median_gap"] == 6.54  # every other row as it was
