@@ -51,8 +51,8 @@ def register(sub: Any) -> None:
     ep.add_argument("--checkpoint", required=True, help=CHECKPOINT_HELP)
     ep.add_argument("--map", nargs="+", action=Repeated, default=None,
                     help="map(s) to roll out on (default: the training maps)")  # fmt: skip
-    ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ...")
-    ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start morphology")
+    ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ... (default: 1)")
+    ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start shape (default: 0)")
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.add_argument("--force", action="store_true", help=FORCE_HELP)

@@ -456,7 +456,7 @@ def format_summary(s: RunSummary) -> str:
                          f"{ev['settled_R1_mean']:.2f} (no exact optimum to measure it against)")  # fmt: skip
     if s.pretrained is not None:
         held = {True: "yes", False: "NO", None: "not reported"}[s.pretrained_in_runners]
-        lines.append(f"fine-tuned from: {rel(s.pretrained)} (every env runner held its policy from the start: {held})")
+        lines.append(f"fine-tuned from: {rel(s.pretrained)} (sampling started from its weights: {held})")
     if s.checkpoint is not None:
         lines.append(f"checkpoint: {rel(s.checkpoint)}")
     plots = [(k, f"top morphologies plot ({k.removeprefix('top_png_')})") for k in s.files if k.startswith("top_png_")]
