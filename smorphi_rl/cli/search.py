@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -29,9 +29,6 @@ from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
 from smorphi_rl.score import Weights
-
-if TYPE_CHECKING:
-    pass
 
 
 def register(sub: Any) -> None:
