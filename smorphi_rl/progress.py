@@ -38,7 +38,7 @@ class StatusLine:
         return {k: v for k, v in self.__dict__.items() if k != "out"}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state, out=sys.stderr, tty=sys.stderr.isatty())
+        self.__dict__.update(state, out=sys.stderr, tty=bool(getattr(sys.stderr, "isatty", lambda: False)()))
 
     def due(self, force: bool = False) -> bool:
         """Whether a line is to be written now (always on a terminal, or when forced); if so the clock restarts."""
