@@ -35,11 +35,12 @@ def install() -> None:
 
 
 @contextmanager
-def stop_requests() -> Iterator[threading.Event]:
-    """While a long computation runs, Ctrl-C and SIGTERM set an event instead of raising wherever the main thread
-    happens to be (a KeyboardInterrupt raised as a compiled kernel returns crashed the process); the computation
-    checks the event between chunks and stops there. Outside the main thread, nothing is changed."""
-    stop = threading.Event()
+def stop_requests(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+    """While a long computation runs, Ctrl-C and SIGTERM set an event (`stop`, or a new one) instead of raising
+    wherever the main thread happens to be (a KeyboardInterrupt raised as a compiled kernel returns crashed the
+    process); the computation checks the event between chunks and stops there. Outside the main thread, nothing is
+    changed."""
+    stop = stop if stop is not None else threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return

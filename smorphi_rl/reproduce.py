@@ -99,8 +99,9 @@ def _map(name: str) -> str:
 
 def _whole(run: _Run) -> _Run:
     """`run`, unless a stop request cut it short: then the job stops too (KeyboardInterrupt), keeping what it wrote,
-    rather than go on from a cut-short policy and report claims on it."""
-    if run.interrupted:
+    rather than go on from a cut-short policy and report claims on it; a stop held until a run's results were
+    written (`RunSummary.stop_held`) stops the job there too."""
+    if run.interrupted or getattr(run, "stop_held", False):
         raise KeyboardInterrupt
     return run
 

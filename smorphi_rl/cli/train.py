@@ -150,6 +150,9 @@ def cmd_train(args: argparse.Namespace) -> int:
                 else "checkpoints written so far are kept")  # fmt: skip
         print(f"{PROG}: interrupted: {kept}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if summary.stop_held:  # asked as the run was writing its results: they were finished first
+        print(f"{PROG}: interrupted as the run ended: its tables and summary.json are whole", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
 
 

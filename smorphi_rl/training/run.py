@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import math
 import sys
+import threading
 import time
+from contextlib import ExitStack
 from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
-from smorphi_rl import cluster, jsontext
+from smorphi_rl import cluster, interrupts, jsontext
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
@@ -81,6 +83,9 @@ class RunSummary:
     ended_on_request: bool = False
     """Interrupted by a first Ctrl-C that ended it as its budget's end would (`stopping.py`): its last checkpoint
     holds the final policy."""
+    stop_held: bool = False
+    """A stop request (Ctrl-C, SIGTERM) came once training had ended, and waited for the tables and summary.json:
+    the run is whole, and the caller stops (`train` exits 130, `transfer` ends the job there)."""
     address: str | None = None
     """The Ray cluster the run trained on (`--address`, `auto` resolved); None: a Ray of this machine's own."""
 
@@ -358,6 +363,7 @@ def train(
         cluster.check_capacity(cfg.cpus, cfg.env_runners, address)  # a local Ray's size is known before it starts
     out = out or sys.stderr
     progress = _Progress(cfg, out, label)
+    late, held = threading.Event(), ExitStack()  # a stop once training has ended waits for the tables and summary
     run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
     try:
         optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
@@ -369,9 +375,11 @@ def train(
             write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
             stopper = GracefulStop(out) if graceful else None
             wall = _fit(cfg, name, run_dir, callbacks, progress, stopper)
+            held.enter_context(interrupts.stop_requests(late))  # Ray's shutdown and the outputs to come
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException as exc:
+        held.close()
         if not reported_any(run_dir, cfg.algo, progress):
             discard_run_dir(run_dir)  # nothing trained: the name stays free
             if isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):
@@ -380,6 +388,18 @@ def train(
             raise Interrupted(f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any "
                               "checkpoint), but no tables or summary.json") from None  # fmt: skip
         raise
+    with held, interrupts.stop_requests(late):  # held again: Ray's shutdown may have reset SIGTERM's handler
+        summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
+    interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
+    summary.stop_held = late.is_set()
+    return summary
+
+
+def _finish(
+    run_dir: Path, cfg: TrainConfig, progress: _Progress, optima: dict[str, Optimum], wall: float,
+    pretrained: Path | None, digests: dict[str, str], stopper: GracefulStop | None, address: str | None,
+) -> RunSummary:  # fmt: skip
+    """A run's tables, plots and summary.json once training has ended; a run that never reported is removed."""
     if not reported_any(run_dir, cfg.algo, progress):  # stopped (Ctrl-C, SIGTERM) before its first report
         discard_run_dir(run_dir)
         raise Interrupted(nothing_kept(run_dir))

@@ -376,3 +376,40 @@ def test_a_sweep_stopped_at_once_names_its_folder_and_the_resume(tmp_path, monke
     said = err.strip().splitlines()[-1]
     assert said.startswith(f"smorphi-rl: interrupted: stopped at once; {tmp_path / 'logs' / 'tiny'} keeps the trials")
     assert said.endswith(f"continue with `smorphi-rl sweep {config} --resume --log-dir {tmp_path / 'logs'}`")
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypatch, capsys, signame):
+    """A Ctrl-C 1-2 s after the last bar (Ray shutting down, the tables being written) lost summary.json: a bare
+    'interrupted', a second Ctrl-C's line, or (SIGTERM, once Ray had reset its handler) a kill without a word."""
+    import signal
+    from contextlib import nullcontext
+
+    from smorphi_rl.training import run as run_module
+    from smorphi_rl.training.result_keys import STEPS
+
+    def fit(cfg, name, run_dir, callbacks, progress, stopper):
+        (run_dir / f"{cfg.algo}-trial_00000").mkdir()
+        progress.status.out = io.StringIO()
+        progress.on_result({STEPS: cfg.timesteps})  # the whole budget, reported
+        return 1.0
+
+    writes = run_module.write_outputs
+
+    def write_outputs(*args, **kwargs):
+        signal.raise_signal(getattr(signal, signame))  # as the tables are written
+        return writes(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "training_optima", lambda cfg, log_dir, out: {})
+    monkeypatch.setattr(run_module.cluster, "ray_session", lambda address: nullcontext())
+    monkeypatch.setattr(run_module, "_fit", fit)
+    monkeypatch.setattr(run_module, "write_outputs", write_outputs)
+    argv = ["train", "--log-dir", str(tmp_path / "logs"), "--name", "late", "--eval-every", "0", "--timesteps", "2000"]
+    assert main(argv) == 130
+    out, err = capsys.readouterr()
+    assert (
+        err.strip().splitlines()[-1]
+        == "smorphi-rl: interrupted as the run ended: its tables and summary.json are whole"
+    )
+    assert (tmp_path / "logs" / "late" / "summary.json").is_file() and "PPO trained for 2,000 env steps" in out
+    assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards

@@ -175,8 +175,9 @@ def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path
 @pytest.fixture
 def fake_runs(tmp_path, monkeypatch):
     """`transfer` through the CLI on val-1 with the checkpoint, Ray and training replaced: `stops` names the
-    training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report, or failing
-    (`"error"`). Returns the argv, the runs trained, `stops` and each run's algorithm."""
+    training calls (1-based) stopped by Ctrl-C, after (`"reported"`) or before their first report, or as they ended
+    (`"as it ended"`: the run whole), or failing (`"error"`). Returns the argv, the runs trained, `stops` and each
+    run's algorithm."""
     import contextlib
     from types import SimpleNamespace
 
@@ -186,7 +187,7 @@ def fake_runs(tmp_path, monkeypatch):
     monkeypatch.setattr(checkpoints, "find_checkpoint", lambda path: Path(path))
     monkeypatch.setattr(checkpoints, "load_module", lambda path: SimpleNamespace(model_config={"env_config": {}}))
     monkeypatch.setattr(finetune, "check_pretrained", lambda checkpoint, env: "digest")
-    monkeypatch.setattr(cluster, "check_reachable", lambda address: None)
+    monkeypatch.setattr(cluster, "check_reachable", lambda address, client=True: None)
     monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
     calls: list[str] = []
     algos: list[str] = []
@@ -200,10 +201,11 @@ def fake_runs(tmp_path, monkeypatch):
             (Path(log_dir) / name).mkdir()  # its checkpoints and results are kept
         if stops.get(len(calls)) == "error":
             raise run.TrainingError("trial failed: boom")
-        if len(calls) in stops:
+        late = stops.get(len(calls)) == "as it ended"  # the run whole, the stop held until its summary was written
+        if len(calls) in stops and not late:
             raise KeyboardInterrupt
         (Path(log_dir) / name).mkdir()
-        return SimpleNamespace(run_dir=Path(log_dir) / name, to_dict=dict, interrupted=False)
+        return SimpleNamespace(run_dir=Path(log_dir) / name, to_dict=dict, interrupted=False, stop_held=late)
 
     monkeypatch.setattr(run, "train", train)
     monkeypatch.setattr(transfer, "transfer_run", lambda m, seed, mode, run_dir, summary, reused=False:
@@ -263,6 +265,17 @@ def test_a_stop_of_the_first_run_after_it_reported_keeps_the_jobs_folder(tmp_pat
     assert main([*argv, "--seeds", "0"]) == 130
     assert (tmp_path / "logs" / "job" / "val-1-fine-tune-seed0").is_dir()
     assert "no run finished; continue with the same command and --name job --resume" in capsys.readouterr().err
+
+
+def test_a_stop_as_a_run_ends_ends_the_job_there(tmp_path, fake_runs, capsys):
+    """A Ctrl-C as run 1 wrote its results was lost: run 2 trained its whole budget and the job exited 0."""
+    from smorphi_rl.cli import main
+
+    argv, calls, stops, _algos = fake_runs
+    stops[1] = "as it ended"
+    assert main([*argv, "--seeds", "0"]) == 130
+    assert calls == ["val-1-fine-tune-seed0"]
+    assert "the table holds the runs that finished (1)" in capsys.readouterr().err
 
 
 def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path, fake_runs, monkeypatch, capsys):
