@@ -242,6 +242,9 @@ def cmd_sweep(args: argparse.Namespace) -> int:
     if summary.interrupted:
         print(f"{PROG}: interrupted: finished trials and checkpoints are kept; continue with {again}", file=sys.stderr)
         return EXIT_INTERRUPTED
+    if summary.stop_held:  # asked as the sweep was writing its tables: they were finished first
+        print(f"{PROG}: interrupted as the sweep ended: its tables are whole", file=sys.stderr)
+        return EXIT_INTERRUPTED
     return 0
 
 

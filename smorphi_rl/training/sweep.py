@@ -10,15 +10,17 @@ did not finish, each in its own folder again, continuing from our state file of 
 from __future__ import annotations
 
 import sys
+import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import yaml
 
-from smorphi_rl import cluster, jsontext
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl import cluster, interrupts, jsontext
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_set_label
 from smorphi_rl.progress import StatusLine, bar
@@ -29,8 +31,10 @@ from smorphi_rl.rundir import (
     RunDirError,
     check_run_dir,
     claim_again,
+    discard_run_dir,
     prepare_run_dir,
     refuse_links,
+    rel,
     shell_path,
     write_atomic,
     write_text_atomic,
@@ -77,6 +81,9 @@ class SweepSummary:
     files: dict[str, Path]
     read_back: int = 0
     """Trials a `--resume` found finished and read back untouched (not trained by this call)."""
+    stop_held: bool = False
+    """A stop request (Ctrl-C, SIGTERM) came once the trials had ended and waited for the tables (`cmd_sweep`
+    exits 130 saying they are whole)."""
 
 
 def sweep_trainable(
@@ -180,6 +187,8 @@ class _SweepProgress:
         self.sweep, self.total, self.status = sweep, total, StatusLine(out)
         self.t0 = time.monotonic()
         self.done: set[str] = set()
+        self.reported = 0
+        """Results the trials reported to this process (Tune copies their result files to the folder later)."""
         self.best = (float("-inf"), float("-inf"), "")  # R1, P_c (the tables' tie-break), the shape's text
 
     def found(self, bests: list[Any]) -> None:
@@ -190,6 +199,7 @@ class _SweepProgress:
                 self.best = (b.R1, b.P_c, f"{b.angles} on {b.map}")
 
     def result(self, trial: str, config: dict[str, Any], result: dict[str, Any]) -> None:
+        self.reported += 1
         self.found(episode_bests(result))
         steps = int(result.get(keys.STEPS) or 0)
         maps = map_set_label(config.get("maps", []))
@@ -334,27 +344,41 @@ def run_sweep(
     progress.found([r.best for r in earlier if r.best is not None])  # a resume's: shown from the first line
     t0 = time.monotonic()
     results, failed = (None, None)
+    late, held = threading.Event(), ExitStack()  # a stop once the trials have ended waits for the tables
     if pending:
-        results, failed = _fit(sweep, exp, address, widest, optima, pending, points, progress)
+        try:
+            results, failed = _fit(sweep, exp, address, widest, optima, pending, points, progress, held, late)
+        except KeyboardInterrupt as exc:
+            held.close()
+            if resume or progress.reported or isinstance(exc, Interrupted):
+                raise
+            discard_run_dir(exp)  # stopped before any trial reported: nothing to resume, the name stays free
+            raise Interrupted(f"stopped before the sweep's first report: nothing was kept ({rel(exp)} was "
+                              "removed)") from None  # fmt: skip
     wall = time.monotonic() - t0
     progress.finish()
-    if failed and (failed.disk_full or results is None):
-        raise TrainingError(failed.line)  # no tables either
-    rows = read_sweep(exp)
-    write_trial_files(exp, rows, optima, digests, sweep.step_budget)
-    files = write_sweep_outputs(exp, rows)
+    with held, interrupts.stop_requests(late):  # held again: Ray's shutdown may have reset SIGTERM's handler
+        if failed and (failed.disk_full or results is None):
+            raise TrainingError(failed.line)  # no tables either
+        rows = read_sweep(exp)
+        write_trial_files(exp, rows, optima, digests, sweep.step_budget)
+        files = write_sweep_outputs(exp, rows)
+    interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
     finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
-    return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files, len(trials) - len(pending))
+    return SweepSummary(exp, rows, len(trials), wall, finished_count < len(trials), files, len(trials) - len(pending),
+                        late.is_set())  # fmt: skip
 
 
 def _fit(
     sweep: SweepConfig, exp: Path, address: str | None, widest: Any, optima: dict[str, Optimum],
-    pending: list[dict[str, Any]], points: dict[int, Path], progress: _SweepProgress,
+    pending: list[dict[str, Any]], points: dict[int, Path], progress: _SweepProgress, held: ExitStack,
+    late: threading.Event,
 ) -> tuple[Any, Any]:  # fmt: skip
     """The Tune experiment of the `pending` trials (Tune's results and how it failed, `failures.fit`); `widest`:
-    the trial config asking for the most CPUs."""
+    the trial config asking for the most CPUs. Once Tune returns, stops are held in `late` (`held` keeps them so),
+    through Ray's shutdown and the tables."""
     by_index = {t["index"]: t for t in pending}
 
     def field_of(name: str) -> Any:
@@ -388,7 +412,9 @@ def _fit(
 
         tuner = tune.Tuner(trainable, param_space=param_space, run_config=run_config,
                            tune_config=tune.TuneConfig(trial_dirname_creator=dirname))  # fmt: skip
-        return fit(tuner, exp, "the sweep")
+        outcome = fit(tuner, exp, "the sweep")
+        held.enter_context(interrupts.stop_requests(late))
+        return outcome
 
 
 _TRIAL_FIELDS = ("algo", "maps", "seed", "hp")

@@ -413,3 +413,30 @@ def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypat
     )
     assert (tmp_path / "logs" / "late" / "summary.json").is_file() and "PPO trained for 2,000 env steps" in out
     assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards
+
+
+@pytest.mark.parametrize("reported", [False, True])
+def test_a_sweep_stopped_before_its_first_report_leaves_no_folder(tmp_path, monkeypatch, capsys, reported):
+    """A Ctrl-C as Ray started left the sweep's folder (its claim, its copy of the file) with 'keeps the trials that
+    finished ... continue with --resume', and the same command again was refused: the folder existed."""
+    from smorphi_rl.training import sweep as sweep_module
+
+    root = Path(__file__).resolve().parents[2]
+    config = tmp_path / "tiny.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{root / 'maps' / 'map-1.yaml'}]\nseeds: [0]\n")
+
+    def fit(sweep, exp, address, widest, optima, pending, points, progress, held, late):
+        progress.reported = int(reported)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(sweep_module, "training_optima", lambda cfg, log_dir, out: {})
+    monkeypatch.setattr(sweep_module, "_fit", fit)
+    code, err = run(capsys, "sweep", str(config), "--log-dir", str(tmp_path / "logs"))
+    exp = tmp_path / "logs" / "tiny"
+    assert code == 130 and exp.is_dir() is reported
+    said = err.strip().splitlines()[-1]
+    if reported:
+        assert said.startswith(f"smorphi-rl: interrupted: stopped at once; {exp} keeps the trials")
+    else:
+        nothing = f"stopped before the sweep's first report: nothing was kept ({exp} was removed)"
+        assert said == f"smorphi-rl: interrupted: {nothing}"
