@@ -351,10 +351,12 @@ def test_evaluate_one_shape_answers_without_the_compiled_kernels(planner):
     assert json.loads(record)["planner"] == planner
 
 
-def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys):
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys, signame):
     """The entry point imports the CLI (seconds of libraries) inside a guard: a Ctrl-C then is one line, exit 130
-    (it was a traceback through scipy's import)."""
+    (it was a traceback through scipy's import); a SIGTERM killed the process without a word (exit 143)."""
     import builtins
+    import signal
 
     from smorphi_rl import entry
 
@@ -362,11 +364,15 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys):
 
     def interrupted(name, *args, **kwargs):
         if name == "smorphi_rl.cli":
-            raise KeyboardInterrupt
+            signal.raise_signal(getattr(signal, signame))
         return real_import(name, *args, **kwargs)
 
+    before = signal.getsignal(signal.SIGTERM)
     monkeypatch.setattr(builtins, "__import__", interrupted)
-    assert entry.main() == 130
+    try:
+        assert entry.main() == 130
+    finally:
+        signal.signal(signal.SIGTERM, before)
     assert capsys.readouterr().err == "smorphi-rl: interrupted\n"
 
 
