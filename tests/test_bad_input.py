@@ -355,16 +355,19 @@ def test_a_search_the_disk_cuts_short_leaves_a_whole_run_or_none(small_disk, cap
                *(["--name", "again"] if run_dir.exists() else []))[0] == 0  # fmt: skip
 
 
-def test_a_search_whose_plot_cannot_be_written_keeps_its_whole_run_and_says_so(tmp_path, capsys, monkeypatch):
+@pytest.mark.parametrize("cut", [OSError(28, "No space left on device", "pareto.png"), KeyboardInterrupt()])
+def test_a_search_whose_plot_cannot_be_written_keeps_its_whole_run_and_says_so(tmp_path, capsys, monkeypatch, cut):
+    """A full disk, or a Ctrl-C as the plot is drawn (it said a bare 'interrupted', the run kept unsaid)."""
     import smorphi_rl.plots
 
-    def full(*_: object, **__: object) -> None:
-        raise OSError(28, "No space left on device", "pareto.png")
+    def stopped(*_: object, **__: object) -> None:
+        raise cut
 
-    monkeypatch.setattr(smorphi_rl.plots, "plot_pareto", full)
+    monkeypatch.setattr(smorphi_rl.plots, "plot_pareto", stopped)
     code, _, err = run(capsys, "search", "random", "--map", MAP_1, "--samples", "5", "--log-dir", str(tmp_path))
     run_dir = tmp_path / "random-map-1-seed0"
-    assert code == 1 and "the search's results are whole in" in one_line(err) and str(run_dir) in one_line(err)
+    assert code == (130 if isinstance(cut, KeyboardInterrupt) else 1)
+    assert "the search's results are whole in" in one_line(err) and str(run_dir) in one_line(err)
     assert (run_dir / "summary.json").is_file() and (run_dir / "results.npz").is_file()
 
 

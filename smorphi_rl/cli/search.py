@@ -23,7 +23,7 @@ from smorphi_rl.cli.common import (
     weights,
 )
 from smorphi_rl.cli.fields import UNSET, option
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import angles_text, check_step
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
@@ -138,6 +138,9 @@ def cmd_search(args: argparse.Namespace) -> int:
     except OSError as exc:  # the run is whole without its picture: kept, and said so
         raise SmorphiError(f"{exc.strerror or exc}: {rel(run_dir / 'pareto.png')}; the search's results are whole "
                            f"in {rel(run_dir)} (`compare` reads them), only its plot is missing") from None  # fmt: skip
+    except KeyboardInterrupt:
+        raise Interrupted(f"stopped while drawing the plot: the search's results are whole in {rel(run_dir)} "
+                          "(`compare` reads them), only its plot is missing") from None  # fmt: skip
     from smorphi_rl.score import degenerate_warning
 
     if args.json:
