@@ -391,7 +391,7 @@ def train(
     with held, interrupts.stop_requests(late):  # held again: Ray's shutdown may have reset SIGTERM's handler
         summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
     interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
-    summary.stop_held = late.is_set()
+    summary.stop_held = late.is_set() or (stopper is not None and stopper.requested.is_set())  # at the budget too
     return summary
 
 
