@@ -55,7 +55,7 @@ def check_run_name(name: str, what: str = "run name") -> str:
     """`name` if it names one plain folder; RunDirError otherwise."""
     if not isinstance(name, str) or not RUN_NAME.fullmatch(name):
         raise RunDirError(
-            f"{what} {name!r} is not a plain folder name: use letters, digits and _ . + - (not first), "
+            f"{what} {name!r} is not a plain folder name: use ASCII letters, digits and _ . + - (not first), "
             "at most 128 characters, no / or .."
         )
     return name

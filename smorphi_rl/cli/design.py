@@ -50,11 +50,11 @@ def cmd_design(args: argparse.Namespace) -> int:
     """A shape for the floor from the shipped (or a given) designer within a budget of planner evaluations."""
     from smorphi_rl.design import check_budget, run_design
     from smorphi_rl.designer import designer_env, load_designer, unfamiliar_warning
-    from smorphi_rl.protocol import optimum_cache
+    from smorphi_rl.protocol import make_cache, optimum_cache
 
     t0 = time.perf_counter()
     check_budget(args.budget)
-    cache = optimum_cache(args.log_dir) if args.exact else None  # a --log-dir that is a file: one line, before work
+    cache = make_cache(optimum_cache(args.log_dir)) if args.exact else None  # one that cannot be: said before work
     plot = None if args.plot is None else output_file(args.plot, "--plot", (".png",), map_inputs(args.map), args.force)
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
