@@ -86,14 +86,17 @@ def ray_planners(
 @contextmanager
 def cluster_lost() -> Iterator[None]:
     """A Ray call that fails because the cluster (or an actor's node) went away mid-search, said in one line: Ray's
-    own error is an actor's death, or a broken pipe to its core ("error: Broken pipe")."""
+    own error is an actor's death, or a broken pipe to its core ("error: Broken pipe"). An error raised by the work
+    inside an actor (RayTaskError) is the work's, and passes."""
     import ray
 
     from smorphi_rl.cluster import ClusterError, ray_error_line
 
+    lost = (ray.exceptions.RayActorError, ray.exceptions.RaySystemError, ray.exceptions.ObjectLostError,
+            ray.exceptions.NodeDiedError, ConnectionError)  # fmt: skip  # not RayTaskError: an error of the work
     try:
         yield
-    except (ray.exceptions.RayError, ConnectionError) as exc:
+    except lost as exc:
         raise ClusterError(f"the Ray cluster stopped answering mid-search ({type(exc).__name__}: "
                            f"{ray_error_line(exc)[:160]}); nothing of the search is kept: run it again once the "
                            "cluster is up") from None  # fmt: skip

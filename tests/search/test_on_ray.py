@@ -74,3 +74,6 @@ def test_a_cluster_that_goes_away_mid_search_is_said_in_one_line():
         said = r"the Ray cluster stopped answering mid-search \(\w+: .*nothing of"
         with pytest.raises(ClusterError, match=said), cluster_lost():
             raise lost
+    work = ray.exceptions.RayTaskError("plan", "Traceback ...", ValueError("a bad shape"))
+    with pytest.raises(ray.exceptions.RayTaskError), cluster_lost():  # the work's own error is not the cluster's
+        raise work
