@@ -35,16 +35,23 @@ def install() -> None:
 
 
 @contextmanager
-def stop_requests(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+def stop_requests(stop: threading.Event | None = None, again: bool = False) -> Iterator[threading.Event]:
     """While a long computation runs, Ctrl-C and SIGTERM set an event (`stop`, or a new one) instead of raising
     wherever the main thread happens to be (a KeyboardInterrupt raised as a compiled kernel returns crashed the
-    process); the computation checks the event between chunks and stops there. Outside the main thread, nothing is
-    changed."""
+    process); the computation checks the event between chunks and stops there. With `again`, a stop once the event
+    is set raises KeyboardInterrupt: a second Ctrl-C stops at once (no compiled kernel runs there). Outside the main
+    thread, nothing is changed."""
     stop = stop if stop is not None else threading.Event()
     if threading.current_thread() is not threading.main_thread():
         yield stop
         return
-    handlers = {sig: signal.signal(sig, lambda *_: stop.set()) for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def request(*_: Any) -> None:
+        if again and stop.is_set():
+            raise KeyboardInterrupt
+        stop.set()
+
+    handlers = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield stop
     finally:

@@ -192,10 +192,11 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     if args.resume and not args.name:
         raise TrainConfigError("--resume continues a job: give its --name (and --log-dir, if not the default)")
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
+    stopped = False
     try:
         job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
     except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
-        job_dir, runs = stop.job_dir, stop.runs
+        job_dir, runs, stopped = stop.job_dir, stop.runs, True
     cut = sum(r.interrupted for r in runs)
     if runs:
         files = write_transfer_report(job_dir, runs)
@@ -208,7 +209,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
             print(f"warning: fine-tuned runs that did not confirm the pretrained policy in all runners: {len(missing)}")
         print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
               f"curves: {rel(files['png'])}")  # fmt: skip
-    if cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
+    if stopped or cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
         listed = " (transfer.csv lists the one cut short)" if cut else ""
         held = f"the table holds the runs that finished ({len(runs) - cut}){listed}" if runs else "no run finished"
         print(f"{PROG}: interrupted: {held}; continue with the same command and --name "

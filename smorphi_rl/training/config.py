@@ -148,7 +148,7 @@ class TrainConfig:
         if self.max_iterations is not None and self.max_iterations > MAX_TIMESTEPS:  # an iteration is 1+ env steps
             raise TrainConfigError(f"max_iterations {self.max_iterations:,}: at most {MAX_TIMESTEPS:,}, the most env "
                                    "steps a run takes")  # fmt: skip
-        check_seed(self.seed, error=TrainConfigError)
+        object.__setattr__(self, "seed", check_seed(self.seed, error=TrainConfigError))  # a NumPy integer: an int
         for name in ("eval_every", "select_starts", "record_every", "design_budget"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 0:

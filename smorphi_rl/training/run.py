@@ -45,7 +45,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
-from smorphi_rl.training.stopping import GracefulStop
+from smorphi_rl.training.stopping import GracefulStop, tune_stop_seen
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests, write_found
 from smorphi_rl.training.trial import resources, run_trial
@@ -84,8 +84,9 @@ class RunSummary:
     """Interrupted by a first Ctrl-C that ended it as its budget's end would (`stopping.py`): its last checkpoint
     holds the final policy."""
     stop_held: bool = False
-    """A stop request (Ctrl-C, SIGTERM) came once training had ended, and waited for the tables and summary.json:
-    the run is whole, and the caller stops (`train` exits 130, `transfer` ends the job there)."""
+    """A stop request (Ctrl-C, SIGTERM) reached the run: once training had ended (it waited for the tables and
+    summary.json), at its budget's end, or earlier (then `interrupted` says the run was cut short). The caller stops:
+    `train` exits 130, `transfer` and `reproduce` end the job there."""
     address: str | None = None
     """The Ray cluster the run trained on (`--address`, `auto` resolved); None: a Ray of this machine's own."""
 
@@ -285,11 +286,11 @@ def _train_trainable(
 
 def _fit(
     cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, progress: _Progress,
-    stopper: GracefulStop | None = None,
+    stopper: GracefulStop | None, late: threading.Event,
 ) -> float:  # fmt: skip
     """The Tune run itself (a local Ray or a cluster is already up), its results shown and kept by `progress`: the
     wall time; a failed trial raises TrainingError in one line. With `stopper`, a first Ctrl-C ends the run as its
-    budget's end would."""
+    budget's end would; without, a stop Tune's own handler took is set in `late`."""
     from ray import tune
 
     from smorphi_rl.training.tensorboard import TensorBoardLogger
@@ -311,7 +312,8 @@ def _fit(
     )
     t0 = progress.t0 = time.monotonic()  # the bar's clock and the summary's: training alone, from here
     if stopper is None:
-        _, failed = fit(tuner, run_dir)
+        with tune_stop_seen(late):
+            _, failed = fit(tuner, run_dir)
     else:
         with stopper.catching(reported=lambda: bool(progress.curve["env_steps"])):
             _, failed = fit(tuner, run_dir)
@@ -332,6 +334,12 @@ def reported_any(run_dir: Path, algo: str, progress: _Progress | None = None) ->
     trials = list(run_dir.glob(f"{algo}-*"))
     rows = any((t / "result.json").is_file() and (t / "result.json").stat().st_size > 0 for t in trials)
     return rows or any(checkpoints_under(t) for t in trials)
+
+
+def stopped_at_once(run_dir: Path) -> str:
+    """What a run a second stop ended at once says: what its folder keeps."""
+    return (f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any checkpoint), but no "
+            "tables or summary.json")  # fmt: skip
 
 
 def nothing_kept(run_dir: Path) -> str:
@@ -374,8 +382,8 @@ def train(
             config = cfg.to_dict() | {"name": name, "address": address}
             write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
             stopper = GracefulStop(out) if graceful else None
-            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper)
-            held.enter_context(interrupts.stop_requests(late))  # Ray's shutdown and the outputs to come
+            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late)
+            held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException as exc:
@@ -385,11 +393,13 @@ def train(
             if isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):
                 raise Interrupted(nothing_kept(run_dir)) from None
         elif isinstance(exc, KeyboardInterrupt) and not isinstance(exc, Interrupted):  # a second Ctrl-C: at once
-            raise Interrupted(f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any "
-                              "checkpoint), but no tables or summary.json") from None  # fmt: skip
+            raise Interrupted(stopped_at_once(run_dir)) from None
         raise
-    with held, interrupts.stop_requests(late):  # held again: Ray's shutdown may have reset SIGTERM's handler
-        summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
+    try:
+        with held, interrupts.stop_requests(late, again=True):  # again: Ray's shutdown may have reset SIGTERM's
+            summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
+    except KeyboardInterrupt as exc:  # a second stop as the results are written: at once
+        raise exc if isinstance(exc, Interrupted) else Interrupted(stopped_at_once(run_dir)) from None
     interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
     summary.stop_held = late.is_set() or (stopper is not None and stopper.requested.is_set())  # at the budget too
     return summary

@@ -26,6 +26,24 @@ ASK_TIMEOUT_S = 30
 """How long asking the trials may take (a new Ray worker process for the actor) before the request is given up."""
 
 
+@contextmanager
+def tune_stop_seen(stopped: threading.Event) -> Iterator[None]:
+    """Around `Tuner.fit()` under Tune's own SIGINT handler (no graceful stop): Tune puts back the handler it found
+    only when a stop fires, and leaves its own installed on a normal return, where a later Ctrl-C would set a flag
+    nothing reads (a job's next run would train on). On leaving, a stop Tune took is set in `stopped`, and the
+    handler found is back either way."""
+    if threading.current_thread() is not threading.main_thread() or os.environ.get(TUNE_SIGINT) == "1":
+        yield
+        return
+    before = signal.getsignal(signal.SIGINT)
+    try:
+        yield
+    finally:
+        if signal.getsignal(signal.SIGINT) is before:  # Tune's handler fired, and put `before` back
+            stopped.set()
+        signal.signal(signal.SIGINT, before)
+
+
 def stop_requested(name: str) -> bool:
     """Inside a trial: whether the driver asked the run `name` to end (`GracefulStop`); a lookup that fails (no such
     actor, or the cluster's directory slow to answer) is no request, never a failed trial."""

@@ -53,6 +53,7 @@ from smorphi_rl.training.run import (
     training_optima,
     trial_callbacks,
 )
+from smorphi_rl.training.stopping import tune_stop_seen
 from smorphi_rl.training.sweep_config import SweepConfig, SweepConfigError, complaint, trial_dirname
 from smorphi_rl.training.sweep_report import (
     TrialRow,
@@ -357,7 +358,7 @@ def run_sweep(
                               "removed)") from None  # fmt: skip
     wall = time.monotonic() - t0
     progress.finish()
-    with held, interrupts.stop_requests(late):  # held again: Ray's shutdown may have reset SIGTERM's handler
+    with held, interrupts.stop_requests(late, again=True):  # again: Ray's shutdown may have reset SIGTERM's
         if failed and (failed.disk_full or results is None):
             raise TrainingError(failed.line)  # no tables either
         rows = read_sweep(exp)
@@ -412,8 +413,9 @@ def _fit(
 
         tuner = tune.Tuner(trainable, param_space=param_space, run_config=run_config,
                            tune_config=tune.TuneConfig(trial_dirname_creator=dirname))  # fmt: skip
-        outcome = fit(tuner, exp, "the sweep")
-        held.enter_context(interrupts.stop_requests(late))
+        with tune_stop_seen(late):
+            outcome = fit(tuner, exp, "the sweep")
+        held.enter_context(interrupts.stop_requests(late, again=True))
         return outcome
 
 

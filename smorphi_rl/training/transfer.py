@@ -207,7 +207,9 @@ def run_transfer(
                                 label=f"{run_cfg.algo.upper()} {run_name} (run {number} of {len(planned)})",
                                 optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir)  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
-                if trained.interrupted or trained.stop_held:
+                if trained.stop_held:  # a stop as the run ended, held until it was written: the job ends here
+                    raise KeyboardInterrupt
+                if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException as exc:
         if not (resume or any((job_dir / n).exists() for *_, n in planned)):

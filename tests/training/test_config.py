@@ -226,3 +226,13 @@ def test_the_kl_penalty_is_a_tunable_hyperparameter_of_ppo_and_appo():
     assert not algorithm_config(TrainConfig(overrides={"kl_coeff": 0})).use_kl_loss
     with pytest.raises(TrainConfigError, match="ppo and appo's; impala has none"):
         TrainConfig(algo="impala", overrides={"kl_coeff": 0.2})
+
+
+def test_a_numpy_integer_seed_is_kept_as_an_int():
+    """The Python API: a NumPy seed passed the check, then config.json could not be written (after Ray started)."""
+    import json
+
+    import numpy as np
+
+    cfg = TrainConfig(seed=np.int64(3))
+    assert type(cfg.seed) is int and json.loads(json.dumps(cfg.to_dict()))["seed"] == 3

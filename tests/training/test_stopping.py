@@ -50,3 +50,28 @@ def test_a_quick_second_signal_stops_at_once_without_crashing_ray():
         proc = stop_script(gap)
         assert proc.returncode == 130 and proc.stdout.strip() == "stopped at once", (gap, proc.stderr[-2000:])
         assert "core worker has already been shutdown" not in proc.stderr
+
+
+def test_a_stop_tunes_own_handler_took_is_seen_and_its_handler_never_outlives_fit(monkeypatch):
+    """Tune puts back the SIGINT handler it found only when a stop fires: a stop after a run's last report ended
+    `fit` as usual (a transfer trained its next run), and on a normal return Tune's handler stayed, swallowing the
+    next Ctrl-C."""
+    import signal
+    import threading
+
+    from smorphi_rl.training.stopping import TUNE_SIGINT, tune_stop_seen
+
+    monkeypatch.delenv(TUNE_SIGINT, raising=False)
+    before = signal.getsignal(signal.SIGINT)
+
+    def tunes_fit(fire: bool) -> None:  # what `tune.run`'s _setup_signal_catching does
+        found = signal.getsignal(signal.SIGINT)
+        signal.signal(signal.SIGINT, lambda *_: signal.signal(signal.SIGINT, found))
+        if fire:
+            signal.raise_signal(signal.SIGINT)
+
+    for fire in (True, False):
+        stopped = threading.Event()
+        with tune_stop_seen(stopped):
+            tunes_fit(fire)
+        assert stopped.is_set() is fire and signal.getsignal(signal.SIGINT) is before

@@ -337,7 +337,7 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
     from smorphi_rl.training import run as run_module
     from smorphi_rl.training.result_keys import STEPS
 
-    def fit(cfg, name, run_dir, callbacks, progress, stopper):
+    def fit(cfg, name, run_dir, callbacks, progress, stopper, late):
         trial = run_dir / f"{cfg.algo}-trial_00000"
         trial.mkdir()
         progress.status.out = io.StringIO()  # its progress line aside: the test reads stderr's last line
@@ -383,12 +383,12 @@ def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypat
     """A Ctrl-C 1-2 s after the last bar (Ray shutting down, the tables being written) lost summary.json: a bare
     'interrupted', a second Ctrl-C's line, or (SIGTERM, once Ray had reset its handler) a kill without a word."""
     import signal
-    from contextlib import nullcontext
+    from contextlib import contextmanager
 
     from smorphi_rl.training import run as run_module
     from smorphi_rl.training.result_keys import STEPS
 
-    def fit(cfg, name, run_dir, callbacks, progress, stopper):
+    def fit(cfg, name, run_dir, callbacks, progress, stopper, late):
         (run_dir / f"{cfg.algo}-trial_00000").mkdir()
         progress.status.out = io.StringIO()
         progress.on_result({STEPS: cfg.timesteps})  # the whole budget, reported
@@ -400,8 +400,13 @@ def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypat
         signal.raise_signal(getattr(signal, signame))  # as the tables are written
         return writes(*args, **kwargs)
 
+    @contextmanager
+    def ray_session(address):
+        yield
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as Ray's shutdown leaves it: a SIGTERM then kills
+
     monkeypatch.setattr(run_module, "training_optima", lambda cfg, log_dir, out: {})
-    monkeypatch.setattr(run_module.cluster, "ray_session", lambda address: nullcontext())
+    monkeypatch.setattr(run_module.cluster, "ray_session", ray_session)
     monkeypatch.setattr(run_module, "_fit", fit)
     monkeypatch.setattr(run_module, "write_outputs", write_outputs)
     argv = ["train", "--log-dir", str(tmp_path / "logs"), "--name", "late", "--eval-every", "0", "--timesteps", "2000"]
@@ -413,6 +418,16 @@ def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypat
     )
     assert (tmp_path / "logs" / "late" / "summary.json").is_file() and "PPO trained for 2,000 env steps" in out
     assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards
+
+    def twice(*args, **kwargs):  # a second stop as the results are written: at once, and said so
+        signal.raise_signal(getattr(signal, signame))
+        signal.raise_signal(getattr(signal, signame))
+        return writes(*args, **kwargs)
+
+    monkeypatch.setattr(run_module, "write_outputs", twice)
+    assert main([*argv[:3], "--name", "twice", *argv[5:]]) == 130
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said.startswith(f"smorphi-rl: interrupted: stopped at once; {tmp_path / 'logs' / 'twice'} keeps what")
 
 
 @pytest.mark.parametrize("reported", [False, True])

@@ -276,6 +276,11 @@ def test_a_stop_as_a_run_ends_ends_the_job_there(tmp_path, fake_runs, capsys):
     assert main([*argv, "--seeds", "0"]) == 130
     assert calls == ["val-1-fine-tune-seed0"]
     assert "the table holds the runs that finished (1)" in capsys.readouterr().err
+    calls.clear()
+    stops.clear()
+    stops[2] = "as it ended"  # on the job's last run: every run finished, and the job still says it was stopped
+    assert main([*argv, "--seeds", "0", "--name", "last"]) == 130
+    assert len(calls) == 2 and "the table holds the runs that finished (2)" in capsys.readouterr().err
 
 
 def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path, fake_runs, monkeypatch, capsys):
