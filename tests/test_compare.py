@@ -361,7 +361,7 @@ def _training_run(tmp_path: Path, env: dict, map_name: str = "map-1") -> Path:
 
 def test_settled_figures_measured_under_other_weights_are_left_out_and_said(tmp_path, capsys):
     """A run trained with `per_area` (a designer's fine-tune) showed its own gap, to its own optimum, under a table
-    headed by another optimum, and a `moves` run's gap under a `per_area` table."""
+    headed by another optimum; under a `per_area` table its figures are shown."""
     run = _training_run(tmp_path, {"path_term": "per_area"})
     argv = ["compare", "--map", MAP_1, "--runs", str(run), "--step", "30"]
     capsys.readouterr()

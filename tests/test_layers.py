@@ -136,7 +136,7 @@ def test_each_outside_library_is_imported_from_its_home_only():
     assert not wrong, "\n".join(wrong)
 
 
-def test_the_checks_see_lazy_and_relative_imports():
+def test_the_checks_see_lazy_imports_and_judge_them():
     """An import inside a function is found and judged: the two tests above can fail."""
     source = "def make():\n    from smorphi_rl.recording import RecordingWrapper\n    from smorphi_rl import plots\n"
     source += "    import matplotlib.pyplot\n"
