@@ -455,3 +455,36 @@ def test_a_sweep_stopped_before_its_first_report_leaves_no_folder(tmp_path, monk
     else:
         nothing = f"stopped before the sweep's first report: nothing was kept ({exp} was removed)"
         assert said == f"smorphi-rl: interrupted: {nothing}"
+
+
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_stop_as_a_sweep_writes_its_tables_waits_for_them(tmp_path, monkeypatch, signame):
+    """SIGTERM 1 s after the last trial (Ray shut down, the tables being written) killed the sweep without a word
+    (exit 143) and without its tables."""
+    import signal
+
+    from smorphi_rl.training import sweep as sweep_module
+    from smorphi_rl.training.sweep_config import load_sweep
+
+    root = Path(__file__).resolve().parents[2]
+    config = tmp_path / "tiny.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{root / 'maps' / 'map-1.yaml'}]\nseeds: [0]\n")
+    written = []
+
+    def fit(sweep, exp, address, widest, optima, pending, points, progress, held, late):
+        held.enter_context(sweep_module.interrupts.stop_requests(late, again=True))
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as Ray's shutdown leaves it
+        return object(), None
+
+    def outputs(exp, rows):
+        signal.raise_signal(getattr(signal, signame))
+        written.append(exp)
+        return {}
+
+    monkeypatch.setattr(sweep_module, "training_optima", lambda cfg, log_dir, out: {})
+    monkeypatch.setattr(sweep_module, "_fit", fit)
+    monkeypatch.setattr(sweep_module, "read_sweep", lambda exp: [])
+    monkeypatch.setattr(sweep_module, "write_trial_files", lambda *args, **kwargs: None)
+    monkeypatch.setattr(sweep_module, "write_sweep_outputs", outputs)
+    summary = sweep_module.run_sweep(load_sweep(config), tmp_path / "logs", None, False)
+    assert written and summary.stop_held and signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
