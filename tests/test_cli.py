@@ -425,3 +425,24 @@ def test_evaluate_warns_when_the_path_term_swamps_coverage_as_search_does(capsys
     assert err.startswith("warning: on hall the path term swamps coverage (its R1 -") and "--path-term per_area" in err
     assert run(capsys, "evaluate", "--map", str(hall), "--angles", "0", "180", "0", "--path-term", "per_area")[2] == ""
     assert run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0")[2] == ""
+
+
+def test_maps_generate_stopped_says_which_floors_it_wrote(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C during `maps generate --count 50` said a bare 'interrupted' (40 floors were written, each whole)."""
+    from smorphi_rl import floorplans
+
+    real, calls = floorplans.generate_floor, []
+
+    def stopped(kind, seed, *args):
+        calls.append(seed)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(kind, seed, *args)
+
+    monkeypatch.setattr(floorplans, "generate_floor", stopped)
+    argv = ["maps", "generate", "--kind", "rooms", "--count", "5", "--seed", "7", "--out", str(tmp_path / "f")]
+    assert main(argv) == 130
+    said = f"smorphi-rl: interrupted: wrote 2 of the 5 rooms floors to {tmp_path / 'f'} (seeds 7-8), each whole\n"
+    assert capsys.readouterr().err == said
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == [
+        "rooms-0000007.pgm", "rooms-0000007.yaml", "rooms-0000008.pgm", "rooms-0000008.yaml"]  # fmt: skip

@@ -12,7 +12,7 @@ import numpy as np
 
 from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, seed_arg
 from smorphi_rl.cli.fields import finite_arg, param_default
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.floorplans import FloorKind
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
 from smorphi_rl.maps import Cell, Map, generate_map, load_map, map_inputs, obstacle_target
@@ -159,12 +159,16 @@ def _generate_floors(args: argparse.Namespace) -> int:
     from smorphi_rl.rundir import claimed_files
 
     check_not_folders([f for n in names for f in (out / f"{n}.yaml", out / f"{n}.{args.format}")])
-    cells = 0
-    with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
-        for i, name in enumerate(names):
-            grid_map = generate_floor(args.kind, args.seed + i)
-            save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
-            cells += grid_map.cells.size
+    cells, done = 0, 0
+    try:
+        with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
+            for i, name in enumerate(names):
+                grid_map = generate_floor(args.kind, args.seed + i)
+                save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
+                cells, done = cells + grid_map.cells.size, done + 1
+    except KeyboardInterrupt:  # every floor written is whole (a YAML and its image): say which
+        last = f" (seeds {args.seed}-{args.seed + done - 1})" if done else ""
+        raise Interrupted(f"wrote {done} of the {len(names)} {args.kind} floors to {out}{last}, each whole") from None
     print(f"wrote {len(names)} {args.kind} floors to {out} (seeds {args.seed}-{args.seed + len(names) - 1}, "
           f"on average {cells / len(names):,.0f} cells a floor, unknown margin included)")  # fmt: skip
     return 0
