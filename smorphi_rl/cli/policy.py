@@ -20,7 +20,7 @@ from smorphi_rl.cli.common import (
     scored_text,
     seed_arg,
 )
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, MAX_SEED, output_file, resolved
 from smorphi_rl.map_sources import map_files, resolve
@@ -316,8 +316,16 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
         meta = {"run": str(checkpoint), "algorithm": f"greedy {module.model_config.get('algorithm', 'policy')}",
                 "seed": str(args.seed), "config": json.dumps(base.config.to_dict())}  # fmt: skip
         env = RecordingWrapper(base, RecordingConfig(str(Path(args.record).resolve()), every=1, metadata=meta))
+    done: list[Any] = []
     try:
-        return [rollout(module, env, args.seed + i) for i in range(args.episodes)]
+        for i in range(args.episodes):
+            done.append(rollout(module, env, args.seed + i))
+        return done
+    except KeyboardInterrupt:
+        if args.record is None:
+            raise
+        raise Interrupted(f"after {counted(len(done), 'episode')} of {args.episodes:,}: their recordings are whole in "
+                          f"{rel(Path(args.record))} (the one cut short ends with a note)") from None  # fmt: skip
     finally:
         env.close()
 

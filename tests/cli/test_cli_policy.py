@@ -48,3 +48,30 @@ def test_the_protocol_on_a_run_writes_nothing_where_it_is_called_from(tmp_path, 
         assert main(["evaluate-policy", "--checkpoint", str(checkpoint), "--map", MAP_1, "--starts", "2"]) == 0
     out = capsys.readouterr().out
     assert out.startswith(f"policy  {checkpoint}\n") and "map-1" in out and not any(elsewhere.iterdir())
+
+
+def test_evaluate_policy_stopped_while_recording_says_what_it_recorded(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C during `evaluate-policy --episodes N --record DIR` said a bare 'interrupted' (42 recordings kept)."""
+    from smorphi_rl.recording import episode_files, read_episode
+    from smorphi_rl.training import policy
+
+    real, calls = policy.rollout, []
+
+    def stopped(module, env, seed):
+        calls.append(seed)
+        if len(calls) == 3:
+            env.reset(seed=seed)  # the third episode has begun, then the stop
+            env.step(env.action_space.sample())
+            raise KeyboardInterrupt
+        return real(module, env, seed)
+
+    monkeypatch.setattr(policy, "rollout", stopped)
+    record = tmp_path / "rec"
+    argv = ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--episodes", "5", "--record",
+            str(record)]  # fmt: skip
+    assert main(argv) == 130
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == (f"smorphi-rl: interrupted: after 2 episodes of 5: their recordings are whole in {record} (the one "
+                    "cut short ends with a note)")  # fmt: skip
+    files = episode_files(record)
+    assert len(files) == 3 and sum(read_episode(f).cut_short is not None for f in files) == 1
