@@ -348,7 +348,8 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         + (f" Runs cut short ({cut}; transfer.csv) are left out." if cut else ""),
         "",
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
-        f"| Ratio scratch / fine-tuned | Gap at {equal:,} env steps fine-tuned | scratch "
+        f"| Ratio scratch / fine-tuned | Gap at {f'{equal:,} env steps' if equal else 'equal env steps'} fine-tuned "
+        "| scratch "
         "| Plateau greedy settled R1 fine-tuned | scratch | Best R1 fine-tuned / scratch |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
