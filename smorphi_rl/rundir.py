@@ -97,6 +97,12 @@ def _alive(pid: int) -> bool:
     return True
 
 
+def in_use_by(run_dir: Path) -> int | None:
+    """The pid of the running process whose claim `run_dir` holds (another job writing there now); None if none."""
+    pid = _claimant(run_dir)
+    return pid if _alive(pid) else None
+
+
 def _abandoned(run_dir: Path) -> bool:
     """A folder holding nothing but the claim of a process that is no longer alive (a run killed before it wrote
     anything): it may be claimed again."""

@@ -252,3 +252,26 @@ def test_a_path_in_a_printed_command_is_quoted_for_the_shell(tmp_path, monkeypat
     assert shell_path(tmp_path / "logs" / "run") == "logs/run"
     assert shlex.split(f"replay {shell_path(tmp_path / 'my logs' / 'rün')}") == ["replay", "my logs/rün"]
     assert shell_path("/elsewhere/it's") == "'/elsewhere/it'\"'\"'s'"
+
+
+def test_a_job_running_in_the_folder_asked_for_is_named_not_offered_a_resume(tmp_path, capsys):
+    """The second of two `sweep`s (or `transfer`s) of one name was told "or add --resume", which the folder, in use by
+    the first, then refused."""
+    import subprocess
+    import sys
+
+    root = Path(__file__).resolve().parents[1]
+    config = tmp_path / "tiny.yaml"
+    config.write_text(f"algorithms: [ppo]\nmaps: [{root / 'maps' / 'map-1.yaml'}]\nseeds: [0]\n")
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        (tmp_path / "logs" / "tiny").mkdir(parents=True)
+        (tmp_path / "logs" / "tiny" / MARKER).write_text(f"pid {live.pid} at 2026-01-01T00:00:00\n")
+        capsys.readouterr()
+        assert main(["sweep", str(config), "--log-dir", str(tmp_path / "logs")]) == 1
+        err = capsys.readouterr().err
+        assert f"is in use by process {live.pid}, a sweep running now: wait for it to finish" in err, err
+        assert "--resume" not in err
+    finally:
+        live.kill()
+        live.wait()

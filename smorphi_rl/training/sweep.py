@@ -32,6 +32,7 @@ from smorphi_rl.rundir import (
     check_run_dir,
     claim_again,
     discard_run_dir,
+    in_use_by,
     prepare_run_dir,
     refuse_links,
     rel,
@@ -246,6 +247,9 @@ def _new_experiment(log_dir: str | Path, name: str, claim: Any) -> Path:
             exp: Path | None = Path(log_dir).resolve() / name
         except (RuntimeError, OSError):  # a symlink loop: the claim's own line says so
             exp = None
+        if exp is not None and exp.is_dir() and (pid := in_use_by(exp)) is not None:
+            raise RunDirError(f"experiment folder {exp} is in use by process {pid}, a sweep running now: wait for it "
+                              "to finish, or give the sweep file another `name`") from None  # fmt: skip
         if exp is not None and exp.is_dir():
             raise RunDirError(f"experiment folder {exp} already exists: give the sweep file another `name`, or add "
                               "--resume to continue it") from None  # fmt: skip

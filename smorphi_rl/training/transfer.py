@@ -144,7 +144,14 @@ def run_transfer(
     exact optima are cached under `optima_log_dir` (default `log_dir`, the folder the user named)."""
     from smorphi_rl import cluster
     from smorphi_rl.errors import SmorphiError
-    from smorphi_rl.rundir import RunDirError, claim_again, discard_run_dir, prepare_run_dir, rename_cut_run
+    from smorphi_rl.rundir import (
+        RunDirError,
+        claim_again,
+        discard_run_dir,
+        in_use_by,
+        prepare_run_dir,
+        rename_cut_run,
+    )
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained, model_setup
     from smorphi_rl.training.run import TrainingError, train
@@ -184,6 +191,10 @@ def run_transfer(
         try:
             job_dir = prepare_run_dir(log_dir, name)
         except RunDirError as exc:
+            running = in_use_by(Path(log_dir) / name)
+            if running is not None:  # a job writing there now: no resume either
+                raise RunDirError(f"{Path(log_dir) / name} is in use by process {running}, a transfer job running now: "
+                                  "wait for it to finish, or choose another --name") from None  # fmt: skip
             if is_transfer_job(Path(log_dir) / name):  # an earlier job of that name: it may be one to continue
                 raise RunDirError(f"{exc}, or add --resume to continue that job") from None
             raise
