@@ -12,7 +12,7 @@ from __future__ import annotations
 import signal
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from typing import Any
 
 
@@ -57,3 +57,13 @@ def stop_requests(stop: threading.Event | None = None, again: bool = False) -> I
     finally:
         for sig, handler in handlers.items():
             signal.signal(sig, handler)
+
+
+@contextmanager
+def results_held(stop: threading.Event, held: ExitStack) -> Iterator[None]:
+    """Writing a job's results once its training has ended (`held` already holds stops in `stop` since then): stops
+    are held again, since Ray's shutdown may have reset SIGTERM's handler to its default (a kill), and a second stop
+    raises at once; on leaving, SIGTERM is Ctrl-C again (`install`)."""
+    with held, stop_requests(stop, again=True):
+        yield
+    install()

@@ -396,11 +396,10 @@ def train(
             raise Interrupted(stopped_at_once(run_dir)) from None
         raise
     try:
-        with held, interrupts.stop_requests(late, again=True):  # again: Ray's shutdown may have reset SIGTERM's
+        with interrupts.results_held(late, held):
             summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
     except KeyboardInterrupt as exc:  # a second stop as the results are written: at once
         raise exc if isinstance(exc, Interrupted) else Interrupted(stopped_at_once(run_dir)) from None
-    interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
     summary.stop_held = late.is_set() or (stopper is not None and stopper.requested.is_set())  # at the budget too
     return summary
 

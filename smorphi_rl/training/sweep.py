@@ -362,13 +362,12 @@ def run_sweep(
                               "removed)") from None  # fmt: skip
     wall = time.monotonic() - t0
     progress.finish()
-    with held, interrupts.stop_requests(late, again=True):  # again: Ray's shutdown may have reset SIGTERM's
+    with interrupts.results_held(late, held):
         if failed and (failed.disk_full or results is None):
             raise TrainingError(failed.line)  # no tables either
         rows = read_sweep(exp)
         write_trial_files(exp, rows, optima, digests, sweep.step_budget)
         files = write_sweep_outputs(exp, rows)
-    interrupts.install()  # SIGTERM as Ctrl-C again (Ray's shutdown left it at its default: a kill)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
     finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
