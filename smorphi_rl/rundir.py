@@ -119,8 +119,7 @@ def claim_again(run_dir: Path) -> None:
     """Claim a run directory an earlier process made, to continue it (`--resume`): refused while the process
     its claim names still runs (two writers would mix their files)."""
     with _write_lock(run_dir / MARKER):
-        pid = _claimant(run_dir)
-        if _alive(pid):
+        if (pid := in_use_by(run_dir)) is not None:
             raise RunDirError(f"{rel(run_dir)} is in use by process {pid}: stop it first, or wait for it to finish")
         write_text_atomic(run_dir / MARKER, f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
 

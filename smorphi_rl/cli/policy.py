@@ -174,7 +174,7 @@ def _replay_listing(directory: Path) -> int:
 
 def cmd_replay(args: argparse.Namespace) -> int:
     """Summarise a recorded episode (or list a run's recordings); print its steps; draw it as PNG or GIF."""
-    from smorphi_rl.recording import read_episode
+    from smorphi_rl.recording.reader import FILE_CUT_SHORT, read_episode
 
     target = Path(args.path)
     if target.is_dir():
@@ -201,7 +201,7 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if ep.truncated:
         lost = "every step of the episode is here" if ep.ended else "the rest of the episode was lost"
         rows.append(("recovered", f"{len(steps) - 1} steps from a file cut short ({lost})"))
-    if ep.cut_short and ep.logs and ep.cut_short == ep.logs[-1]:  # the env's note: the run ended mid-episode
+    if ep.cut_short not in (None, FILE_CUT_SHORT):  # the env's note: the run ended mid-episode
         rows.append(("ended", ep.cut_short))
     print("\n".join(one_line(f"{k:<10} {v}") for k, v in rows))  # a recording's text never drives the terminal
     if args.steps:

@@ -37,6 +37,9 @@ from smorphi_rl.recording.messages import (
 )
 from smorphi_rl.score import MAX_P_LEN
 
+FILE_CUT_SHORT = "file cut short"
+"""`Episode.cut_short` of a file that ends before its episode did (a killed worker's), the env's own note aside."""
+
 
 @dataclass
 class Episode:
@@ -62,7 +65,7 @@ class Episode:
         ended), or the file was cut short; None when the episode ran to its end."""
         if self.logs and self.logs[-1].startswith(LOG_CUT):
             return self.logs[-1]
-        return None if self.ended or not self.truncated else "file cut short"
+        return None if self.ended or not self.truncated else FILE_CUT_SHORT
 
     @property
     def best(self) -> dict[str, Any] | None:

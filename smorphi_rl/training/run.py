@@ -342,9 +342,9 @@ def stopped_at_once(run_dir: Path) -> str:
             "tables or summary.json")  # fmt: skip
 
 
-def nothing_kept(run_dir: Path) -> str:
-    """What a run stopped before its first report says: nothing of it was kept."""
-    return f"stopped before the run's first report: nothing was kept ({rel(run_dir)} was removed)"
+def nothing_kept(run_dir: Path, what: str = "run") -> str:
+    """What a run (or sweep) stopped before its first report says: nothing of it was kept."""
+    return f"stopped before the {what}'s first report: nothing was kept ({rel(run_dir)} was removed)"
 
 
 def train(

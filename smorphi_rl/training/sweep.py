@@ -35,7 +35,6 @@ from smorphi_rl.rundir import (
     in_use_by,
     prepare_run_dir,
     refuse_links,
-    rel,
     shell_path,
     write_atomic,
     write_text_atomic,
@@ -51,6 +50,7 @@ from smorphi_rl.training.run import (
     TrainingError,
     fmt_duration,
     map_digests,
+    nothing_kept,
     training_optima,
     trial_callbacks,
 )
@@ -358,8 +358,7 @@ def run_sweep(
             if resume or progress.reported or isinstance(exc, Interrupted):
                 raise
             discard_run_dir(exp)  # stopped before any trial reported: nothing to resume, the name stays free
-            raise Interrupted(f"stopped before the sweep's first report: nothing was kept ({rel(exp)} was "
-                              "removed)") from None  # fmt: skip
+            raise Interrupted(nothing_kept(exp, "sweep")) from None
     wall = time.monotonic() - t0
     progress.finish()
     with interrupts.results_held(late, held):
