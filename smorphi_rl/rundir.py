@@ -185,6 +185,9 @@ def _taken(run_dir: Path) -> str:
     return f"run directory {rel(run_dir)} already exists: choose another --name"
 
 
+_UNWRITABLE = (errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR)
+
+
 def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     """`log_dir/name`, created and claimed atomically; refused if it already holds anything or another
     process claimed it first."""
@@ -200,8 +203,10 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
         fd = os.open(run_dir / MARKER, os.O_CREAT | os.O_EXCL | os.O_WRONLY, 0o644)
     except FileExistsError:
         raise RunDirError(_taken(run_dir)) from None
-    except OSError as exc:
-        raise RunDirError(f"log directory {rel(root)} is not writable ({exc.strerror or exc})") from None
+    except OSError as exc:  # a permission named as such; anything else (a full disk, /proc) as what failed
+        if exc.errno in _UNWRITABLE:
+            raise RunDirError(f"log directory {rel(root)} is not writable ({exc.strerror or exc})") from None
+        raise RunDirError(f"cannot create the run directory {rel(run_dir)} ({exc.strerror or exc})") from None
     try:
         with os.fdopen(fd, "w") as fh:
             fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")

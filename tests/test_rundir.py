@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import multiprocessing as mp
+import os
 from pathlib import Path
 
 import numpy as np
@@ -275,3 +277,14 @@ def test_a_job_running_in_the_folder_asked_for_is_named_not_offered_a_resume(tmp
     finally:
         live.kill()
         live.wait()
+
+
+def test_a_folder_that_cannot_be_made_is_named_for_what_failed(tmp_path, monkeypatch):
+    """A full disk or a virtual file system is not a permission: the line names the folder and the reason."""
+
+    def full(path, *args, **kwargs):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
+
+    monkeypatch.setattr(Path, "mkdir", full)
+    with pytest.raises(RunDirError, match=r"cannot create the run directory .*run-1 \(No space left on device\)"):
+        prepare_run_dir(tmp_path / "logs", "run-1")
