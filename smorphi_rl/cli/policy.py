@@ -366,7 +366,7 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
             for o in ev.outcomes:
                 print(jsontext.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
                                   "settled": {"theta": list(o.settled), "R1": o.R1, "P_c": o.P_c, "P_len": o.P_len,
-                                              "gap": ev.optimum.R1 - o.R1}}))  # fmt: skip
+                                              "gap": round(ev.optimum.R1 - o.R1, 9)}}))  # fmt: skip
             continue
         opt = ev.optimum
         print(one_line(f"{ev.map}: exact optimum {angles_text(opt.theta)} R1 {opt.R1:.2f}; greedy from "

@@ -75,3 +75,16 @@ def test_evaluate_policy_stopped_while_recording_says_what_it_recorded(tmp_path,
                     "cut short ends with a note)")  # fmt: skip
     files = episode_files(record)
     assert len(files) == 3 and sum(read_episode(f).cut_short is not None for f in files) == 1
+
+
+def test_the_protocol_as_json_lines_gives_each_start_its_gap_to_the_optimum(capsys):
+    """One line a start; the gap is the optimum's R1 less the settled R1, rounded (it read 0.35999999999999943)."""
+    import json
+
+    assert main(["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--starts", "3", "--json"]) == 0
+    lines = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+    assert len(lines) == 3 and {line["map"] for line in lines} == {"map-1"}
+    gaps = [line["settled"]["gap"] for line in lines]
+    assert all(g >= 0 and g == round(g, 9) for g in gaps)
+    best = max(line["settled"]["R1"] + line["settled"]["gap"] for line in lines)  # the optimum, from every line alike
+    assert all(abs(line["settled"]["R1"] + line["settled"]["gap"] - best) < 1e-8 for line in lines)
