@@ -190,9 +190,11 @@ def cmd_replay(args: argparse.Namespace) -> int:
     meta = {key: clipped(value) for key, value in meta.items()}  # a long recorded value cannot fill the screen
     run = f"{meta.get('run', '-')} ({meta.get('algorithm', '-').upper()}, seed {meta.get('seed', '-')})"
     start, final = angles_text(steps[0]["theta"]), angles_text(steps[-1]["theta"])
+    seeded = meta.get("reset_seed", "none") not in ("none", meta.get("seed"))  # evaluate-policy: seed + episode
+    reset = f" (reset with seed {meta['reset_seed']})" if seeded else ""
     rows = [
         ("episode", rel(target)),
-        ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}"),
+        ("run", f"{run}, worker {meta.get('worker', '-')}, episode {meta.get('episode', '-')}{reset}"),
         ("map", clipped(steps[0]["map"])),
         ("steps", f"{len(steps) - 1} (start {start}, final {final})"),
         ("best", f"step {best['step']}: {scored_text(best)}"),

@@ -88,3 +88,17 @@ def test_the_protocol_as_json_lines_gives_each_start_its_gap_to_the_optimum(caps
     assert all(g >= 0 and g == round(g, 9) for g in gaps)
     best = max(line["settled"]["R1"] + line["settled"]["gap"] for line in lines)  # the optimum, from every line alike
     assert all(abs(line["settled"]["R1"] + line["settled"]["gap"] - best) < 1e-8 for line in lines)
+
+
+def test_a_replayed_evaluation_episode_names_the_seed_it_was_reset_with(tmp_path, capsys):
+    """`evaluate-policy --seed 5` resets episode i with seed 5 + i; replay labelled every episode 'seed 5'."""
+    from smorphi_rl.recording import episode_files
+
+    record = tmp_path / "rec"
+    argv = ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--episodes", "2", "--seed", "5",
+            "--record", str(record)]  # fmt: skip
+    assert main(argv) == 0
+    second = sorted(episode_files(record))[1]
+    capsys.readouterr()
+    assert main(["replay", str(second)]) == 0
+    assert ", episode 1 (reset with seed 6)" in capsys.readouterr().out
