@@ -205,3 +205,6 @@ def test_unknown_cells_are_not_counted(theta):
     ref = evaluate_reference(grid_map, theta)
     assert got.P_c == ref["P_c"] and got.coverage_free_pct == ref["coverage_free_pct"]
     assert got.coverage_free_pct <= 100.0
+    covered = Evaluator(grid_map).plan(Morphology.of(theta)).covered  # the mask, unknown rows never in it
+    assert covered is not None and not covered[4:6].any()
+    assert got.P_c == pytest.approx(100 * covered.sum() / 80)  # over the 80 known cells, not the 100 of the frame
