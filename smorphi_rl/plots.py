@@ -18,6 +18,7 @@ from smorphi_rl.coverage import CoverageResult, path_points_m
 from smorphi_rl.geometry import Morphology, all_corners, angles_text
 from smorphi_rl.maps import Cell, Map
 from smorphi_rl.rundir import atomic_path
+from smorphi_rl.words import counted
 
 matplotlib.rcParams["text.parse_math"] = False  # names are the user's (a map `r$1_$2.yaml`): text, never TeX
 
@@ -365,7 +366,7 @@ def plot_gap_curves(curves: dict[str, list[tuple[list[float], list[float]]]], ou
         grid = np.linspace(0, end, 60)
         ys = np.array([np.interp(grid, x, y, left=np.nan) for x, y in runs if x])
         mean, lo, hi = band(ys)
-        (line,) = ax.plot(grid, mean, lw=1.5, label=f"{label} ({len(runs)} seeds)")
+        (line,) = ax.plot(grid, mean, lw=1.5, label=f"{label} ({counted(len(runs), 'seed')})")
         ax.fill_between(grid, lo, hi, color=line.get_color(), alpha=0.15)
     ax.axhline(0, color="black", lw=0.8)
     ax.set_xlabel("env steps")

@@ -133,11 +133,12 @@ def test_start_and_block_side_options(capsys):
     _, a, _ = run(capsys, *base)
     _, b, _ = run(capsys, *base, "--start", "tile:5,5")
     _, c, _ = run(capsys, *base, "--block-side", "0.25")
-    _, d, _ = run(capsys, *base, "--start", "xy:2.55,2.55")
-    da, db, dc = json.loads(a), json.loads(b), json.loads(c)
+    _, d, _ = run(capsys, *base, "--start", "xy:2.55,2.55", "--path")
+    da, db, dc, dd = json.loads(a), json.loads(b), json.loads(c), json.loads(d)
     assert da["P_len"] != db["P_len"] or da["path_length_m"] != db["path_length_m"]
     assert dc["footprint_cells"] == [5, 5]
-    assert json.loads(d)["feasible"]
+    (row, col), (rows, cols) = dd["placements"][0], np.array(dd["footprint"]).shape
+    assert dd["feasible"] and row <= 25 < row + rows and col <= 25 < col + cols  # the plan starts over cell (25, 25)
 
 
 def test_maps_generate_and_show(capsys, tmp_path):

@@ -1,12 +1,31 @@
 """Figures that summarise seeds: they are written and shade the interval of the mean."""
 
+import numpy as np
+
 from smorphi_rl.plots import plot_gap_curves
 
 
-def test_gap_curves_are_written_for_several_seeds_and_for_one(tmp_path):
+def test_gap_curves_are_written_for_several_seeds_and_for_one(tmp_path, monkeypatch):
+    """Each label's mean over seeds, shaded by a band that holds it; one seed's band is its own line."""
+    from smorphi_rl import plots
+
     runs = [([0.0, 10.0, 20.0], [4.0, 3.0, 2.0]), ([0.0, 10.0, 20.0], [5.0, 3.0, 1.0]), ([0.0, 10.0], [4.0, 2.0])]
     out = plot_gap_curves({"PPO level": runs, "one seed": runs[:1]}, tmp_path / "gaps.png")
     assert out.is_file() and out.stat().st_size > 5_000
+    figures = []
+    monkeypatch.setattr(plots, "_save", lambda fig, out: figures.append(fig) or out)
+    plot_gap_curves({"PPO level": runs, "one seed": runs[:1]}, tmp_path / "again.png")
+    (ax,) = figures[0].axes
+    lines = {line.get_label(): line for line in ax.lines if not line.get_label().startswith("_")}
+    assert set(lines) == {"PPO level (3 seeds)", "one seed (1 seed)"}
+    bands = ax.collections
+    assert len(bands) == 2
+    for band, line in zip(bands, lines.values(), strict=True):
+        ys = band.get_paths()[0].vertices[:, 1]
+        mean = np.asarray(line.get_ydata(), float)
+        assert np.nanmin(ys) <= np.nanmin(mean) and np.nanmax(ys) >= np.nanmax(mean)
+    several = bands[0].get_paths()[0].vertices[:, 1]
+    assert np.ptp(several) > np.ptp(np.asarray(lines["PPO level (3 seeds)"].get_ydata(), float))  # a band, not a line
 
 
 def test_a_sweep_without_a_finished_trial_draws_a_figure_that_says_so(tmp_path, monkeypatch):

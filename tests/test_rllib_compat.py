@@ -82,15 +82,18 @@ def test_the_runners_methods_work_when_shipped_by_value_as_ray_ships_them_to_rem
 
     from smorphi_rl.training.sampling import LeanEnvRunner, split_by_env
 
-    runner = _runner(split_by_env)
+    created: list[int] = []
+    runner = _runner(split_by_env, on_episode_created=lambda **kwargs: created.append(1))
     shipped = {name: cloudpickle.loads(cloudpickle.dumps(getattr(LeanEnvRunner, name)))
                for name in ("_sample", "_make_on_episode_callback")}  # fmt: skip
     try:
         episodes = shipped["_sample"](runner, num_timesteps=40, explore=True)
+        before = len(created)
         shipped["_make_on_episode_callback"](runner, "on_episode_created", 0, episodes)
     finally:
         runner.stop()
-    assert episodes
+    assert sum(len(e) for e in episodes) >= 40 and before >= 4  # every step sampled, an episode made on each env
+    assert len(created) == before + 1  # the shipped method calls the user's callback
 
 
 def test_the_learner_internals_the_adapter_reaches_are_there():

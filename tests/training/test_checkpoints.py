@@ -35,16 +35,22 @@ MAP_1 = str(ROOT / "maps" / "map-1.yaml")
 
 def write_checkpoint(path: Path) -> Path:
     """A checkpoint directory holding a real (untrained) MorphologyModule, written by RLlib's own save_to_path."""
+    return written_checkpoint(path)[0]
+
+
+def written_checkpoint(path: Path) -> tuple[Path, dict[str, np.ndarray]]:
+    """`write_checkpoint`, with the weights of the module it saved (the truth a loader is held to)."""
     env_config = EnvConfig().to_dict()
     env = MorphologyEnv(env_config)
     model_config = {"value_offset": 0.0, "value_scale": 1.0, "policy_angle_frequencies": 0,
                     "env_config": env_config, "algorithm": "ppo"}  # fmt: skip
     module = build_module(env.observation_space, env.action_space, model_config)
     module.save_to_path(str(path / MODULE_SUBDIR))
+    weights = {name: value.detach().numpy().copy() for name, value in module.state_dict().items()}
     (path / "rllib_checkpoint.json").write_text(json.dumps(
         {"class_and_ctor_args_file": "class_and_ctor_args.pkl", "state_file": "algorithm_state",
          "ray_version": "2.60.0", "checkpoint_version": "2.1"}))  # fmt: skip
-    return path
+    return path, weights
 
 
 @pytest.fixture(scope="module")
@@ -124,12 +130,14 @@ def sweep_file(tmp: Path, checkpoint: Path) -> Path:
     return path
 
 
-def test_the_genuine_checkpoint_loads_with_its_weights(genuine):
-    module = load_module(genuine)
-    state = safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl")
-    assert set(state) == set(module.state_dict())
+def test_the_genuine_checkpoint_loads_with_its_weights(tmp_path):
+    """The weights loaded are the module's that was saved, not only what the same reader reads again."""
+    checkpoint, saved = written_checkpoint(tmp_path / "checkpoint_000000")
+    module = load_module(checkpoint)
+    state = safe_unpickle(checkpoint / MODULE_SUBDIR / "module_state.pkl")
+    assert set(state) == set(module.state_dict()) == set(saved)
     for name, value in module.state_dict().items():
-        assert np.array_equal(value.numpy(), state[name]), name
+        assert np.array_equal(value.numpy(), saved[name]) and np.array_equal(state[name], saved[name]), name
 
 
 @pytest.mark.parametrize("loader", list(LOADERS))
