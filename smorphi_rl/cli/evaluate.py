@@ -46,7 +46,8 @@ def register(sub: Any) -> None:
     weight_options(ev)
     ev.add_argument("--path", action="store_true",
                     help="with --json: add F ('footprint', rows of 0/1, row 0 the lowest y) and 'placements' (the "
-                    "cell [row, col] of F's corner at every robot position along the path)")  # fmt: skip
+                         "cell [row, col] of F's corner at every tile of the path, in order; between two, the "
+                         "straight move)")  # fmt: skip
     ev.set_defaults(func=cmd_evaluate)
 
 
