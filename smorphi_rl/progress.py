@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import os
+import shutil
 import sys
 import time
 from collections.abc import Callable
@@ -14,7 +16,8 @@ for the first count holds the work's start-up, such as compiling the planner, an
 
 
 STATUS_WIDTH = 160
-"""A status line rewritten in place is cut (and padded) to this many characters, so a shorter one clears it."""
+"""A status line rewritten in place is cut (and padded, so a shorter one clears it) to the terminal's width less one,
+and to this many characters at most."""
 
 
 def bar(fraction: float, width: int) -> str:
@@ -40,18 +43,38 @@ class StatusLine:
     def __setstate__(self, state: dict[str, Any]) -> None:
         self.__dict__.update(state, out=sys.stderr, tty=bool(getattr(sys.stderr, "isatty", lambda: False)()))
 
-    def due(self, force: bool = False) -> bool:
-        """Whether a line is to be written now (always on a terminal, or when forced); if so the clock restarts."""
-        now = time.monotonic()
+    def due(self, force: bool = False, now: float | None = None) -> bool:
+        """Whether a line is to be written now (always on a terminal, or when forced); if so the clock restarts.
+        `now`: the caller's own reading of the clock, when it has one."""
+        now = time.monotonic() if now is None else now
         if not self.tty and not force and now - self._last < self.every_s:
             return False
         self._last = now
         return True
 
+    def width(self) -> int:
+        """The characters a line in place may take: short of the terminal's width, since a line that wraps leaves
+        its first row behind at every rewrite; at most `STATUS_WIDTH`."""
+        try:
+            columns = os.get_terminal_size(self.out.fileno()).columns
+        except (AttributeError, OSError, ValueError):  # a stream with no terminal behind it: $COLUMNS, or the widest
+            columns = shutil.get_terminal_size((STATUS_WIDTH + 1, 24)).columns
+        return max(20, min(STATUS_WIDTH, columns - 1))
+
+    def restart(self) -> None:
+        """The next line is due at once (a new pass begins)."""
+        self._last = -math.inf
+
+    def note(self, line: str) -> None:
+        """A line of its own that stays, below the status line on a terminal (which the next write redraws)."""
+        self.out.write(("\n" if self.tty else "") + line + "\n")
+        self.out.flush()
+
     def write(self, line: str, end: bool = False) -> None:
         """The line, in place on a terminal (ended there when `end`), else on a line of its own."""
         if self.tty:
-            self.out.write("\r" + line[:STATUS_WIDTH].ljust(STATUS_WIDTH) + ("\n" if end else ""))
+            width = self.width()
+            self.out.write("\r" + line[:width].ljust(width) + ("\n" if end else ""))
         else:
             self.out.write(line + "\n")
         self.out.flush()
@@ -70,10 +93,8 @@ def progress_line(
     5 s otherwise. Once the time left is known to exceed a minute, one line says so, with `hint` (how to cut it).
     Given several labels, a count that goes back down starts the next pass, under the next label."""
     labels = (label,) if isinstance(label, str) else label
-    out = stream or sys.stderr
-    tty = out.isatty()
+    status = StatusLine(stream, every_s=5.0)
     t0 = [time.monotonic()]
-    last = [-math.inf]
     warned = [False]
     stage = [0, 0]  # pass, last count
     first: list[tuple[float, int] | None] = [None]  # (time, count) of the pass's first count above 0
@@ -83,7 +104,8 @@ def progress_line(
         now = time.monotonic()
         if done < stage[1] and stage[0] + 1 < len(labels):
             stage[0] += 1
-            t0[0], last[0], warned[0], first[0], ended[0] = now, -math.inf, False, None, False
+            t0[0], warned[0], first[0], ended[0] = now, False, None, False
+            status.restart()
         stage[1] = done
         if done >= total and ended[0]:
             return
@@ -101,17 +123,13 @@ def progress_line(
         left = (total - done) / per_s if timed and per_s > 0 else math.inf
         if not warned[0] and done < total and math.isfinite(left) and left > 60:
             warned[0] = True
-            out.write(("\n" if tty else "") + f"{name}: about {left / 60:.0f} min more at this rate"
-                      + (f"; {hint}" if hint else "") + "\n")  # fmt: skip
-        if not tty and done < total and now - last[0] < 5:
+            status.note(f"{name}: about {left / 60:.0f} min more at this rate" + (f"; {hint}" if hint else ""))
+        if not status.due(force=done >= total, now=now):
             return
-        last[0] = now
         frac = done / total if total else 1.0  # nothing to do (a density of 0) is done
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
         eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
-        line = f"{name} {bar(frac, 30)} {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}"
-        out.write(("\r" + line + ("\n" if done >= total else "")) if tty else line + "\n")
-        out.flush()
+        status.write(f"{name} {bar(frac, 30)} {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}", end=done >= total)
 
     return show
 

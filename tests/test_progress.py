@@ -77,7 +77,8 @@ def test_a_status_line_off_a_terminal_writes_every_so_often_and_when_forced(monk
     assert out.getvalue() == "at 0\nat 6\n"  # 11 s is 5 s after the forced line
 
 
-def test_a_status_line_on_a_terminal_is_rewritten_in_place_and_cleared():
+def test_a_status_line_on_a_terminal_is_rewritten_in_place_and_cleared(monkeypatch):
+    monkeypatch.setenv("COLUMNS", "500")  # a wide terminal: the cap holds
     out = _Terminal()
     status = progress.StatusLine(out)
     status.write("x" * 200)
@@ -97,3 +98,14 @@ def test_a_pickled_status_line_leaves_its_stream_behind(capsys):
 def test_a_bar_is_clamped_to_its_width():
     assert progress.bar(0.5, 10) == "[#####-----]" and progress.bar(1.7, 4) == "[####]"
     assert progress.bar(-1, 2) == "[--]"
+
+
+def test_a_status_line_in_place_is_narrower_than_the_terminal(monkeypatch):
+    """Padded to 160 characters, every rewrite on an 80-column terminal wrapped and left a row behind."""
+    monkeypatch.setenv("COLUMNS", "80")
+    out = _Terminal()
+    status = progress.StatusLine(out)
+    status.write("x" * 200)
+    status.write("short", end=True)
+    first, second = out.getvalue().split("\r")[1:]
+    assert first == "x" * 79 and second == "short".ljust(79) + "\n"

@@ -1,7 +1,10 @@
-"""`smorphi-rl` in a subprocess for the Ray tests: run plainly, or stopped by Ctrl-C after its first checkpoint."""
+"""`smorphi-rl` in a subprocess for the Ray tests: run plainly, or stopped by Ctrl-C after its first checkpoint; and
+what a finished trial's files must hold."""
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import signal
 import subprocess
@@ -9,6 +12,8 @@ import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
+
+import pytest
 
 
 def ray_env() -> dict[str, str]:
@@ -52,3 +57,22 @@ def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, patte
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=180)
     return proc.returncode, out, err
+
+
+def holds_the_reported_policy(trial: Path) -> None:
+    """The trial's final checkpoint, rolled out greedily from the protocol's starts, settles where its last
+    evaluation (result.json) says: a run ends on the policy it reports."""
+    from smorphi_rl.protocol import Optimum, eval_starts
+    from smorphi_rl.training.checkpoints import find_checkpoint, load_module
+    from smorphi_rl.training.policy import env_config_of, evaluate_policy
+
+    last = json.loads((trial / "result.json").read_text().splitlines()[-1])
+    reported = last["eval"]
+    assert 0 <= reported["policy_env_steps"] <= last["num_env_steps_sampled_lifetime"]
+    module = load_module(find_checkpoint(trial))
+    config = env_config_of(module, None)
+    unused = Optimum((0.0, 0.0, 0.0), math.inf, 100.0, 1)  # the settled shapes do not depend on it
+    optima = dict.fromkeys((Path(m).stem for m in config.map_files), unused)
+    evaluations = evaluate_policy(module, config, eval_starts(reported["starts"] // len(optima)), optima)
+    mean = sum(e.mean_R1 for e in evaluations) / len(evaluations)
+    assert mean == pytest.approx(reported["settled_R1_mean"], abs=1e-9)

@@ -11,11 +11,10 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from cli_runs import cli, ctrl_c_after_checkpoint, ray_env
+from cli_runs import cli, ctrl_c_after_checkpoint, holds_the_reported_policy, ray_env
 from conftest import printed_command
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
-from smorphi_rl.training.checkpoints import find_checkpoint, load_module
 from smorphi_rl.training.sweep_report import result_files
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -123,7 +122,7 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
         assert sorted({r["smorphi_iteration"] for r in rows}) == list(range(1, ITERATIONS + 1))
         per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 16 envs
         assert rows[-1]["num_env_steps_sampled_lifetime"] == ITERATIONS * per_iteration >= 10_000  # restored
-        load_module(find_checkpoint(trial))
+        holds_the_reported_policy(trial)  # a resumed trial still ends on the policy it reports
         evaluated = [r for r in rows if r.get("eval")]  # every trial runs train's evaluation protocol
         assert evaluated and {r["smorphi_iteration"] for r in evaluated} >= {1, 5, 10}
         assert 0 <= evaluated[-1]["eval"]["share_within_1pct"] <= 1 and evaluated[-1]["eval"]["starts"] == 20

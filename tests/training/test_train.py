@@ -11,7 +11,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home
+from cli_runs import cli, ctrl_c_after_checkpoint, fresh_home, holds_the_reported_policy
 from conftest import optima_under, printed_command, ray_cluster
 from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
@@ -139,26 +139,12 @@ def test_checkpoint_reloads_and_rolls_out_deterministically(ppo_run):
     assert first.best["R1"] == max(env.score(t).R1 for t in first.thetas)  # the best of the shapes it visited
 
 
-def _checkpoint_holds_the_reported_policy(run_dir: Path) -> None:
-    """The final checkpoint's greedy roll-outs from the protocol's starts settle where the last evaluation says."""
-    from smorphi_rl.protocol import Optimum, eval_starts
-    from smorphi_rl.training.policy import env_config_of, evaluate_policy
-
-    last = last_result(run_dir)
-    reported = last["eval"]
-    assert 0 <= reported["policy_env_steps"] <= last["num_env_steps_sampled_lifetime"]
-    module = load_module(find_checkpoint(run_dir))
-    unused = Optimum((0.0, 0.0, 0.0), math.inf, 100.0, 1)  # the settled shapes do not depend on it
-    (again,) = evaluate_policy(module, env_config_of(module, None), eval_starts(20), {"map-1": unused})
-    assert again.mean_R1 == pytest.approx(reported["settled_R1_mean"], abs=1e-9)
-
-
 def test_the_final_checkpoint_holds_the_policy_the_last_evaluation_reports(ppo_run):
     """A run ends on its best evaluated policy, chosen on other seeded starts (--select-starts), which may be an
     earlier one: the last evaluation names its env steps and the final checkpoint holds exactly that policy."""
     run_dir, _ = ppo_run
     assert last_result(run_dir)["eval"]["policy_env_steps"] > 0
-    _checkpoint_holds_the_reported_policy(run_dir)
+    holds_the_reported_policy(trial_dir(run_dir))
 
 
 def test_evaluate_policy_command(ppo_run, tmp_path):
@@ -349,7 +335,7 @@ def test_async_learners_train_and_report(algo, tmp_path):
     assert any(math.isfinite(r["env_runners"].get("smorphi", {}).get("best_R1", math.nan)) for r in rows)
     assert not [t for t in OUR_TAGS if t not in tensorboard_tags(summary.run_dir)]
     # the learner thread steps on after the last evaluation unless the run's end holds its updates
-    _checkpoint_holds_the_reported_policy(summary.run_dir)
+    holds_the_reported_policy(trial_dir(summary.run_dir))
 
 
 def test_a_run_that_ends_before_its_budget_is_evaluated_and_chosen_at_its_end(tmp_path):
@@ -361,7 +347,7 @@ def test_a_run_that_ends_before_its_budget_is_evaluated_and_chosen_at_its_end(tm
     rows = [json.loads(line) for line in (trial_dir(summary.run_dir) / "result.json").read_text().splitlines()]
     assert [r["smorphi_iteration"] for r in rows if r.get("eval")] == [1, 3]
     assert summary.evaluation["starts"] == 20
-    _checkpoint_holds_the_reported_policy(summary.run_dir)
+    holds_the_reported_policy(trial_dir(summary.run_dir))
 
 
 def test_attaches_to_a_running_cluster(tmp_path):
@@ -389,4 +375,4 @@ def test_ctrl_c_ends_the_run_with_its_final_policy_checkpointed(tmp_path):
     assert "interrupted after" in out
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["interrupted"] and Path(summary["checkpoint"]).resolve() == find_checkpoint(run_dir).resolve()
-    _checkpoint_holds_the_reported_policy(run_dir)
+    holds_the_reported_policy(trial_dir(run_dir))
