@@ -77,20 +77,6 @@ def test_each_algorithm_trains_with_our_learner():
     assert algorithm_config(TrainConfig(algo="ppo")).learner_class is CompactPPOLearner
 
 
-def test_standardised_vtrace_advantages_have_zero_mean_and_unit_spread(monkeypatch):
-    import torch
-
-    from smorphi_rl.training import learners
-
-    def vtrace(**_):
-        return torch.arange(6.0), torch.tensor([1.0, 5.0, 9.0, 2.0, 7.0, 100.0])
-
-    monkeypatch.setattr(learners, "vtrace_lambda", vtrace)
-    targets, advantages = learners.normalised_vtrace()
-    assert torch.equal(targets, torch.arange(6.0))  # value targets untouched
-    assert abs(float(advantages.mean())) < 1e-6 and abs(float(advantages.std()) - 1) < 1e-5
-
-
 @pytest.mark.parametrize(("algo", "preset", "lam"), [("impala", "fast", 1.0), ("appo", "paper", 1.0)])
 def test_the_async_learners_get_vtraces_lambda_through_the_learner_config_dict(algo, preset, lam):
     from smorphi_rl.training.config import algorithm_config
