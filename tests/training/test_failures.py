@@ -53,6 +53,22 @@ def test_an_ordinary_error_names_its_last_line_and_where_the_rest_is(tmp_path):
     assert failed.line == f"training failed: ValueError: bad lr (full errors under {tmp_path})"
 
 
+def test_a_trials_error_as_ray_raises_it_names_its_last_line(tmp_path):
+    """The error a failed trial holds is Ray's RayTaskError (as the error of its cause), whose text opens with the
+    worker's coloured name: the line is the cause's, not that first line."""
+    import traceback
+
+    from ray.exceptions import RayTaskError
+
+    try:
+        raise ValueError("bad lr")
+    except ValueError as exc:
+        error = RayTaskError("train", traceback.format_exc(), exc).as_instanceof_cause()
+    assert isinstance(error, ValueError) and "\x1b[" in str(error)  # what Tune hands over, as Ray builds it
+    failed = failure(_Results([error]), tmp_path)
+    assert failed is not None and failed.line == f"training failed: ValueError: bad lr (full errors under {tmp_path})"
+
+
 def test_an_error_of_ours_is_said_without_its_module_path(tmp_path):
     """Ours name the problem themselves; another package's keep their class name (`ValueError: bad lr` above)."""
     text = "Traceback ...\nsmorphi_rl.training.callbacks.DivergedError: the policy diverged after 2,000 env steps"
