@@ -9,6 +9,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from smorphi_rl import interrupts
 from smorphi_rl.cli.common import (
     DEFAULT_LOG_DIR,
     DEFAULT_MAP,
@@ -198,18 +199,26 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
         job_dir, runs, stopped = stop.job_dir, stop.runs, True
     cut = sum(r.interrupted for r in runs)
-    if runs:
-        files = write_transfer_report(job_dir, runs)
-        reused = sum(r.reused for r in runs)
-        if reused:
-            print(f"read back (--resume): {reused} of {len(runs)} runs, finished earlier in this job")
-        print(files["md"].read_text().rstrip())
-        missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
-        if missing:
-            print(f"warning: fine-tuned runs that did not confirm the pretrained policy in all runners: {len(missing)}")
-        print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
-              f"curves: {rel(files['png'])}")  # fmt: skip
-    if stopped or cut or len(runs) < len(job.maps) * len(job.seeds) * 2:
+    # Ray's shutdown may leave SIGTERM a kill: a stop while the tables are written waits for them (a second is at once)
+    with interrupts.stop_requests(again=True) as late:
+        if runs:
+            files = write_transfer_report(job_dir, runs)
+            reused = sum(r.reused for r in runs)
+            if reused:
+                print(f"read back (--resume): {reused} of {len(runs)} runs, finished earlier in this job")
+            print(files["md"].read_text().rstrip())
+            missing = [r for r in runs if r.mode == "fine-tune" and r.pretrained_in_runners is not True]
+            if missing:
+                print(f"warning: fine-tuned runs that did not confirm the pretrained policy in all runners: "
+                      f"{len(missing)}")  # fmt: skip
+            print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
+                  f"curves: {rel(files['png'])}")  # fmt: skip
+    interrupts.install()
+    whole = not (stopped or cut or len(runs) < len(job.maps) * len(job.seeds) * 2)
+    if late.is_set() and whole:
+        print(f"{PROG}: interrupted as the job ended: its tables are whole", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    if not whole:
         listed = " (transfer.csv lists the one cut short)" if cut else ""
         held = f"the table holds the runs that finished ({len(runs) - cut}){listed}" if runs else "no run finished"
         print(f"{PROG}: interrupted: {held}; continue with the same command and --name "

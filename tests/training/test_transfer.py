@@ -283,6 +283,37 @@ def test_a_stop_as_a_run_ends_ends_the_job_there(tmp_path, fake_runs, capsys):
     assert len(calls) == 2 and "the table holds the runs that finished (2)" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_stop_while_the_tables_are_written_waits_for_them(tmp_path, fake_runs, monkeypatch, capsys, signame):
+    """Ray's shutdown leaves SIGTERM a kill: a SIGTERM while `transfer` wrote its tables ended it with 143 and no
+    word, its tables half written."""
+    import contextlib
+    import signal
+
+    from smorphi_rl import cluster
+    from smorphi_rl.cli import main
+    from smorphi_rl.training import transfer
+
+    argv, calls, _stops, _algos = fake_runs
+
+    @contextlib.contextmanager
+    def ray_session(address):
+        yield
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as Ray's shutdown leaves it
+
+    def writes(job_dir, runs):
+        signal.raise_signal(getattr(signal, signame))
+        return write_transfer_report(job_dir, runs)
+
+    monkeypatch.setattr(cluster, "ray_session", ray_session)
+    monkeypatch.setattr(transfer, "write_transfer_report", writes)
+    assert main([*argv, "--seeds", "0"]) == 130
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines()[-1] == "smorphi-rl: interrupted as the job ended: its tables are whole"
+    assert len(calls) == 2 and (tmp_path / "logs" / "job" / "transfer.md").is_file() and "table:" in out
+    assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards
+
+
 def test_a_stopped_resume_still_reports_the_runs_earlier_calls_finished(tmp_path, fake_runs, monkeypatch, capsys):
     from smorphi_rl.cli import main
     from smorphi_rl.training import transfer
