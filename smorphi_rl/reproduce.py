@@ -17,13 +17,17 @@ from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
-from smorphi_rl.errors import SmorphiError
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, write_text_atomic
+from smorphi_rl import interrupts
+from smorphi_rl.errors import Interrupted, SmorphiError
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, rel, write_text_atomic
 from smorphi_rl.stats import Interval, median_interval
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
     from smorphi_rl.compare import MethodScore
+    from smorphi_rl.score import Weights
+    from smorphi_rl.search.results import SearchResult
+    from smorphi_rl.training.transfer import TransferRun
 
 MAPS_DIR = Path(__file__).resolve().parent.parent / "maps"
 TRAIN_MAPS = ("map-1", "map-2")
@@ -109,19 +113,16 @@ def _whole(run: _Run) -> _Run:
 def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = None) -> Path:
     """Run every experiment of `budget_name`; returns the report's path."""
     from smorphi_rl import cluster
-    from smorphi_rl.compare import points_of_run, score_methods, write_report
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
-    from smorphi_rl.planning import PAPER_PLANNING
     from smorphi_rl.rundir import prepare_run_dir, safe_name
-    from smorphi_rl.score import Weights
     from smorphi_rl.search.exhaustive import run_exhaustive
     from smorphi_rl.search.nsga2 import run_nsga2
     from smorphi_rl.search.random import run_random
-    from smorphi_rl.search.results import SearchResult, save
+    from smorphi_rl.search.results import save
     from smorphi_rl.training.config import TrainConfig
     from smorphi_rl.training.run import train
-    from smorphi_rl.training.transfer import TransferJob, run_transfer, summary_curve, write_transfer_report
+    from smorphi_rl.training.transfer import TransferJob, run_transfer
 
     if budget_name not in BUDGETS:
         raise SmorphiError(f"unknown budget '{budget_name}' (choose from {', '.join(BUDGETS)})")
@@ -171,13 +172,36 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out, optima_log_dir=log_dir)
         for transfer_run in transfer_runs:
             _whole(transfer_run)
+    # Ray's shutdown may leave SIGTERM a kill: a stop while the report is written waits for it (a second is at once)
+    with interrupts.stop_requests(again=True) as late:
+        report = _write_report(budget_name, b, root, time.monotonic() - t0, training, exact, weights, job_dir,
+                               transfer_runs)  # fmt: skip
+    interrupts.install()
+    if late.is_set():
+        raise Interrupted(f"as the job ended: its report is whole ({rel(report)})")
+    return report
+
+
+def _write_report(budget_name: str, b: Budget, root: Path, wall_s: float, training: dict[tuple[str, str], list[Path]],
+                  exact: dict[str, SearchResult], weights: dict[str, Weights], job_dir: Path,
+                  transfer_runs: list[TransferRun]) -> Path:  # fmt: skip
+    """report.md, from the job's runs and searches: the tables, figures and claims, each run's compared."""
+    from smorphi_rl.compare import points_of_run, score_methods, write_report
+    from smorphi_rl.env_config import EnvConfig
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import PAPER_PLANNING
+    from smorphi_rl.rundir import prepare_run_dir, safe_name
+    from smorphi_rl.score import Weights
+    from smorphi_rl.training.transfer import summary_curve, write_transfer_report
+
+    defaults = EnvConfig()
     transfer_files = write_transfer_report(job_dir, transfer_runs)
 
     sections = [
         f"# Reproduction of Kalimuthu et al. (2023), budget '{budget_name}'",
         "",
         f"{Weights(defaults.w1, defaults.w2).formula()} (the env's defaults). Every figure below was measured "
-        f"in this run ({(time.monotonic() - t0) / 60:.0f} min on "
+        f"in this run ({wall_s / 60:.0f} min on "
         f"{len(b.algorithms) * len(b.train_maps) * len(b.train_seeds)} training runs, the searches and the transfer "
         f"job). Each algorithm trains with seeds {', '.join(map(str, b.train_seeds))} on each map: the claims compare "
         f"them over seeds (median [95 % interval]); the tables and figures show seed {b.train_seeds[0]}'s run.",

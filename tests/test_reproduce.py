@@ -83,6 +83,41 @@ def test_a_stop_request_that_cuts_a_run_short_stops_the_job(capsys, monkeypatch,
     assert not (tmp_path / "r" / "report.md").exists()
 
 
+@pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
+def test_a_stop_while_the_report_is_written_waits_for_it(capsys, monkeypatch, tmp_path, signame):
+    """Ray's shutdown leaves SIGTERM a kill: a SIGTERM as the report was written ended the job with 143 and no word."""
+    import contextlib
+    import signal
+    from types import SimpleNamespace
+
+    from smorphi_rl import cluster, reproduce
+    from smorphi_rl.training import run, transfer
+
+    def whole(cfg, name, log_dir, **kwargs):
+        (log_dir / name).mkdir()
+        return SimpleNamespace(run_dir=log_dir / name, interrupted=False, stop_held=False)
+
+    @contextlib.contextmanager
+    def ray_session(address):
+        yield
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as Ray's shutdown leaves it
+
+    def writes(budget_name, b, root, *args):
+        signal.raise_signal(getattr(signal, signame))
+        (root / "report.md").write_text("# whole")
+        return root / "report.md"
+
+    monkeypatch.setattr(run, "train", whole)
+    monkeypatch.setattr(transfer, "run_transfer", lambda job, **kwargs: (tmp_path / "r" / "transfer", []))
+    monkeypatch.setattr(cluster, "ray_session", ray_session)
+    monkeypatch.setattr(reproduce, "_write_report", writes)
+    assert main(["reproduce", "--budget", "tiny", "--name", "r", "--log-dir", str(tmp_path)]) == 130
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == f"smorphi-rl: interrupted as the job ended: its report is whole ({tmp_path / 'r' / 'report.md'})"
+    assert (tmp_path / "r" / "report.md").read_text() == "# whole"
+    assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards
+
+
 def test_a_claim_over_seeds_is_decided_by_its_intervals_and_one_seed_decides_nothing():
     from smorphi_rl.reproduce import above
     from smorphi_rl.stats import median_interval

@@ -268,6 +268,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         report = reproduce(args.budget, name, args.log_dir)
+    except Interrupted as stop:  # a stop as the report was written: it is whole
+        print(f"{PROG}: interrupted {stop}", file=sys.stderr)
+        return EXIT_INTERRUPTED
     except KeyboardInterrupt:  # Ctrl-C, or a run a stop request cut short: what was written stays
         root = Path(args.log_dir) / name
         kept = f": what it wrote is kept in {rel(root)}" if root.is_dir() else ""
