@@ -218,7 +218,7 @@ def check_block_side(block_side_m: float, resolution_m: float) -> float:
     if block_side_m <= 0:
         raise MorphologyError(f"block side must be > 0 m, got {block_side_m:g}")
     cells = block_side_m / resolution_m
-    if cells < 1:
+    if cells < 1 - 1e-9:  # a block of one cell exactly, whatever the division makes of it (0.3 / 0.30000000000000004)
         raise MorphologyError(f"a block of {block_side_m:g} m is smaller than one cell of this map "
                               f"({resolution_m:g} m): plan on a map of cells no larger than a block")  # fmt: skip
     if cells > MAX_BLOCK_CELLS:

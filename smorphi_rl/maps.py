@@ -22,6 +22,9 @@ import yaml
 from smorphi_rl.errors import MapError
 from smorphi_rl.inputs import MAP_IMAGE_FORMATS, is_finite_number
 
+EDGE_TOLERANCE_CELLS = 1e-9
+"""A point within this many cells of a cell's edge lies on it: the same point names one cell on every frame."""
+
 SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
 """The default map of every command and of the env: map-1, shipped beside the package."""
 
@@ -155,9 +158,10 @@ class Map:
         return (self.origin[0] + (col + 0.5) * self.resolution_m, self.origin[1] + (row + 0.5) * self.resolution_m)
 
     def cell_of(self, x_m: float, y_m: float) -> tuple[int, int]:
-        """(row, col) of the cell holding a point in the map frame (yaw ignored, as nav2 does)."""
-        col = (x_m - self.origin[0]) / self.resolution_m  # compared as floats: 1e308 m is inf cells, no integer
-        row = (y_m - self.origin[1]) / self.resolution_m
+        """(row, col) of the cell holding a point in the map frame (yaw ignored, as nav2 does); a point on a cell's
+        edge is in the cell that edge starts, whatever the float division makes of it (1.2 / 0.1 is 11.999...)."""
+        col = (x_m - self.origin[0]) / self.resolution_m + EDGE_TOLERANCE_CELLS  # floats: 1e308 m is inf cells
+        row = (y_m - self.origin[1]) / self.resolution_m + EDGE_TOLERANCE_CELLS
         if not (0 <= row < self.height and 0 <= col < self.width):
             raise MapError(f"map {self.name}: point ({x_m}, {y_m}) m lies outside the map")
         return math.floor(row), math.floor(col)

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import ndimage
 
 from smorphi_rl.errors import MapError
-from smorphi_rl.maps import Cell, Map, check_resolution
+from smorphi_rl.maps import EDGE_TOLERANCE_CELLS, Cell, Map, check_resolution
 
 FOUR_CONNECTED = np.array([[0, 1, 0], [1, 1, 1], [0, 1, 0]])
 
@@ -79,8 +79,9 @@ def crop_to_rect(grid_map: Map, x0: float, y0: float, x1: float, y1: float) -> M
             f"{rect} is not inside map {grid_map.name}, which spans "
             f"({extent[0]:g}, {extent[1]:g}) - ({extent[2]:g}, {extent[3]:g}) m"
         )
-    c0, r0 = int(np.floor((x0 - ox) / r + 1e-9)), int(np.floor((y0 - oy) / r + 1e-9))
-    c1, r1 = int(np.ceil((x1 - ox) / r - 1e-9)), int(np.ceil((y1 - oy) / r - 1e-9))
+    tol = EDGE_TOLERANCE_CELLS
+    c0, r0 = int(np.floor((x0 - ox) / r + tol)), int(np.floor((y0 - oy) / r + tol))
+    c1, r1 = int(np.ceil((x1 - ox) / r - tol)), int(np.ceil((y1 - oy) / r - tol))
     cells = grid_map.cells[r0:r1, c0:c1]
     if not (cells == Cell.FREE).any():
         raise MapError(f"{rect} holds no free cell of {grid_map.name}")
@@ -125,4 +126,5 @@ def coarsen(grid_map: Map, factor: int) -> Map:
     cells = np.where(occupied, Cell.OCCUPIED, np.where(unknown, Cell.UNKNOWN, Cell.FREE)).astype(np.uint8)
     if not (cells == Cell.FREE).any():
         raise MapError(f"map {grid_map.name}: coarsened {factor}x no cell is wholly free; use a smaller factor")
-    return Map(cells, grid_map.resolution_m * factor, grid_map.origin, grid_map.name)
+    resolution_m = round(grid_map.resolution_m * factor, 12)  # 0.15, not 0.05 x 3 = 0.15000000000000002
+    return Map(cells, resolution_m, grid_map.origin, grid_map.name)

@@ -373,3 +373,15 @@ def test_a_small_room_in_a_large_unknown_frame_is_warned_of():
     assert Map(small, 0.05, (0.0, 0.0, 0.0), "small").frame_warning() is None
     known = np.full((side, side), Cell.FREE, dtype=np.uint8)
     assert Map(known, 0.05, (0.0, 0.0, 0.0), "known").frame_warning() is None
+
+
+@pytest.mark.parametrize("resolution", [0.05, 0.1, 0.15, 0.3])
+def test_a_point_on_a_cell_edge_is_in_the_cell_that_edge_starts(resolution):
+    """1.2 / 0.1 is 11.999...: a free point on an edge was refused as on the occupied cell below it, and one point
+    named two cells on two frames of one floor."""
+    grid_map = Map(np.zeros((200, 200), np.uint8), resolution, origin=(-3.0, -1.7, 0.0))
+    for k in range(200):
+        edge = k * resolution
+        assert grid_map.cell_of(-3.0 + edge, -1.7 + edge) == (k, k)
+    with pytest.raises(MapError, match="outside the map"):
+        grid_map.cell_of(-3.0 + 200 * resolution, 0.0)  # the far edge starts no cell of this map

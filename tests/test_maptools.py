@@ -95,3 +95,14 @@ def test_bad_map_tool_input_is_one_line(argv, message, tmp_path, capsys, monkeyp
     err = capsys.readouterr().err
     assert message in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
     assert not (tmp_path / "x.yaml").exists()
+
+
+def test_a_resampled_map_has_the_resolution_asked_for_and_holds_a_block_of_one_cell(tmp_path):
+    """0.1 x 3 wrote `resolution: 0.30000000000000004`, and its own advice (`--block-side 0.3`) was then refused."""
+    from smorphi_rl.geometry import check_block_side
+
+    out = tmp_path / "coarse.yaml"
+    assert main(["maps", "resample", str(ROOT / "maps" / "map-1.yaml"), "--resolution", "0.3", "--out", str(out)]) == 0
+    assert load_map(out).resolution_m == 0.3 and "resolution: 0.3\n" in out.read_text()
+    assert check_block_side(0.3, 0.1 * 3) == 0.3
+    assert main(["evaluate", "--map", str(out), "--angles", "0", "180", "0", "--block-side", "0.3"]) == 0
