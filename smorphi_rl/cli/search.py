@@ -172,6 +172,12 @@ def format_search(
     extra = result.params.get("distinct_footprints")
     footprints = f", {extra:,} distinct footprints" if extra is not None else ""
     feasible = int(np.count_nonzero(result.feasible))
+    shapes = len(result.feasible)  # a local search keeps a shape scored twice once: then fewer than its evaluations
+    said = (
+        f"{feasible:,} feasible"
+        if shapes == result.evaluations
+        else f"{shapes:,} distinct shapes, {feasible:,} feasible"
+    )
     if result.method == "optimum":
         p = result.params
         n_lattice = (round(180 / p["step_deg"]) + 1) ** 3
@@ -181,7 +187,7 @@ def format_search(
                  *([planning] if planning else [])]  # fmt: skip
     else:
         lines = [f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations{footprints} in "
-                 f"{result.wall_s:.1f} s ({feasible:,} feasible)",
+                 f"{result.wall_s:.1f} s ({said})",
                  *([planning] if planning else []),
                  f"Pareto front ({len(front_rows)} points, max P_c / min P_len):"]  # fmt: skip
         for row in front_rows:

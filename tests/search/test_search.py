@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -252,3 +253,15 @@ def test_a_start_on_a_speck_is_named_with_the_fix_and_the_summary_says_what_the_
     assert summary["best"]["coverage_free_pct"] < 1.0 and summary["best"]["coverable_pct"] < 1.0
     assert main([*argv, "--start-xy", "2.5", "3.0", "--name", "b"]) == 0
     assert "plans start in a free area" not in capsys.readouterr().err
+
+
+def test_a_search_that_scores_a_shape_twice_counts_its_shapes_apart_from_its_evaluations(tmp_path, capsys):
+    """anneal said '4,000 evaluations (3,997 feasible)' of 3,997 distinct shapes, every one feasible: it read as
+    three infeasible shapes, which no 1-degree shape is."""
+    assert main(["search", "anneal", "--map", MAP_1, "--log-dir", str(tmp_path)]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    said = re.fullmatch(r"anneal on map-1: 4,000 evaluations in [\d.]+ s \(([\d,]+) distinct shapes, ([\d,]+) "
+                        r"feasible\)", first)  # fmt: skip
+    assert said is not None, first
+    shapes = np.load(next(tmp_path.glob("anneal-*")) / "results.npz")["thetas"]
+    assert said[1] == said[2] == f"{len(shapes):,}" and len(np.unique(shapes, axis=0)) == len(shapes) < 4_000
