@@ -102,6 +102,28 @@ def test_raw_mode_reads_occupancy_values(tmp_path):
     assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.OCCUPIED, Cell.UNKNOWN]
 
 
+@pytest.mark.parametrize("fmt", ["pgm", "png"])
+def test_save_load_round_trip(tmp_path, fmt):
+    rng = np.random.default_rng(3)
+    cells = rng.integers(0, 3, size=(17, 23)).astype(np.uint8)
+    cells[0, 0] = Cell.FREE
+    original = Map(cells, 0.05, origin=(0.5, -1.5, 0.0), name="rt")
+    path = save_map(original, tmp_path / "rt.yaml", image_format=fmt)
+    loaded = load_map(path)
+    assert np.array_equal(loaded.cells, original.cells)
+    assert loaded.resolution_m == original.resolution_m and loaded.origin == original.origin
+
+
+@pytest.mark.parametrize(
+    ("name", "density"), [("map-1", 0.188), ("map-2", 0.222), ("val-1", 0.15), ("val-2", 0.20), ("val-3", 0.26)]
+)
+def test_shipped_maps(name, density):
+    m = load_map(MAPS / f"{name}.yaml")
+    assert (m.width, m.height, m.resolution_m) == (50, 50, 0.1)
+    assert m.fraction(Cell.OCCUPIED) == pytest.approx(density, abs=0.002)
+    assert m.counts[Cell.UNKNOWN] == 0
+
+
 def test_generator_is_seeded_dense_as_asked_and_connected():
     a = generate_map(np.random.default_rng(7), obstacle_density=0.25)
     b = generate_map(np.random.default_rng(7), obstacle_density=0.25)
