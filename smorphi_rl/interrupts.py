@@ -60,10 +60,19 @@ def stop_requests(stop: threading.Event | None = None, again: bool = False) -> I
 
 
 @contextmanager
+def writes_held(stop: threading.Event | None = None) -> Iterator[threading.Event]:
+    """Writing a job's results once Ray has shut down: stops set `stop` (or a new event) and wait for the writes,
+    since Ray's shutdown may have reset SIGTERM's handler to its default (a kill); a second stop raises at once. On
+    leaving, however it is left, SIGTERM is Ctrl-C again (`install`)."""
+    try:
+        with stop_requests(stop, again=True) as event:
+            yield event
+    finally:
+        install()
+
+
+@contextmanager
 def results_held(stop: threading.Event, held: ExitStack) -> Iterator[None]:
-    """Writing a job's results once its training has ended (`held` already holds stops in `stop` since then): stops
-    are held again, since Ray's shutdown may have reset SIGTERM's handler to its default (a kill), and a second stop
-    raises at once; on leaving, SIGTERM is Ctrl-C again (`install`)."""
-    with held, stop_requests(stop, again=True):
+    """`writes_held`, for a run whose `held` already holds stops in `stop` since its training ended."""
+    with held, writes_held(stop):
         yield
-    install()

@@ -57,7 +57,9 @@ class StatusLine:
         its first row behind at every rewrite; at most `STATUS_WIDTH`."""
         try:
             columns = os.get_terminal_size(self.out.fileno()).columns
-        except (AttributeError, OSError, ValueError):  # a stream with no terminal behind it: $COLUMNS, or the widest
+        except (AttributeError, OSError, ValueError):  # a stream with no terminal behind it
+            columns = 0
+        if columns <= 0:  # not known (a pty whose size was never set says 0): $COLUMNS, or the widest
             columns = shutil.get_terminal_size((STATUS_WIDTH + 1, 24)).columns
         return max(20, min(STATUS_WIDTH, columns - 1))
 

@@ -93,6 +93,10 @@ BUDGETS = {
 }
 
 
+class ReportWhole(Interrupted):
+    """A stop that came as the report was written: the job waited for it, and the report is whole."""
+
+
 PAPER_REWARD = "paper"
 """`reproduce` trains on the paper's reward (R1 + R2), whatever `train`'s default is."""
 
@@ -172,13 +176,11 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
         job_dir, transfer_runs = run_transfer(job, name="transfer", log_dir=root, out=out, optima_log_dir=log_dir)
         for transfer_run in transfer_runs:
             _whole(transfer_run)
-    # Ray's shutdown may leave SIGTERM a kill: a stop while the report is written waits for it (a second is at once)
-    with interrupts.stop_requests(again=True) as late:
+    with interrupts.writes_held() as late:  # a stop as the report is written waits for it
         report = _write_report(budget_name, b, root, time.monotonic() - t0, training, exact, weights, job_dir,
                                transfer_runs)  # fmt: skip
-    interrupts.install()
     if late.is_set():
-        raise Interrupted(f"as the job ended: its report is whole ({rel(report)})")
+        raise ReportWhole(f"as the job ended: its report is whole ({rel(report)})")
     return report
 
 

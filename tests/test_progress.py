@@ -109,3 +109,19 @@ def test_a_status_line_in_place_is_narrower_than_the_terminal(monkeypatch):
     status.write("short", end=True)
     first, second = out.getvalue().split("\r")[1:]
     assert first == "x" * 79 and second == "short".ljust(79) + "\n"
+
+
+def test_a_terminal_that_does_not_know_its_width_gets_the_widest_line(monkeypatch):
+    """A pty whose size was never set says 0 columns: the line was cut to 20 characters."""
+    import os
+    import pty
+
+    monkeypatch.setenv("COLUMNS", "500")  # what the fallback reads first
+    leader, follower = pty.openpty()
+    try:
+        with os.fdopen(follower, "w", closefd=False) as stream:
+            assert os.get_terminal_size(follower).columns == 0
+            assert progress.StatusLine(stream).width() == progress.STATUS_WIDTH
+    finally:
+        os.close(leader)
+        os.close(follower)

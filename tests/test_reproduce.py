@@ -118,6 +118,24 @@ def test_a_stop_while_the_report_is_written_waits_for_it(capsys, monkeypatch, tm
     assert signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL  # SIGTERM is Ctrl-C again afterwards
 
 
+def test_a_run_stopped_with_a_word_of_its_own_still_names_the_job_folder(capsys, monkeypatch, tmp_path):
+    """A run's own stop line ('nothing was kept', of the run) is not the job's: the job's folder is kept and named."""
+    import contextlib
+
+    from smorphi_rl import cluster
+    from smorphi_rl.errors import Interrupted
+    from smorphi_rl.training import run
+
+    def stopped(cfg, name, log_dir, **kwargs):
+        raise Interrupted(f"stopped before the run's first report: nothing was kept ({log_dir / name} was removed)")
+
+    monkeypatch.setattr(run, "train", stopped)
+    monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
+    assert main(["reproduce", "--budget", "tiny", "--name", "r", "--log-dir", str(tmp_path)]) == 130
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == f"smorphi-rl: interrupted: what it wrote is kept in {tmp_path / 'r'}"
+
+
 def test_a_claim_over_seeds_is_decided_by_its_intervals_and_one_seed_decides_nothing():
     from smorphi_rl.reproduce import above
     from smorphi_rl.stats import median_interval

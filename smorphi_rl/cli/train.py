@@ -199,8 +199,7 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
         job_dir, runs, stopped = stop.job_dir, stop.runs, True
     cut = sum(r.interrupted for r in runs)
-    # Ray's shutdown may leave SIGTERM a kill: a stop while the tables are written waits for them (a second is at once)
-    with interrupts.stop_requests(again=True) as late:
+    with interrupts.writes_held() as late:  # a stop as the tables are written waits for them
         if runs:
             files = write_transfer_report(job_dir, runs)
             reused = sum(r.reused for r in runs)
@@ -213,7 +212,6 @@ def cmd_transfer(args: argparse.Namespace) -> int:
                       f"{len(missing)}")  # fmt: skip
             print(f"\nruns: {rel(job_dir)}\ntable: {rel(files['md'])} (and {files['csv'].name})\n"
                   f"curves: {rel(files['png'])}")  # fmt: skip
-    interrupts.install()
     whole = not (stopped or cut or len(runs) < len(job.maps) * len(job.seeds) * 2)
     if late.is_set() and whole:
         print(f"{PROG}: interrupted as the job ended: its tables are whole", file=sys.stderr)
@@ -263,12 +261,12 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from smorphi_rl.training.versions import warn_once
 
     warn_once()
-    from smorphi_rl.reproduce import reproduce
+    from smorphi_rl.reproduce import ReportWhole, reproduce
 
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
     try:
         report = reproduce(args.budget, name, args.log_dir)
-    except Interrupted as stop:  # a stop as the report was written: it is whole
+    except ReportWhole as stop:  # a stop as the report was written, which it waited for
         print(f"{PROG}: interrupted {stop}", file=sys.stderr)
         return EXIT_INTERRUPTED
     except KeyboardInterrupt:  # Ctrl-C, or a run a stop request cut short: what was written stays
