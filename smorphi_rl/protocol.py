@@ -177,12 +177,14 @@ def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
 
 def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
     """`map_key` of a map already loaded. A start given in metres (`--start-xy`) lands on a cell through the map's
-    origin, so the origin is keyed with it: a map saved again with another origin starts its plans elsewhere."""
+    origin, so the cell it lands on is keyed with it: a map saved again with another origin starts its plans
+    elsewhere (and an optimum cached before a point on a cell's edge counted in the cell that edge starts is not
+    taken for one from that cell)."""
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
     fields = [grid_map.cells.shape, grid_map.resolution_m, weights.w1, weights.w2, *planning.key()]
     if planning.start_xy is not None:
-        fields.append(list(grid_map.origin[:2]))
+        fields.append(["start cell", *grid_map.cell_of(*planning.start_xy)])
     h.update(json.dumps(fields).encode())
     return h.hexdigest()
 

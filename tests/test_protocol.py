@@ -53,9 +53,10 @@ def test_map_summary_counts_gaps_and_the_1_percent_band():
     assert json.loads(json.dumps(ev.to_dict()))["starts"] == 4
 
 
-def test_a_start_in_metres_keys_the_cache_on_the_maps_origin():
+def test_a_start_in_metres_keys_the_cache_on_the_cell_it_lands_on():
     """A map saved again with another origin keeps its cells, yet `--start-xy` then lands on another cell and the
-    plans score differently: the two must not share a cached optimum. Without a start point the origin is moot."""
+    plans score differently: the two must not share a cached optimum. The same cell through another origin plans
+    alike and shares it; without a start point the origin is moot."""
     from dataclasses import replace
 
     from smorphi_rl.maps import load_map
@@ -67,6 +68,9 @@ def test_a_start_in_metres_keys_the_cache_on_the_maps_origin():
     weights, start = Weights(1.0, 0.1), Planning(0.17, start_xy=(0.05, 2.15))
     assert start.start_on(grid_map) != start.start_on(moved)
     assert key_of(grid_map, weights, start) != key_of(moved, weights, start)
+    nudged = replace(grid_map, origin=(0.01, 0.01, 0.0))  # (0.05, 2.15) stays in cell (21, 0)
+    assert start.start_on(grid_map) == start.start_on(nudged)
+    assert key_of(grid_map, weights, start) == key_of(nudged, weights, start)
     assert key_of(grid_map, weights, Planning(0.17)) == key_of(moved, weights, Planning(0.17))
     assert key_of(grid_map, weights, Planning(0.17)) == map_key(MAP_1, weights, Planning(0.17))
 
