@@ -74,6 +74,9 @@ def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_op
                     time.sleep(0.0005)
 
     module = torch.nn.Sequential(torch.nn.Linear(8, 8), torch.nn.Linear(8, 8), torch.nn.Linear(8, 2))
+    with torch.no_grad():  # one value throughout, as after a whole step: only a copy taken mid-step is torn (random
+        for p in module.parameters():  # initial weights read as torn, before a slow thread's first step)
+            p.fill_(0.0)
     optimizer = SlowStep(module.parameters())
 
     class Learner:
