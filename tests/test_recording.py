@@ -243,6 +243,22 @@ def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys, m
     assert "recordings read" in capsys.readouterr().err
 
 
+def test_replays_listing_lines_up_a_map_named_in_wide_characters(tmp_path, capsys):
+    """A CJK character takes two terminal columns: counted as one, the columns after a map named 会議室 slipped."""
+    from smorphi_rl.cli.common import columns
+    from smorphi_rl.maps import load_map, save_map
+
+    for name in ("会議室", "hall"):
+        floor = save_map(load_map(MAP_1), tmp_path / f"{name}.yaml")
+        env = recorded_env(tmp_path, max_steps=10, map_path=str(floor))
+        play(env, 0, np.random.default_rng(0))
+        env.close()
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    head, *rows = capsys.readouterr().out.splitlines()[:3]
+    at = columns(head[: head.index(" algo ") + 1])
+    assert columns("会議室") == 6 and sorted(columns(row[: row.index(" ppo ") + 1]) for row in rows) == [at, at]
+
+
 def test_an_episode_of_several_step_sizes_replays(tmp_path, capsys):
     """A designer's env (moves 1, 4, 16) records actions 0..6 per hinge; replay read only 0..2 as moves."""
     rec = RecordingConfig(str(tmp_path / "episodes"), every=1, metadata=META)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import unicodedata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -146,6 +147,17 @@ def one_line(message: str) -> str:
     """Text as one line: a newline or another control character inside it (a path, a value or a recording's text
     holding one: an escape sequence would drive the terminal) is shown escaped, as \\n or \\x1b."""
     return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
+
+
+def columns(text: str) -> int:
+    """The terminal columns `text` takes: a wide East Asian character two, a combining mark none (`len` counts
+    each one, so a map named in CJK pushed the columns after it out of line)."""
+    return sum(0 if unicodedata.combining(ch) else 2 if unicodedata.east_asian_width(ch) in "WF" else 1 for ch in text)
+
+
+def padded(text: str, width: int) -> str:
+    """`text` filled with spaces to `width` terminal columns (`columns`)."""
+    return text + " " * max(0, width - columns(text))
 
 
 def clipped(value: object, limit: int = 80) -> str:

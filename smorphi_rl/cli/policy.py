@@ -14,9 +14,11 @@ from smorphi_rl.cli.common import (
     DEFAULT_LOG_DIR,
     Repeated,
     clipped,
+    columns,
     map_paths,
     nonempty,
     one_line,
+    padded,
     scored_text,
     seed_arg,
 )
@@ -154,15 +156,15 @@ def _replay_listing(directory: Path) -> int:
                      f"{len(ep.steps) - 1:>5}  {b['R1']:>7.2f}  {angles_text(b['theta']):<18} {b['P_c']:>6.2f}  "
                      f"{b['P_len']:>5}{flag}"))  # fmt: skip
     cells = [r for r in rows if isinstance(r, tuple)]
-    wide = [max(len("episode"), *(len(_listed(f, directory)) for f in files))]  # an unreadable one's name too
-    wide += [max([len(head), *(len(r[i]) for r in cells)]) for i, head in ((1, "map"), (2, "algo"))]
+    wide = [max(len("episode"), *(columns(_listed(f, directory)) for f in files))]  # an unreadable one's name too
+    wide += [max([len(head), *(columns(r[i]) for r in cells)]) for i, head in ((1, "map"), (2, "algo"))]
     print(f"{'episode':<{wide[0]}} {'map':<{wide[1]}} {'algo':<{wide[2]}} {'steps':>5}  {'best R1':>7}  best "
           "morphology     P_c %  P_len")  # fmt: skip
     for f, row in zip(files, rows, strict=True):
         text = (
-            f"{_listed(f, directory):<{wide[0]}} {row}"
+            f"{padded(_listed(f, directory), wide[0])} {row}"
             if isinstance(row, str)
-            else " ".join([*(cell.ljust(w) for cell, w in zip(row[:3], wide, strict=True)), row[3]])
+            else " ".join([*(padded(cell, w) for cell, w in zip(row[:3], wide, strict=True)), row[3]])
         )
         print(one_line(text))
     bad = f" ({unreadable:,} unreadable)" if unreadable else ""
