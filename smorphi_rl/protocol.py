@@ -271,7 +271,7 @@ def exact_optimum(
     cache_dir: Path | None = None,
     progress: Callable[[int, int], None] | None = None,
 ) -> Optimum:
-    """R1* of the map over every 1-degree triple (about 10 s on 2 cores the first time), cached in this
+    """R1* of the map over every 1-degree triple (seconds on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
     the planning. `progress(done, total)` is called as the search goes (two passes: shapes keyed, settled)."""
     key = map_key(map_path, weights, planning)

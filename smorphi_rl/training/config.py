@@ -137,9 +137,8 @@ class TrainConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise TrainConfigError(f"{name} must be a positive integer, got {value!r}")
         if self.timesteps > MAX_TIMESTEPS:
-            days = MAX_TIMESTEPS / 1000 / 86400
-            raise TrainConfigError(f"timesteps {self.timesteps:,}: at most {MAX_TIMESTEPS:,} (at about 1,000 env steps "
-                                   f"a second on 2 cores that is {days:.0f} days already)")  # fmt: skip
+            raise TrainConfigError(f"timesteps {self.timesteps:,}: at most {MAX_TIMESTEPS:,} (days of training on 2 "
+                                   "cores already: split a longer one across runs on a cluster)")  # fmt: skip
         runners = self.num_env_runners
         if runners is not None and (isinstance(runners, bool) or not isinstance(runners, int) or runners < 0):
             raise TrainConfigError(f"env runners must be 0 (sample in the trial process) or more, got {runners!r}")

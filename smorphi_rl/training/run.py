@@ -221,7 +221,7 @@ def map_digests(cfg: TrainConfig) -> dict[str, str]:
 
 
 def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str, Optimum]:
-    """The exact 1-degree optimum of every map the protocol evaluates on (about 10 s each the first time, then
+    """The exact 1-degree optimum of every map the protocol evaluates on (seconds each the first time, then
     cached); not computed (R1 NaN, with a note) on maps over OPTIMUM_MAX_CELLS cells, where it would take far
     longer."""
     cache = optimum_cache(log_dir)
