@@ -20,7 +20,7 @@ import numpy as np
 from smorphi_rl import interrupts
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, rel, write_text_atomic
-from smorphi_rl.stats import Interval, median_interval
+from smorphi_rl.stats import Interval, median_interval, too_few
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
 
 if TYPE_CHECKING:
@@ -284,12 +284,12 @@ def _seed_figures(run_dir: Path) -> SeedFigures:
 
 def above(a: Interval, b: Interval | float) -> str:
     """The verdict on "a is higher than b" over seeds (`b` a number: one fixed reference, such as a search run once):
-    agrees when a's 95 % interval lies wholly above b's, does not agree when wholly below, else undecided; one seed
-    decides nothing."""
+    agrees when a's 95 % interval lies wholly above b's, does not agree when wholly below, else undecided; fewer than
+    `VERDICT_SEEDS` decide nothing."""
     low, high = (b.lo, b.hi) if isinstance(b, Interval) else (float(b), float(b))
     n = min(a.n, b.n) if isinstance(b, Interval) else a.n
-    if n < 2:
-        return "**undecided** (no seed)" if n == 0 else "**undecided** (1 seed)"
+    if too_few(n):
+        return f"**undecided** ({too_few(n)})"
     return "**agrees**" if a.lo > high else "**does not agree**" if a.hi < low else "**undecided**"
 
 
@@ -321,7 +321,7 @@ def _claims(map_name: str, b: Budget, by_seed: dict[tuple[str, int], MethodScore
     verdicts = []
     for a in b.algorithms:
         dominated = [_dominated(by_seed[(a, i)], by_seed[("nsga2", i)]) for i in range(count)]
-        verdict = ("**undecided** (1 seed)" if count < 2 else "**agrees**" if not any(dominated)
+        verdict = (f"**undecided** ({too_few(count)})" if too_few(count) else "**agrees**" if not any(dominated)
                    else "**does not agree**" if all(dominated) else "**undecided**")  # fmt: skip
         verdicts.append(f"{a.upper()}'s best is dominated by a shape of NSGA-II's front (same seed) on "
                         f"{sum(dominated)} of {count}: {verdict}")  # fmt: skip
@@ -370,7 +370,7 @@ def _transfer_claims(runs: list[Any]) -> list[str]:
             out.append(f"- {m.map_name}: {claim} Not testable here ({counts}).")
             continue
         verdict = speedup(ratio)
-        seeds = " (1 seed)" if ratio.n < 2 else ""
+        seeds = f" ({too_few(ratio.n)})" if too_few(ratio.n) else ""
         out.append(f"- {m.map_name}: {claim} Fine-tuned {m.tuned_steps.text(',.0f')} vs scratch "
                    f"{m.scratch_steps.text(',.0f')} env steps to converge (medians; {counts}), {verdict.text}: "
                    f"{verdict.word}{seeds}.")  # fmt: skip

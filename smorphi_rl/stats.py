@@ -20,12 +20,22 @@ CONFIDENCE = 0.95
 RESAMPLES = 10_000
 FEW_SEEDS_NOTE = (
     "With few seeds a percentile bootstrap interval holds less than 95 %: a median's over up to 5 seeds (a mean's "
-    "over 3) is the seeds' range, which holds the true median 1 - 2^(1-n) of the time: 75 % for 3 seeds, 88 % "
-    "for 4, 94 % for 5."
+    "over 3) is the seeds' range, which holds the true median 1 - 2^(1-n) of the time: 50 % for 2 seeds (too few "
+    "for a verdict), 75 % for 3, 88 % for 4, 94 % for 5."
 )
 """How to read an interval over 3-5 seeds, under every table of them: P(all n seeds on one side of the median)
 is 2^-n, and a resampled median of n <= 5 values (mean of 3) falls on the least value more than 2.5 % of the
 time."""
+
+
+VERDICT_SEEDS = 3
+"""The fewest seeds a verdict (agrees, does not agree) is drawn from: two seeds' range holds the true median half the
+time, and two equal methods' ranges fall apart in a given direction 1 time in 6."""
+
+
+def too_few(n: int) -> str:
+    """Why `n` seeds decide nothing ("" from `VERDICT_SEEDS` on)."""
+    return "" if n >= VERDICT_SEEDS else "no seed" if n == 0 else f"{n} seed{'s' if n > 1 else ''}: too few to decide"
 
 
 def cell(value: float, spec: str = ".4g") -> str:

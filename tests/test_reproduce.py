@@ -144,7 +144,9 @@ def test_a_claim_over_seeds_is_decided_by_its_intervals_and_one_seed_decides_not
     assert above(high, low) == "**agrees**" and above(low, high) == "**does not agree**"
     assert above(high, median_interval([9.0, 11.0, 13.0])) == "**undecided**"  # the intervals overlap
     assert above(high, 5.0) == "**agrees**" and above(low, 2.5) == "**undecided**"  # against one fixed run
-    assert above(median_interval([10.0]), low) == "**undecided** (1 seed)"
+    assert above(median_interval([10.0]), low) == "**undecided** (1 seed: too few to decide)"
+    two_apart = above(median_interval([1.0, 2.0]), median_interval([0.0, 0.5]))  # two equal methods: 1 time in 6
+    assert two_apart == "**undecided** (2 seeds: too few to decide)"
 
 
 def test_the_search_claims_compare_seed_by_seed_and_each_algorithm_on_its_own():

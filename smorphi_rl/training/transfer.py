@@ -21,6 +21,7 @@ from smorphi_rl.inputs import first_repeat
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
 from smorphi_rl.stats import (
     FEW_SEEDS_NOTE,
+    VERDICT_SEEDS,
     Interval,
     cell,
     censored_median_interval,
@@ -452,9 +453,9 @@ class Speedup:
     met: bool
     """The ratio of the medians (or the bound on it) reaches the target."""
     whole: bool
-    """So does the whole interval, over at least 2 seeds."""
+    """So does the whole interval, over at least `VERDICT_SEEDS` seeds."""
     below: bool
-    """The whole interval lies under the target, over at least 2 seeds."""
+    """The whole interval lies under the target, over at least `VERDICT_SEEDS` seeds."""
 
     @property
     def word(self) -> str:
@@ -470,12 +471,13 @@ def speedup(ratio: Interval, unmeasured: bool = False) -> Speedup:
         return Speedup("no ratio: both medians lie past the budget, or the fine-tuned one is 0", False, False, False)
     met = ratio.bound != "<" and ratio.point >= SPEEDUP_TARGET  # "> x": at least x, a measured bound
     missed = ratio.bound != ">" and ratio.point < SPEEDUP_TARGET
-    whole = met and ratio.n >= 2 and ratio.lo >= SPEEDUP_TARGET  # one seed has no interval to agree
-    below = missed and ratio.n >= 2 and ratio.hi < SPEEDUP_TARGET
+    decides = ratio.n >= VERDICT_SEEDS  # one seed has no interval to agree; two, one that holds half the time
+    whole = met and decides and ratio.lo >= SPEEDUP_TARGET
+    below = missed and decides and ratio.hi < SPEEDUP_TARGET
     kind = {">": " (at least: the scratch median lies past the budget)",
             "<": " (at most: the fine-tuned median lies past the budget)"}.get(ratio.bound, "")  # fmt: skip
-    outcome = ("meets target" + ("" if whole or ratio.n < 2 else ", its interval reaching below") if met
-               else "misses target" + ("" if below or ratio.n < 2 else ", its interval reaching above") if missed
+    outcome = ("meets target" + ("" if whole or not decides else ", its interval reaching below") if met
+               else "misses target" + ("" if below or not decides else ", its interval reaching above") if missed
                else "the budget cannot tell")  # fmt: skip
     return Speedup(f"ratio of medians {ratio.text()}{kind} ({outcome})", met, whole, below)
 

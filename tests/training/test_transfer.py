@@ -127,7 +127,8 @@ def test_reproduce_states_the_transfer_claim_with_the_ratio_of_medians():
     _, none = _transfer_claims([_run("fine-tune", 0, None, 88.0), _run("scratch", 0, None, 88.0)])
     assert "Not testable here" in none and "fine-tuned 0 of 1" in none
     _, lone = _transfer_claims([_run("fine-tune", 0, 1_000, 88.0), _run("scratch", 0, 6_000, 88.0)])
-    assert "ratio of medians 6.00 (1 seed)" in lone and "**undecided** (1 seed)" in lone  # one seed decides nothing
+    assert "ratio of medians 6.00 (1 seed)" in lone  # one seed decides nothing
+    assert "**undecided** (1 seed: too few to decide)" in lone
 
     runs[3:] = [_run("scratch", s, at, 88.0) for s, at in enumerate((5_000, 5_000, 5_000))]
     _, edge = _transfer_claims(runs)  # exactly five-fold: bench_transfer.py's verdict and reproduce's are one
@@ -154,6 +155,8 @@ def test_the_speedup_verdict_reads_the_medians_and_the_whole_interval():
     assert "past the budget" in speedup(Interval(math.nan, math.nan, math.nan, 0)).text
     one = speedup(Interval(6.0, 6.0, 6.0, 1))  # one seed has no interval to agree
     assert (one.met, one.whole, one.word) == (True, False, "**undecided**") and one.text.endswith("(meets target)")
+    two = speedup(Interval(7.0, 6.0, 8.0, 2))  # two seeds' range holds the median half the time: no verdict either
+    assert (two.met, two.whole, two.word) == (True, False, "**undecided**")
 
 
 def test_a_resume_that_leaves_out_maps_or_seeds_the_job_ran_is_one_line(tmp_path):
