@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 from _benchdocs import stop_interrupted, whole, write_section
 
+from smorphi_rl import jsontext
 from smorphi_rl.design import run_design
 from smorphi_rl.designer import designer_env, load_designer
 from smorphi_rl.env import MorphologyEnv
@@ -212,7 +213,7 @@ def main() -> None:
     lines = [f"Held-out floors: {len(held)} ({len(held) - len(SHIPPED_VAL)} generated with seeds that training never "
              f"draws, and the {len(SHIPPED_VAL)} shipped val-* maps); each search's gap is its median over "
              f"{args.seeds} seeded runs on a floor; [95 % bootstrap interval] across floors.", "",
-             f"| method ({args.budget} planner evaluations) | median gap | 90th percentile | within 1 % | "
+             f"| method ({args.budget} planner evaluations) | median gap | 90th percentile | floors within 1 % | "
              + " | ".join(f"{d} better by (median of per-floor differences)" for d in designer_names) + " |",
              "|---|---:|---:|---:|" + "---:|" * len(designer_names)]  # fmt: skip
     for m in methods:
@@ -275,7 +276,7 @@ def main() -> None:
               "included)."]  # fmt: skip
     text = "\n".join(lines)
     print(text)
-    (out / "results.json").write_text(json.dumps(report, indent=2, default=float))
+    (out / "results.json").write_text(jsontext.dumps(report, indent=2, default=float))  # NaN: null, strict JSON
     print(f"results: {out / 'results.json'}\nplot:    {png}")
     if args.record:
         record_figures(designers[0].path, report, args)
@@ -320,7 +321,7 @@ def record_figures(policy_dir: Path, report: dict, args: argparse.Namespace) -> 
     meta["held_out"] = {
         "floors": report["floors"], "budget": args.budget, "command": "scripts/bench_designer.py --record",
         "median_gap_pct": round(d1["at_budget"]["median"], 4), "p90_gap_pct": round(d1["at_budget"]["p90"], 4),
-        "share_within_1pct": round(d1["at_budget"]["within"], 4),
+        "share_of_floors_within_1pct": round(d1["at_budget"]["within"], 4),
         "median_gap_pct_by_budget": {str(b): round(v["median"], 4) for b, v in d1["curve"].items()},
     }  # fmt: skip
     write_atomic(meta_file, (json.dumps(meta, indent=2) + "\n").encode())

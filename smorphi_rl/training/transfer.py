@@ -362,7 +362,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         "| Map | Fine-tuned: env steps to converge | converged | From scratch | converged "
         f"| Ratio scratch / fine-tuned | Gap at {f'{equal:,} env steps' if equal else 'equal env steps'} fine-tuned "
         "| scratch "
-        "| Plateau greedy settled R1 fine-tuned | scratch | Best R1 fine-tuned / scratch |",
+        "| Plateau greedy settled R1 fine-tuned | scratch | Best R1 of any seed fine-tuned / scratch |",
         "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
     ]
     for m in by_map(runs):
