@@ -24,6 +24,7 @@ from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
 from smorphi_rl.search.results import SearchResult, load
+from smorphi_rl.stats import cell
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
 
 if TYPE_CHECKING:
@@ -393,8 +394,9 @@ def method_table(exact: MethodScore, methods: list[MethodScore]) -> list[str]:
         "|---|---|---|---:|---:|---:|---:|---:|---:|",
     ]
     for m in [exact, *methods]:
+        hv = cell(m.hv_fraction, ".4f") or "-"  # none where the exact front spans no area (one shape's P_c or P_len)
         lines.append(f"| {m.label} | {m.budget} | {angles_text(m.best_theta)} | {m.best_P_c:.2f} | {m.best_P_len} "
-                     f"| {m.best_R1:.2f} | {m.gap_R1:.2f} | {m.hv_fraction:.4f} | {m.protocol} |")  # fmt: skip
+                     f"| {m.best_R1:.2f} | {m.gap_R1:.2f} | {hv} | {m.protocol} |")  # fmt: skip
     return lines
 
 

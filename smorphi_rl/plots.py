@@ -176,7 +176,7 @@ def plot_learning_curves(
 
     `curves[label]` has lists `env_steps`, `episode_return_mean`, `best_R1` and optionally `eval_R1`, `final_R1`."""
     panels = [("episode_return_mean", "mean episode return"), ("best_R1", "best R1 of the episodes in each iteration"),
-              ("eval_R1", "greedy settled R1, mean over the fixed starts (convergence)")]  # fmt: skip
+              ("eval_R1", "greedy settled R1, mean over the fixed starts")]  # fmt: skip
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.4))
     for ax, (key, title) in zip(axes, panels, strict=True):
         for label, c in curves.items():

@@ -381,3 +381,14 @@ def test_a_training_run_of_another_map_names_the_map_it_trained_on(tmp_path, cap
     capsys.readouterr()
     assert main(["compare", "--map", MAP_1, "--runs", str(run), "--step", "30", "--log-dir", str(tmp_path)]) == 1
     assert "its shapes are of 'map-2', not 'map-1': give --map the map it trained on" in capsys.readouterr().err
+
+
+def test_a_hypervolume_share_with_no_exact_area_reads_as_none_not_nan():
+    """An exact front of one shape spans no area: its share of it is not a number, and the table said "nan"."""
+    from smorphi_rl.compare import MethodScore, method_table
+
+    one = np.array([5.0]), np.array([90.0])
+    exact = MethodScore("exact", "1 shape", (0.0, 180.0, 0.0), 90.0, 5, 89.5, 0.0, float("nan"), *one)
+    found = MethodScore("random", "10", (0.0, 180.0, 0.0), 90.0, 5, 89.5, 0.0, float("nan"), *one)
+    rows = [line for line in method_table(exact, [found]) if line.startswith("| exact") or line.startswith("| random")]
+    assert len(rows) == 2 and all("nan" not in row and "| - |" in row for row in rows)
