@@ -66,7 +66,7 @@ def bench(path: Path, sweep: SweepConfig, root: Path) -> None:
           f"{sweep.timesteps:,} env steps each) in {fmt_duration(wall)} end to end"
           f"{target if path.name == DEFAULT[0] else ''}; the trials' own time {fmt_duration(trained)} = "
           f"{trained / wall:.2f} of it")  # fmt: skip
-    print("\n".join(sweep_group_lines(rows)[2:]))
+    print("\n".join(sweep_group_lines(rows)))  # its key first: what "> x" and "inf" mean, and the few-seeds note
     ranked = sorted((r for r in rows if r.best is not None), key=lambda r: -r.best.R1)  # type: ignore[union-attr]
     print("best shape any episode of a trial visited, per trial:")
     for r in ranked:
