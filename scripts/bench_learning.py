@@ -73,23 +73,28 @@ class Row:
     """A trained run's env steps until it converged (None: it did not, or it is a baseline)."""
     converged: str = ""
     """As `converged_text` says it for a trained run ("not converged", "not measured"); a baseline's: empty."""
+    env_steps: float = 0.0
+    """The env steps a trained run trained: where one that did not converge would have to converge past."""
 
 
 def row_of(ev: MapEvaluation, method: str, seed: int, wall_s: float = float("nan"), curve=None,
-           converged_at: float | None = None, converged: str = "") -> Row:  # fmt: skip
+           converged_at: float | None = None, converged: str = "", env_steps: float = 0.0) -> Row:  # fmt: skip
     return Row(ev.map, method, seed, ev.median_gap, ev.within / len(ev.outcomes), ev.mean_evaluations, ev.mean_R1,
-               wall_s, curve, converged_at, converged)  # fmt: skip
+               wall_s, curve, converged_at, converged, env_steps)  # fmt: skip
 
 
 def converged_cell(group: list[Row]) -> str:
-    """How many of a group's trained runs converged, and the median env steps to it over every run (a run that did
-    not converge counts past its budget: `convergence.censored_steps`); "-" for a baseline."""
+    """How many of a group's trained runs converged, and the median env steps to it with its interval over every
+    measured run (one that did not converge counts past the env steps it trained: `convergence.censored_steps`, as
+    the sweep and transfer tables count it); "-" for a baseline."""
     if not all(r.converged for r in group):
         return "-"
-    count = f"{sum(r.converged_at is not None for r in group)} of {len(group)}"
-    steps = censored_steps([(r.converged_at, r.curve[0][-1] if r.curve and r.curve[0] else 0.0) for r in group])
-    median = censored_median_interval(*steps)
-    return f"{count}, median {median.bound} {median.point:,.0f} steps".replace("  ", " ")
+    measured = [r for r in group if r.converged != "not measured"]
+    count = f"{sum(r.converged_at is not None for r in measured)} of {len(measured)}"
+    if not measured:
+        return "not measured"
+    median = censored_median_interval(*censored_steps([(r.converged_at, r.env_steps) for r in measured]))
+    return f"{count}, median {median.text(',.0f')} steps"
 
 
 def main() -> None:
@@ -193,7 +198,8 @@ def train_and_evaluate(algo: str, reward: str, seed: int, map_path: str, timeste
     kept = [(s, g) for s, g in zip(steps, gaps, strict=True) if np.isfinite(g)]
     at = convergence(curve)[0]
     return row_of(ev, f"{algo.upper()} {reward}", seed, summary.wall_s,
-                  ([s for s, _ in kept], [g for _, g in kept]), at, converged_text(at, curve))  # fmt: skip
+                  ([s for s, _ in kept], [g for _, g in kept]), at, converged_text(at, curve),
+                  summary.env_steps)  # fmt: skip
 
 
 def ideal_rows(map_path: str, env: EnvConfig, optimum: Optimum, starts: np.ndarray, rewards: list[str]) -> list[Row]:
