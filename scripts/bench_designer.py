@@ -247,7 +247,8 @@ def main() -> None:
                            {k: v for k, v in optima.items()})  # fmt: skip
         report["per_map_ppo"] = rows
         lines += ["", f"Per-map PPO at {args.ppo_steps:,} env steps on {args.ppo_maps} held-out floors (designer 1 "
-                  f"needs no training there: {args.budget} planner evaluations):", "",
+                  f"needs no training there: {args.budget} planner evaluations); one PPO seed a floor, an "
+                  "illustration: no claim is drawn from it:", "",
                   "| floor | designer 1 | PPO from scratch: best found / greedy settles | fine-tuned from the "
                   "designer: best found / greedy settles |", "|---|---:|---:|---:|"]  # fmt: skip
         for path in floors[: args.ppo_maps]:

@@ -196,7 +196,8 @@ def main() -> None:
 
 def compare_layouts(base: TrainConfig, steps: int, seed: int, tmp: str) -> None:
     """Learning per env step: the first layout and PPO preset against the new default, same seed and budget."""
-    print(f"\nlearning per env step, PPO, seed {seed}, {steps:,} env steps each (protocol: 20 fixed starts):")
+    print(f"\nlearning per env step, PPO, seed {seed}, {steps:,} env steps each (protocol: 20 fixed starts; one seed, "
+          "an illustration: bench_learning.py measures learning over seeds):")  # fmt: skip
     for label, cfg in (("first layout (2 x 1 env, batch 1,000, 8 x 4 minibatches)",
                         replace(base, timesteps=steps, seed=seed, overrides=OLD_PPO, **OLD_LAYOUT)),
                        ("new default", replace(base, timesteps=steps, seed=seed))):  # fmt: skip
