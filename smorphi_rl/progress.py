@@ -27,34 +27,40 @@ def bar(fraction: float, width: int) -> str:
 
 
 class StatusLine:
-    """One status line on a stream (stderr): rewritten in place on a terminal; elsewhere (a log file) a new line at
-    most every `every_s` seconds, besides the ones forced. Pickled (Tune keeps its callbacks), it leaves the stream
-    behind and writes to the stderr of the process that loads it."""
+    """One status line on a stream (stderr): rewritten in place on a terminal; elsewhere (a log file), or where the
+    line is wider than the terminal (it would wrap, and every rewrite leave a row behind), a new line at most every
+    `every_s` seconds, besides the ones forced. Pickled (Tune keeps its callbacks), it leaves the stream behind and
+    writes to the stderr of the process that loads it."""
 
     def __init__(self, out: TextIO | None = None, every_s: float = 10.0) -> None:
         self.out = out or sys.stderr  # the stream of the moment, not the one at import
         self.tty = bool(getattr(self.out, "isatty", lambda: False)())
         self.every_s = every_s
         self._last = -math.inf
+        self._open = False
+        """A line in place is on the terminal, not yet ended."""
+        self._wide = False
+        """The last line was wider than the terminal: lines go on lines of their own, as off a terminal."""
 
     def __getstate__(self) -> dict[str, Any]:
         return {k: v for k, v in self.__dict__.items() if k != "out"}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        self.__dict__.update(state, out=sys.stderr, tty=bool(getattr(sys.stderr, "isatty", lambda: False)()))
+        self.__dict__.update({"_wide": False} | state, out=sys.stderr, _open=False,
+                             tty=bool(getattr(sys.stderr, "isatty", lambda: False)()))  # fmt: skip
 
     def due(self, force: bool = False, now: float | None = None) -> bool:
         """Whether a line is to be written now (always on a terminal, or when forced); if so the clock restarts.
         `now`: the caller's own reading of the clock, when it has one."""
         now = time.monotonic() if now is None else now
-        if not self.tty and not force and now - self._last < self.every_s:
+        if (not self.tty or self._wide) and not force and now - self._last < self.every_s:
             return False
         self._last = now
         return True
 
     def width(self) -> int:
         """The characters a line in place may take: short of the terminal's width, since a line that wraps leaves
-        its first row behind at every rewrite; at most `STATUS_WIDTH`."""
+        its first row behind at every rewrite; at most `STATUS_WIDTH` (a wider line is written whole, on its own)."""
         try:
             columns = os.get_terminal_size(self.out.fileno()).columns
         except (AttributeError, OSError, ValueError):  # a stream with no terminal behind it
@@ -69,22 +75,27 @@ class StatusLine:
 
     def note(self, line: str) -> None:
         """A line of its own that stays, below the status line on a terminal (which the next write redraws)."""
-        self.out.write(("\n" if self.tty else "") + line + "\n")
+        self.out.write(("\n" if self._open else "") + line + "\n")
+        self._open = False
         self.out.flush()
 
     def write(self, line: str, end: bool = False) -> None:
-        """The line, in place on a terminal (ended there when `end`), else on a line of its own."""
-        if self.tty:
-            width = self.width()
-            self.out.write("\r" + line[:width].ljust(width) + ("\n" if end else ""))
-        else:
-            self.out.write(line + "\n")
+        """The line, in place on a terminal where it fits (ended there when `end`), else on a line of its own."""
+        width = self.width() if self.tty else 0
+        self._wide = self.tty and len(line) > width
+        if self.tty and not self._wide:
+            self.out.write("\r" + line.ljust(width) + ("\n" if end else ""))
+            self._open = not end
+        else:  # the line in place, if any, is cleared first: the whole line below it would read as its end
+            self.out.write(("\r" + " " * width + "\r" if self._open else "") + line + "\n")
+            self._open = False
         self.out.flush()
 
     def finish(self) -> None:
         """Leave the terminal's line: what follows starts on a line of its own."""
-        if self.tty:
+        if self._open:
             self.out.write("\n")
+            self._open = False
             self.out.flush()
 
 
