@@ -16,7 +16,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from multiprocessing import connection as mp_connection
 from typing import Any
 
@@ -278,9 +278,14 @@ def run_exhaustive(
     grid_map = load_map(map_path)
     thetas = lattice_thetas(step)
     per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels, before any worker forks
-    pools = (_local_pool(str(map_path), planning, step, best_for, workers, thetas) if address is None
-             else _ray_pool(grid_map, planning, step, best_for, workers, address))  # fmt: skip
-    with pools as (pool, n_workers), stop_requests() as stop:
+    with ExitStack() as stack:
+        if address is None:  # stops held before the workers fork: a Ctrl-C raised in the parent's at-fork hooks
+            stop = stack.enter_context(stop_requests())  # (logging's) was printed as "ignored" and lost
+            pool, n_workers = stack.enter_context(_local_pool(str(map_path), planning, step, best_for, workers,
+                                                              thetas))  # fmt: skip
+        else:  # after Ray's start, which sets handlers of its own
+            pool, n_workers = stack.enter_context(_ray_pool(grid_map, planning, step, best_for, workers, address))
+            stop = stack.enter_context(stop_requests())
         t0 = time.perf_counter()  # start-up (workers, their kernels) is not timed
         rows, inverse, reps, state = _two_passes(pool, thetas, n_workers, per_chunk, best_for is not None, stop,
                                                  progress)  # fmt: skip

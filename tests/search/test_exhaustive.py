@@ -129,3 +129,24 @@ def test_optimum_command_reports_the_best_and_what_the_bound_saved(tmp_path, cap
     full = run_exhaustive(MAP_1, 6.0, FIT, workers=2)
     i = full.best(Weights(1.0, 0.1))
     assert f"P_c {full.P_c[i]:.2f} %, P_len {full.P_len[i]}" in out
+
+
+def test_a_stop_as_the_workers_fork_stops_the_search(monkeypatch):
+    """A Ctrl-C as the workers forked was raised in the parent's at-fork hook (logging's), which Python prints as
+    "Exception ignored" and drops: the search ran to its end and exited 0. Stops are now held before the fork."""
+    import contextlib
+    import signal
+
+    from smorphi_rl.search import exhaustive
+
+    real = exhaustive._Workers.__init__
+
+    def forking(self, *args, **kwargs):
+        with contextlib.suppress(KeyboardInterrupt):  # where an at-fork hook runs: whatever it raises is dropped
+            signal.raise_signal(signal.SIGINT)
+        real(self, *args, **kwargs)
+
+    monkeypatch.setattr(exhaustive._Workers, "__init__", forking)
+    path = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
+    with pytest.raises(KeyboardInterrupt):
+        exhaustive.run_exhaustive(path, step_deg=30.0, workers=1)
