@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -25,6 +26,7 @@ from smorphi_rl.cli.common import (
 from smorphi_rl.cli.fields import UNSET, option
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import angles_text, check_step
+from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
@@ -112,35 +114,40 @@ def cmd_search(args: argparse.Namespace) -> int:
     on_map = w.weights_on(grid_map)
     run_dir = prepare_run_dir(args.log_dir, args.name or cfg.run_name)
     hint = cut_hint(args.method)
-    with discarded_on_failure(run_dir):  # interrupted, failed, or a full disk mid-way: no whole run, the name free
-        result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
-        if planning.start_xy is not None:
-            result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
-        b = result.best(on_map)
-        from smorphi_rl.geometry import Morphology
+    with ExitStack() as held:  # a hold of stops, left (its handlers put back) with the plot drawn, however it ends
+        with discarded_on_failure(run_dir):  # interrupted, failed, or a full disk mid-way: no whole run, the name free
+            result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
+            # from here a stop waits for the files and the plot (a second is at once): raised as it came, it could land
+            # in a callback of the garbage collector, which Python prints as "ignored" and drops
+            late = held.enter_context(stop_requests(again=True))
+            if planning.start_xy is not None:
+                result.params["start_xy"] = list(planning.start_xy)  # `compare` checks it
+            b = result.best(on_map)
+            from smorphi_rl.geometry import Morphology
 
-        best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
-        cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
-        files = save(result, run_dir, on_map, cover)  # `compare` reads summary.json, written last
-    if cfg.method == "optimum" and cfg.step == 1.0 and result.map_digest == grid_map.digest:  # the map unchanged
-        from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum  # what `train` searches first
+            best_plan = planning.evaluator(grid_map).evaluate(Morphology(*(float(t) for t in result.thetas[b])))
+            cover = {"coverage_free_pct": best_plan.coverage_free_pct, "coverable_pct": best_plan.coverable_pct}
+            files = save(result, run_dir, on_map, cover)  # `compare` reads summary.json, written last
+        if cfg.method == "optimum" and cfg.step == 1.0 and result.map_digest == grid_map.digest:  # the map unchanged
+            from smorphi_rl.protocol import Optimum, optimum_cache, remember_optimum  # what `train` searches first
 
-        found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
-        remember_optimum(grid_map, on_map, planning, optimum_cache(args.log_dir), found)
-    front_rows = result.front_records(on_map)
-    try:
-        files["plot"] = plot_pareto(
-            {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
-            run_dir / "pareto.png",
-            f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of {len(front_rows)}",
-            best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
-        )
-    except OSError as exc:  # the run is whole without its picture: kept, and said so
-        raise SmorphiError(f"{exc.strerror or exc}: {rel(run_dir / 'pareto.png')}; the search's results are whole "
-                           f"in {rel(run_dir)} (`compare` reads them), only its plot is missing") from None  # fmt: skip
-    except KeyboardInterrupt:
-        raise Interrupted(f"stopped while drawing the plot: the search's results are whole in {rel(run_dir)} "
-                          "(`compare` reads them), only its plot is missing") from None  # fmt: skip
+            found = Optimum.of(result.thetas, result.P_c, result.P_len, on_map)
+            remember_optimum(grid_map, on_map, planning, optimum_cache(args.log_dir), found)
+        front_rows = result.front_records(on_map)
+        try:
+            title = f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of "
+            title += str(len(front_rows))
+            files["plot"] = plot_pareto(
+                {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
+                run_dir / "pareto.png", title, best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
+            )  # fmt: skip
+        except OSError as exc:  # the run is whole without its picture: kept, and said so
+            missing = f"{rel(run_dir)} (`compare` reads them), only its plot is missing"
+            raise SmorphiError(f"{exc.strerror or exc}: {rel(run_dir / 'pareto.png')}; the search's results are whole "
+                               f"in {missing}") from None  # fmt: skip
+        except KeyboardInterrupt:
+            raise Interrupted(f"stopped while drawing the plot: the search's results are whole in {rel(run_dir)} "
+                              "(`compare` reads them), only its plot is missing") from None  # fmt: skip
     from smorphi_rl.score import degenerate_warning
 
     if args.json:
@@ -156,6 +163,8 @@ def cmd_search(args: argparse.Namespace) -> int:
     )  # a start on a speck explains a small coverage first
     if line:
         print(line, file=sys.stderr)
+    if late.is_set():
+        raise Interrupted(f"as the search ended: its results and plot are whole in {rel(run_dir)}")
     return 0
 
 

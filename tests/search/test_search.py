@@ -265,3 +265,27 @@ def test_a_search_that_scores_a_shape_twice_counts_its_shapes_apart_from_its_eva
     assert said is not None, first
     shapes = np.load(next(tmp_path.glob("anneal-*")) / "results.npz")["thetas"]
     assert said[1] == said[2] == f"{len(shapes):,}" and len(np.unique(shapes, axis=0)) == len(shapes) < 4_000
+
+
+def test_a_stop_as_the_plot_is_drawn_is_not_lost_in_a_garbage_collector_callback(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C raised in a weakref callback as matplotlib drew was printed "Exception ignored" and dropped: the
+    search exited 0. Stops now wait for the files and the plot, then the command says it was stopped."""
+    import contextlib
+    import signal
+
+    from smorphi_rl import plots
+
+    real = plots.plot_pareto
+
+    def drawn(*args, **kwargs):
+        with contextlib.suppress(KeyboardInterrupt):  # where Python drops what a callback raises
+            signal.raise_signal(signal.SIGINT)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(plots, "plot_pareto", drawn)
+    assert main(["search", "random", "--map", MAP_1, "--samples", "50", "--log-dir", str(tmp_path)]) == 130
+    run_dir = tmp_path / "random-map-1-seed0"
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == f"smorphi-rl: interrupted: as the search ended: its results and plot are whole in {run_dir}"
+    assert (run_dir / "summary.json").is_file() and (run_dir / "pareto.png").is_file()
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the hold's handler is gone
