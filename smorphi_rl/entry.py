@@ -19,6 +19,8 @@ def main() -> int:
     """The console script: the CLI imported inside a Ctrl-C guard (its imports take seconds); SIGTERM is Ctrl-C
     meanwhile (the CLI's `interrupts.install` keeps it so)."""
     signal.signal(signal.SIGTERM, _interrupt)
+    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # a script's `cmd &`: Ctrl-C is a stop from the start
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     try:
         from smorphi_rl.cli import main as cli_main
     except KeyboardInterrupt:

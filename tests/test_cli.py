@@ -447,3 +447,20 @@ def test_maps_generate_stopped_says_which_floors_it_wrote(tmp_path, capsys, monk
     assert capsys.readouterr().err == said
     assert sorted(p.name for p in (tmp_path / "f").iterdir()) == [
         "rooms-0000007.pgm", "rooms-0000007.yaml", "rooms-0000008.pgm", "rooms-0000008.yaml"]  # fmt: skip
+
+
+def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_loads(monkeypatch):
+    """A script's `cmd &` starts it with SIGINT ignored: it was honoured only once the CLI had loaded, so a Ctrl-C in
+    its first 0.3 s was lost and the command ran to its end."""
+    import signal
+
+    from smorphi_rl import cli, entry
+
+    seen = []
+    monkeypatch.setattr(cli, "main", lambda: seen.append(signal.getsignal(signal.SIGINT)) or 0)  # as the CLI starts
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        assert entry.main() == 0
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert seen == [signal.default_int_handler]

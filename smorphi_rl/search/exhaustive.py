@@ -346,4 +346,6 @@ def _two_passes(
         state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
         if progress is not None:
             progress(state.settled, n)
+    if stop.is_set():  # a stop as the last answers came in: the loop ended without seeing it, which then was lost
+        raise KeyboardInterrupt
     return rows, inverse, reps, state

@@ -150,3 +150,23 @@ def test_a_stop_as_the_workers_fork_stops_the_search(monkeypatch):
     path = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
     with pytest.raises(KeyboardInterrupt):
         exhaustive.run_exhaustive(path, step_deg=30.0, workers=1)
+
+
+def test_a_stop_as_the_last_answers_come_in_stops_the_search():
+    """The loop over the workers' answers ended without looking at the stop once the last came in, and leaving the
+    hold put the old handlers back: the stop was lost and the search exited 0."""
+    import signal
+
+    from smorphi_rl.search import exhaustive
+
+    ends: list[int] = []
+
+    def progress(done: int, total: int) -> None:
+        if done == total:
+            ends.append(done)
+            if len(ends) == 2:  # the settling pass's last answer (the keying pass's end came first): the stop now
+                signal.raise_signal(signal.SIGINT)
+
+    path = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
+    with pytest.raises(KeyboardInterrupt):
+        exhaustive.run_exhaustive(path, step_deg=30.0, workers=1, progress=progress)
