@@ -464,3 +464,30 @@ def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_load
     finally:
         signal.signal(signal.SIGINT, previous)
     assert seen == [signal.default_int_handler]
+
+
+def test_an_angles_file_stopped_midway_ends_between_chunks_with_its_rows_whole(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C raised as the compiled planner loaded or a kernel returned crashed the process (a segmentation
+    fault): a stop now waits for the chunk under way."""
+    import signal
+
+    from smorphi_rl.cli import evaluate as evaluate_cli
+
+    monkeypatch.setattr(evaluate_cli, "FILE_CHUNK", 10)
+    angles = tmp_path / "angles.csv"
+    angles.write_text("\n".join(f"{i},{i},{i}" for i in range(35)) + "\n")
+    from smorphi_rl.planning import Evaluator
+
+    real = Evaluator.evaluate_many
+
+    def scored(self, thetas):
+        if thetas[0][0] == 10.0:  # the second chunk: the stop comes as its kernel runs
+            signal.raise_signal(signal.SIGINT)
+        return real(self, thetas)
+
+    monkeypatch.setattr(Evaluator, "evaluate_many", scored)
+    code, out, err = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(angles))
+    assert code == 130 and err.strip().splitlines()[-1] == (
+        "smorphi-rl: interrupted: after 20 of 35 shapes, whose rows are written whole"
+    )
+    assert len(out.strip().splitlines()) == 1 + 20  # the header and two whole chunks

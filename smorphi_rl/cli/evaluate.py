@@ -19,7 +19,7 @@ from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, start_opt
 from smorphi_rl.cli.fields import option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text, check_block_side
 from smorphi_rl.inputs import FORCE_HELP, output_file
 from smorphi_rl.maps import Cell, Map, load_map, map_inputs
@@ -200,27 +200,35 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
 
     check_fits(grid_map, args.block_side, whole_footprint=args.planner == Planner.FIT.value)  # it holds a robot
     if thetas is not None:
-        from smorphi_rl.planning import Evaluator
+        from smorphi_rl.interrupts import stop_requests
 
-        evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(start_spec, grid_map),
-                              planner=Planner(args.planner))  # fmt: skip
-        if not args.json:
-            sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w,"
-                             "R1\n")  # fmt: skip
-        show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
-        formula = score.formula()
-        for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
-            batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
-            if args.json:
-                scored = [
-                    r | {"R1": float(score.r1(r["P_c"], r["P_len"])), "weights": formula} for r in batch.records()
-                ]
-                lines = [jsontext.dumps(r) for r in scored]
-            else:
-                lines = [_csv_row(r, score) for r in batch]
-            sys.stdout.write("\n".join(lines) + "\n")
-            if show is not None:
-                show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
+        # a stop waits for the chunk under way: raised inside the compiled planner's loading or a kernel's return, it
+        # crashed the process (a segmentation fault) or was dropped
+        with stop_requests(again=True) as stop:
+            from smorphi_rl.planning import Evaluator
+
+            evaluator = Evaluator(grid_map, block_side_m=args.block_side, start=parse_start(start_spec, grid_map),
+                                  planner=Planner(args.planner))  # fmt: skip
+            if not args.json:
+                sys.stdout.write("t1,t2,t3,P_c,coverage_free_pct,P_len,path_length_m,feasible,footprint_l,footprint_w,"
+                                 "R1\n")  # fmt: skip
+            show = progress_line("evaluate: shapes") if len(thetas) > FILE_CHUNK else None
+            formula = score.formula()
+            for lo in range(0, len(thetas), FILE_CHUNK):  # written as planned: a long file shows progress and streams
+                batch = evaluator.evaluate_many(thetas[lo : lo + FILE_CHUNK])
+                if args.json:
+                    scored = [
+                        r | {"R1": float(score.r1(r["P_c"], r["P_len"])), "weights": formula} for r in batch.records()
+                    ]
+                    lines = [jsontext.dumps(r) for r in scored]
+                else:
+                    lines = [_csv_row(r, score) for r in batch]
+                sys.stdout.write("\n".join(lines) + "\n")
+                if show is not None:
+                    show(min(lo + FILE_CHUNK, len(thetas)), len(thetas))
+                if stop.is_set():  # the last chunk's too: a stop is never lost
+                    done = f"{min(lo + FILE_CHUNK, len(thetas)):,} of {len(thetas):,}"
+                    raise Interrupted(f"after {done} shapes, whose rows are written whole")
         return 0
     if morphology is None:  # unreachable: exactly one of --angles / --angles-file was given
         raise SmorphiError("give --angles T1 T2 T3")
