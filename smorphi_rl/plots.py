@@ -272,10 +272,16 @@ def animate_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str
     anim = FuncAnimation(fig, lambda i: _draw_replay_frame(ax, grid_map, frames[i], titles[i]), frames=len(frames))
     path = Path(out)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a GIF
-        drawn = None if progress is None else (lambda i, n: progress(i + 1, n))
-        anim.save(str(tmp), writer=PillowWriter(fps=fps), dpi=90, progress_callback=drawn)
-    plt.close(fig)
+    try:
+        with atomic_path(path) as tmp:  # a full disk leaves the old file or none, never half a GIF
+            drawn = None if progress is None else (lambda i, n: progress(i + 1, n))
+            anim.save(str(tmp), writer=PillowWriter(fps=fps), dpi=90, progress_callback=drawn)
+    except Exception as exc:  # a stop before the first frame: the writer's finish fails on no frames (IndexError)
+        if isinstance(exc.__context__, KeyboardInterrupt):
+            raise KeyboardInterrupt from None
+        raise
+    finally:
+        plt.close(fig)
     return path
 
 

@@ -79,3 +79,20 @@ def test_a_curve_with_nothing_to_draw_has_no_legend_entry(tmp_path, monkeypatch)
     plots.plot_learning_curves({"PPO": curve | {"final_R1": [79.0, float("nan"), 80.0]}}, tmp_path / "b.png")
     labels = [[t.get_text() for t in fig.axes[2].get_legend().get_texts()] for fig in figures]
     assert labels == [["PPO"], ["PPO", "PPO: stochastic final-shape R1"]]
+
+
+def test_a_gif_stopped_before_its_first_frame_is_a_stop_not_a_writer_error(tmp_path, monkeypatch):
+    """The GIF writer's finish read its first frame, which a stop had prevented: an IndexError hid the Ctrl-C."""
+    import pytest
+
+    from smorphi_rl import plots
+    from smorphi_rl.maps import Map
+
+    def stopped(*args, **kwargs):  # the Ctrl-C lands as the first frame is drawn
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(plots, "_draw_replay_frame", stopped)
+    grid = Map(np.zeros((20, 20), dtype=np.uint8), 0.1, name="room")
+    with pytest.raises(KeyboardInterrupt):
+        plots.animate_replay(grid, [{}, {}], ["a", "b"], tmp_path / "r.gif")
+    assert not list(tmp_path.iterdir())  # no GIF, and no temporary left
