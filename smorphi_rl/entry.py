@@ -3,27 +3,28 @@ so a Ctrl-C or SIGTERM that lands while it loads ends in one line, as one during
 
 from __future__ import annotations
 
-import signal
 import sys
-from typing import Any
+
+from smorphi_rl import interrupts  # the standard library only: the guard is up before anything heavy loads
 
 EXIT_INTERRUPTED = 130
 """cli.common's: importing it would load the whole CLI, which this module guards."""
 
 
-def _interrupt(signum: int, frame: Any) -> None:
-    raise KeyboardInterrupt
-
-
 def main() -> int:
-    """The console script: the CLI imported inside a Ctrl-C guard (its imports take seconds); SIGTERM is Ctrl-C
-    meanwhile (the CLI's `interrupts.install` keeps it so)."""
-    signal.signal(signal.SIGTERM, _interrupt)
-    if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:  # a script's `cmd &`: Ctrl-C is a stop from the start
-        signal.signal(signal.SIGINT, signal.default_int_handler)
+    """The console script: the CLI imported and run inside a Ctrl-C guard (its imports take seconds); SIGTERM is
+    Ctrl-C throughout (`interrupts.install`). A stop that came where it could not be raised and found the command
+    already done is still a stop: exit 130."""
+    interrupts.install()  # also honours Ctrl-C in a script's `cmd &`, whose shell starts it ignored
+    code: int | None = None
     try:
         from smorphi_rl.cli import main as cli_main
+
+        code = cli_main()
     except KeyboardInterrupt:
+        pass
+    waited = interrupts.settle()
+    if code is None or (waited and code == 0):
         print("smorphi-rl: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED
-    return cli_main()
+    return code

@@ -5,15 +5,101 @@ At the moment SIGTERM arrives it does what SIGINT would: while `train` runs, its
 runs, Ray Tune's own handler (trials stop at their next report; checkpoints, tables and the summary are
 written); a KeyboardInterrupt otherwise. Ray's core installs a C++ handler for SIGTERM in `ray.init` that
 prints raw stack lines and exits, so `install()` is called again once Ray has started.
+
+Python raises a KeyboardInterrupt at whatever line runs when the signal comes. Raised inside an import, it aborted
+the process (matplotlib's compiled font module); raised in a callback (llvmlite's, as numba loaded a kernel; a
+garbage-collector callback), Python printed "Exception ignored" and dropped it, and the command ran on to exit 0,
+or the compiled code the callback served went on without its answer. `interrupt`, the SIGINT handler `install`
+sets, raises only outside imports and llvmlite and asks again 50 ms later otherwise; a stop Python drops is asked
+again the same way.
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import ExitStack, contextmanager
+from types import FrameType
 from typing import Any
+
+RETRY_S = 0.05
+"""How soon a stop that came where it cannot be raised is asked again."""
+_HELD_IN = ("importlib._bootstrap", "llvmlite")
+"""Modules (and their submodules) inside which a stop waits: imports (a second or two at most: Ray's, torch's) and
+llvmlite, whose callbacks serve compiled code as numba loads a kernel (numba's own Python, a compile of seconds on
+a first run, stops at once)."""
+_pending = threading.Event()
+"""A stop has come and waits to be raised."""
+_retry = threading.Event()
+"""The next call of the SIGINT handler is a waiting stop asked again, not a new one."""
+_timers: list[threading.Timer] = []
+_unraisable_before: list[Any] = []
+
+
+def _held(frame: FrameType | None) -> bool:
+    """Whether the main thread is inside an import or llvmlite (any frame of its stack)."""
+    while frame is not None:
+        name = str(frame.f_globals.get("__name__", ""))
+        if any(name == held or name.startswith(f"{held}.") for held in _HELD_IN):
+            return True
+        frame = frame.f_back
+    return False
+
+
+def _ask_again() -> None:
+    """A timer thread's: the waiting stop, handed to whatever handles SIGINT now (Tune's, a hold's, `interrupt`) as a
+    signal to the main thread, which also wakes it from a blocking wait."""
+    if signal.getsignal(signal.SIGINT) is interrupt:
+        _retry.set()
+    else:
+        _pending.clear()
+    signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
+
+
+def _later() -> None:
+    _pending.set()
+    timer = threading.Timer(RETRY_S, _ask_again)
+    timer.daemon = True
+    _timers[:] = [*(t for t in _timers if t.is_alive()), timer]
+    timer.start()
+
+
+def interrupt(signum: int, frame: FrameType | None) -> None:
+    """The SIGINT handler: a KeyboardInterrupt, raised at once outside imports and llvmlite, else once the main
+    thread is out of them; a second stop while one waits raises at once (the user insists)."""
+    retry = _retry.is_set()
+    _retry.clear()
+    if _pending.is_set() and not retry:
+        _pending.clear()
+        raise KeyboardInterrupt
+    if _held(frame):
+        _later()
+        return
+    _pending.clear()
+    raise KeyboardInterrupt
+
+
+def _unraisable(unraisable: Any) -> None:
+    """`sys.unraisablehook`: a KeyboardInterrupt Python would print as "Exception ignored" and drop (raised in a
+    callback) is asked again once the callback has returned; anything else goes to the hook that was there."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+        _later()
+    else:
+        (_unraisable_before[-1] if _unraisable_before else sys.__unraisablehook__)(unraisable)
+
+
+def settle() -> bool:
+    """At a command's end: whether a stop still waits to be raised (it came too late to end the work); it is
+    dropped, so that it is not raised in Python's teardown."""
+    for timer in _timers:
+        timer.cancel()
+    _timers.clear()
+    waited = _pending.is_set()
+    _pending.clear()
+    _retry.clear()
+    return waited
 
 
 def _sigterm_as_sigint(signum: int, frame: Any) -> None:
@@ -25,13 +111,16 @@ def _sigterm_as_sigint(signum: int, frame: Any) -> None:
 
 
 def install() -> None:
-    """Route SIGTERM to the current SIGINT behaviour, and honour SIGINT in a command a script started in the
-    background (its shell set SIGINT to be ignored; Ray Tune's handler honours it once training runs, so it is
-    honoured throughout). Only the main thread may set handlers."""
+    """Route SIGTERM to the current SIGINT behaviour; put `interrupt` in place of Python's SIGINT handler, also in a
+    command a script started in the background (its shell set SIGINT to be ignored; Ray Tune's handler honours it
+    once training runs, so it is honoured throughout); hook dropped stops. Only the main thread may set handlers."""
     if threading.current_thread() is threading.main_thread():
-        if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
+        if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.default_int_handler):
+            signal.signal(signal.SIGINT, interrupt)
         signal.signal(signal.SIGTERM, _sigterm_as_sigint)
+        if sys.unraisablehook is not _unraisable:
+            _unraisable_before[:] = [sys.unraisablehook]
+            sys.unraisablehook = _unraisable
 
 
 @contextmanager

@@ -121,6 +121,17 @@ def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_un
     return Map(cells, 0.1, name="random")
 
 
+def stop_inside_llvmlite() -> None:
+    """A Ctrl-C as if it came while llvmlite served numba a kernel: `interrupts.interrupt` called from a frame of
+    llvmlite's (the stop then waits for a safe place)."""
+    import signal
+
+    from smorphi_rl import interrupts
+
+    names = {"__name__": "llvmlite.binding.executionengine", "interrupts": interrupts, "signal": signal, "sys": sys}
+    exec("interrupts.interrupt(signal.SIGINT, sys._getframe())", names)
+
+
 @pytest.fixture(autouse=True, scope="session")
 def _shared_optimum_cache(tmp_path_factory):
     """Every training run in the suite shares one cache of exact optima (each costs ~10 s to compute)."""

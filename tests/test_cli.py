@@ -454,7 +454,7 @@ def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_load
     its first 0.3 s was lost and the command ran to its end."""
     import signal
 
-    from smorphi_rl import cli, entry
+    from smorphi_rl import cli, entry, interrupts
 
     seen = []
     monkeypatch.setattr(cli, "main", lambda: seen.append(signal.getsignal(signal.SIGINT)) or 0)  # as the CLI starts
@@ -463,7 +463,23 @@ def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_load
         assert entry.main() == 0
     finally:
         signal.signal(signal.SIGINT, previous)
-    assert seen == [signal.default_int_handler]
+    assert seen == [interrupts.interrupt]
+
+
+def test_a_stop_that_waited_through_a_command_to_its_end_exits_as_stopped(monkeypatch, capsys):
+    """A stop that came inside llvmlite (numba loading a kernel) waits to be raised; if the command ends first, it
+    still exits 130 rather than 0, and nothing is raised in Python's teardown."""
+    from conftest import stop_inside_llvmlite
+
+    from smorphi_rl import cli, entry
+
+    def command() -> int:
+        stop_inside_llvmlite()  # returns: the stop waits
+        return 0
+
+    monkeypatch.setattr(cli, "main", command)
+    assert entry.main() == 130
+    assert capsys.readouterr().err == "smorphi-rl: interrupted\n"
 
 
 def test_an_angles_file_stopped_midway_ends_between_chunks_with_its_rows_whole(tmp_path, capsys, monkeypatch):

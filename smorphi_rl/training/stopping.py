@@ -18,6 +18,8 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from typing import Any, TextIO
 
+from smorphi_rl import interrupts
+
 NAMESPACE = "smorphi-rl"
 """The Ray namespace of the stop requests (the driver's and its trials' alike)."""
 TUNE_SIGINT = "TUNE_DISABLE_SIGINT_HANDLER"
@@ -73,7 +75,7 @@ class GracefulStop:
         """Flips state only: no output, thread or Ray call inside a signal handler (`_watch` does the asking)."""
         if not self.reported():  # nothing to keep yet: out of Tune's loop at once (Ray's shutdown ends the trial)
             raise KeyboardInterrupt
-        signal.signal(signal.SIGINT, signal.default_int_handler)  # the next one stops at once
+        signal.signal(signal.SIGINT, interrupts.interrupt)  # the next one stops at once
         self.requested.set()
         self._wake.set()
 

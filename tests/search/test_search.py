@@ -273,7 +273,7 @@ def test_a_stop_as_the_plot_is_drawn_is_not_lost_in_a_garbage_collector_callback
     import contextlib
     import signal
 
-    from smorphi_rl import plots
+    from smorphi_rl import interrupts, plots
 
     real = plots.plot_pareto
 
@@ -288,4 +288,4 @@ def test_a_stop_as_the_plot_is_drawn_is_not_lost_in_a_garbage_collector_callback
     said = capsys.readouterr().err.strip().splitlines()[-1]
     assert said == f"smorphi-rl: interrupted: as the search ended: its results and plot are whole in {run_dir}"
     assert (run_dir / "summary.json").is_file() and (run_dir / "pareto.png").is_file()
-    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # the hold's handler is gone
+    assert signal.getsignal(signal.SIGINT) is interrupts.interrupt  # the hold's handler is gone: the CLI's is back

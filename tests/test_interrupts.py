@@ -1,0 +1,80 @@
+"""Stops raised only where Python can raise them: not inside an import or llvmlite's callbacks, never dropped."""
+
+from __future__ import annotations
+
+import signal
+import sys
+import time
+
+import pytest
+from conftest import stop_inside_llvmlite
+
+from smorphi_rl import interrupts
+
+
+@pytest.fixture
+def installed():
+    """`interrupts.install` as the CLI calls it, with Python's handlers back afterwards."""
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    hook = sys.unraisablehook
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    interrupts.install()
+    try:
+        yield
+    finally:
+        interrupts.settle()
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        sys.unraisablehook = hook
+
+
+def test_a_stop_inside_an_import_is_raised_once_the_import_is_done(installed, tmp_path, monkeypatch):
+    """Raised inside an import, a KeyboardInterrupt aborted Python (matplotlib's compiled font module)."""
+    (tmp_path / "stopped_import.py").write_text(
+        "import signal\nsignal.raise_signal(signal.SIGINT)\nLOADED = True\n", encoding="utf-8"
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(KeyboardInterrupt):
+        import stopped_import  # noqa: F401
+
+        time.sleep(5)  # the stop, asked again, wakes the sleep
+    assert sys.modules.pop("stopped_import").LOADED  # the import ran to its end
+    assert not interrupts.settle()
+
+
+def test_a_stop_python_would_drop_in_a_callback_is_raised_after_it(installed):
+    """A KeyboardInterrupt raised in a callback (llvmlite's as numba loaded a kernel, a garbage-collector callback)
+    was printed "Exception ignored" and dropped: the command ran on and exited 0."""
+
+    class StoppedAsItGoes:
+        def __del__(self) -> None:
+            signal.raise_signal(signal.SIGINT)
+
+    started = time.monotonic()
+    with pytest.raises(KeyboardInterrupt):
+        StoppedAsItGoes()
+        time.sleep(5)
+    assert time.monotonic() - started < 4
+    assert not interrupts.settle()
+
+
+def test_a_second_stop_while_the_first_waits_is_raised_at_once(installed, tmp_path, monkeypatch):
+    """The user who presses Ctrl-C again is not kept waiting for an import (or a long first compile) to end."""
+    (tmp_path / "stopped_twice.py").write_text(
+        "import signal\nsignal.raise_signal(signal.SIGINT)\nsignal.raise_signal(signal.SIGINT)\nLOADED = True\n",
+        encoding="utf-8",
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(KeyboardInterrupt):
+        import stopped_twice  # noqa: F401
+    assert "stopped_twice" not in sys.modules
+    assert not interrupts.settle()
+
+
+def test_a_stop_that_finds_the_work_done_is_dropped_and_reported(installed):
+    """A stop that came inside llvmlite (numba loading a kernel) and still waits as the command ends is not raised
+    in Python's teardown; `settle` says it came, so that the command exits as stopped."""
+    stop_inside_llvmlite()  # returns: the stop waits
+    assert interrupts.settle()
+    time.sleep(3 * interrupts.RETRY_S)  # nothing raised
+    assert not interrupts.settle()
