@@ -297,7 +297,7 @@ def _coerce(name: str, value: Any) -> Any:
         return _real(value)
     except EnvConfigError:
         raise  # already names the problem (a ValueError too)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf), float of a 400-digit integer
         raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
 
 

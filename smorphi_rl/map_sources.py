@@ -20,7 +20,7 @@ from pathlib import Path
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import HELD_OUT_SEED, FloorKind
-from smorphi_rl.inputs import MAX_SEED
+from smorphi_rl.inputs import MAX_SEED, InputError, resolved
 
 GENERATE_PREFIX = "generate:"
 VALIDATION_SEED = 900_000
@@ -92,15 +92,23 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
             found = sorted(p for p in glob.glob(text) if p.endswith((".yaml", ".yml")))
             if not found:
                 raise MapSourceError(f"map glob {text!r} matches no map YAML")
-            out.extend(str(Path(p).resolve()) for p in found)
+            out.extend(_absolute(p) for p in found)
         elif Path(text).is_dir():
-            found = sorted(str(p.resolve()) for p in Path(text).iterdir() if p.suffix in (".yaml", ".yml"))
+            found = sorted(_absolute(p) for p in Path(text).iterdir() if p.suffix in (".yaml", ".yml"))
             if not found:
                 raise MapSourceError(f"map folder {text} holds no map YAML")
             out.extend(found)
         else:
-            out.append(str(Path(text).resolve()))
+            out.append(_absolute(text))
     return tuple(out)
+
+
+def _absolute(path: str | Path) -> str:
+    """A map file's absolute path, links resolved; one line where it cannot be (a symlink loop)."""
+    try:
+        return str(resolved(Path(path), "map"))
+    except InputError as exc:
+        raise MapSourceError(str(exc)) from None
 
 
 def map_label(entry: str) -> str:
@@ -130,6 +138,6 @@ def name_clash(files: tuple[str, ...], key: Callable[[str], str] | None = None) 
     for file in files:
         name = key(file) if key is not None else Path(file).stem
         other = named.setdefault(name, file)
-        if Path(other).resolve() != Path(file).resolve():
+        if _absolute(other) != _absolute(file):
             return other, file
     return None

@@ -233,6 +233,8 @@ def _pgm_samples(data: bytes) -> tuple[int, np.ndarray] | None:
         match = _PGM_FIELD.match(data, pos)
         if match is None:
             return None
+        if len(match.group(1)) > 18:  # no image has such a side (and `int` refuses 4,300 digits): Pillow names it
+            return None
         fields.append(int(match.group(1)))
         pos = match.end() + 1  # one whitespace byte, then the raster
     width, height, maxval = fields
@@ -272,7 +274,7 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
             mode = img.mode
     except FileNotFoundError:
         raise MapError(f"map image not found: {path}") from None
-    except (UnidentifiedImageError, OSError, ValueError) as exc:
+    except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:  # SyntaxError: Pillow's damaged PNG
         other = path.suffix.lower() not in IMAGE_SUFFIXES  # a .jpg a map YAML may name: never decoded as one
         why = "map images are read as PGM or PNG only: convert it to one" if other else str(exc)
         raise MapError(f"{path}: not a readable PGM/PNG image ({why})") from None

@@ -15,6 +15,7 @@ import os
 import re
 import shlex
 import shutil
+import stat
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -126,7 +127,8 @@ def claim_again(run_dir: Path) -> None:
 
 def refuse_links(root: Path) -> None:
     """Refuse a folder a resume writes into when it is a symbolic link or one lies anywhere below it: Tune, RLlib and
-    our own writers would follow it and write wherever it points (a folder someone else handed over)."""
+    our own writers would follow it and write wherever it points (a folder someone else handed over). A FIFO, socket
+    or device below it is refused too: the resume reads the files there, and reading one never ends."""
     if root.is_symlink():
         raise RunDirError(outside_link(root))
     for folder, dirs, files in os.walk(root, followlinks=False):
@@ -137,6 +139,10 @@ def refuse_links(root: Path) -> None:
                     f"{rel(path)}: a link inside {rel(root)}, which the resume writes into (it would "
                     "write wherever the link points); resume only folders you ran, or remove the link"
                 )
+            with contextlib.suppress(OSError):  # gone meanwhile: nothing to read
+                if not stat.S_ISREG(mode := path.lstat().st_mode) and not stat.S_ISDIR(mode):
+                    raise RunDirError(f"{rel(path)}: a FIFO, socket or device inside {rel(root)}, whose files the "
+                                      "resume reads (reading one never ends); resume only folders you ran")  # fmt: skip
 
 
 def outside_link(path: Path) -> str:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import zipfile
 from pathlib import Path
 
@@ -724,6 +725,55 @@ def test_a_pgm_sample_above_its_maxval_is_refused(tmp_path, capsys):
     )
     code, out, err = run(capsys, "evaluate", "--map", str(tmp_path / "ok.yaml"), "--angles", "95", "59", "103")
     assert code == 0 and "free 100.0 %" in out, err
+
+
+def test_a_damaged_map_image_is_one_line_whatever_pillow_raises(tmp_path, capsys):
+    """A PNG whose chunk types are damaged raised Pillow's SyntaxError, and a PGM side of 5,000 digits Python's
+    ValueError (no `int` of over 4,300 digits): both came out as tracebacks."""
+    import io
+
+    from PIL import Image
+
+    cells = np.asarray(Image.open(ROOT / "maps" / "map-1.pgm"))
+    png = io.BytesIO()
+    Image.fromarray(cells).save(png, format="PNG")
+    damaged = bytearray(png.getvalue())
+    for at, value in ((135, 189), (139, 183), (150, 92), (175, 136)):  # inside the image data and its chunk types
+        damaged[at] = value
+    (tmp_path / "png.png").write_bytes(bytes(damaged))
+    (tmp_path / "pgm.pgm").write_bytes(b"P5\n" + b"9" * 5000 + b" 50\n255\n" + cells.tobytes())
+    for name in ("png", "pgm"):
+        (tmp_path / f"{name}.yaml").write_text(
+            f"image: {name}.{name}\nresolution: 0.1\nnegate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n"
+        )
+        code, _, err = run(capsys, "evaluate", "--map", str(tmp_path / f"{name}.yaml"), "--angles", "1", "2", "3")
+        assert code == 1 and f"{name}.{name}: not a readable PGM/PNG image" in one_line(err), err
+
+
+def test_a_map_that_is_a_symlink_loop_is_one_line_for_the_training_jobs(tmp_path, capsys):
+    """`train` resolves its maps itself (map_sources): the loop came out as `RuntimeError: Symlink loop`."""
+    loop = tmp_path / "loop.yaml"
+    loop.symlink_to(loop)
+    (tmp_path / "folder").mkdir()
+    (tmp_path / "folder" / "x.yaml").symlink_to("x.yaml")
+    for entry in (loop, tmp_path / "folder", tmp_path / "folder" / "*.yaml"):
+        code, _, err = run(capsys, "train", "--map", str(entry), "--timesteps", "100", "--log-dir", str(tmp_path / "l"))
+        assert code == 1 and "cannot be resolved" in one_line(err), err
+    assert not (tmp_path / "l").exists()
+
+
+def test_a_name_that_would_drive_the_terminal_is_printed_escaped(tmp_path, capsys):
+    """A map named `x<ESC>]0;title<BEL>...`: its name in a result set the terminal's title and colours."""
+    import shutil
+
+    name = "x\x1b]0;pwned\x07\x1b[31mRED\x9b0m"
+    shutil.copy(ROOT / "maps" / "map-1.pgm", tmp_path / "map-1.pgm")
+    shutil.copy(ROOT / "maps" / "map-1.yaml", tmp_path / f"{name}.yaml")
+    code, out, err = run(capsys, "evaluate", "--map", str(tmp_path / f"{name}.yaml"), "--angles", "1", "2", "3")
+    assert code == 0 and "x\\x1b]0;pwned\\x07\\x1b[31mRED\\x9b0m" in out, out
+    assert not any(c in out + err for c in "\x1b\x07\x9b")
+    code, out, err = run(capsys, "design", "--map", str(tmp_path / f"{name}.yaml"), "--json")
+    assert code == 0 and json.loads(out)["map"] == name  # JSON escapes it itself: unchanged, still JSON
 
 
 def test_an_error_naming_a_path_with_a_newline_stays_one_line(capsys):

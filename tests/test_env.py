@@ -242,6 +242,15 @@ def test_a_negative_or_huge_cost_is_refused(key: str):
             MorphologyEnv({key: value})
 
 
+@pytest.mark.parametrize(
+    ("key", "value"), [("max_steps", math.inf), ("moves", [1e400]), ("start_theta", [10**401, 0, 0])]
+)
+def test_a_number_no_integer_or_float_holds_is_refused_by_name(key, value):
+    """A sweep's `env: {max_steps: .inf}` raised OverflowError with a traceback (int(inf), float of 401 digits)."""
+    with pytest.raises(EnvConfigError, match=f"env_config '{key}': bad value"):
+        MorphologyEnv({key: value})
+
+
 def test_reset_option_theta_sets_the_start():
     env = MorphologyEnv()
     _, info = env.reset(seed=0, options={"theta": (12.0, 34.0, 56.0)})

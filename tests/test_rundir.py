@@ -209,6 +209,19 @@ def test_a_folder_holding_a_link_is_refused_before_a_resume_writes_into_it(tmp_p
     assert (elsewhere / "f").read_text() == "keep" and sorted(p.name for p in elsewhere.iterdir()) == ["f"]
 
 
+def test_a_fifo_inside_a_folder_a_resume_reads_is_refused_before_it_is_opened(tmp_path):
+    """A handed-over sweep folder whose params.json was a FIFO: `sweep --resume` blocked on it for ever."""
+    import os
+
+    from smorphi_rl.rundir import refuse_links
+
+    trial = tmp_path / "exp" / "trial"
+    trial.mkdir(parents=True)
+    os.mkfifo(trial / "params.json")
+    with pytest.raises(RunDirError, match=r"params\.json: a FIFO, socket or device inside .*reading one never ends"):
+        refuse_links(tmp_path / "exp")
+
+
 def test_a_name_that_is_a_link_is_refused_so_nothing_lands_outside_the_log_dir(tmp_path, capsys, monkeypatch):
     """A link under --log-dir named as the run: every file of the run went where it pointed."""
     elsewhere = tmp_path / "elsewhere"

@@ -10,7 +10,16 @@ from collections.abc import Sequence
 
 from smorphi_rl import interrupts
 from smorphi_rl.cli import design, evaluate, maps, policy, search, train
-from smorphi_rl.cli.common import EXIT_INPUT, EXIT_INTERRUPTED, PROG, Parser, default_map, name_choices, one_line
+from smorphi_rl.cli.common import (
+    EXIT_INPUT,
+    EXIT_INTERRUPTED,
+    PROG,
+    Parser,
+    default_map,
+    name_choices,
+    one_line,
+    printable_output,
+)
 from smorphi_rl.errors import Interrupted, SmorphiError
 
 __all__ = ["build_parser", "main"]
@@ -42,6 +51,11 @@ def build_parser(command: str | None = None) -> Parser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Run one command; bad input is one line on stderr and exit 1 (2 for usage, 130 interrupted), never a traceback."""
     interrupts.install()
+    with printable_output():
+        return _run(argv)
+
+
+def _run(argv: Sequence[str] | None) -> int:
     try:
         argv = list(sys.argv[1:] if argv is None else argv)
         known = {c for commands in GROUPS.values() for c in commands}

@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import argparse
 import math
+import re
+import sys
 import unicodedata
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, NoReturn
 
@@ -147,6 +151,41 @@ def one_line(message: str) -> str:
     """Text as one line: a newline or another control character inside it (a path, a value or a recording's text
     holding one: an escape sequence would drive the terminal) is shown escaped, as \\n or \\x1b."""
     return "".join(c if c.isprintable() or c == " " else c.encode("unicode_escape").decode() for c in message)
+
+
+_DRIVES_TERMINAL = re.compile(
+    "[\x00-\x08\x0b\x0c\x0e-\x1f\x80-\x9f\u061c\u200b-\u200f\u2028-\u202e\u2060-\u2069\ufeff]"
+)
+"""Control characters that move or restyle a terminal (ESC starts its sequences, 0x9b is one; BEL, backspace, the
+bidirectional overrides), but newline, carriage return and tab, which the output's own lines use. None is in JSON
+that `json.dumps` writes (it escapes them all), so JSON lines pass unchanged."""
+
+
+class PrintableStream:
+    """A text stream that writes what it is given with every `_DRIVES_TERMINAL` character escaped, as `one_line`
+    shows it (\x1b): a map named `x\x1b]0;title\a.yaml` printed in a result set the window's title."""
+
+    def __init__(self, stream: Any) -> None:
+        self.stream = stream
+
+    def write(self, text: str) -> int:
+        self.stream.write(_DRIVES_TERMINAL.sub(lambda m: m.group().encode("unicode_escape").decode(), text))
+        return len(text)
+
+    def __getattr__(self, name: str) -> Any:  # flush, isatty, fileno, encoding: the stream's own
+        return getattr(self.stream, name)
+
+
+@contextmanager
+def printable_output() -> Iterator[None]:
+    """For the block, stdout and stderr as `PrintableStream`s: no path, name or recorded text any command prints
+    drives the terminal, however it reaches the output."""
+    streams = sys.stdout, sys.stderr
+    sys.stdout, sys.stderr = PrintableStream(sys.stdout), PrintableStream(sys.stderr)  # type: ignore[assignment]
+    try:
+        yield
+    finally:
+        sys.stdout, sys.stderr = streams
 
 
 def columns(text: str) -> int:

@@ -161,6 +161,9 @@ def read_csv(csv_path: Path) -> list[Found]:
     try:
         with csv_path.open(newline="") as fh:
             for i, row in enumerate(csv.DictReader(fh), 2):
+                if None in row or None in row.values():  # more fields than the header, or fewer
+                    raise SmorphiError(f"{csv_path}, line {i}: not a row smorphi-rl writes (fewer or more fields than "
+                                       "its header)")  # fmt: skip
                 try:
                     found = Found(row["algorithm"], row["map"],
                                   (float(row["theta1"]), float(row["theta2"]), float(row["theta3"])),

@@ -5,6 +5,8 @@ from __future__ import annotations
 import csv
 import json
 
+import pytest
+
 from smorphi_rl.training.topk import (
     CSV_FIELDS,
     EPISODE_BEST_KEY,
@@ -52,6 +54,22 @@ def test_tables_round_trip(tmp_path):
     assert tuple(rows[0]) == CSV_FIELDS and rows[0]["theta1"] == "95" and rows[0]["P_len"] == "99"
     md = (tmp_path / "t.md").read_text()
     assert "| 1 | IMPALA | m | (95, 59, 103) | 98.50 | 99 | 88.60 | 3,000 | 1 |" in md
+
+
+def test_a_row_with_a_field_missing_or_extra_is_refused_by_line(tmp_path):
+    """csv fills a short row's missing fields with None: `compare` crashed on `None.upper()`."""
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.training.topk import read_csv
+
+    top = TopMorphologies()
+    top.add_episode_bests("ppo", _bests([["m", 95, 59, 103, 98.5, 99, 88.6]]), env_steps=3000)
+    write_tables(top.top(3), tmp_path / "t.csv", tmp_path / "t.md")
+    whole = (tmp_path / "t.csv").read_text()
+    header, row = whole.splitlines()
+    for bad in (row.rsplit(",", 1)[0], row + ",1"):
+        (tmp_path / "t.csv").write_text(f"{header}\n{bad}\n")
+        with pytest.raises(SmorphiError, match="line 2: not a row smorphi-rl writes"):
+            read_csv(tmp_path / "t.csv")
 
 
 def test_episode_bests_round_trip_and_drop_what_is_not_one():
