@@ -274,11 +274,13 @@ def exact_optimum(
     """R1* of the map over every 1-degree triple (seconds on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
     the planning. `progress(done, total)` is called as the search goes (two passes: shapes keyed, settled)."""
+    from smorphi_rl.maps import load_map
+
     key = map_key(map_path, weights, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
         cached = _cached_optimum(file, weights)
-        if cached is not None:
+        if cached is not None and _as_planned(cached, load_map(map_path), planning):
             return cached  # else a damaged or doctored entry: recomputed and rewritten
     if file is not None:  # before the computation: a folder that cannot be made is named in seconds, not minutes
         make_cache(file.parent)
@@ -292,7 +294,16 @@ def cached_optimum(grid_map: Map, weights: Weights, planning: Planning, cache_di
     """The optimum cached for `grid_map` under `cache_dir`, or None: how `train` reads, on a map too large for it to
     search, the one a `search optimum` run found."""
     file = Path(cache_dir) / f"optimum-{key_of(grid_map, weights, planning)}.json"
-    return _cached_optimum(file, weights) if file.is_file() else None
+    cached = _cached_optimum(file, weights) if file.is_file() else None
+    return cached if cached is not None and _as_planned(cached, grid_map, planning) else None
+
+
+def _as_planned(optimum: Optimum, grid_map: Map, planning: Planning) -> bool:
+    """Whether a cached optimum's shape plans to the P_c and P_len its entry holds (one plan): an entry doctored
+    to a shape and scores that agree with each other, but not with the map, would print any gap."""
+    again = planning.evaluator(grid_map, cache=False).evaluate_many(np.array([optimum.theta], dtype=float))
+    return (bool(again.feasible[0]) and int(again.P_len[0]) == optimum.P_len
+            and math.isclose(float(again.P_c[0]), optimum.P_c, rel_tol=1e-9, abs_tol=1e-9))  # fmt: skip
 
 
 def remember_optimum(grid_map: Map, weights: Weights, planning: Planning, cache_dir: Path, optimum: Optimum) -> None:

@@ -90,10 +90,13 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
     cached.write_text("{broken")  # a damaged entry is recomputed
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
-    entry = {"theta": [1, 2, 3], "R1": 80.0 - 10.0, "P_c": 80.0, "P_len": 100}
+    planned = Evaluator(load_map(MAP_1), 0.17).evaluate_many(np.array([[1.0, 2.0, 3.0]]))
+    p_c, p_len = float(planned.P_c[0]), int(planned.P_len[0])
+    entry = {"theta": [1, 2, 3], "R1": p_c - 0.1 * p_len, "P_c": p_c, "P_len": p_len}
     cached.write_text(json.dumps(entry))  # an entry that could be the optimum is what the cache is for: read
-    assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path).R1 == 70.0
-    for doctored in ({"R1": 1e308}, {"theta": [1]}, {"R1": math.nan}, {"P_len": 10**400}, {"P_c": 101.0}):
+    assert entry["R1"] == exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path).R1
+    unplanned = {"R1": 100.0 - 0.1 * 5, "P_c": 100.0, "P_len": 5}  # agrees with itself, not with the map
+    for doctored in ({"R1": 1e308}, {"theta": [1]}, {"R1": math.nan}, {"P_len": 10**400}, {"P_c": 101.0}, unplanned):
         cached.write_text(json.dumps(entry | doctored))  # once printed as the optimum, or a traceback
         assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt, doctored
 
@@ -159,12 +162,16 @@ def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, mon
     assert f"`smorphi-rl search optimum --map {hall} --log-dir {tmp_path / 'logs'}`" in out.getvalue()  # runnable
     grid_map = load_map(hall)
     weights = cfg.env.weights_on(grid_map)
-    long_path = round(99.0 * weights.w1 / weights.w2)  # a path term as large as coverage's
-    found = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, long_path)), 99.0, long_path)
+    planned = cfg.env.planning.evaluator(grid_map).evaluate_many(np.array([[10.0, 20.0, 30.0]]))
+    p_c, p_len = float(planned.P_c[0]), int(planned.P_len[0])  # the path term far over coverage's on this hall
+    found = Optimum((10.0, 20.0, 30.0), float(weights.r1(p_c, p_len)), p_c, p_len)
     protocol.remember_optimum(grid_map, weights, cfg.env.planning, tmp_path / "logs" / ".cache", found)
     out = io.StringIO()
     assert training_optima(cfg, tmp_path / "logs", out)["hall"] == found
     assert "read from" in out.getvalue() and "warning: on hall the path term swamps coverage" in out.getvalue()
+    doctored = Optimum((10.0, 20.0, 30.0), float(weights.r1(99.0, 10)), 99.0, 10)  # no shape plans so short a path
+    protocol.remember_optimum(grid_map, weights, cfg.env.planning, tmp_path / "logs" / ".cache", doctored)
+    assert math.isnan(training_optima(cfg, tmp_path / "logs", io.StringIO())["hall"].R1)  # refused, as none
 
 
 def test_train_warns_when_its_plans_start_in_a_room_holding_under_half_the_floor(tmp_path, monkeypatch):
