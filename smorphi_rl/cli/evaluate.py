@@ -8,6 +8,7 @@ import math
 import stat
 import sys
 import warnings
+from array import array
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -95,28 +96,36 @@ def read_angles_file(path: Path) -> np.ndarray:
 
 
 def _read_angles_rows(path: Path) -> np.ndarray:
-    """The slow, exact reading of an angles file: the first bad line is named."""
+    """The slow, exact reading of an angles file: the first bad line is named. Row by row into an array of floats
+    (24 bytes a shape): held as lists of strings first, a 10 MB file took 430 MB."""
+    values, first = array("d"), True
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
-            rows = [(n, row) for n, row in enumerate(csv.reader(fh), start=1) if any(c.strip() for c in row)]
+            for n, row in enumerate(csv.reader(fh), start=1):
+                if not any(c.strip() for c in row):
+                    continue
+                header, first = first and _is_header(row), False
+                if not header:
+                    values.extend(_angles_row(path, n, row))
     except FileNotFoundError:
         raise SmorphiError(f"angles file not found: {path}") from None
     except (OSError, UnicodeDecodeError, csv.Error) as exc:
         raise SmorphiError(f"{path}: cannot read angles file ({exc})") from None
-    if rows and _is_header(rows[0][1]):
-        rows = rows[1:]
-    if not rows:
+    if not values:
         raise SmorphiError(f"{path}: no angles in the file (expected rows of t1,t2,t3)")
-    out = np.empty((len(rows), 3))
-    for i, (n, row) in enumerate(rows):
-        cells = [c.strip() for c in row]
-        if len(cells) != 3 or not _is_numeric_row(cells):
-            raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {','.join(row)!r}")
-        out[i] = [float(c) for c in cells]
-        for j, v in enumerate(out[i]):
-            if not 0 <= v <= 180:
-                raise SmorphiError(f"{path} line {n}: hinge angle t{j + 1}={v:g} is outside [0, 180] degrees")
-    return out
+    return np.array(values, dtype=float).reshape(-1, 3)
+
+
+def _angles_row(path: Path, n: int, row: list[str]) -> list[float]:
+    """Line `n` of an angles file as three angles in 0-180, or one line naming what is wrong with it."""
+    cells = [c.strip() for c in row]
+    if len(cells) != 3 or not _is_numeric_row(cells):
+        raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {','.join(row)!r}")
+    angles = [float(c) for c in cells]
+    for j, v in enumerate(angles):
+        if not 0 <= v <= 180:
+            raise SmorphiError(f"{path} line {n}: hinge angle t{j + 1}={v:g} is outside [0, 180] degrees")
+    return angles
 
 
 def _is_numeric_row(row: Sequence[str]) -> bool:
