@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -256,6 +257,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     if args.starts is not None and args.episodes != 1:
         raise SmorphiError("--episodes and --starts are two ways to evaluate: give one (--starts runs the protocol)")
+    if args.starts is not None and args.seed != 0:
+        raise SmorphiError("--seed sets the --episodes roll-outs' starts: the protocol's (--starts) are fixed, as in "
+                           "train's evaluations, so that its figures compare with the run's")  # fmt: skip
     if args.starts is not None and (args.plot is not None or args.record is not None):
         raise SmorphiError("--plot and --record draw and record --episodes roll-outs: the protocol (--starts) prints "
                            "its table only")  # fmt: skip
@@ -280,21 +284,22 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     check_fits(module, base)
     if args.starts is not None:
         return _evaluate_protocol(args, module, base.config, checkpoint)
-    rollouts = _rollouts(args, module, base, checkpoint)
-    if args.json:
-        for i, r in enumerate(rollouts):
+    if not args.json:
+        print(f"policy      {rel(checkpoint)}")
+    rollouts: list[Any] = []
+    for i, r in enumerate(_rollouts(args, module, base, checkpoint)):  # each printed as it ends: a stop keeps them
+        rollouts.append(r)
+        if args.json:
             record = {"episode": i, "seed": args.seed + i, "map": r.final["map"], "steps": r.steps,
                       "return": r.episode_return, "start": r.start, "settled": r.settled.info,
                       "best": r.best}  # fmt: skip
-            print(jsontext.dumps(record, default=float))
-    else:
-        print(f"policy      {rel(checkpoint)}")
-        for i, r in enumerate(rollouts):
-            print(one_line(f"episode {i} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
-                           f"return {r.episode_return:.1f})"))  # fmt: skip
-            print(f"  start     {scored_text(r.start)}")
-            print(f"  settled   {scored_text(r.settled.info)}")
-            print(f"  best      {scored_text(r.best)}")
+            print(jsontext.dumps(record, default=float), flush=True)
+            continue
+        print(one_line(f"episode {i} (seed {args.seed + i}, map {r.final['map']}, {r.steps} steps, "
+                       f"return {r.episode_return:.1f})"))  # fmt: skip
+        print(f"  start     {scored_text(r.start)}")
+        print(f"  settled   {scored_text(r.settled.info)}")
+        print(f"  best      {scored_text(r.best)}", flush=True)
     if args.plot:
         from smorphi_rl.geometry import Morphology
         from smorphi_rl.plots import plot_coverage
@@ -309,8 +314,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     return 0
 
 
-def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path) -> list[Any]:
-    """`--episodes` greedy roll-outs from seeded starts, recorded to MCAP with `--record`."""
+def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path) -> Iterator[Any]:
+    """`--episodes` greedy roll-outs from seeded starts, one at a time, recorded to MCAP with `--record`; a stop
+    mid-episode says how many ended (their lines are out) and, recording, that their recordings are whole."""
     from smorphi_rl.training.policy import rollout
 
     env: Any = base
@@ -320,16 +326,19 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
         meta = {"run": str(checkpoint), "algorithm": f"greedy {module.model_config.get('algorithm', 'policy')}",
                 "seed": str(args.seed), "config": json.dumps(base.config.to_dict())}  # fmt: skip
         env = RecordingWrapper(base, RecordingConfig(str(Path(args.record).resolve()), every=1, metadata=meta))
-    done: list[Any] = []
+    ended = 0
     try:
         for i in range(args.episodes):
-            done.append(rollout(module, env, args.seed + i))
-        return done
-    except KeyboardInterrupt:
-        if args.record is None:
-            raise
-        raise Interrupted(f"after {counted(len(done), 'episode')} of {args.episodes:,}: their recordings are whole in "
-                          f"{rel(Path(args.record))} (the one cut short ends with a note)") from None  # fmt: skip
+            try:
+                episode = rollout(module, env, args.seed + i)
+            except KeyboardInterrupt:
+                lines = "JSON lines" if args.json else "lines"
+                kept = (f"; their recordings are whole in {rel(Path(args.record))} (the one cut short ends with a "
+                        "note)") if args.record is not None else ""  # fmt: skip
+                raise Interrupted(f"after {counted(ended, 'episode')} of {args.episodes:,}, whose {lines} are "
+                                  f"printed{kept}") from None  # fmt: skip
+            ended += 1
+            yield episode
     finally:
         env.close()
 
@@ -351,7 +360,7 @@ def run_log_dir(checkpoint: Path) -> str:
 def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, checkpoint: Path) -> int:
     """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
     from smorphi_rl.progress import optimum_progress
-    from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache
+    from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache, within_band
     from smorphi_rl.training.policy import evaluate_policy
 
     if not env_config.map_files:
@@ -367,10 +376,12 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
         print(f"policy  {rel(checkpoint)}")
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):
         if args.json:
-            for o in ev.outcomes:
+            optimum = {"theta": list(ev.optimum.theta), "R1": ev.optimum.R1}
+            for o, within in zip(ev.outcomes, within_band(ev.gaps, ev.optimum.R1), strict=True):
                 print(jsontext.dumps({"map": ev.map, "start": list(o.start), "evaluations": o.evaluations,
                                   "settled": {"theta": list(o.settled), "R1": o.R1, "P_c": o.P_c, "P_len": o.P_len,
-                                              "gap": round(ev.optimum.R1 - o.R1, 9)}}))  # fmt: skip
+                                              "gap": round(ev.optimum.R1 - o.R1, 9)},
+                                  "optimum": optimum, "within_1pct": bool(within)}))  # fmt: skip
             continue
         opt = ev.optimum
         print(one_line(f"{ev.map}: exact optimum {angles_text(opt.theta)} R1 {opt.R1:.2f}; greedy from "

@@ -70,11 +70,45 @@ def test_evaluate_policy_stopped_while_recording_says_what_it_recorded(tmp_path,
     argv = ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--episodes", "5", "--record",
             str(record)]  # fmt: skip
     assert main(argv) == 130
-    said = capsys.readouterr().err.strip().splitlines()[-1]
-    assert said == (f"smorphi-rl: interrupted: after 2 episodes of 5: their recordings are whole in {record} (the one "
-                    "cut short ends with a note)")  # fmt: skip
+    out, err = capsys.readouterr()
+    assert err.strip().splitlines()[-1] == (
+        f"smorphi-rl: interrupted: after 2 episodes of 5, whose lines are printed; their recordings are whole in "
+        f"{record} (the one cut short ends with a note)"
+    )
+    assert [line.split(" (")[0] for line in out.splitlines() if line.startswith("episode")] == [
+        "episode 0",
+        "episode 1",
+    ]
     files = episode_files(record)
     assert len(files) == 3 and sum(read_episode(f).cut_short is not None for f in files) == 1
+
+
+def test_evaluate_policy_stopped_keeps_the_json_lines_of_the_episodes_that_ended(capsys, monkeypatch):
+    """Every episode's line was printed at the end: a Ctrl-C after 3 of 50 left stdout empty."""
+    import json
+
+    from smorphi_rl.training import policy
+
+    real, calls = policy.rollout, []
+
+    def stopped(module, env, seed):
+        calls.append(seed)
+        if len(calls) == 3:
+            raise KeyboardInterrupt
+        return real(module, env, seed)
+
+    monkeypatch.setattr(policy, "rollout", stopped)
+    argv = ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--episodes", "5", "--json"]
+    assert main(argv) == 130
+    out, err = capsys.readouterr()
+    assert [json.loads(line)["episode"] for line in out.splitlines()] == [0, 1]
+    assert err.strip() == "smorphi-rl: interrupted: after 2 episodes of 5, whose JSON lines are printed"
+
+
+def test_the_protocol_refuses_a_seed_its_fixed_starts_would_not_use(capsys):
+    """`--starts 2 --seed 5` gave seed 0's starts without a word."""
+    assert main(["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--starts", "2", "--seed", "5"]) == 1
+    assert "--seed sets the --episodes roll-outs' starts" in capsys.readouterr().err
 
 
 def test_the_protocol_as_json_lines_gives_each_start_its_gap_to_the_optimum(capsys):
@@ -88,6 +122,8 @@ def test_the_protocol_as_json_lines_gives_each_start_its_gap_to_the_optimum(caps
     assert all(g >= 0 and g == round(g, 9) for g in gaps)
     best = max(line["settled"]["R1"] + line["settled"]["gap"] for line in lines)  # the optimum, from every line alike
     assert all(abs(line["settled"]["R1"] + line["settled"]["gap"] - best) < 1e-8 for line in lines)
+    assert all(abs(line["optimum"]["R1"] - best) < 1e-8 for line in lines)  # named in each line, as is the band
+    assert [line["within_1pct"] for line in lines] == [line["settled"]["gap"] <= 0.01 * best + 1e-9 for line in lines]
 
 
 def test_a_replayed_evaluation_episode_names_the_seed_it_was_reset_with(tmp_path, capsys):
