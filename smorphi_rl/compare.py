@@ -19,7 +19,7 @@ import numpy as np
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import is_finite_number, read_json_object
-from smorphi_rl.protocol import within_band
+from smorphi_rl.protocol import gaps_to, within_band
 from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
@@ -362,7 +362,7 @@ def score_methods(exact: SearchResult, runs: list[Points], weights: Weights) -> 
         hv = hypervolume(p_len[front], p_c[front], ref_len, ref_pc)
         t1, t2, t3 = (float(t) for t in thetas[b])
         return MethodScore(label, budget, (t1, t2, t3), float(p_c[b]), int(p_len[b]), float(scores[b]),
-                           optimum - float(scores[b]), hv / hv_exact if hv_exact else float("nan"),
+                           float(gaps_to(optimum, scores[b])), hv / hv_exact if hv_exact else float("nan"),
                            p_len[front].astype(float), p_c[front], _protocol_text(settled, optimum))  # fmt: skip
 
     step = exact.params.get("step_deg")
@@ -377,7 +377,7 @@ def _protocol_text(settled: Any, optimum: float) -> str:
     if isinstance(settled, dict) and "median_gap" in settled:
         return f"{float(settled['median_gap']):.2f} ({100 * float(settled['share_within_1pct']):.0f} %)"
     if isinstance(settled, list) and settled:
-        gaps = optimum - np.asarray(settled, dtype=float)
+        gaps = gaps_to(optimum, settled)
         return f"{float(np.median(gaps)):.2f} ({100 * float(np.mean(within_band(gaps, optimum))):.0f} %)"
     return "-"
 

@@ -114,6 +114,16 @@ OPTIMUM_MAX_CELLS = 250_000
 """Maps with more cells than this (500 x 500) get no exact optimum during training: it would take minutes."""
 
 
+TIE = 1e-9
+"""A gap to R1* this small is float rounding: the shape ties the optimum (a tied run printed a gap of -0.00)."""
+
+
+def gaps_to(optimum_R1: float, r1: Sequence[float] | np.ndarray | float) -> np.ndarray:
+    """R1* minus each R1 (0 at the optimum), a tie within TIE exactly 0."""
+    gaps = optimum_R1 - np.asarray(r1, dtype=float)
+    return np.where(np.abs(gaps) <= TIE, 0.0, gaps)
+
+
 def within_band(gaps: np.ndarray, optimum_R1: float) -> np.ndarray:
     """Which gaps to R1* count as 'reaches the optimum' (within WITHIN of |R1*|): the protocol's one rule."""
     return np.asarray(gaps, dtype=float) <= WITHIN * abs(optimum_R1) + 1e-9
@@ -136,7 +146,7 @@ class MapEvaluation:
     @property
     def gaps(self) -> np.ndarray:
         """R1* minus each settled shape's R1 (0 at the optimum)."""
-        return np.array([self.optimum.R1 - o.R1 for o in self.outcomes])
+        return gaps_to(self.optimum.R1, [o.R1 for o in self.outcomes])
 
     @property
     def median_gap(self) -> float:

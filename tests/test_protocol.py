@@ -16,6 +16,7 @@ from smorphi_rl.protocol import (
     Outcome,
     eval_starts,
     exact_optimum,
+    gaps_to,
     map_key,
     settled_theta,
 )
@@ -191,3 +192,11 @@ def test_train_warns_when_its_plans_start_in_a_room_holding_under_half_the_floor
     out = io.StringIO()
     training_optima(TrainConfig(env=EnvConfig.from_dict({"maps": [str(rooms)]})), tmp_path / "logs", out)
     assert "warning: on rooms plans start in a free area holding 26.3 % of the free cells" in out.getvalue()
+
+
+def test_a_shape_that_ties_the_optimum_has_a_gap_of_zero_not_minus_zero():
+    """`compare` printed a run that tied the optimum at a gap of -0.00 (R1 summed in another order)."""
+    r1 = 0.1 + 0.2  # 0.30000000000000004
+    gaps = gaps_to(0.3, [r1, 0.25])
+    assert f"{gaps[0]:.2f}" == "0.00" and gaps[1] == pytest.approx(0.05)
+    assert f"{0.3 - r1:.2f}" == "-0.00"  # what it printed

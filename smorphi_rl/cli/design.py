@@ -98,11 +98,11 @@ def cmd_design(args: argparse.Namespace) -> int:
         _print(lines)
     if args.exact:
         from smorphi_rl.progress import optimum_progress
-        from smorphi_rl.protocol import exact_optimum
+        from smorphi_rl.protocol import exact_optimum, gaps_to
 
         show = optimum_progress(env.floor.grid_map.name)
         opt = exact_optimum(str(Path(args.map).resolve()), env.floor.weights, env.config.planning, cache, show)
-        gap = opt.R1 - best.R1
+        gap = float(gaps_to(opt.R1, best.R1))
         record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,
                            "gap_pct": 100 * gap / abs(opt.R1) if opt.R1 else float("nan")}  # fmt: skip
         pct = record["exact"]["gap_pct"]
