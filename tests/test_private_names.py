@@ -65,6 +65,10 @@ def _registers_buffer(node: ast.AST) -> bool:
     )
 
 
+HOOKS = {"sys.stdout", "sys.stderr", "sys.unraisablehook"}
+"""What the standard library documents as there to be replaced (the CLI's escaping streams, `interrupts`'s hook)."""
+
+
 def _modules_bound(tree: ast.Module) -> set[str]:
     """Names that hold another package's module: `import x`, `from x import y` where y is a module,
     `x = inspect.getmodule(...)`."""
@@ -97,7 +101,8 @@ def _uses(path: Path, tree: ast.Module, own: set[str]) -> list[str]:
         if stored and node.attr == "__class__":  # type: ignore[union-attr]
             found.append(f"{where} __class__ swapped")
         elif stored and isinstance(node.value, ast.Name) and node.value.id in modules:  # type: ignore[union-attr]
-            found.append(f"{where} {node.value.id}.{node.attr} assigned")  # type: ignore[union-attr]
+            if f"{node.value.id}.{node.attr}" not in HOOKS:  # type: ignore[union-attr]
+                found.append(f"{where} {node.value.id}.{node.attr} assigned")  # type: ignore[union-attr]
         elif isinstance(node, ast.Attribute) and _private(node.attr) and node.attr not in own:
             found.append(f"{where} .{node.attr}")
         elif isinstance(node, ast.ImportFrom) and node.level == 0 and not (node.module or "").startswith("smorphi_rl"):
