@@ -273,7 +273,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         load_map(path)
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
-    from smorphi_rl.training.policy import check_fits, env_config_of
+    from smorphi_rl.training.policy import check_fits, env_config_of, unseen_warning
 
     module = load_module(checkpoint)
     config = env_config_of(module, maps)
@@ -282,6 +282,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         output_file(args.plot, "--plot", (".png",), inputs, args.force)
     base = MorphologyEnv(config.to_dict())
     check_fits(module, base)
+    trained = env_config_of(module, None)
+    if (unseen := unseen_warning(trained, config)) is not None:  # on stderr: --json's stdout stays JSON lines
+        print(one_line(unseen), file=sys.stderr)
     if args.starts is not None:
         return _evaluate_protocol(args, module, base.config, checkpoint)
     if not args.json:
@@ -361,6 +364,7 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
     """`evaluate-policy --starts N`: the evaluation protocol on every map, against each map's exact optimum."""
     from smorphi_rl.progress import optimum_progress
     from smorphi_rl.protocol import eval_starts, exact_optimum, optimum_cache, within_band
+    from smorphi_rl.score import degenerate_warning
     from smorphi_rl.training.policy import evaluate_policy
 
     if not env_config.map_files:
@@ -372,6 +376,12 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
                                                      optimum_progress(m.name))
               for p in env_config.maps}  # fmt: skip
+    for p in env_config.maps:  # a floor where the best shape's figures make the ranking mean little, as `design`
+        m = load_map(p)
+        opt = optima[m.name]
+        warned = degenerate_warning(env_config.weights_on(m), opt.P_c, opt.P_len, env_config.path_term, m.name)
+        if warned is not None:
+            print(one_line(warned), file=sys.stderr)
     if not args.json:  # which checkpoint a run folder resolved to, as the episodes' report says
         print(f"policy  {rel(checkpoint)}")
     for ev in evaluate_policy(module, env_config, eval_starts(args.starts, env_config.angle_step_deg), optima):

@@ -44,6 +44,26 @@ def env_config_of(module: Any, maps: list[str] | None) -> EnvConfig:
     return cfg
 
 
+def unseen_warning(trained: EnvConfig, given: EnvConfig) -> str | None:
+    """A warning when a policy trained on map files alone is rolled out on a floor that is none of them (told by
+    name: an exported policy's files may lie elsewhere now): it proposes what it learned for its own floors, and
+    nothing measured says how near the best that lies here. A policy trained on generated floors is warned of by
+    the sides of its floors instead (`design`'s warning)."""
+    from pathlib import Path
+
+    from smorphi_rl.map_sources import is_generator
+
+    if any(is_generator(m) for m in trained.maps):
+        return None
+    own = [Path(m).stem for m in trained.map_files]
+    unseen = [Path(m).stem for m in given.map_files if Path(m).stem not in own]
+    if not unseen:
+        return None
+    return (f"warning: the policy was trained on {', '.join(own)} alone; {', '.join(unseen)} "
+            f"{'is not one of them' if len(unseen) == 1 else 'are not among them'}: it walks to the shapes it learned "
+            "there, however far from this floor's best (`design` proposes for floors it has not seen)")  # fmt: skip
+
+
 def check_fits(module: Any, env: MorphologyEnv) -> None:
     """The policy's observation and action spaces must be the env's (its obs_size, layout and moves), else say so
     in one line: a policy of another layout fails inside torch, one of other moves walks the wrong hinge."""

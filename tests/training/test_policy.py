@@ -2,11 +2,14 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import gymnasium as gym
 import numpy as np
 import torch
 
 from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.protocol import eval_starts
 from smorphi_rl.training.module import MorphologyModule
 from smorphi_rl.training.policy import greedy_outcomes, repeat_cycle
@@ -73,3 +76,18 @@ def test_greedy_actions_are_the_distributions_most_likely_ones():
     want = module.get_inference_action_dist_cls().from_logits(logits).to_deterministic().sample().numpy()
     got = greedy_actions(module, observations)
     assert got.shape == (64, 3) and np.array_equal(got, want) and len(np.unique(got, axis=0)) > 1
+
+
+def test_a_policy_of_its_own_floors_on_another_is_warned_of_and_a_generalist_is_not():
+    """A per-map policy on a floor it never saw walked to its own floor's shape without a word (R1 -46 on a 25 m
+    floor for a 5 m map's policy)."""
+    from smorphi_rl.training.policy import unseen_warning
+
+    maps = Path(__file__).resolve().parents[2] / "maps"
+    own = EnvConfig.from_dict({"maps": [str(maps / "map-1.yaml")]})
+    other = EnvConfig.from_dict({"maps": [str(maps / "map-2.yaml"), str(maps / "map-1.yaml")]})
+    assert unseen_warning(own, own) is None
+    said = unseen_warning(own, other)
+    assert said is not None and said.startswith("warning: the policy was trained on map-1 alone; map-2 is not one")
+    generalist = EnvConfig.from_dict({"maps": ["generate:mixed:0-99"]})
+    assert unseen_warning(generalist, other) is None  # `design`'s warning, by the floors' sides, is its
