@@ -22,7 +22,10 @@ JSON_KEYS = {"theta", "P_c", "coverage_free_pct", "P_len", "path_length_m", "fea
 
 
 def run(capsys, *argv: str) -> tuple[int, str, str]:
-    code = main(list(argv))
+    try:
+        code = main(list(argv))
+    except SystemExit as exc:  # argparse's usage errors (exit 2)
+        code = int(exc.code or 0)
     out, err = capsys.readouterr()
     return code, out, err
 
@@ -207,8 +210,8 @@ def _bad_files(tmp_path: Path) -> dict[str, Path]:
         (["--map", "{black.yaml}", "--angles", "1", "2", "3"], "has no free cell"),
         (["--angles", "1", "2", "181"], "outside [0, 180]"),
         (["--angles", "-5", "2", "3"], "outside [0, 180]"),
-        (["--angles", "x", "2", "3"], "is not a number"),
-        (["--angles", "nan", "2", "3"], "not a finite number"),
+        (["--angles", "x", "2", "3"], "argument --angles: expected a number, got 'x'"),
+        (["--angles", "nan", "2", "3"], "argument --angles: expected a finite number, got 'nan'"),
         (["--angles-file", "{empty.csv}"], "no angles in the file"),
         (["--angles-file", "{short.csv}"], "line 2: expected three numbers"),
         (["--angles-file", "{words.csv}"], "line 2: expected three numbers"),

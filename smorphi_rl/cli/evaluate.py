@@ -17,7 +17,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, start_option, weight_options, weights
-from smorphi_rl.cli.fields import option
+from smorphi_rl.cli.fields import finite_arg, option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import Interrupted, SmorphiError
@@ -33,7 +33,8 @@ def register(sub: Any) -> None:
     ev = sub.add_parser("evaluate", help="coverage (P_c) and path length (P_len) of morphologies on a map")
     ev.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
     which = ev.add_one_of(required=True)  # neither, or both: a usage error (exit 2)
-    which.add_argument("--angles", nargs=3, metavar=("T1", "T2", "T3"), help="hinge angles in degrees, each 0-180")
+    which.add_argument("--angles", nargs=3, type=finite_arg, metavar=("T1", "T2", "T3"),
+                       help="hinge angles in degrees, each 0-180")  # fmt: skip
     which.add_argument("--angles-file", help="CSV of t1,t2,t3 rows (optional header): evaluate them all")
     ev.add_argument("--json", action="store_true", help="print JSON (one object per morphology, one per line)")
     ev.add_argument("--plot", help="write a PNG of the footprint, covered area and path")
@@ -50,12 +51,6 @@ def register(sub: Any) -> None:
                          "cell [row, col] of F's corner at every tile of the path, in order; between two, the "
                          "straight move)")  # fmt: skip
     ev.set_defaults(func=cmd_evaluate)
-
-
-def parse_angles(values: Sequence[str]) -> tuple[float, float, float]:
-    """Three hinge angles from the command line, each a number in [0, 180]."""
-    t1, t2, t3 = (number(v, f"hinge angle t{i + 1}") for i, v in enumerate(values))
-    return (t1, t2, t3)
 
 
 MAX_ANGLES_FILE_BYTES = 100_000_000
@@ -202,7 +197,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     if args.angles_file == "":
         raise SmorphiError("--angles-file: give the path of a CSV of t1,t2,t3 rows")
     thetas = read_angles_file(Path(args.angles_file)) if args.angles_file is not None else None
-    morphology = Morphology.of(parse_angles(args.angles)) if args.angles else None
+    morphology = Morphology.of(tuple(args.angles)) if args.angles else None  # finite numbers (argparse)
     grid_map = load_map(args.map)
     score = weights(args).weights_on(grid_map)  # R1, as search, design and train rank shapes
     from smorphi_rl.maps import check_fits
