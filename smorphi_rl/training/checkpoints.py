@@ -69,7 +69,9 @@ def find_checkpoint(path: str | Path) -> Path:
     if not root.exists():
         raise CheckpointError(f"checkpoint not found: {root}")
     if not root.is_dir():
-        raise CheckpointError(f"{root}: not a directory (give a checkpoint, trial or run directory)")
+        folder = f": give the folder that holds it, {root.parent}" if root.name in (POLICY_JSON, WEIGHTS_NPZ) else ""
+        raise CheckpointError(f"{root}: not a directory (give a checkpoint, trial or run folder, or an exported "
+                              f"policy's){folder}")  # fmt: skip
     if is_policy_dir(root):
         return root
     half = [n for n in (POLICY_JSON, WEIGHTS_NPZ) if (root / n).is_file()]
@@ -81,6 +83,9 @@ def find_checkpoint(path: str | Path) -> Path:
     except (OSError, RuntimeError) as exc:  # a symlink loop, an unreadable folder
         raise CheckpointError(f"{root}: cannot be searched for checkpoints ({exc})") from None
     if not found:
+        inside = next((p for p in list(root.resolve().parents)[: len(MODULE_SUBDIR.parts)] if is_checkpoint(p)), None)
+        if inside is not None:  # learner_group/..., a part of one checkpoint: the checkpoint is what loads
+            raise CheckpointError(f"{root}: a part of the checkpoint {inside}; give that folder")
         raise CheckpointError(f"{root}: holds no RLlib checkpoint of ours (no {MODULE_SUBDIR.as_posix()} below it)")
     trials = sorted({_trial_of(p, root) for p in found}, key=lambda t: (t == root, str(t)))
     if len(trials) > 1:  # the newest of several trials would be a choice by clock, not by the user

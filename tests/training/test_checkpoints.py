@@ -540,3 +540,16 @@ def test_half_an_exported_policy_names_the_missing_file(tmp_path, kept):
     other = "weights.npz" if kept == "policy.json" else "policy.json"
     with pytest.raises(CheckpointError, match=f"an exported policy's {kept} without its {other}"):
         find_checkpoint(tmp_path)
+
+
+def test_a_path_beside_or_inside_a_checkpoint_names_the_folder_to_give(tmp_path):
+    """`--checkpoint pol/policy.json` said only 'not a directory'; `--checkpoint ckpt/learner_group` said it held no
+    learner_group below it."""
+
+    (tmp_path / "ckpt" / MODULE_SUBDIR).mkdir(parents=True)
+    with pytest.raises(CheckpointError, match=r"learner_group: a part of the checkpoint .*ckpt; give that folder$"):
+        find_checkpoint(tmp_path / "ckpt" / "learner_group")
+    (tmp_path / "pol").mkdir()
+    (tmp_path / "pol" / "policy.json").write_text("{}")
+    with pytest.raises(CheckpointError, match=r"or an exported policy's\): give the folder that holds it, .*pol$"):
+        find_checkpoint(tmp_path / "pol" / "policy.json")
