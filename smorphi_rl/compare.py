@@ -299,6 +299,10 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
         if inside:  # a sweep's, a transfer job's or a log folder: its runs are one level down
             raise SmorphiError(f"{run_dir}: holds the folders of {len(inside)} runs, not one run's results; give each "
                                f"run's folder, such as {inside[0]}")  # fmt: skip
+        if (run_dir / "summary.json").is_file():  # a run too short for one episode to end: nothing ranked
+            raise SmorphiError(f"{run_dir}: a training run that ranked no shape (no {FOUND_CSV}): none of its "
+                               "episodes ended within its budget (its recordings hold episodes cut short), or it "
+                               "stopped before its tables were written")  # fmt: skip
         raise SmorphiError(
             f"{run_dir}: holds no results (no {FOUND_CSV} of a training run, no results.npz of a search)"
         )

@@ -115,6 +115,9 @@ def test_compare_given_a_sweeps_folder_names_one_of_its_trials(tmp_path, capsys)
     empty.mkdir()
     assert main(["compare", "--runs", str(empty), "--log-dir", str(tmp_path / "out")]) == 1
     assert "holds no results (no morphologies.csv" in capsys.readouterr().err
+    (empty / "summary.json").write_text("{}")  # a run too short for an episode to end
+    assert main(["compare", "--runs", str(empty), "--log-dir", str(tmp_path / "out")]) == 1
+    assert "a training run that ranked no shape (no morphologies.csv): none of its episodes" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
 
 
