@@ -23,7 +23,8 @@ def main() -> int:
         code = cli_main()
     except KeyboardInterrupt:
         pass
-    waited = interrupts.settle()
+    finally:  # also as argparse's SystemExit (--help, a usage error) leaves
+        waited = interrupts.settle()
     if code is None or (waited and code == 0):
         print("smorphi-rl: interrupted", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -26,14 +26,16 @@ from typing import Any
 
 RETRY_S = 0.05
 """How soon a stop that came where it cannot be raised is asked again."""
-_HELD_IN = ("importlib._bootstrap", "llvmlite")
-"""Modules (and their submodules) inside which a stop waits: imports (a second or two at most: Ray's, torch's) and
-llvmlite, whose callbacks serve compiled code as numba loads a kernel (numba's own Python, a compile of seconds on
-a first run, stops at once)."""
+_HELD_IN = ("importlib._bootstrap", "_frozen_importlib", "_frozen_importlib_external", "llvmlite")
+"""Modules (and their submodules) inside which a stop waits: imports (a second or two at most: Ray's, torch's; the
+bootstrap is `_frozen_importlib` until `importlib` is first imported) and llvmlite, whose callbacks serve compiled
+code as numba loads a kernel (numba's own Python, a compile of seconds on a first run, stops at once)."""
 _pending = threading.Event()
 """A stop has come and waits to be raised."""
 _retry = threading.Event()
 """The next call of the SIGINT handler is a waiting stop asked again, not a new one."""
+_settled = threading.Event()
+"""The command has ended (`settle`): no stop is asked again, and dropped ones go to the hook that was there."""
 _timers: list[threading.Timer] = []
 _unraisable_before: list[Any] = []
 
@@ -50,7 +52,9 @@ def _held(frame: FrameType | None) -> bool:
 
 def _ask_again() -> None:
     """A timer thread's: the waiting stop, handed to whatever handles SIGINT now (Tune's, a hold's, `interrupt`) as a
-    signal to the main thread, which also wakes it from a blocking wait."""
+    signal to the main thread, which also wakes it from a blocking wait; nothing once it was raised or settled."""
+    if not _pending.is_set() or _settled.is_set():
+        return
     if signal.getsignal(signal.SIGINT) is interrupt:
         _retry.set()
     else:
@@ -59,11 +63,34 @@ def _ask_again() -> None:
 
 
 def _later() -> None:
+    if _settled.is_set() or sys.is_finalizing():
+        return
     _pending.set()
     timer = threading.Timer(RETRY_S, _ask_again)
     timer.daemon = True
     _timers[:] = [*(t for t in _timers if t.is_alive()), timer]
     timer.start()
+
+
+def _disarm() -> bool:
+    """No stop waits any longer (each timer cancelled); whether one did."""
+    for timer in _timers:
+        timer.cancel()
+    _timers.clear()
+    waited = _pending.is_set()
+    _pending.clear()
+    _retry.clear()
+    return waited
+
+
+def raise_when_safe(frame: FrameType | None) -> None:
+    """A stop's KeyboardInterrupt: raised now outside imports and llvmlite, else asked again once the main thread
+    is out of them (for every SIGINT handler that raises one: `interrupt`, `train`'s before its first report)."""
+    if _held(frame):
+        _later()
+        return
+    _disarm()
+    raise KeyboardInterrupt
 
 
 def interrupt(signum: int, frame: FrameType | None) -> None:
@@ -72,34 +99,28 @@ def interrupt(signum: int, frame: FrameType | None) -> None:
     retry = _retry.is_set()
     _retry.clear()
     if _pending.is_set() and not retry:
-        _pending.clear()
+        _disarm()
         raise KeyboardInterrupt
-    if _held(frame):
-        _later()
-        return
-    _pending.clear()
-    raise KeyboardInterrupt
+    raise_when_safe(frame)
 
 
 def _unraisable(unraisable: Any) -> None:
     """`sys.unraisablehook`: a KeyboardInterrupt Python would print as "Exception ignored" and drop (raised in a
-    callback) is asked again once the callback has returned; anything else goes to the hook that was there."""
-    if isinstance(unraisable.exc_value, KeyboardInterrupt):
+    callback) is asked again once the callback has returned, while a command runs; anything else, and anything once
+    it has ended, goes to the hook that was there."""
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and not (_settled.is_set() or sys.is_finalizing()):
         _later()
     else:
         (_unraisable_before[-1] if _unraisable_before else sys.__unraisablehook__)(unraisable)
 
 
 def settle() -> bool:
-    """At a command's end: whether a stop still waits to be raised (it came too late to end the work); it is
-    dropped, so that it is not raised in Python's teardown."""
-    for timer in _timers:
-        timer.cancel()
-    _timers.clear()
-    waited = _pending.is_set()
-    _pending.clear()
-    _retry.clear()
-    return waited
+    """At a command's end: whether a stop still waits to be raised (it came too late to end the work). It is
+    dropped, and nothing is asked again after (not in Python's teardown, its exit callbacks)."""
+    _settled.set()
+    if sys.unraisablehook is _unraisable and _unraisable_before:
+        sys.unraisablehook = _unraisable_before[-1]
+    return _disarm()
 
 
 def _sigterm_as_sigint(signum: int, frame: Any) -> None:
@@ -115,6 +136,7 @@ def install() -> None:
     command a script started in the background (its shell set SIGINT to be ignored; Ray Tune's handler honours it
     once training runs, so it is honoured throughout); hook dropped stops. Only the main thread may set handlers."""
     if threading.current_thread() is threading.main_thread():
+        _settled.clear()
         if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.default_int_handler):
             signal.signal(signal.SIGINT, interrupt)
         signal.signal(signal.SIGTERM, _sigterm_as_sigint)

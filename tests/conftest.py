@@ -121,6 +121,26 @@ def random_map(rng: np.random.Generator, h: int, w: int, p_occupied: float, p_un
     return Map(cells, 0.1, name="random")
 
 
+@pytest.fixture
+def installed() -> Iterator[None]:
+    """`interrupts.install` as the CLI calls it, with Python's handlers back afterwards."""
+    import signal
+
+    from smorphi_rl import interrupts
+
+    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
+    hook = sys.unraisablehook
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    interrupts.install()
+    try:
+        yield
+    finally:
+        interrupts.settle()
+        for sig, handler in before.items():
+            signal.signal(sig, handler)
+        sys.unraisablehook = hook
+
+
 def stop_inside_llvmlite() -> None:
     """A Ctrl-C as if it came while llvmlite served numba a kernel: `interrupts.interrupt` called from a frame of
     llvmlite's (the stop then waits for a safe place)."""

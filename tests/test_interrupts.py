@@ -12,22 +12,6 @@ from conftest import stop_inside_llvmlite
 from smorphi_rl import interrupts
 
 
-@pytest.fixture
-def installed():
-    """`interrupts.install` as the CLI calls it, with Python's handlers back afterwards."""
-    before = {sig: signal.getsignal(sig) for sig in (signal.SIGINT, signal.SIGTERM)}
-    hook = sys.unraisablehook
-    signal.signal(signal.SIGINT, signal.default_int_handler)
-    interrupts.install()
-    try:
-        yield
-    finally:
-        interrupts.settle()
-        for sig, handler in before.items():
-            signal.signal(sig, handler)
-        sys.unraisablehook = hook
-
-
 def test_a_stop_inside_an_import_is_raised_once_the_import_is_done(installed, tmp_path, monkeypatch):
     """Raised inside an import, a KeyboardInterrupt aborted Python (matplotlib's compiled font module)."""
     (tmp_path / "stopped_import.py").write_text(
@@ -68,6 +52,26 @@ def test_a_second_stop_while_the_first_waits_is_raised_at_once(installed, tmp_pa
     with pytest.raises(KeyboardInterrupt):
         import stopped_twice  # noqa: F401
     assert "stopped_twice" not in sys.modules
+    time.sleep(3 * interrupts.RETRY_S)  # the first stop's retry, due meanwhile, raises nothing more
+    assert not interrupts.settle()
+
+
+def test_a_stop_in_an_import_before_importlib_is_loaded_waits_too():
+    """Until `import importlib` renames it, the bootstrap runs as `_frozen_importlib` (a plain install's first
+    imports): a stop there was raised inside the import."""
+    for name in ("_frozen_importlib", "_frozen_importlib_external", "importlib._bootstrap", "llvmlite.binding"):
+        frame = eval("sys._getframe()", {"__name__": name, "sys": sys})
+        assert interrupts._held(frame), name
+    assert not interrupts._held(sys._getframe())
+
+
+def test_after_the_command_ends_nothing_is_asked_again(installed):
+    """A stop dropped in an exit callback was asked again in the next one, cutting each short in turn."""
+    hook = interrupts._unraisable_before[-1]
+    interrupts.settle()
+    assert sys.unraisablehook is hook  # dropped stops go to the hook that was there
+    interrupts._later()
+    time.sleep(3 * interrupts.RETRY_S)  # nothing raised
     assert not interrupts.settle()
 
 

@@ -77,7 +77,7 @@ def test_a_start_in_metres_keys_the_cache_on_the_cell_it_lands_on():
 
 
 @pytest.mark.slow
-def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
+def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path, monkeypatch):
     from smorphi_rl.maps import load_map
     from smorphi_rl.planning import Evaluator, Planning, lattice_thetas
 
@@ -95,7 +95,11 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path):
     p_c, p_len = float(planned.P_c[0]), int(planned.P_len[0])
     entry = {"theta": [1, 2, 3], "R1": p_c - 0.1 * p_len, "P_c": p_c, "P_len": p_len}
     cached.write_text(json.dumps(entry))  # an entry that could be the optimum is what the cache is for: read
-    assert entry["R1"] == exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path).R1
+    from smorphi_rl import protocol
+
+    with monkeypatch.context() as read_only:  # read, not computed again
+        read_only.setattr(protocol, "_optimum_in_process", lambda *a, **k: pytest.fail("computed again"))
+        assert entry["R1"] == exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path).R1
     unplanned = {"R1": 100.0 - 0.1 * 5, "P_c": 100.0, "P_len": 5}  # agrees with itself, not with the map
     for doctored in ({"R1": 1e308}, {"theta": [1]}, {"R1": math.nan}, {"P_len": 10**400}, {"P_c": 101.0}, unplanned):
         cached.write_text(json.dumps(entry | doctored))  # once printed as the optimum, or a traceback

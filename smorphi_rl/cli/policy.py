@@ -55,7 +55,12 @@ def register(sub: Any) -> None:
     ep.add_argument("--map", nargs="+", action=Repeated, default=None,
                     help="map(s) to roll out on (default: the training maps)")  # fmt: skip
     ep.add_argument("--episodes", type=int, default=1, help="episodes, seeds SEED, SEED+1, ... (default: 1)")
-    ep.add_argument("--seed", type=seed_arg, default=0, help="seed of the first episode's start shape (default: 0)")
+    ep.add_argument(
+        "--seed",
+        type=seed_arg,
+        default=None,
+        help="seed of the first episode's start shape (default: 0; the protocol's starts are fixed)",
+    )
     ep.add_argument("--json", action="store_true", help="one JSON object per episode")
     ep.add_argument("--plot", help="write a PNG of the first episode's settled morphology and its coverage")
     ep.add_argument("--force", action="store_true", help=FORCE_HELP)
@@ -250,6 +255,10 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     """Roll a trained policy out greedily; report where it settles and the best shape it visited."""
     if not 1 <= args.episodes <= MAX_EPISODES:
         raise SmorphiError(f"--episodes must be in 1..{MAX_EPISODES:,}, got {args.episodes}")
+    if args.starts is not None and args.seed is not None:
+        raise SmorphiError("--seed sets the --episodes roll-outs' starts: the protocol's (--starts) are fixed, as in "
+                           "train's evaluations, so that its figures compare with the run's")  # fmt: skip
+    args.seed = 0 if args.seed is None else args.seed
     if args.seed + args.episodes - 1 > MAX_SEED:
         raise SmorphiError(f"--seed {args.seed} with --episodes {args.episodes} passes 2^32-1, the largest episode "
                            "seed")  # fmt: skip
@@ -257,9 +266,6 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         raise SmorphiError(f"--starts must be in 1..{MAX_EPISODES:,}, got {args.starts}")
     if args.starts is not None and args.episodes != 1:
         raise SmorphiError("--episodes and --starts are two ways to evaluate: give one (--starts runs the protocol)")
-    if args.starts is not None and args.seed != 0:
-        raise SmorphiError("--seed sets the --episodes roll-outs' starts: the protocol's (--starts) are fixed, as in "
-                           "train's evaluations, so that its figures compare with the run's")  # fmt: skip
     if args.starts is not None and (args.plot is not None or args.record is not None):
         raise SmorphiError("--plot and --record draw and record --episodes roll-outs: the protocol (--starts) prints "
                            "its table only")  # fmt: skip
@@ -338,8 +344,9 @@ def _rollouts(args: argparse.Namespace, module: Any, base: Any, checkpoint: Path
                 lines = "JSON lines" if args.json else "lines"
                 kept = (f"; their recordings are whole in {rel(Path(args.record))} (the one cut short ends with a "
                         "note)") if args.record is not None else ""  # fmt: skip
-                raise Interrupted(f"after {counted(ended, 'episode')} of {args.episodes:,}, whose {lines} are "
-                                  f"printed{kept}") from None  # fmt: skip
+                done = (f"after {counted(ended, 'episode')} of {args.episodes:,}, whose {lines} are printed" if ended
+                        else "before the first episode ended")  # fmt: skip
+                raise Interrupted(f"{done}{kept}") from None
             ended += 1
             yield episode
     finally:
@@ -376,10 +383,12 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
     optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
                                                      optimum_progress(m.name))
               for p in env_config.maps}  # fmt: skip
-    for p in env_config.maps:  # a floor where the best shape's figures make the ranking mean little, as `design`
+    for p in env_config.maps:  # a floor where the best shape's figures make the ranking mean little, as in `train`
         m = load_map(p)
         opt = optima[m.name]
-        warned = degenerate_warning(env_config.weights_on(m), opt.P_c, opt.P_len, env_config.path_term, m.name)
+        warned = env_config.planning.start_warning(m) or degenerate_warning(
+            env_config.weights_on(m), opt.P_c, opt.P_len, env_config.path_term, m.name
+        )
         if warned is not None:
             print(one_line(warned), file=sys.stderr)
     if not args.json:  # which checkpoint a run folder resolved to, as the episodes' report says

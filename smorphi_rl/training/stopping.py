@@ -73,8 +73,9 @@ class GracefulStop:
 
     def _on_signal(self, signum: int, frame: Any) -> None:
         """Flips state only: no output, thread or Ray call inside a signal handler (`_watch` does the asking)."""
-        if not self.reported():  # nothing to keep yet: out of Tune's loop at once (Ray's shutdown ends the trial)
-            raise KeyboardInterrupt
+        if not self.reported():  # nothing to keep yet: out of Tune's loop at once (Ray's shutdown ends the trial),
+            interrupts.raise_when_safe(frame)  # or once out of an import (Tune imports as it starts)
+            return
         signal.signal(signal.SIGINT, interrupts.interrupt)  # the next one stops at once
         self.requested.set()
         self._wake.set()

@@ -107,8 +107,10 @@ def test_evaluate_policy_stopped_keeps_the_json_lines_of_the_episodes_that_ended
 
 def test_the_protocol_refuses_a_seed_its_fixed_starts_would_not_use(capsys):
     """`--starts 2 --seed 5` gave seed 0's starts without a word."""
-    assert main(["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--starts", "2", "--seed", "5"]) == 1
-    assert "--seed sets the --episodes roll-outs' starts" in capsys.readouterr().err
+    for seed in ("5", "0"):
+        argv = ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", MAP_1, "--starts", "2", "--seed", seed]
+        assert main(argv) == 1
+        assert "--seed sets the --episodes roll-outs' starts" in capsys.readouterr().err
 
 
 def test_the_protocol_as_json_lines_gives_each_start_its_gap_to_the_optimum(capsys):

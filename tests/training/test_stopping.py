@@ -75,3 +75,23 @@ def test_a_stop_tunes_own_handler_took_is_seen_and_its_handler_never_outlives_fi
         with tune_stop_seen(stopped):
             tunes_fit(fire)
         assert stopped.is_set() is fire and signal.getsignal(signal.SIGINT) is before
+
+
+def test_a_stop_before_the_first_report_waits_for_an_import_to_end(installed, tmp_path, monkeypatch):
+    """`train`'s handler raised at once before a trial reported, also inside an import (Tune imports as it starts),
+    where a KeyboardInterrupt aborted Python."""
+    import time
+
+    import pytest
+
+    from smorphi_rl import interrupts
+    from smorphi_rl.training.stopping import GracefulStop
+
+    (tmp_path / "stopped_in_tune.py").write_text("import signal\nsignal.raise_signal(signal.SIGINT)\nLOADED = True\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    with pytest.raises(KeyboardInterrupt), GracefulStop().catching(reported=lambda: False):
+        import stopped_in_tune  # noqa: F401
+
+        time.sleep(5)  # the stop, asked again once the import is done, wakes the sleep
+    assert sys.modules.pop("stopped_in_tune").LOADED
+    assert not interrupts.settle()
