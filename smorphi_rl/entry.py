@@ -3,6 +3,7 @@ so a Ctrl-C or SIGTERM that lands while it loads ends in one line, as one during
 
 from __future__ import annotations
 
+import contextlib
 import sys
 
 from smorphi_rl import interrupts  # the standard library only: the guard is up before anything heavy loads
@@ -27,5 +28,9 @@ def main() -> int:
         waited = interrupts.settle()
     if code is None or (waited and code == 0):
         print("smorphi-rl: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        code = EXIT_INTERRUPTED
+    for stream in (sys.stdout, sys.stderr):
+        with contextlib.suppress(OSError, ValueError):  # a closed pipe (`| head`)
+            stream.flush()
+    interrupts.exiting()  # a stop in Python's teardown: exit 130 at once, the output being whole
     return code

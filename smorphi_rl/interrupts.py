@@ -16,11 +16,13 @@ again the same way.
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, suppress
 from types import FrameType
 from typing import Any
 
@@ -30,14 +32,22 @@ _HELD_IN = ("importlib._bootstrap", "_frozen_importlib", "_frozen_importlib_exte
 """Modules (and their submodules) inside which a stop waits: imports (a second or two at most: Ray's, torch's; the
 bootstrap is `_frozen_importlib` until `importlib` is first imported) and llvmlite, whose callbacks serve compiled
 code as numba loads a kernel (numba's own Python, a compile of seconds on a first run, stops at once)."""
-_pending = threading.Event()
-"""A stop has come and waits to be raised."""
-_retry = threading.Event()
-"""The next call of the SIGINT handler is a waiting stop asked again, not a new one."""
-_settled = threading.Event()
-"""The command has ended (`settle`): no stop is asked again, and dropped ones go to the hook that was there."""
-_timers: list[threading.Timer] = []
-_unraisable_before: list[Any] = []
+
+
+class _State:
+    """The stop machinery's state: plain attributes, never a lock. A handler runs on the main thread between any
+    two bytecodes, also inside a `threading.Event`'s own method, whose lock it would then wait on for ever."""
+
+    pending = False
+    """A stop has come and waits to be raised."""
+    retry = False
+    """The next call of the SIGINT handler is a waiting stop asked again, not a new one."""
+    settled = True
+    """No command runs (`install` starts one, `settle` ends it): nothing is asked again."""
+    pid = 0
+    """The process whose retry thread `wake` reaches (a forked child has none)."""
+    wake = -1
+    """The write end of the retry thread's pipe: a handler asks for a retry with one `os.write`."""
 
 
 def _held(frame: FrameType | None) -> bool:
@@ -50,43 +60,39 @@ def _held(frame: FrameType | None) -> bool:
     return False
 
 
-def _ask_again() -> None:
-    """A timer thread's: the waiting stop, handed to whatever handles SIGINT now (Tune's, a hold's, `interrupt`) as a
-    signal to the main thread, which also wakes it from a blocking wait; nothing once it was raised or settled."""
-    if not _pending.is_set() or _settled.is_set():
-        return
-    if signal.getsignal(signal.SIGINT) is interrupt:
-        _retry.set()
-    else:
-        _pending.clear()
-    signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
+def _retrier(read_end: int) -> None:
+    """The retry thread: for each request, RETRY_S later, the waiting stop handed to whatever handles SIGINT now
+    (Tune's, a hold's, `interrupt`) as a signal to the main thread, which also wakes it from a blocking wait."""
+    while os.read(read_end, 1):
+        time.sleep(RETRY_S)
+        if not _State.pending or _State.settled:
+            continue  # raised meanwhile, or the command has ended
+        if signal.getsignal(signal.SIGINT) is interrupt:
+            _State.retry = True
+        else:
+            _State.pending = False
+        signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGINT)
 
 
 def _later() -> None:
-    if _settled.is_set() or sys.is_finalizing():
+    if _State.settled or sys.is_finalizing() or os.getpid() != _State.pid:
         return
-    _pending.set()
-    timer = threading.Timer(RETRY_S, _ask_again)
-    timer.daemon = True
-    _timers[:] = [*(t for t in _timers if t.is_alive()), timer]
-    timer.start()
+    _State.pending = True
+    with suppress(OSError):  # a full pipe: retries are queued already
+        os.write(_State.wake, b"r")
 
 
 def _disarm() -> bool:
-    """No stop waits any longer (each timer cancelled); whether one did."""
-    for timer in _timers:
-        timer.cancel()
-    _timers.clear()
-    waited = _pending.is_set()
-    _pending.clear()
-    _retry.clear()
+    """No stop waits any longer (a queued retry finds nothing to do); whether one did."""
+    waited = _State.pending
+    _State.pending = _State.retry = False
     return waited
 
 
 def raise_when_safe(frame: FrameType | None) -> None:
     """A stop's KeyboardInterrupt: raised now outside imports and llvmlite, else asked again once the main thread
     is out of them (for every SIGINT handler that raises one: `interrupt`, `train`'s before its first report)."""
-    if _held(frame):
+    if _held(frame) and not _State.settled and os.getpid() == _State.pid:  # a retry thread to ask again
         _later()
         return
     _disarm()
@@ -96,9 +102,8 @@ def raise_when_safe(frame: FrameType | None) -> None:
 def interrupt(signum: int, frame: FrameType | None) -> None:
     """The SIGINT handler: a KeyboardInterrupt, raised at once outside imports and llvmlite, else once the main
     thread is out of them; a second stop while one waits raises at once (the user insists)."""
-    retry = _retry.is_set()
-    _retry.clear()
-    if _pending.is_set() and not retry:
+    retry, _State.retry = _State.retry, False
+    if _State.pending and not retry:
         _disarm()
         raise KeyboardInterrupt
     raise_when_safe(frame)
@@ -108,19 +113,40 @@ def _unraisable(unraisable: Any) -> None:
     """`sys.unraisablehook`: a KeyboardInterrupt Python would print as "Exception ignored" and drop (raised in a
     callback) is asked again once the callback has returned, while a command runs; anything else, and anything once
     it has ended, goes to the hook that was there."""
-    if isinstance(unraisable.exc_value, KeyboardInterrupt) and not (_settled.is_set() or sys.is_finalizing()):
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and not (_State.settled or sys.is_finalizing()):
         _later()
     else:
         (_unraisable_before[-1] if _unraisable_before else sys.__unraisablehook__)(unraisable)
 
 
+_unraisable_before: list[Any] = []
+
+
 def settle() -> bool:
     """At a command's end: whether a stop still waits to be raised (it came too late to end the work). It is
-    dropped, and nothing is asked again after (not in Python's teardown, its exit callbacks)."""
-    _settled.set()
+    dropped, and nothing is asked again after."""
+    _State.settled = True
     if sys.unraisablehook is _unraisable and _unraisable_before:
         sys.unraisablehook = _unraisable_before[-1]
     return _disarm()
+
+
+def _exiting(signum: int, frame: Any) -> None:
+    os.write(2, b"smorphi-rl: interrupted as it exited (its output is whole)\n")
+    os._exit(EXIT_STOPPED)
+
+
+EXIT_STOPPED = 130
+"""The exit status of a stopped command (cli.common's EXIT_INTERRUPTED)."""
+
+
+def exiting() -> None:
+    """Once a command has ended and its output is flushed: a stop in Python's teardown (its exit callbacks, the
+    release of torch and the rest) ends the process at once with exit 130 and one line, not an "Exception ignored"
+    and exit 0, nor the default handlers' death by signal Python puts back late in the teardown."""
+    if threading.current_thread() is threading.main_thread():
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(sig, _exiting)
 
 
 def _sigterm_as_sigint(signum: int, frame: Any) -> None:
@@ -136,8 +162,14 @@ def install() -> None:
     command a script started in the background (its shell set SIGINT to be ignored; Ray Tune's handler honours it
     once training runs, so it is honoured throughout); hook dropped stops. Only the main thread may set handlers."""
     if threading.current_thread() is threading.main_thread():
-        _settled.clear()
-        if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.default_int_handler):
+        if _State.pid != os.getpid():  # the retry thread, started here: never inside a handler
+            read_end, _State.wake = os.pipe()
+            os.set_blocking(_State.wake, False)
+            threading.Thread(target=_retrier, args=(read_end,), name="smorphi-rl-stops", daemon=True).start()
+            _State.pid = os.getpid()
+        _State.settled = False
+        # `_exiting`: left by a command run before in this process
+        if signal.getsignal(signal.SIGINT) in (signal.SIG_IGN, signal.default_int_handler, _exiting):
             signal.signal(signal.SIGINT, interrupt)
         signal.signal(signal.SIGTERM, _sigterm_as_sigint)
         if sys.unraisablehook is not _unraisable:

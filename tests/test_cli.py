@@ -356,7 +356,7 @@ def test_evaluate_one_shape_answers_without_the_compiled_kernels(planner):
 
 
 @pytest.mark.parametrize("signame", ["SIGINT", "SIGTERM"])
-def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys, signame):
+def test_ctrl_c_while_the_cli_loads_is_one_line(installed, monkeypatch, capsys, signame):
     """The entry point imports the CLI (seconds of libraries) inside a guard: a Ctrl-C then is one line, exit 130
     (it was a traceback through scipy's import); a SIGTERM killed the process without a word (exit 143)."""
     import builtins
@@ -371,12 +371,8 @@ def test_ctrl_c_while_the_cli_loads_is_one_line(monkeypatch, capsys, signame):
             signal.raise_signal(getattr(signal, signame))
         return real_import(name, *args, **kwargs)
 
-    before = signal.getsignal(signal.SIGTERM)
     monkeypatch.setattr(builtins, "__import__", interrupted)
-    try:
-        assert entry.main() == 130
-    finally:
-        signal.signal(signal.SIGTERM, before)
+    assert entry.main() == 130
     assert capsys.readouterr().err == "smorphi-rl: interrupted\n"
 
 
@@ -452,7 +448,7 @@ def test_maps_generate_stopped_says_which_floors_it_wrote(tmp_path, capsys, monk
         "rooms-0000007.pgm", "rooms-0000007.yaml", "rooms-0000008.pgm", "rooms-0000008.yaml"]  # fmt: skip
 
 
-def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_loads(monkeypatch):
+def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_loads(installed, monkeypatch):
     """A script's `cmd &` starts it with SIGINT ignored: it was honoured only once the CLI had loaded, so a Ctrl-C in
     its first 0.3 s was lost and the command ran to its end."""
     import signal
@@ -469,7 +465,7 @@ def test_a_command_started_with_ctrl_c_ignored_takes_it_as_a_stop_before_it_load
     assert seen == [interrupts.interrupt]
 
 
-def test_a_stop_that_waited_through_a_command_to_its_end_exits_as_stopped(monkeypatch, capsys):
+def test_a_stop_that_waited_through_a_command_to_its_end_exits_as_stopped(installed, monkeypatch, capsys):
     """A stop that came inside llvmlite (numba loading a kernel) waits to be raised; if the command ends first, it
     still exits 130 rather than 0, and nothing is raised in Python's teardown."""
     from conftest import stop_inside_llvmlite

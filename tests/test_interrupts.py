@@ -82,3 +82,23 @@ def test_a_stop_that_finds_the_work_done_is_dropped_and_reported(installed):
     assert interrupts.settle()
     time.sleep(3 * interrupts.RETRY_S)  # nothing raised
     assert not interrupts.settle()
+
+
+def test_a_stop_in_pythons_teardown_exits_130_at_once_with_one_line():
+    """Ray's exit callback ran with the stop handler in place: "Exception ignored in atexit callback", exit 0; a
+    moment later Python's default handlers killed the process by the signal, without a word."""
+    import subprocess
+
+    script = (
+        "import atexit, os, signal, time\n"
+        "from smorphi_rl import interrupts\n"
+        "interrupts.install()\n"
+        "atexit.register(lambda: print('the other exit callbacks are skipped'))\n"
+        "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(5)))  # a stop as Ray shuts down\n"
+        "print('done', flush=True)\n"
+        "interrupts.settle()\n"
+        "interrupts.exiting()\n"
+    )
+    ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
+    assert (ran.returncode, ran.stdout) == (130, "done\n")
+    assert ran.stderr == "smorphi-rl: interrupted as it exited (its output is whole)\n"
