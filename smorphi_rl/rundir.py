@@ -79,7 +79,8 @@ def safe_name(text: str) -> str:
 def _claimant(run_dir: Path) -> int:
     """The pid a run directory's claim names (0 when it names none or cannot be read)."""
     try:
-        words = (run_dir / MARKER).read_text().split()
+        with (run_dir / MARKER).open(errors="replace") as fh:
+            words = fh.read(256).split()  # "pid N at HOST": no more is read of a marker grown huge
         return int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
     except (OSError, ValueError):
         return 0

@@ -24,7 +24,14 @@ from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.safe_pickle import CheckpointError, safe_unpickle
-from smorphi_rl.training.sweep_report import SET_ASIDE, aside_number, result_files, result_rows, trial_done
+from smorphi_rl.training.sweep_report import (
+    MAX_PARAMS_BYTES,
+    SET_ASIDE,
+    aside_number,
+    result_files,
+    result_rows,
+    trial_done,
+)
 
 STATE_FILE = "smorphi_state.pkl"
 """Our resumable state in a checkpoint folder (numbers and arrays: `SafeUnpickler` reads it)."""
@@ -193,7 +200,8 @@ def trial_spec(trial_dir: Path) -> dict[str, Any] | None:
     """The trial's fields (`SweepConfig.trials`) as Tune's params.json in `trial_dir` records them; None for a
     folder that holds no trial of a sweep."""
     try:
-        spec = json.loads((trial_dir / "params.json").read_text())
+        params = trial_dir / "params.json"
+        spec = json.loads(params.read_text()) if params.stat().st_size <= MAX_PARAMS_BYTES else None
     except (OSError, ValueError, UnicodeDecodeError, RecursionError):
         return None
     index = spec.get("index") if isinstance(spec, dict) else None

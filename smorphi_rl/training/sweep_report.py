@@ -10,6 +10,7 @@ import csv
 import json
 import math
 from collections import Counter
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -89,12 +90,27 @@ def result_files(trial_dir: Path) -> list[Path]:
     return [*older, own] if own.is_file() else older
 
 
+MAX_RESULT_LINE = 1 << 24
+"""The longest line of a result.json read (16 MiB; a row of ours is some 7 KB): a longer one is no row of ours."""
+
+
+def _result_lines(path: Path) -> Iterator[str]:
+    """The lines of a result.json one at a time, each at most MAX_RESULT_LINE long (a longer one is skipped whole): a
+    crafted file of gigabytes, or a line without end, takes no more memory than one line."""
+    with path.open(errors="replace") as fh:
+        while line := fh.readline(MAX_RESULT_LINE + 1):
+            if len(line) <= MAX_RESULT_LINE:
+                yield line
+                continue
+            while line and not line.endswith("\n"):  # the rest of the long line
+                line = fh.readline(MAX_RESULT_LINE + 1)
+
+
 def result_rows(*result_json: Path) -> list[dict[str, Any]]:
     """The rows of a trial's result.json files (oldest first), one per iteration in order: an iteration re-run
     after a resume keeps its last row; a line cut short by a kill, or that is no result row, is skipped."""
     by_iter: dict[int, dict[str, Any]] = {}
-    lines = [line for path in result_json for line in path.read_text(errors="replace").splitlines()]
-    for line in lines:
+    for line in (line for path in result_json for line in _result_lines(path)):
         try:
             row = json.loads(line)
         except (json.JSONDecodeError, RecursionError):
@@ -139,11 +155,17 @@ def result_curve(rows: list[dict[str, Any]]) -> dict[str, list[float]]:
     return curve
 
 
+MAX_PARAMS_BYTES = 1 << 20
+"""The largest params.json read (a trial's fields: a few hundred bytes)."""
+
+
 def read_trial(trial_dir: Path) -> TrialRow | None:
     """The row of one trial folder; None before its first result."""
     params, results = trial_dir / "params.json", result_files(trial_dir)
     if not params.is_file() or not results:
         return None
+    if params.stat().st_size > MAX_PARAMS_BYTES:
+        raise ValueError(f"params.json of {params.stat().st_size:,} bytes")  # named by the caller, as a damaged record
     spec = json.loads(params.read_text())
     rows = result_rows(*results)
     if not rows:

@@ -316,7 +316,7 @@ def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: di
             raise TypeError("env_steps, wall_s or pretrained_in_runners")
         return TransferRun(map_name, seed, mode, steps, at, plateau, float(best.get("R1", math.nan)), held, run_dir,
                            curve, bool(summary.get("interrupted")), float(wall), reused)  # fmt: skip
-    except (KeyError, TypeError, ValueError, AttributeError, OverflowError) as exc:  # 10^400 as an int: Overflow
+    except (KeyError, TypeError, ValueError, AttributeError, OverflowError, RecursionError) as exc:  # 10^400: Overflow
         raise InputError(f"{run_dir}: not a training run smorphi-rl wrote ({type(exc).__name__}: "
                          f"{str(exc)[:80]})") from None  # fmt: skip
 

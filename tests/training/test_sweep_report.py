@@ -162,3 +162,16 @@ def test_the_progress_line_breaks_a_tie_in_r1_as_the_tables_do():
     progress.found([first, covering])
     progress.complete("trial 0")
     assert "best R1 89.50 (180, 104, 81) on map-1" in out.getvalue()
+
+
+def test_result_rows_skip_a_line_longer_than_any_row_and_read_the_rest(tmp_path, monkeypatch):
+    """A crafted result.json of gigabytes without a newline was read whole into memory (4.7 GB for 2 GB)."""
+    import json
+
+    from smorphi_rl.training import sweep_report
+
+    monkeypatch.setattr(sweep_report, "MAX_RESULT_LINE", 64)
+    rows = [{"training_iteration": i, "x": i} for i in (1, 2)]
+    path = tmp_path / "result.json"
+    path.write_text(json.dumps(rows[0]) + "\n" + "0" * 1000 + "\n" + json.dumps(rows[1]) + "\n" + "9" * 300)
+    assert sweep_report.result_rows(path) == rows

@@ -377,6 +377,24 @@ def test_a_damaged_run_summary_read_back_is_one_line(tmp_path, damage):
         transfer_run("val-1", 0, "scratch", run, summary)
 
 
+def test_a_result_row_nested_past_pythons_depth_read_back_is_one_line(tmp_path):
+    """An episode-best list nested 100,000 deep in a finished run's result.json: a RecursionError traceback."""
+    import json
+
+    from smorphi_rl.inputs import InputError
+    from smorphi_rl.training import result_keys as keys
+    from smorphi_rl.training.topk import EPISODE_BEST_KEY
+    from smorphi_rl.training.transfer import transfer_run
+
+    run = tmp_path / "val-1-scratch-seed0"
+    (run / "ppo-0").mkdir(parents=True)
+    deep = "[" * 100_000 + "]" * 100_000
+    (run / "ppo-0" / "result.json").write_text(json.dumps({keys.ALGO_ITERATION: 1, EPISODE_BEST_KEY: deep}) + "\n")
+    summary = {"env_steps": 1000, "wall_s": 1.0, "interrupted": False, "best": {"R1": 80.0}}
+    with pytest.raises(InputError, match="not a training run smorphi-rl wrote"):
+        transfer_run("val-1", 0, "scratch", run, summary)
+
+
 def test_a_finished_run_of_a_map_file_changed_since_stops_the_resume(tmp_path):
     """Its figures were measured on the old floor: read back, they would stand beside runs on the new one."""
     import json
