@@ -466,7 +466,7 @@ def save_map(grid_map: Map, yaml_path: str | Path, image_format: str = "pgm") ->
     write_atomic(image_path, buffer.getvalue())  # each file whole or not at all: a full disk leaves the old one
     try:
         write_atomic(path, yaml.safe_dump(meta, sort_keys=False, default_flow_style=None).encode())
-    except OSError:
+    except BaseException:  # a full disk, a stop
         if image_is_new:
             image_path.unlink(missing_ok=True)  # no image without its YAML
         raise

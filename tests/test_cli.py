@@ -427,6 +427,46 @@ def test_evaluate_warns_when_the_path_term_swamps_coverage_as_search_does(capsys
     assert run(capsys, "evaluate", "--map", MAP_1, "--angles", "0", "180", "0")[2] == ""
 
 
+def test_maps_generate_stopped_as_a_floor_is_written_finishes_that_floor(tmp_path, capsys, monkeypatch):
+    """A Ctrl-C between a floor's image and its YAML left the image alone (3 of 21 stopped runs)."""
+    import signal
+
+    from smorphi_rl import rundir
+
+    real, images = rundir.write_atomic, []
+
+    def write(path, data):
+        real(path, data)
+        if path.suffix == ".pgm":
+            images.append(path)
+            if len(images) == 2:
+                signal.raise_signal(signal.SIGINT)  # the second floor's image is written, its YAML not yet
+
+    monkeypatch.setattr(rundir, "write_atomic", write)
+    argv = ["maps", "generate", "--kind", "rooms", "--count", "5", "--seed", "7", "--out", str(tmp_path / "f")]
+    assert main(argv) == 130
+    assert "wrote 2 of the 5 rooms floors" in capsys.readouterr().err
+    assert sorted(p.name for p in (tmp_path / "f").iterdir()) == [
+        "rooms-0000007.pgm", "rooms-0000007.yaml", "rooms-0000008.pgm", "rooms-0000008.yaml"]  # fmt: skip
+
+
+def test_a_map_stopped_between_its_image_and_its_yaml_leaves_neither(tmp_path, monkeypatch, room12):
+    from smorphi_rl import rundir
+    from smorphi_rl.maps import save_map
+
+    real = rundir.write_atomic
+
+    def write(path, data):
+        if path.suffix == ".yaml":
+            raise KeyboardInterrupt
+        real(path, data)
+
+    monkeypatch.setattr(rundir, "write_atomic", write)
+    with pytest.raises(KeyboardInterrupt):
+        save_map(room12, tmp_path / "room.yaml")
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_maps_generate_stopped_says_which_floors_it_wrote(tmp_path, capsys, monkeypatch):
     """A Ctrl-C during `maps generate --count 50` said a bare 'interrupted' (40 floors were written, each whole)."""
     from smorphi_rl import floorplans

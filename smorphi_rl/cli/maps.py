@@ -155,6 +155,7 @@ def _generate_floors(args: argparse.Namespace) -> int:
             floors = len({f.stem for f in taken})
             raise SmorphiError(f"{taken[0]} exists ({floors} of the {len(names)} floors have a file there); pass "
                                "--force to overwrite them")  # fmt: skip
+    from smorphi_rl.interrupts import stop_requests
     from smorphi_rl.maps import check_not_folders
     from smorphi_rl.rundir import claimed_files
 
@@ -164,8 +165,11 @@ def _generate_floors(args: argparse.Namespace) -> int:
         with claimed_files([out / f"{n}.yaml" for n in names], args.force):  # two runs into one folder: one writes
             for i, name in enumerate(names):
                 grid_map = generate_floor(args.kind, args.seed + i)
-                save_map(grid_map, out / f"{name}.yaml", image_format=args.format)
+                with stop_requests(again=True) as stop:  # a stop waits for the floor's image and YAML (a second:
+                    save_map(grid_map, out / f"{name}.yaml", image_format=args.format)  # neither is left)
                 cells, done = cells + grid_map.cells.size, done + 1
+                if stop.is_set():
+                    raise KeyboardInterrupt
     except KeyboardInterrupt:  # every floor written is whole (a YAML and its image): say which
         last = f" (seeds {args.seed}-{args.seed + done - 1})" if done else ""
         raise Interrupted(f"wrote {done} of the {len(names)} {args.kind} floors to {out}{last}, each whole") from None
