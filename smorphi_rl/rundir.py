@@ -36,8 +36,14 @@ class RunDirError(SmorphiError):
 
 
 def rel(path: str | Path) -> str:
-    """`path` relative to the working directory when it lies below it, as given or with links resolved (as the
-    README shows it); else as given."""
+    """`path` as a message shows it: relative to the working directory when it lies below it, as given or with links
+    resolved (as the README shows it), else as given; a newline, carriage return or tab in it shown escaped (\\n), so a
+    folder's name cannot forge a line of the output (the CLI's stream escapes every other control)."""
+    return _relative(path).replace("\n", "\\n").replace("\r", "\\r").replace("\t", "\\t")
+
+
+def _relative(path: str | Path) -> str:
+    """`rel`'s path, its characters as they are."""
     for resolve in (False, True):
         try:
             here = Path(path).resolve() if resolve else Path(path).absolute()
@@ -49,7 +55,7 @@ def rel(path: str | Path) -> str:
 
 def shell_path(path: str | Path) -> str:
     """`rel(path)` as a command a hint prints takes it: quoted for the shell where it holds spaces or the like."""
-    return shlex.quote(rel(path))
+    return shlex.quote(_relative(path))  # quoted, not escaped: the command runs as printed
 
 
 def check_run_name(name: str, what: str = "run name") -> str:

@@ -140,3 +140,17 @@ def test_a_replayed_evaluation_episode_names_the_seed_it_was_reset_with(tmp_path
     capsys.readouterr()
     assert main(["replay", str(second)]) == 0
     assert ", episode 1 (reset with seed 6)" in capsys.readouterr().out
+
+
+def test_a_folder_name_cannot_forge_a_line_of_the_output(tmp_path, capsys):
+    """A checkpoint folder named `evil\\rpolicy /opt/trusted\\nepisode 0 ...` printed a forged policy line."""
+    import shutil
+
+    forged = tmp_path / "evil\rpolicy      /opt/trusted\nepisode 0 (seed 0, map map-1, return 99.9)"
+    shutil.copytree(DESIGNER, forged)
+    assert main(["evaluate-policy", "--checkpoint", str(forged), "--map", MAP_1, "--episodes", "1"]) == 0
+    out = capsys.readouterr().out
+    assert "\r" not in out and out.splitlines()[0].endswith(
+        "evil\\rpolicy      /opt/trusted\\nepisode 0 (seed 0, map map-1, return 99.9)"
+    )
+    assert sum(line.startswith("episode 0") for line in out.splitlines()) == 1
