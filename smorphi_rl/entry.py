@@ -8,9 +8,6 @@ import sys
 
 from smorphi_rl import interrupts  # the standard library only: the guard is up before anything heavy loads
 
-EXIT_INTERRUPTED = 130
-"""cli.common's: importing it would load the whole CLI, which this module guards."""
-
 
 def main() -> int:
     """The console script: the CLI imported and run inside a Ctrl-C guard (its imports take seconds); SIGTERM is
@@ -28,7 +25,7 @@ def main() -> int:
         waited = interrupts.settle()
     if code is None or (waited and code == 0):
         print("smorphi-rl: interrupted", file=sys.stderr)
-        code = EXIT_INTERRUPTED
+        code = interrupts.EXIT_STOPPED
     for stream in (sys.stdout, sys.stderr):
         with contextlib.suppress(OSError, ValueError):  # a closed pipe (`| head`)
             stream.flush()

@@ -50,6 +50,10 @@ class _State:
     """The write end of the retry thread's pipe: a handler asks for a retry with one `os.write`."""
 
 
+_unraisable_before: list[Any] = []
+"""The `sys.unraisablehook` `install` found (what anything but a dropped stop goes to)."""
+
+
 def _held(frame: FrameType | None) -> bool:
     """Whether the main thread is inside an import or llvmlite (any frame of its stack)."""
     while frame is not None:
@@ -75,6 +79,7 @@ def _retrier(read_end: int) -> None:
 
 
 def _later() -> None:
+    """Ask the retry thread to hand the stop on RETRY_S from now (one `os.write`: safe inside a handler)."""
     if _State.settled or sys.is_finalizing() or os.getpid() != _State.pid:
         return
     _State.pending = True
@@ -119,9 +124,6 @@ def _unraisable(unraisable: Any) -> None:
         (_unraisable_before[-1] if _unraisable_before else sys.__unraisablehook__)(unraisable)
 
 
-_unraisable_before: list[Any] = []
-
-
 def settle() -> bool:
     """At a command's end: whether a stop still waits to be raised (it came too late to end the work). It is
     dropped, and nothing is asked again after."""
@@ -131,13 +133,13 @@ def settle() -> bool:
     return _disarm()
 
 
+EXIT_STOPPED = 130
+"""The exit status of a stopped command (the CLI's EXIT_INTERRUPTED, and the entry point's before the CLI loads)."""
+
+
 def _exiting(signum: int, frame: Any) -> None:
     os.write(2, b"smorphi-rl: interrupted as it exited (its output is whole)\n")
     os._exit(EXIT_STOPPED)
-
-
-EXIT_STOPPED = 130
-"""The exit status of a stopped command (cli.common's EXIT_INTERRUPTED)."""
 
 
 def exiting() -> None:

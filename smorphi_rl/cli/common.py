@@ -16,6 +16,7 @@ from smorphi_rl.cli.fields import finite_arg, option
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import MAX_SEED
+from smorphi_rl.interrupts import EXIT_STOPPED
 from smorphi_rl.maps import SHIPPED_DEFAULT_MAP
 from smorphi_rl.rundir import DEFAULT_LOG_DIR
 
@@ -27,7 +28,7 @@ if TYPE_CHECKING:
 PROG = "smorphi-rl"
 DEFAULT_MAP = Path("maps") / SHIPPED_DEFAULT_MAP.name
 """The default map as the README shows it: maps/map-1.yaml in the working directory (else the shipped one)."""
-EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, 130
+EXIT_INPUT, EXIT_USAGE, EXIT_INTERRUPTED = 1, 2, EXIT_STOPPED
 
 
 class Repeated(argparse.Action):
