@@ -165,6 +165,7 @@ def ray_session(address: str | None) -> Iterator[None]:
         kwargs["num_cpus"] = local_cpus()
     # Ctrl-C during ray.init could vanish inside Ray's start-up (the run then trained its whole budget), and Ray's
     # init replaces the SIGTERM handler with exit(15): both are only noted while Ray starts, and acted on after.
+    sigterm = False  # Ray's own start-up handler took it: set after the hold (a signal inside `set` would wait)
     with interrupts.stop_requests() as stop:
         try:
             if address is None:
@@ -180,9 +181,9 @@ def ray_session(address: str | None) -> Iterator[None]:
         except SystemExit as exc:
             if exc.code != signal.SIGTERM:
                 raise
-            stop.set()  # SIGTERM reached Ray's own start-up handler
+            sigterm = True  # SIGTERM reached Ray's own start-up handler
     interrupts.install()  # Ray's init replaced our SIGTERM handler with its exit(15)
-    if stop.is_set():
+    if stop.is_set() or sigterm:
         ray.shutdown()
         raise KeyboardInterrupt
     _OPEN.append(address)

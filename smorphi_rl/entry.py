@@ -4,6 +4,7 @@ so a Ctrl-C or SIGTERM that lands while it loads ends in one line, as one during
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 
 from smorphi_rl import interrupts  # the standard library only: the guard is up before anything heavy loads
@@ -23,11 +24,17 @@ def main() -> int:
         pass
     finally:  # also as argparse's SystemExit (--help, a usage error) leaves
         waited = interrupts.settle()
+    interrupts.exiting()  # a stop from here on (a flush a slow pipe holds, the teardown): exit 130 at once
     if code is None or (waited and code == 0):
         print("smorphi-rl: interrupted", file=sys.stderr)
         code = interrupts.EXIT_STOPPED
     for stream in (sys.stdout, sys.stderr):
-        with contextlib.suppress(OSError, ValueError):  # a closed pipe (`| head`)
+        try:
             stream.flush()
-    interrupts.exiting()  # a stop in Python's teardown: exit 130 at once, the output being whole
+        except BrokenPipeError:  # `| head` has closed it: what is left goes nowhere, not to a failed teardown flush
+            with contextlib.suppress(OSError, ValueError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), stream.fileno())
+        except (OSError, ValueError):  # closed
+            pass
+    interrupts.exiting(whole=True)
     return code

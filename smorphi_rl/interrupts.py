@@ -48,6 +48,8 @@ class _State:
     """The process whose retry thread `wake` reaches (a forked child has none)."""
     wake = -1
     """The write end of the retry thread's pipe: a handler asks for a retry with one `os.write`."""
+    whole = False
+    """The command's output is flushed (`exiting`): a stop in the teardown says so."""
 
 
 _unraisable_before: list[Any] = []
@@ -118,7 +120,8 @@ def _unraisable(unraisable: Any) -> None:
     """`sys.unraisablehook`: a KeyboardInterrupt Python would print as "Exception ignored" and drop (raised in a
     callback) is asked again once the callback has returned, while a command runs; anything else, and anything once
     it has ended, goes to the hook that was there."""
-    if isinstance(unraisable.exc_value, KeyboardInterrupt) and not (_State.settled or sys.is_finalizing()):
+    ours = not (_State.settled or sys.is_finalizing()) and os.getpid() == _State.pid  # (not a forked child's)
+    if isinstance(unraisable.exc_value, KeyboardInterrupt) and ours:
         _later()
     else:
         (_unraisable_before[-1] if _unraisable_before else sys.__unraisablehook__)(unraisable)
@@ -138,14 +141,17 @@ EXIT_STOPPED = 130
 
 
 def _exiting(signum: int, frame: Any) -> None:
-    os.write(2, b"smorphi-rl: interrupted as it exited (its output is whole)\n")
+    with suppress(OSError):  # stderr a closed pipe (`2>&1 | head`): the exit all the same
+        os.write(2, b"smorphi-rl: interrupted as it exited" + (b" (its output is whole)\n" if _State.whole else b"\n"))
     os._exit(EXIT_STOPPED)
 
 
-def exiting() -> None:
-    """Once a command has ended and its output is flushed: a stop in Python's teardown (its exit callbacks, the
-    release of torch and the rest) ends the process at once with exit 130 and one line, not an "Exception ignored"
-    and exit 0, nor the default handlers' death by signal Python puts back late in the teardown."""
+def exiting(whole: bool = False) -> None:
+    """Once a command has ended (before its last output is flushed, and again, `whole`, after): a stop in the flush
+    or Python's teardown (its exit callbacks, the release of torch and the rest) ends the process at once with exit
+    130 and one line, not a traceback, an "Exception ignored" and exit 0, nor the default handlers' death by signal
+    Python puts back late in the teardown."""
+    _State.whole = whole
     if threading.current_thread() is threading.main_thread():
         for sig in (signal.SIGINT, signal.SIGTERM):
             signal.signal(sig, _exiting)
@@ -192,8 +198,10 @@ def stop_requests(stop: threading.Event | None = None, again: bool = False) -> I
         return
 
     def request(*_: Any) -> None:
-        if again and stop.is_set():
-            raise KeyboardInterrupt
+        if stop.is_set():  # (`is_set` takes no lock: a second signal inside the first one's `set` would wait on it)
+            if again:
+                raise KeyboardInterrupt
+            return
         stop.set()
 
     handlers = {sig: signal.signal(sig, request) for sig in (signal.SIGINT, signal.SIGTERM)}

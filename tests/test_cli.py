@@ -546,3 +546,17 @@ def test_an_angles_file_stopped_midway_ends_between_chunks_with_its_rows_whole(t
         "smorphi-rl: interrupted: after 20 of 35 shapes, whose rows are written whole"
     )
     assert len(out.strip().splitlines()) == 1 + 20  # the header and two whole chunks
+
+
+def test_output_into_a_closed_pipe_exits_0_without_a_word():
+    """`smorphi-rl ... | head` closed early: Python's own last flush failed, "Exception ignored ... BrokenPipeError"
+    and exit 120."""
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}  # buffered, as a pipe's output is
+        argv = [sys.executable, "-m", "smorphi_rl.cli", "evaluate", "--map", MAP_1, "--angles", "1", "2", "3"]
+        ran = subprocess.run(argv, stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120, env=env)
+    finally:
+        os.close(write_end)
+    assert (ran.returncode, ran.stderr) == (0, "")

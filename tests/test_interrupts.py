@@ -97,8 +97,31 @@ def test_a_stop_in_pythons_teardown_exits_130_at_once_with_one_line():
         "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(5)))  # a stop as Ray shuts down\n"
         "print('done', flush=True)\n"
         "interrupts.settle()\n"
-        "interrupts.exiting()\n"
+        "interrupts.exiting(whole=True)\n"
     )
     ran = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert (ran.returncode, ran.stdout) == (130, "done\n")
     assert ran.stderr == "smorphi-rl: interrupted as it exited (its output is whole)\n"
+
+
+def test_a_stop_in_the_teardown_exits_130_with_stderr_a_closed_pipe():
+    """`cmd 2>&1 | head`: the line could not be written, the handler raised BrokenPipeError in an exit callback, and
+    the process exited 0."""
+    import os
+    import subprocess
+
+    script = (
+        "import atexit, os, signal, time\n"
+        "from smorphi_rl import interrupts\n"
+        "interrupts.install()\n"
+        "atexit.register(lambda: (os.kill(os.getpid(), signal.SIGINT), time.sleep(5)))\n"
+        "interrupts.settle()\n"
+        "interrupts.exiting(whole=True)\n"
+    )
+    read_end, write_end = os.pipe()
+    os.close(read_end)  # the reader has gone
+    try:
+        ran = subprocess.run([sys.executable, "-c", script], stderr=write_end, timeout=60)
+    finally:
+        os.close(write_end)
+    assert ran.returncode == 130
