@@ -380,11 +380,10 @@ def _evaluate_protocol(args: argparse.Namespace, module: Any, env_config: Any, c
                            "optimum to measure against: give fixed floors with --map")  # fmt: skip
     env_config = replace(env_config, maps=env_config.map_files)  # a generated floor has no optimum: files only
     cache = optimum_cache(args.log_dir if args.log_dir is not None else run_log_dir(checkpoint))
-    optima = {(m := load_map(p)).name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache,
-                                                     optimum_progress(m.name))
-              for p in env_config.maps}  # fmt: skip
-    for p in env_config.maps:  # a floor where the best shape's figures make the ranking mean little, as in `train`
-        m = load_map(p)
+    floors = {p: load_map(p) for p in env_config.maps}
+    optima = {m.name: exact_optimum(p, env_config.weights_on(m), env_config.planning, cache, optimum_progress(m.name))
+              for p, m in floors.items()}  # fmt: skip
+    for m in floors.values():  # a floor where the best shape's figures make the ranking mean little, as in `train`
         opt = optima[m.name]
         warned = env_config.planning.start_warning(m) or degenerate_warning(
             env_config.weights_on(m), opt.P_c, opt.P_len, env_config.path_term, m.name
