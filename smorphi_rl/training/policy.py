@@ -47,8 +47,8 @@ def env_config_of(module: Any, maps: list[str] | None) -> EnvConfig:
 def unseen_warning(trained: EnvConfig, given: EnvConfig) -> str | None:
     """A warning when a policy trained on map files alone is rolled out on a floor that is none of them (told by
     name: an exported policy's files may lie elsewhere now): it proposes what it learned for its own floors, and
-    nothing measured says how near the best that lies here. A policy trained on generated floors is warned of by
-    the sides of its floors instead (`design`'s warning)."""
+    nothing measured says how near the best that lies here. None for a policy trained on generated floors: it is
+    trained for floors it has not seen (`design` warns of one outside the sides of its floors)."""
     from pathlib import Path
 
     from smorphi_rl.map_sources import is_generator
