@@ -6,6 +6,8 @@ import logging
 import os
 import signal
 import socket
+import sys
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
@@ -44,12 +46,26 @@ def _host_port(address: str) -> tuple[str, int] | None:
 
 
 RAY_CURRENT_CLUSTER = "ray_current_cluster"
-"""The file in Ray's temp folder (RAY_TMPDIR, default /tmp/ray) where `ray start --head` leaves the address that
-`--address auto` attaches to (Ray 2.60), unless RAY_ADDRESS names one."""
+"""The file in Ray's temp folder (`ray_temp_dir`) where `ray start --head` leaves the address that `--address auto`
+attaches to (Ray 2.60), unless RAY_ADDRESS names one."""
+
+
+def ray_temp_dir() -> str:
+    """The folder `ray start` writes its session and address into when given no --temp-dir, as Ray 2.60 picks it:
+    `ray` under RAY_TMPDIR, else under TMPDIR on Linux, else under /tmp."""
+    if "RAY_TMPDIR" in os.environ:
+        base = os.environ["RAY_TMPDIR"]
+    elif sys.platform.startswith("linux") and "TMPDIR" in os.environ:
+        base = os.environ["TMPDIR"]
+    elif sys.platform.startswith(("linux", "darwin")):
+        base = "/tmp"
+    else:
+        base = tempfile.gettempdir()
+    return os.path.join(base, "ray")
 
 
 def _recorded_path() -> str:
-    return os.path.join(os.environ.get("RAY_TMPDIR", "/tmp/ray"), RAY_CURRENT_CLUSTER)
+    return os.path.join(ray_temp_dir(), RAY_CURRENT_CLUSTER)
 
 
 def auto_address() -> str | None:

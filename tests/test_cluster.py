@@ -12,9 +12,26 @@ from smorphi_rl.cluster import ClusterError, check_reachable
 
 @pytest.fixture
 def no_ray_here(tmp_path, monkeypatch):
+    """An empty Ray temp folder, as `ray start` with RAY_TMPDIR=tmp_path would use it."""
     monkeypatch.delenv("RAY_ADDRESS", raising=False)
     monkeypatch.setenv("RAY_TMPDIR", str(tmp_path))
-    return tmp_path
+    (tmp_path / "ray").mkdir()
+    return tmp_path / "ray"
+
+
+@pytest.mark.parametrize(
+    "env", [{}, {"TMPDIR": "/scratch/t"}, {"RAY_TMPDIR": "/scratch/r"}, {"RAY_TMPDIR": "/r", "TMPDIR": "/t"}]
+)
+def test_the_temp_folder_is_the_one_ray_start_writes_its_address_into(env, monkeypatch):
+    """`--address auto` read RAY_TMPDIR/ray_current_cluster, where `ray start` writes RAY_TMPDIR/ray/..., and
+    ignored TMPDIR: with either set it never found the cluster. Fails when Ray picks its folder otherwise."""
+    from ray._common.utils import get_default_ray_temp_dir  # the function `ray start` calls (Ray 2.60)
+
+    for name in ("RAY_TMPDIR", "TMPDIR"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    assert cluster.ray_temp_dir() == get_default_ray_temp_dir()
 
 
 def test_auto_with_no_cluster_on_the_machine_is_refused(no_ray_here):
