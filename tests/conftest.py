@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 import shutil
 import sys
+import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -67,6 +68,25 @@ WALLED = """
 """docs/fbcpp-fit.md section 8: a walled room with an unknown patch."""
 
 GOLDEN_THETAS = [(0, 0, 0), (0, 180, 0), (90, 90, 90), (95, 59, 103), (15, 15, 39)]
+
+
+_RAY_TMP = "SMORPHI_RL_TEST_RAY_TMPDIR"
+"""Set (to the folder) in the process that made the suite's Ray folder; the workers inherit both variables."""
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The Rays the suite starts (about a hundred, 1 MB of logs each) keep their session folders in one folder of
+    the suite's own, removed at its end, rather than pile up in /tmp/ray. A RAY_TMPDIR the user set is kept."""
+    if "RAY_TMPDIR" not in os.environ:
+        # under /tmp, short: Ray's socket paths must fit 107 bytes
+        os.environ["RAY_TMPDIR"] = os.environ[_RAY_TMP] = tempfile.mkdtemp(prefix="smorphi-test-", dir="/tmp")
+
+
+def pytest_unconfigure(config: pytest.Config) -> None:
+    if hasattr(config, "workerinput"):  # an xdist worker: the process that made the folder removes it
+        return
+    if (made := os.environ.get(_RAY_TMP)) and os.environ.get("RAY_TMPDIR") == made:
+        shutil.rmtree(made, ignore_errors=True)
 
 
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
