@@ -108,8 +108,13 @@ def chunk_shapes(grid_map: Map, planning: Planning) -> int:
     evaluator.evaluate_bounded(sample[:2], evaluator.prune_bound(Weights(1.0, 0.1)))
     t0 = time.perf_counter()
     evaluator.evaluate_many(sample)
-    per_plan = (time.perf_counter() - t0) / SAMPLE_PLANS
-    return int(max(64, min(CHUNK_SHAPES, CHUNK_SECONDS / max(per_plan, 1e-9))))
+    return shapes_per_chunk((time.perf_counter() - t0) / SAMPLE_PLANS)
+
+
+def shapes_per_chunk(per_plan_s: float) -> int:
+    """The shapes a chunk holds when one plan takes `per_plan_s`: about CHUNK_SECONDS of planning, 64 to
+    CHUNK_SHAPES."""
+    return int(max(64, min(CHUNK_SHAPES, CHUNK_SECONDS / max(per_plan_s, 1e-9))))
 
 
 def chunk_bounds(n_shapes: int, n_workers: int, most: int = CHUNK_SHAPES) -> list[tuple[int, int]]:
