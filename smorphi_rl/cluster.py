@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import logging
+import math
 import os
 import signal
 import socket
@@ -10,6 +11,7 @@ import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 from typing import Any
 
 from smorphi_rl import interrupts
@@ -222,7 +224,34 @@ def ray_error_line(exc: BaseException) -> str:
 
 def local_cpus() -> int:
     """The CPUs a local Ray started for a run gets."""
-    return max(MIN_LOCAL_CPUS, os.cpu_count() or 1)
+    return max(MIN_LOCAL_CPUS, usable_cpus())
+
+
+def usable_cpus() -> int:
+    """The cores this process may run on: its CPU affinity (`taskset`, a batch job's cpuset) within a container's
+    CPU quota (cgroup), not every core of the machine; a job given 4 cores of 128 forked 128 planners."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):  # no affinity here (macOS)
+        cores = os.cpu_count() or 1
+    quota = _cgroup_quota()
+    return max(1, min(cores, math.ceil(quota)) if quota else cores)
+
+
+def _cgroup_quota(root: Path = Path("/sys/fs/cgroup")) -> float | None:
+    """The CPUs the cgroup's quota allows (cgroup v2's cpu.max, else v1's CFS quota), None where unlimited or not
+    Linux."""
+    try:
+        quota, period = (root / "cpu.max").read_text().split()[:2]
+        return None if quota == "max" else int(quota) / int(period)
+    except (OSError, ValueError):
+        pass
+    try:
+        v1 = root / "cpu"
+        quota_us = int((v1 / "cpu.cfs_quota_us").read_text())
+        return None if quota_us <= 0 else quota_us / int((v1 / "cpu.cfs_period_us").read_text())
+    except (OSError, ValueError):
+        return None
 
 
 def check_capacity(cpus: float, env_runners: int, address: str | None, fix: str = "use fewer --env-runners") -> None:

@@ -3,6 +3,8 @@ any work, when there is none or it does not answer."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 import ray
 
@@ -142,3 +144,26 @@ def test_a_session_inside_one_of_the_same_address_shares_its_ray(monkeypatch):
             assert ray.get_runtime_context().get_node_id() == node
         assert ray.is_initialized()
     assert not ray.is_initialized()
+
+
+@pytest.mark.parametrize(
+    ("files", "quota"),
+    [
+        ({"cpu.max": "max 100000\n"}, None),
+        ({"cpu.max": "150000 100000\n"}, 1.5),
+        ({"cpu/cpu.cfs_quota_us": "400000\n", "cpu/cpu.cfs_period_us": "100000\n"}, 4.0),
+        ({"cpu/cpu.cfs_quota_us": "-1\n", "cpu/cpu.cfs_period_us": "100000\n"}, None),
+        ({}, None),
+    ],
+)
+def test_a_containers_cpu_quota_is_read_from_cgroup_v2_or_v1(tmp_path, files, quota):
+    for name, text in files.items():
+        (tmp_path / name).parent.mkdir(exist_ok=True)
+        (tmp_path / name).write_text(text)
+    assert cluster._cgroup_quota(tmp_path) == quota
+
+
+def test_the_usable_cores_are_within_the_machines_and_the_quota(monkeypatch):
+    assert 1 <= cluster.usable_cpus() <= (os.cpu_count() or 1)
+    monkeypatch.setattr(cluster, "_cgroup_quota", lambda: 0.5)
+    assert cluster.usable_cpus() == 1 and cluster.local_cpus() == cluster.MIN_LOCAL_CPUS

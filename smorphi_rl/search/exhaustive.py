@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl._kernels import NO_PRUNE
+from smorphi_rl.cluster import usable_cpus
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import check_step
 from smorphi_rl.interrupts import stop_requests
@@ -236,9 +237,10 @@ class _Settled:
 def _local_pool(
     map_path: str, planning: Planning, step: float, weights: Weights | None, workers: int | None, thetas: np.ndarray
 ) -> Iterator[tuple[_Workers, int]]:
-    """`workers` processes (default: every core) forked with the lattice, all gone when the block is left."""
+    """`workers` processes (default: every core this process may use) forked with the lattice, all gone when the
+    block is left."""
     global _lattice
-    n = max(1, workers or os.cpu_count() or 1)
+    n = max(1, workers or usable_cpus())
     _lattice = thetas  # the forked workers read their tasks' shapes from here
     pool = _Workers(n, map_path, planning, step, weights)
     finished = False
@@ -271,8 +273,8 @@ def run_exhaustive(
     best_for: Weights | None = None,
 ) -> SearchResult:
     """Evaluate every triple at `step_deg` on the map, planned as `planning` says, on `workers` processes
-    (default: every core), or, given a Ray cluster's `address`, on `workers` actors there (default: one per CPU
-    of the cluster), with the same results.
+    (default: every core this process may use), or, given a Ray cluster's `address`, on `workers` actors there
+    (default: one per CPU of the cluster), with the same results.
 
     Each distinct footprint is planned once (a first pass keys every shape by its footprint). Given `best_for`
     (R1's weights on the map), only the best R1 is sought, by branch and bound (docs/exact-search.md): a footprint

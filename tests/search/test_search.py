@@ -4,7 +4,10 @@ from __future__ import annotations
 
 import itertools
 import json
+import os
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -291,3 +294,15 @@ def test_a_stop_as_the_plot_is_drawn_is_not_lost_in_a_garbage_collector_callback
     assert said == f"smorphi-rl: interrupted: as the search ended: its results and plot are whole in {run_dir}"
     assert (run_dir / "summary.json").is_file() and (run_dir / "pareto.png").is_file()
     assert signal.getsignal(signal.SIGINT) is interrupts.interrupt  # the hold's handler is gone: the CLI's is back
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="CPU affinity is Linux's")
+def test_the_exhaustive_search_forks_one_planner_per_core_it_may_use_not_per_core_of_the_machine(tmp_path):
+    """Under `taskset` or a batch job's cpuset it forked a planner for every core of the machine, all on the
+    cores it was given (128 workers on 4 cores of a cluster node)."""
+    argv = [sys.executable, "-m", "smorphi_rl.cli", "search", "exhaustive", "--map", MAP_1, "--step", "30",
+            "--log-dir", str(tmp_path), "--name", "one"]  # fmt: skip
+    one_core = min(os.sched_getaffinity(0))
+    proc = subprocess.run(argv, capture_output=True, text=True, preexec_fn=lambda: os.sched_setaffinity(0, {one_core}))
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((tmp_path / "one" / "summary.json").read_text())["params"]["workers"] == 1
