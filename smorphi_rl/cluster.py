@@ -66,6 +66,31 @@ def ray_temp_dir() -> str:
     return os.path.join(base, "ray")
 
 
+SOCKET_PATH_MAX = 103 if sys.platform.startswith("darwin") else 107
+"""The longest Unix socket path Ray accepts, in bytes (sun_path less its terminating zero)."""
+
+SOCKET_TAIL = len("/session_2026-12-07_08-54-13_647655_4194304/sockets/plasma_store")
+"""What a local Ray adds to its temp folder for its longest socket's path (Ray 2.60; a pid of up to 7 digits)."""
+
+
+def check_local_ray() -> None:
+    """Refuse at once a temp folder a local Ray cannot start in: a relative one (an empty or relative TMPDIR left
+    Ray's start-up to time out after 30 s in a traceback, its folder in the current one) or one too long for the
+    socket paths Ray makes inside it (refused by Ray only as it starts, after any exact optimum is computed)."""
+    folder = ray_temp_dir()
+    named = next((v for v in ("RAY_TMPDIR", "TMPDIR") if v in os.environ), None)
+    said = f"{named}={os.environ[named]!r}" if named else "the temp folder"
+    if not os.path.isabs(folder):  # only a variable set to a relative path makes it so
+        raise ClusterError(f"{said} is not an absolute folder: a local Ray would keep its sessions in {folder!r}, "
+                           f"under the current folder, and time out starting: give an absolute folder or unset "
+                           f"{named}")  # fmt: skip
+    if len(os.fsencode(folder)) + SOCKET_TAIL > SOCKET_PATH_MAX:
+        room = SOCKET_PATH_MAX - SOCKET_TAIL - len(os.sep + "ray")  # ray_temp_dir adds /ray
+        raise ClusterError(f"{said}: a local Ray's socket paths under {folder} would pass the limit of "
+                           f"{SOCKET_PATH_MAX} bytes: set RAY_TMPDIR to a folder of at most {room} bytes, such as "
+                           "/tmp")  # fmt: skip
+
+
 def _recorded_path() -> str:
     return os.path.join(ray_temp_dir(), RAY_CURRENT_CLUSTER)
 
@@ -92,10 +117,12 @@ def auto_source() -> str:
 
 def check_reachable(address: str | None, client: bool = True) -> None:
     """Fail fast, before Ray starts (and before any optimum is computed), when the cluster an address names does
-    not answer; `auto` is resolved first (`auto_address`). `client` False (the training jobs) refuses Ray Client:
+    not answer, or, given none, when a local Ray could not start in its temp folder (`check_local_ray`); `auto` is
+    resolved first (`auto_address`). `client` False (the training jobs) refuses Ray Client:
     under `ray://` Tune runs the whole experiment on the head, so no result, progress or stop request reaches this
     process, and its files are written on the head's disk."""
     if address is None:
+        check_local_ray()
         return
     given = address
     if address == "auto":
@@ -193,7 +220,7 @@ def ray_session(address: str | None) -> Iterator[None]:
                     ray.init(address="local", **kwargs)  # (Ray's default attaches to a `ray start` of this machine)
             else:
                 ray.init(address=address, **kwargs)
-        except (ConnectionError, RuntimeError, ValueError) as exc:
+        except Exception as exc:  # Ray's start-up raises plain Exceptions too (a node that timed out starting)
             where = "a local Ray" if address is None else f"the Ray cluster at {address}"
             raise ClusterError(f"cannot start or reach {where}: {ray_error_line(exc)}") from None
         except SystemExit as exc:

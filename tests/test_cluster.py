@@ -4,6 +4,7 @@ any work, when there is none or it does not answer."""
 from __future__ import annotations
 
 import os
+from pathlib import Path
 
 import pytest
 import ray
@@ -140,6 +141,11 @@ def test_a_session_inside_one_of_the_same_address_shares_its_ray(monkeypatch):
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
     with cluster.ray_session(None):
         node = ray.get_runtime_context().get_node_id()
+        # the socket paths `check_local_ray` foresees: fails when Ray names them longer
+        sockets = list(Path(cluster.ray_temp_dir()).glob(f"session_*_{os.getpid()}/sockets/*"))
+        assert sockets and max(len(os.fsencode(p)) for p in sockets) - len(os.fsencode(cluster.ray_temp_dir())) <= (
+            cluster.SOCKET_TAIL - (7 - len(str(os.getpid())))  # SOCKET_TAIL holds a 7-digit pid
+        )
         with cluster.ray_session(None):
             assert ray.get_runtime_context().get_node_id() == node
         assert ray.is_initialized()
@@ -167,3 +173,38 @@ def test_the_usable_cores_are_within_the_machines_and_the_quota(monkeypatch):
     assert 1 <= cluster.usable_cpus() <= (os.cpu_count() or 1)
     monkeypatch.setattr(cluster, "_cgroup_quota", lambda: 0.5)
     assert cluster.usable_cpus() == 1 and cluster.local_cpus() == cluster.MIN_LOCAL_CPUS
+
+
+@pytest.mark.parametrize(
+    ("env", "said"),
+    [
+        ({"TMPDIR": ""}, "TMPDIR='' is not an absolute folder: a local Ray would keep its sessions in 'ray'"),
+        ({"RAY_TMPDIR": "rt", "TMPDIR": "/tmp"}, "RAY_TMPDIR='rt' is not an absolute folder"),
+        ({"TMPDIR": "/" + "t" * 39}, "socket paths under /tttt"),
+    ],
+)
+def test_a_temp_folder_a_local_ray_cannot_start_in_is_one_line_before_anything_is_written(
+    env, said, tmp_path, monkeypatch, capsys
+):
+    """An empty TMPDIR (a batch script's unset variable) timed out Ray's start-up after 30 s in a 34-line
+    traceback and left a `ray` folder in the current one; one too long failed as Ray started, after the optimum."""
+    from smorphi_rl.cli import main
+
+    for name in ("RAY_TMPDIR", "TMPDIR"):
+        monkeypatch.delenv(name, raising=False)
+    for name, value in env.items():
+        monkeypatch.setenv(name, value)
+    monkeypatch.chdir(tmp_path)
+    assert main(["train", "--timesteps", "2000", "--log-dir", "logs"]) != 0
+    err = capsys.readouterr().err
+    assert said in err and len(err.splitlines()) == 1 and not list(tmp_path.iterdir())
+
+
+def test_a_temp_folder_at_the_socket_limit_is_taken_and_one_byte_over_refused(monkeypatch):
+    room = cluster.SOCKET_PATH_MAX - cluster.SOCKET_TAIL - len("/ray")
+    monkeypatch.delenv("TMPDIR", raising=False)
+    monkeypatch.setenv("RAY_TMPDIR", "/" + "t" * (room - 1))
+    cluster.check_local_ray()
+    monkeypatch.setenv("RAY_TMPDIR", "/" + "t" * room)
+    with pytest.raises(ClusterError, match=f"a folder of at most {room} bytes"):
+        cluster.check_local_ray()
