@@ -11,9 +11,39 @@ Only this module imports numba; compiled code is cached on disk (first call comp
 from __future__ import annotations
 
 import math
+import os
+import tempfile
+from pathlib import Path
 
+import numba
 import numpy as np
 from numba import njit
+from numba.misc.appdirs import AppDirs
+
+
+def _writable(folder: Path) -> bool:
+    """Whether a file can be made in `folder`, made first if missing (as numba would make it)."""
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def cache_fallback(package: Path, user_cache: Path) -> str | None:
+    """Where numba should cache the kernels when it can write neither beside them (`package`, a read-only
+    install) nor in the user's cache (an unwritable HOME: a shared install, a container run as another user),
+    where `cache=True` fails at import in a traceback; None where it can, or NUMBA_CACHE_DIR says."""
+    if os.environ.get("NUMBA_CACHE_DIR") or _writable(package / "__pycache__") or _writable(user_cache):
+        return None
+    return str(Path(tempfile.gettempdir()) / f"smorphi-rl-numba-{os.getuid()}")
+
+
+_USER_CACHE = Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)  # numba's user-wide cache
+if (_fallback := cache_fallback(Path(__file__).parent, _USER_CACHE)) is not None:
+    os.environ["NUMBA_CACHE_DIR"] = _fallback  # the processes this one starts
+    numba.config.CACHE_DIR = _fallback  # type: ignore[attr-defined]  # (set from the environment as numba loads)
 
 # Columns of the per-morphology result rows written by the batch kernels.
 COL_FEASIBLE, COL_L, COL_W, COL_W_M, COL_L_M, COL_COVERED, COL_PLEN, COL_EW, COL_NS, COL_STATUS, COL_BOUND = range(11)
