@@ -31,11 +31,13 @@ class ClusterError(SmorphiError):
     """The Ray cluster named by --address cannot be reached."""
 
 
-def _host_port(address: str) -> tuple[str, int] | None:
+def _host_port(address: str, named: str = "--address") -> tuple[str, int] | None:
     """(host, port) of a `host:port` or `ray://host:port` address; None for `auto`. Any other scheme (http://,
-    grpc://) is refused: Ray would take it for a job server or fail inside its client."""
+    grpc://) is refused: Ray would take it for a job server or fail inside its client. `named`: where the address
+    came from, as the refusal names it."""
     if address == "auto":
         return None
+    given = address
     address = address.removeprefix(CLIENT_SCHEME)
     host, sep, port = address.rpartition(":")
     if "://" in host:
@@ -43,7 +45,7 @@ def _host_port(address: str) -> tuple[str, int] | None:
     if host.startswith("[") and host.endswith("]"):  # an IPv6 literal, [::1]:6379
         host = host[1:-1]
     if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
-        raise ClusterError(f"--address must be HOST:PORT, 'auto' or ray://HOST:PORT, got '{address}'")
+        raise ClusterError(f"{named} must be HOST:PORT, 'auto' or ray://HOST:PORT, got {given!r}")
     return host, int(port)
 
 
@@ -128,8 +130,9 @@ def check_reachable(address: str | None, client: bool = True) -> None:
     if address == "auto":
         resolved = auto_address()
         if resolved is None:
-            raise ClusterError("--address auto: no Ray cluster started on this machine (RAY_ADDRESS is unset and "
-                               "`ray start --head` has left no address); start one or give HOST:PORT")  # fmt: skip
+            raise ClusterError(f"--address auto: no Ray cluster started on this machine (RAY_ADDRESS names none "
+                               f"and `ray start --head` has left no address in {_recorded_path()}, as `ray start "
+                               "--temp-dir DIR` leaves it in DIR): start one, or give its HOST:PORT")  # fmt: skip
         address = resolved
     if not client and address.startswith(CLIENT_SCHEME):
         said = given if given == address else f"{given} ({address})"
@@ -137,7 +140,7 @@ def check_reachable(address: str | None, client: bool = True) -> None:
                            "Tune would run on the cluster's head with its results there: give the cluster's "
                            "HOST:PORT (the GCS port `ray start --head --port` printed) from a machine of the "
                            "cluster")  # fmt: skip
-    target = _host_port(address)
+    target = _host_port(address, "--address" if given == address else f"--address auto's {auto_source()}")
     if target is None:
         return
     found = "" if given == address else f", which --address auto found in {auto_source()}"

@@ -42,6 +42,21 @@ def test_auto_with_no_cluster_on_the_machine_is_refused(no_ray_here):
         check_reachable("auto")
 
 
+@pytest.mark.parametrize(("value", "said"), [("junk", "'junk'"), ("ray://", "'ray://'")])
+def test_a_ray_address_auto_follows_that_is_no_address_is_named_as_the_variable(no_ray_here, monkeypatch, value, said):
+    """The refusal named --address, which the user had given as `auto`, and `ray://` as ''."""
+    monkeypatch.setenv("RAY_ADDRESS", value)
+    with pytest.raises(ClusterError, match=rf"^--address auto's RAY_ADDRESS must be HOST:PORT, .* got {said}$"):
+        check_reachable("auto")
+
+
+def test_auto_says_where_it_looked_for_the_address(no_ray_here):
+    """A cluster started with `ray start --temp-dir` records its address in that folder, where neither Ray's own
+    `auto` nor this one looks: the line says where it looked."""
+    with pytest.raises(ClusterError, match=r"no address in .*/ray/ray_current_cluster, as `ray start --temp-dir DIR`"):
+        check_reachable("auto")
+
+
 def test_auto_follows_ray_address(no_ray_here, monkeypatch):
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
     with pytest.raises(
