@@ -241,10 +241,17 @@ def optimum_cache(log_dir: str | Path) -> Path:
     return root / OPTIMUM_CACHE
 
 
-def make_cache(folder: Path) -> Path:
-    """The optimum cache `folder`, made if need be; one line naming the option to change where it cannot be."""
+def make_cache(folder: Path, writing: bool = False) -> Path:
+    """The optimum cache `folder`, made if need be; one line naming the option to change where it cannot be made,
+    or, `writing` (an optimum is about to be computed), written into: else every run would compute it again, unsaid.
+    A folder read-only but holding the optimum serves it."""
+    import tempfile
+
     try:
         folder.mkdir(parents=True, exist_ok=True)
+        if writing:
+            with tempfile.TemporaryFile(dir=folder):
+                pass
     except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
         import os
 
@@ -292,8 +299,8 @@ def exact_optimum(
         cached = _cached_optimum(file, weights)
         if cached is not None and _as_planned(cached, load_map(map_path), planning):
             return cached  # else a damaged or doctored entry: recomputed and rewritten
-    if file is not None:  # before the computation: a folder that cannot be made is named in seconds, not minutes
-        make_cache(file.parent)
+    if file is not None:  # before the computation: a folder that cannot hold it is named in seconds, not minutes
+        make_cache(file.parent, writing=True)
     optimum = _optimum_in_process(key, str(map_path), weights, planning, progress)
     if file is not None:
         _write_entry(file, optimum)

@@ -121,6 +121,19 @@ def test_a_cache_folder_that_cannot_be_made_names_the_option(tmp_path, monkeypat
         exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path / "logs" / ".cache")
 
 
+@pytest.mark.skipif(not Path("/sys/kernel").is_dir(), reason="a folder no one may write into, root included")
+def test_a_cache_folder_that_cannot_be_written_into_names_the_option(monkeypatch):
+    """An existing folder that took no file (SMORPHI_RL_CACHE_DIR shared read-only) passed, and every run searched
+    the optimum again without saying so."""
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.planning import Planning
+    from smorphi_rl.protocol import CACHE_ENV
+
+    monkeypatch.setenv(CACHE_ENV, "/sys/kernel")
+    with pytest.raises(SmorphiError, match=f"cannot cache exact optima in /sys/kernel .*: set {CACHE_ENV} to a folder"):
+        exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), Path("/sys/kernel"))
+
+
 def test_train_reads_the_optimum_search_optimum_found_and_shows_its_own_search(tmp_path, monkeypatch):
     """`train` searched again, silently (five minutes on depot), an optimum `search optimum` had just found."""
     from conftest import ROOM12
