@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from pathlib import Path
 
 import numba
@@ -20,24 +19,16 @@ import numpy as np
 from numba import njit
 from numba.misc.appdirs import AppDirs
 
-
-def _writable(folder: Path) -> bool:
-    """Whether a file can be made in `folder`, made first if missing (as numba would make it)."""
-    try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            return True
-    except OSError:
-        return False
+from smorphi_rl.rundir import own_temp_folder, writable_folder
 
 
 def cache_fallback(package: Path, user_cache: Path) -> str | None:
     """Where numba should cache the kernels when it can write neither beside them (`package`, a read-only
     install) nor in the user's cache (an unwritable HOME: a shared install, a container run as another user),
     where `cache=True` fails at import in a traceback; None where it can, or NUMBA_CACHE_DIR says."""
-    if os.environ.get("NUMBA_CACHE_DIR") or _writable(package / "__pycache__") or _writable(user_cache):
+    if os.environ.get("NUMBA_CACHE_DIR") or writable_folder(package / "__pycache__") or writable_folder(user_cache):
         return None
-    return str(Path(tempfile.gettempdir()) / f"smorphi-rl-numba-{os.getuid()}")
+    return own_temp_folder("numba")
 
 
 _USER_CACHE = Path(AppDirs(appname="numba", appauthor=False).user_cache_dir)  # numba's user-wide cache

@@ -2,23 +2,42 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.colors import ListedColormap
-from matplotlib.patches import Polygon, Rectangle
 
 from smorphi_rl.coverage import CoverageResult, path_points_m
 from smorphi_rl.geometry import Morphology, all_corners, angles_text
 from smorphi_rl.maps import Cell, Map
-from smorphi_rl.rundir import atomic_path
+from smorphi_rl.rundir import atomic_path, own_temp_folder, writable_folder
 from smorphi_rl.words import counted
+
+
+def config_fallback() -> str | None:
+    """Where matplotlib should keep its config and font cache when it cannot write its own folders (an unwritable
+    HOME): it would make a fresh temp folder each run, rebuild its font cache there and print two lines saying
+    so; None where it can, or MPLCONFIGDIR says."""
+    if os.environ.get("MPLCONFIGDIR"):
+        return None
+    own = [Path(os.path.expanduser(os.environ.get(name) or default)) / "matplotlib"
+           for name, default in (("XDG_CONFIG_HOME", "~/.config"), ("XDG_CACHE_HOME", "~/.cache"))]  # fmt: skip
+    if not all(folder.is_absolute() for folder in own) or all(writable_folder(folder) for folder in own):
+        return None  # (no home to expand ~ in: matplotlib's own fallback)
+    return own_temp_folder("matplotlib")
+
+
+if (_fallback := config_fallback()) is not None:
+    os.environ["MPLCONFIGDIR"] = _fallback  # read as matplotlib loads, here and in the processes this one starts
+
+import matplotlib  # noqa: E402
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+from matplotlib.colors import ListedColormap  # noqa: E402
+from matplotlib.patches import Polygon, Rectangle  # noqa: E402
 
 matplotlib.rcParams["text.parse_math"] = False  # names are the user's (a map `r$1_$2.yaml`): text, never TeX
 

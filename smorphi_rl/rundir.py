@@ -256,6 +256,26 @@ def discard_run_dir(run_dir: Path) -> None:
             child.unlink(missing_ok=True)
 
 
+def writable_folder(folder: Path) -> bool:
+    """Whether a file can be made in `folder`, made first if missing (as the library that asks would make it)."""
+    import tempfile
+
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=folder):
+            return True
+    except OSError:
+        return False
+
+
+def own_temp_folder(library: str) -> str:
+    """A folder of this user's in the temp folder for a `library`'s cache where the library's own places cannot be
+    written (a read-only install, an unwritable HOME): kept across runs, unlike a library's own fallback."""
+    import tempfile
+
+    return str(Path(tempfile.gettempdir()) / f"smorphi-rl-{library}-{os.getuid()}")
+
+
 def write_text_atomic(path: Path, text: str) -> None:
     """`write_atomic` of a text (UTF-8)."""
     write_atomic(path, text.encode())

@@ -1,5 +1,9 @@
 """Figures that summarise seeds: they are written and shade the interval of the mean."""
 
+import os
+import subprocess
+import sys
+
 import numpy as np
 
 from smorphi_rl.plots import plot_gap_curves
@@ -96,3 +100,20 @@ def test_a_gif_stopped_before_its_first_frame_is_a_stop_not_a_writer_error(tmp_p
     with pytest.raises(KeyboardInterrupt):
         plots.animate_replay(grid, [{}, {}], ["a", "b"], tmp_path / "r.gif")
     assert not list(tmp_path.iterdir())  # no GIF, and no temporary left
+
+
+def test_matplotlib_keeps_one_folder_of_its_own_where_it_cannot_write_in_home(tmp_path):
+    """With HOME unwritable (a container run as another user) matplotlib made a fresh temp folder each run, built
+    its font cache there again and printed two lines about it amid a command's output."""
+    home = tmp_path / "home-is-a-file"
+    home.write_text("")
+    env = {k: v for k, v in os.environ.items() if k not in ("MPLCONFIGDIR", "XDG_CONFIG_HOME", "XDG_CACHE_HOME")}
+    env |= {"HOME": str(home), "TMPDIR": str(tmp_path)}
+    code = "import os, smorphi_rl.plots, matplotlib; print(matplotlib.get_cachedir())"
+    for _ in range(2):  # the second run finds the first's folder
+        proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
+        assert proc.returncode == 0 and proc.stderr == "", proc.stderr
+        assert proc.stdout.strip() == str(tmp_path / f"smorphi-rl-matplotlib-{os.getuid()}")
+    env["MPLCONFIGDIR"] = str(tmp_path / "mine")  # the user's choice stands
+    proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
+    assert proc.stdout.strip() == str(tmp_path / "mine")
