@@ -325,10 +325,11 @@ def test_installed_command_reports_errors_without_traceback(tmp_path):
     assert proc.stderr.strip() == f"smorphi-rl: error: map file not found: {tmp_path / 'no.yaml'}"
 
 
-def test_default_map_runs_from_any_directory(tmp_path):
+@pytest.mark.parametrize("module", ["smorphi_rl.cli", "smorphi_rl"])  # `python -m smorphi_rl` had no __main__
+def test_default_map_runs_from_any_directory(tmp_path, module):
     env = {**os.environ, "PYTHONPATH": str(ROOT)}
     proc = subprocess.run(
-        [sys.executable, "-m", "smorphi_rl.cli", "evaluate", "--angles", "95", "59", "103", "--json"],
+        [sys.executable, "-m", module, "evaluate", "--angles", "95", "59", "103", "--json"],
         capture_output=True,
         text=True,
         env=env,

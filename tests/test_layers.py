@@ -38,7 +38,7 @@ LAYERS: list[tuple[str, ...]] = [
     ("plots",),
     ("training",),
     ("compare", "reproduce"),
-    ("cli", "entry", "__init__"),
+    ("cli", "entry", "__init__", "__main__"),
 ]
 """Left to right. The foundation (errors, files, the adapter of private names, a local Ray) imports nothing above
 it; plots read the core's values, and the training jobs draw their figures with them."""
