@@ -50,7 +50,8 @@ def register(sub: Any) -> None:
             option(m, SearchConfig, name, type=seed_arg if name == "seed" else None)
         if method in RAY_METHODS:
             m.add_argument("--address", help="plan on the Ray cluster at HOST:PORT (or auto), one actor per CPU, "
-                           "with the same results; default: this machine's cores")  # fmt: skip
+                           "with the same results; default: the cores this process may use (`taskset -c 0-3` "
+                           "limits them)")  # fmt: skip
         m.set_defaults(func=cmd_search)
     name_choices(se, se_sub)
 

@@ -82,7 +82,8 @@ class SearchConfig:
     step: float = 1.0
     """exhaustive, optimum: lattice step in degrees; must divide 180."""
     address: str | None = None
-    """exhaustive, optimum, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: this machine's cores."""
+    """exhaustive, optimum, random, nsga2: a Ray cluster (HOST:PORT or auto) to plan on; None: the cores this
+    process may use."""
 
     def __post_init__(self) -> None:
         if self.method not in METHODS:
