@@ -268,6 +268,8 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
             img: Image.Image = opened
             if img.mode == "P":
                 img = img.convert("RGBA" if "transparency" in img.info else "RGB")
+            elif img.mode in ("L", "RGB") and "transparency" in img.info:  # a PNG's tRNS colour key: nav2's image
+                img = img.convert(img.mode + "A")  # library reads the image as having alpha, 0 on that colour
             elif img.mode == "1":
                 img = img.convert("L")
             data = np.asarray(img)
@@ -383,12 +385,12 @@ def load_map(yaml_path: str | Path) -> Map:
                        f"{_shown(origin, 80)}")  # fmt: skip
     mode_name = meta.get("mode", MapMode.TRINARY.value)
     try:
-        mode = MapMode(mode_name)
+        mode = MapMode(mode_name.lower() if isinstance(mode_name, str) else mode_name)  # nav2 lower-cases it too
     except ValueError:
         raise MapError(f"{path}: 'mode' must be trinary, scale or raw, got {_shown(mode_name)}") from None
     # negate and the thresholds decide which cell is floor: a default would guess it (ROS refuses too)
     negate = _require(meta, "negate", path, CLASSIFYING_HINT)
-    if negate not in (0, 1, True, False):
+    if not isinstance(negate, int):  # an integer, any but 0 true, as map_server reads it (bool is an int)
         raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
     occupied_thresh = _number(meta, "occupied_thresh", path, hint=CLASSIFYING_HINT)
     free_thresh = _number(meta, "free_thresh", path, hint=CLASSIFYING_HINT)

@@ -54,6 +54,20 @@ def test_trinary_mode_averages_alpha_in_as_nav2_does(tmp_path):
     assert m.cells[0].tolist() == [Cell.UNKNOWN, Cell.FREE, Cell.OCCUPIED]
 
 
+@pytest.mark.parametrize("colour", [False, True])
+def test_a_pngs_transparent_colour_is_alpha_as_nav2_reads_it(tmp_path, colour):
+    """A grey or RGB PNG may mark one colour transparent (tRNS; PNG optimisers write a grey+alpha map so): nav2
+    averages its alpha in (trinary) or calls it unknown (scale); it read as opaque, unknown space as free floor."""
+    grey = np.array([[254, 0, 255, 205]], dtype=np.uint8)
+    image = Image.fromarray(np.stack([grey] * 3, axis=-1) if colour else grey)
+    image.save(tmp_path / "key.png", transparency=(255, 255, 255) if colour else 255)
+    for mode, cells in [("trinary", [Cell.FREE, Cell.OCCUPIED, Cell.UNKNOWN, Cell.FREE]),
+                        ("scale", [Cell.FREE, Cell.OCCUPIED, Cell.UNKNOWN, Cell.FREE])]:  # fmt: skip
+        doc = {"image": "key.png", "resolution": 0.05, "mode": mode} | THRESHOLDS
+        (tmp_path / "key.yaml").write_text(yaml.safe_dump(doc))
+        assert load_map(tmp_path / "key.yaml").cells[0].tolist() == cells, mode
+
+
 def test_scale_mode_frees_a_grey_whose_occupancy_rounds_to_0(tmp_path):
     """nav2 writes rint(100 (p - free) / (occupied - free)) between the thresholds: just above free_thresh that is 0,
     which an OccupancyGrid reads as free. Grey 205 under 0.65 / 0.196: p = 0.19608, 0.0 after rounding."""
@@ -83,6 +97,16 @@ def test_a_threshold_no_grey_can_pass_is_refused(tmp_path, free, occupied):
 def test_negate_flips_the_probability(tmp_path):
     m = load_map(write_map(tmp_path, np.array([[0, 255]]), negate=1))
     assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
+
+
+def test_negate_and_mode_are_read_as_map_server_reads_them(tmp_path):
+    """map_server reads negate as an integer (any but 0 negates) and nav2 lower-cases the mode: both were refused."""
+    m = load_map(write_map(tmp_path, np.array([[0, 255]]), negate=2, mode="Trinary"))
+    assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
+    assert load_map(write_map(tmp_path, np.array([[0, 255]]), mode="RAW")).cells[0].tolist() == [
+        Cell.FREE, Cell.UNKNOWN]  # fmt: skip
+    with pytest.raises(MapError, match="'negate' must be 0 or 1, got 'yes please'"):
+        load_map(write_map(tmp_path, np.array([[0, 255]]), negate="yes please"))
 
 
 def test_map_saver_unknown_205_stays_unknown(tmp_path):

@@ -545,3 +545,16 @@ def test_a_recording_says_whether_its_episode_ran_to_its_end(tmp_path, capsys):
     assert ep.truncated and ep.ended and ep.cut_short is None and len(ep.steps) == 41
     assert main(["replay", str(indexless)]) == 0
     assert "40 steps from a file cut short (every step of the episode is here)" in capsys.readouterr().out
+
+
+def test_a_maps_yaw_leaves_the_grid_under_the_path_drawn_on_it():
+    """The plans ignore the origin's yaw (as nav2 does); the grid was sent rotated by it, so in Foxglove a map with
+    yaw 90 degrees lay a quarter turn away from the path and the robot drawn on it."""
+    from smorphi_rl.maps import Map
+    from smorphi_rl.recording.messages import grid_message
+
+    grid = Map(np.zeros((4, 6), dtype=np.uint8), 0.1, origin=(1.0, 2.0, 1.5708), name="turned")
+    pose = grid_message(grid, 0)["pose"]
+    assert pose["position"] == {"x": 1.0, "y": 2.0, "z": 0.0}
+    assert pose["orientation"] == {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+    assert grid.cell_of(1.0 + 0.55, 2.0 + 0.25) == (2, 5)  # the frame the path is drawn in: unrotated

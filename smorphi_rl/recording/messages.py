@@ -78,11 +78,11 @@ def grid_message(grid_map: Map, ns: int) -> dict[str, Any]:
     for cell, value in OCCUPANCY.items():
         lut[cell] = value
     w = grid_map.cells.shape[1]
-    x, y, yaw = grid_map.origin
+    x, y, _ = grid_map.origin  # its yaw ignored, as the plans ignore it: rotated, the grid left the path
     return {
         "timestamp": _stamp(ns),
         "frame_id": FRAME,
-        "pose": {"position": {"x": float(x), "y": float(y), "z": 0.0}, "orientation": _quaternion_z(float(yaw))},
+        "pose": {"position": {"x": float(x), "y": float(y), "z": 0.0}, "orientation": _quaternion_z(0.0)},
         "column_count": int(w),
         "cell_size": {"x": grid_map.resolution_m, "y": grid_map.resolution_m},
         "row_stride": int(w),
