@@ -36,9 +36,10 @@ TRAINED_KEY = "trained"
 policy training ended with, which the learning curves and convergence read (the row's own figures are the chosen
 policy's)."""
 TRAINED_FIGURES = ("median_gap", "share_within_1pct", "settled_R1_mean")
-POOLED_KEYS = (*TRAINED_FIGURES, "starts", "measured_starts", "policy_env_steps", TRAINED_KEY)
+POOLED_KEYS = (*TRAINED_FIGURES, "starts", "measured_starts", "policy_env_steps", TRAINED_KEY, "kept")
 """Keys under EVAL_KEY beside each evaluated map's summary (which is under the map's name), with those starting
-`design_`: a map may not be named like one."""
+`design_`, and TensorBoard's `kept` (the policy a run ends on, `training/tensorboard.py`): a map may not be named
+like one."""
 
 
 def clashing_map_name(name: str) -> bool:

@@ -46,9 +46,10 @@ STEP_SCHEMA: dict[str, Any] = {
         "step": {"type": "integer", "minimum": 0},
         "theta": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
         "action": {"type": ["array", "null"], "items": {"type": "integer", "minimum": 0, "maximum": MAX_MOVE}},
-        "reward": {"type": ["number", "null"], "description": "R1 + R2"},
+        "reward": {"type": ["number", "null"], "description": "the env's reward, in the run's reward mode"},
         "R1": {"type": "number", "description": "w1 * P_c - w2 * P_len"},
-        "R2": {"type": ["number", "null"], "description": "-beta when the action left the shape unchanged, else 0"},
+        "R2": {"type": ["number", "null"], "description": "reward - R1: under reward `paper` the paper's R2, -beta "
+               "when the action left the shape unchanged, else 0"},
         "P_c": {"type": "number"},
         "P_len": {"type": "integer"},
         "coverage_free_pct": {"type": "number"},

@@ -172,7 +172,7 @@ def test_appos_learner_queue_replaces_the_circular_buffer_and_pg_lambda_reaches_
         TrainConfig(overrides={"pg_lambda": 0.5})
 
 
-@pytest.mark.parametrize("stem", ["trained", "starts", "median_gap", "design_median_gap_pct"])
+@pytest.mark.parametrize("stem", ["trained", "kept", "starts", "median_gap", "design_median_gap_pct"])
 def test_a_map_named_like_an_evaluation_figure_is_refused(tmp_path, stem):
     """Its summary sits beside the pooled figures under eval/: one would overwrite the other."""
     from pathlib import Path
