@@ -35,6 +35,8 @@ from smorphi_rl.rundir import (
     in_use_by,
     prepare_run_dir,
     refuse_links,
+    rel,
+    rename_cut_run,
     shell_path,
     write_atomic,
     write_text_atomic,
@@ -125,11 +127,13 @@ def check_maps_unchanged(exp: Path, digests: dict[str, dict[str, str]]) -> None:
                               "restore it to resume, or give the sweep another `name`")  # fmt: skip
 
 
-def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], _Started]:
-    """(the trials left to run, the started ones among them) of experiment `exp`, moving nothing. The state files are
-    read back safely here, before Ray starts, so a damaged or crafted one is refused in one line."""
+def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], _Started, list[Path]]:
+    """(the trials left to run, the started ones among them, the folders of trials with no record) of experiment
+    `exp`, moving nothing. The state files are read back safely here, before Ray starts, so a damaged or crafted one
+    is refused in one line."""
     started: _Started = {}
     done: set[int] = set()
+    unrecorded: list[Path] = []
     names = {trial_dirname(t) for t in trials}
     for d in sorted(p for p in exp.iterdir() if p.is_dir()):
         if d.is_symlink():  # the resume would write the trial's tables wherever the link points
@@ -141,9 +145,11 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
                                   "ran, or start this one under another `name`")  # fmt: skip
             if d.name in names and not any(d.iterdir()):  # made by Tune, stopped before the trial began
                 continue  # a trial that never started: `drop_unstarted` removes the folder, and it trains
-            if d.name in names:  # a trial's folder whose record is gone: training it again would overwrite it
+            if d.name in names and (d / "result.json").exists():  # a trial that reported, its record gone:
                 raise RunDirError(f"{d}: a trial's folder without its params.json (the trial's record); restore it, "
                                   "or move the folder out of the sweep to train that trial again")  # fmt: skip
+            if d.name in names:  # killed as it began: its checkpoint out, its record and results in Ray's staging
+                unrecorded.append(d)  # kept aside by `set_aside_unrecorded`, and the trial trains again
             continue
         index = spec["index"]
         ours = 0 <= index < len(trials) and {k: spec.get(k) for k in trials[index]} == trials[index]
@@ -156,7 +162,19 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
             done.add(index)
         else:
             started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
-    return [t for t in trials if t["index"] not in done], started
+    return [t for t in trials if t["index"] not in done], started, unrecorded
+
+
+def set_aside_unrecorded(folders: list[Path], out: Any) -> None:
+    """Rename each trial folder that holds no record (params.json) to `<name>.cut-N`, kept, saying so: a sweep
+    killed as a trial wrote its first checkpoint left one, and every resume was refused until it was moved by hand."""
+    for d in folders:
+        aside = rename_cut_run(d)
+        print(
+            f"{rel(d)}: a trial's folder without its record (params.json; the sweep was stopped as the trial "
+            f"began): kept as {aside.name}, and the trial trains again",
+            file=out,
+        )
 
 
 def drop_unstarted(exp: Path, pending: list[dict[str, Any]]) -> None:
@@ -329,7 +347,7 @@ def run_sweep(
     earlier: list[TrialRow] = []
     if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
-        pending, started = read_resume(exp, trials)
+        pending, started, unrecorded = read_resume(exp, trials)
         earlier = read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
         check_maps_unchanged(exp, digests)
     else:
@@ -338,6 +356,7 @@ def run_sweep(
     for maps in sweep.map_sets:  # every evaluated map's exact optimum (cached after the first), before Ray starts
         optima |= training_optima(sweep.base_config(sweep.algorithms[0], maps, 0, {}), log_dir, out)
     if resume:
+        set_aside_unrecorded(unrecorded, out)
         points = set_aside_started(started)
         drop_unstarted(exp, pending)
     else:

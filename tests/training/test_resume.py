@@ -34,7 +34,8 @@ search:
 
 def plan_resume(exp, trials):
     """What `sweep --resume` does with a folder: read it back (refusing before anything moves), then set aside."""
-    pending, started = read_resume(exp, trials)
+    pending, started, unrecorded = read_resume(exp, trials)
+    assert not unrecorded
     return pending, set_aside_started(started)
 
 
@@ -372,11 +373,30 @@ def test_an_empty_folder_tune_made_before_a_stop_is_a_trial_that_never_started(s
     trials = sweep.trials()
     exp = tmp_path / "exp"
     (exp / trial_dirname(trials[1])).mkdir(parents=True)
-    pending, started = read_resume(exp, trials)
-    assert trials[1] in pending and not started and (exp / trial_dirname(trials[1])).is_dir()  # nothing moved yet
+    pending, started, unrecorded = read_resume(exp, trials)
+    assert trials[1] in pending and not started and not unrecorded
+    assert (exp / trial_dirname(trials[1])).is_dir()  # nothing moved yet
     drop_unstarted(exp, pending)
     assert not (exp / trial_dirname(trials[1])).exists()
-    (exp / trial_dirname(trials[2])).mkdir()
-    (exp / trial_dirname(trials[2]) / "result.json").write_text("")  # not empty: its record is what is missing
-    with pytest.raises(RunDirError, match=r"without its params\.json"):
-        read_resume(exp, trials)
+
+
+def test_a_trial_killed_as_it_wrote_its_first_checkpoint_is_kept_aside_and_trains_again(sweep, tmp_path):
+    """SIGKILLed there, the trial's folder held its checkpoint while its params.json and results were still in Ray's
+    staging folder: every `--resume` was refused until the folder was moved by hand."""
+    import io
+
+    from smorphi_rl.training.sweep import set_aside_unrecorded
+
+    trials = sweep.trials()
+    exp = tmp_path / "exp"
+    cut = exp / trial_dirname(trials[2]) / "checkpoint_000000"
+    cut.mkdir(parents=True)
+    (cut / "rllib_checkpoint.json").write_text("{}")
+    pending, started, unrecorded = read_resume(exp, trials)
+    assert trials[2] in pending and not started and unrecorded == [cut.parent]
+    out = io.StringIO()
+    set_aside_unrecorded(unrecorded, out)
+    kept = cut.parent.with_name(cut.parent.name + ".cut-1")
+    assert (kept / "checkpoint_000000" / "rllib_checkpoint.json").is_file() and not cut.parent.exists()
+    assert f"kept as {kept.name}, and the trial trains again" in out.getvalue()
+    assert read_resume(exp, trials)[2] == []  # the kept folder is no trial's: the next resume passes it by
