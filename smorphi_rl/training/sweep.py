@@ -91,15 +91,18 @@ class SweepSummary:
 
 
 def sweep_trainable(
-    config: dict[str, Any], sweep: SweepConfig, optima: dict[str, Optimum], resume_points: dict[int, Path]
-) -> None:
+    config: dict[str, Any], sweep: SweepConfig, optima: dict[str, Optimum], resume_points: dict[int, Path],
+    exp: Path,
+) -> None:  # fmt: skip
     """One trial of the sweep: its TrainConfig, run by the project's one trainable with the callbacks `train`
     builds (the evaluation protocol against `optima`, fine-tuning from the sweep's checkpoint), continuing from
-    its entry in `resume_points` if it has one."""
+    its entry in `resume_points` if it has one. Its episodes are recorded straight into its folder under `exp`, as
+    `train`'s are: in Tune's staging folder they were copied over as they were written, and each episode came to
+    the sweep twice, a `.mcap.part` beside its `.mcap`."""
     cfg = sweep.base_config(config["algo"], tuple(config["maps"]), int(config["seed"]), dict(config.get("hp") or {}))
     base = None if cfg.pretrained is None else fine_tune_from(cfg.pretrained, cfg.env.to_dict())[1]
-    run_trial(cfg, trial_callbacks(cfg, optima, base), resume_from=resume_points.get(int(config["index"])),
-              stop=sweep.stop, resumable=True)  # fmt: skip
+    run_trial(cfg, trial_callbacks(cfg, optima, base), exp / trial_dirname(config),
+              resume_from=resume_points.get(int(config["index"])), stop=sweep.stop, resumable=True)  # fmt: skip
 
 
 _Started = dict[int, tuple[Path, Path | None]]
@@ -418,8 +421,8 @@ def _fit(
         def trial_resources(config: dict[str, Any]) -> Any:
             return resources(sweep.base_config(config["algo"], tuple(config["maps"]), 0, {}))
 
-        trainable = tune.with_resources(tune.with_parameters(sweep_trainable, sweep=sweep, optima=optima,
-                                                             resume_points=points), trial_resources)  # fmt: skip
+        with_data = tune.with_parameters(sweep_trainable, sweep=sweep, optima=optima, resume_points=points, exp=exp)
+        trainable = tune.with_resources(with_data, trial_resources)
         run_config = tune.RunConfig(
             name=sweep.name,
             storage_path=str(exp.parent),

@@ -123,6 +123,8 @@ def test_sweep_interrupted_then_resumed_loses_nothing(tmp_path):
         per_iteration = rows[0]["num_env_steps_sampled_lifetime"]  # 1,000 rounded up to whole steps of 16 envs
         assert rows[-1]["num_env_steps_sampled_lifetime"] == ITERATIONS * per_iteration >= 10_000  # restored
         holds_the_reported_policy(trial)  # a resumed trial still ends on the policy it reports
+        episodes = [p.name for p in (trial / "episodes").iterdir()]  # recorded straight into the trial's folder:
+        assert episodes and not [e for e in episodes if not e.endswith(".mcap")]  # no copy caught mid-write
         evaluated = [r for r in rows if r.get("eval")]  # every trial runs train's evaluation protocol
         assert evaluated and {r["smorphi_iteration"] for r in evaluated} >= {1, 5, 10}
         assert 0 <= evaluated[-1]["eval"]["share_within_1pct"] <= 1 and evaluated[-1]["eval"]["starts"] == 20
