@@ -216,6 +216,11 @@ def read_json_object(path: Path, what: str) -> dict[str, Any]:
     check_not_special(path, what)
     try:
         doc = json.loads(path.read_text()) if path.stat().st_size <= MAX_YAML_BYTES * 16 else None
+    except FileNotFoundError:
+        from smorphi_rl.rundir import cut_short
+
+        why = "the run stopped before it finished and wrote it" if cut_short(path.parent) else "no such file"
+        raise InputError(f"{path}: no {what}: {why}") from None
     except (OSError, UnicodeDecodeError, ValueError, RecursionError) as exc:  # RecursionError: nested far too deep
         raise InputError(f"{path}: not a readable {what} ({type(exc).__name__})") from None
     if not isinstance(doc, dict):

@@ -111,6 +111,18 @@ def in_use_by(run_dir: Path) -> int | None:
     return pid if _alive(pid) else None
 
 
+FINISHED_FILES = ("summary.json", "report.md")
+"""What a run writes once its results are whole (train, search: summary.json; compare: report.md)."""
+
+
+def cut_short(run_dir: Path) -> bool:
+    """Whether `run_dir` is a run stopped before it finished (killed, out of memory, a job's time limit): it holds
+    the claim of a process no longer running and none of FINISHED_FILES."""
+    pid = _claimant(run_dir)
+    gone = pid > 0 and pid != os.getpid() and not _alive(pid)
+    return gone and not any((run_dir / name).exists() for name in FINISHED_FILES)
+
+
 def _abandoned(run_dir: Path) -> bool:
     """A folder holding nothing but the claim of a process that is no longer alive (a run killed before it wrote
     anything): it may be claimed again."""
@@ -194,7 +206,13 @@ def check_run_dir(log_dir: str | Path, name: str) -> Path:
 
 
 def _taken(run_dir: Path) -> str:
-    """The refusal of a taken name, the folder named as every message names it (`rel`)."""
+    """The refusal of a taken name, the folder named as every message names it (`rel`); one a run was cut short in
+    says so (a job killed at its time limit and queued again met only "already exists")."""
+    if run_dir.is_dir() and cut_short(run_dir):
+        return (
+            f"run directory {rel(run_dir)} already exists, left by a run that stopped before it finished (its "
+            "process is gone); its files stay there: choose another --name, or move it away to use this one"
+        )
     return f"run directory {rel(run_dir)} already exists: choose another --name"
 
 

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from smorphi_rl.cli import main
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import (
     MARKER,
     RunDirError,
@@ -146,6 +147,30 @@ def test_a_folder_claimed_by_a_dead_process_is_reused_and_a_live_one_is_not(tmp_
             prepare_run_dir(tmp_path, "y")
     finally:
         live.kill()
+
+
+def test_a_run_killed_before_it_finished_is_named_so_when_its_name_or_its_files_are_asked_for(tmp_path):
+    """SIGKILLed mid-run (a job's time limit), a search left results.npz without summary.json: the same command said
+    only "already exists", and `compare` "not a readable search summary (FileNotFoundError)"."""
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import MARKER, RunDirError, prepare_run_dir
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    cut = tmp_path / "cut"
+    cut.mkdir()
+    (cut / MARKER).write_text(f"pid {int(dead.stdout)} at 2026-01-01T00:00:00\n")
+    (cut / "results.npz").write_bytes(b"")
+    with pytest.raises(RunDirError, match=r"left by a run that stopped before it finished .* move it away"):
+        prepare_run_dir(tmp_path, "cut")
+    with pytest.raises(SmorphiError, match=r"no search summary: the run stopped before it finished and wrote it"):
+        load_result(cut)
+    (cut / "summary.json").write_text("{}")  # a run that finished: only taken
+    with pytest.raises(RunDirError, match=r"cut already exists: choose another --name$"):
+        prepare_run_dir(tmp_path, "cut")
+    with pytest.raises(SmorphiError, match=r"no such file"):  # not a run's folder at all
+        load_result(tmp_path)
 
 
 def test_a_run_is_claimed_again_only_when_the_process_that_ran_it_is_gone(tmp_path):
