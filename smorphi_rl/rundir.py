@@ -333,6 +333,7 @@ def atomic_path(path: Path) -> Iterator[Path]:
     try:
         yield tmp
         os.replace(tmp, path)
+        _remove_stale_temporaries(path, f".tmp{path.suffix}")
     except OSError as exc:  # a full disk: name the file the user asked for, not our temporary one
         if exc.filename is None or Path(exc.filename) == tmp:
             raise naming(exc, path) from None
@@ -348,7 +349,7 @@ def _fresh_temporary(path: Path, suffix: str) -> tuple[int, Path]:
     import secrets
 
     for _ in range(100):
-        tmp = path.with_name(f".{path.stem}.{secrets.token_hex(6)}{suffix}")
+        tmp = path.with_name(f".{path.stem}.{os.getpid()}-{secrets.token_hex(6)}{suffix}")
         try:
             return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666), tmp
         except FileExistsError:
@@ -368,12 +369,26 @@ def write_atomic(path: Path, data: bytes) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+        _remove_stale_temporaries(path, ".tmp")
     except OSError as exc:
         if exc.filename is None or Path(exc.filename) == tmp:
             raise naming(exc, path) from None
         raise
     finally:
         tmp.unlink(missing_ok=True)
+
+
+def _remove_stale_temporaries(path: Path, suffix: str) -> None:
+    """Remove the temporaries beside `path` that writers no longer running left (`_fresh_temporary`'s names carry
+    the writer's pid): a process killed mid-write (SIGKILL, out of memory) left its empty `.pareto.<hex>.tmp.png`
+    for good. A live writer's stays."""
+    import glob
+
+    for stale in path.parent.glob(f".{glob.escape(path.stem)}.*-*{glob.escape(suffix)}"):
+        pid, sep, _ = stale.name.removeprefix(f".{path.stem}.").partition("-")
+        if sep and pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+            with contextlib.suppress(OSError):
+                stale.unlink()
 
 
 FORCE_HINT = "pass --force to overwrite it"

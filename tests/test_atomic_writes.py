@@ -99,3 +99,28 @@ def test_a_temporary_file_is_fresh_and_a_planted_link_is_never_followed(tmp_path
         two.write_bytes(b"2")
     assert (tmp_path / "a.png").read_bytes() == b"1"  # the outer block ends last
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == [f".{target.name}.{os.getpid()}.tmp"]
+
+
+def test_a_temporary_a_killed_writer_left_is_removed_by_the_next_write_and_a_live_ones_stays(tmp_path):
+    """A search SIGKILLed as it drew its front left an empty `.pareto.<hex>.tmp.png` beside pareto.png for good."""
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import atomic_path, write_atomic
+
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)  # fmt: skip
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        left = [tmp_path / f".pareto.{dead}-0123456789ab.tmp.png", tmp_path / f".summary.{dead}-0123456789ab.tmp"]
+        kept = [tmp_path / f".pareto.{live.pid}-0123456789ab.tmp.png", tmp_path / ".pareto.notes.tmp.png"]
+        for path in left + kept:
+            path.write_bytes(b"")
+        with atomic_path(tmp_path / "pareto.png") as tmp:
+            tmp.write_bytes(b"png")
+        write_atomic(tmp_path / "summary.json", b"{}")
+        assert not any(p.exists() for p in left) and all(p.exists() for p in kept)
+        shown = sorted(p.name for p in tmp_path.iterdir() if not p.name.startswith("."))
+        assert shown == ["pareto.png", "summary.json"]
+    finally:
+        live.kill()
