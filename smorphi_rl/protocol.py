@@ -246,13 +246,13 @@ def make_cache(folder: Path, writing: bool = False) -> Path:
     """The optimum cache `folder`, made if need be; one line naming the option to change where it cannot be made,
     or, `writing` (an optimum is about to be computed), written into: else every run would compute it again, unsaid.
     A folder read-only but holding the optimum serves it."""
-    import tempfile
+    from smorphi_rl.rundir import make_writable
 
     try:
-        folder.mkdir(parents=True, exist_ok=True)
         if writing:
-            with tempfile.TemporaryFile(dir=folder):
-                pass
+            make_writable(folder)
+        else:
+            folder.mkdir(parents=True, exist_ok=True)
     except OSError as exc:  # a read-only working folder under the default --log-dir: name the option
         import os
 

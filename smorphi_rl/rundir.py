@@ -274,24 +274,42 @@ def discard_run_dir(run_dir: Path) -> None:
             child.unlink(missing_ok=True)
 
 
-def writable_folder(folder: Path) -> bool:
-    """Whether a file can be made in `folder`, made first if missing (as the library that asks would make it)."""
+def make_writable(folder: Path) -> None:
+    """Make `folder` if missing and make a file in it (removed at once); the OSError where either fails."""
     import tempfile
 
+    folder.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryFile(dir=folder):
+        pass
+
+
+def writable_folder(folder: Path) -> bool:
+    """Whether a file can be made in `folder`, made first if missing (as the library that asks would make it)."""
     try:
-        folder.mkdir(parents=True, exist_ok=True)
-        with tempfile.TemporaryFile(dir=folder):
-            return True
+        make_writable(folder)
     except OSError:
         return False
+    return True
 
 
 def own_temp_folder(library: str) -> str:
     """A folder of this user's in the temp folder for a `library`'s cache where the library's own places cannot be
-    written (a read-only install, an unwritable HOME): kept across runs, unlike a library's own fallback."""
+    written (a read-only install, an unwritable HOME): kept across runs, unlike a library's own fallback. Another
+    user could make that name first (numba unpickles its cache index): it is used only as a folder, not a link,
+    owned by this user and written by no one else; otherwise a fresh folder of this run's own."""
+    import stat
     import tempfile
 
-    return str(Path(tempfile.gettempdir()) / f"smorphi-rl-{library}-{os.getuid()}")
+    folder = Path(tempfile.gettempdir()) / f"smorphi-rl-{library}-{os.getuid()}"
+    with contextlib.suppress(OSError):
+        folder.mkdir(mode=0o700)
+    try:
+        st = folder.lstat()
+        if stat.S_ISDIR(st.st_mode) and st.st_uid == os.getuid() and not st.st_mode & (stat.S_IWGRP | stat.S_IWOTH):
+            return str(folder)
+    except OSError:
+        pass
+    return tempfile.mkdtemp(prefix=f"smorphi-rl-{library}-")
 
 
 def write_text_atomic(path: Path, text: str) -> None:

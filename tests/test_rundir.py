@@ -326,3 +326,22 @@ def test_a_folder_that_cannot_be_made_is_named_for_what_failed(tmp_path, monkeyp
     monkeypatch.setattr(Path, "mkdir", full)
     with pytest.raises(RunDirError, match=r"cannot create the run directory .*run-1 \(No space left on device\)"):
         prepare_run_dir(tmp_path / "logs", "run-1")
+
+
+def test_a_cache_folder_another_user_could_plant_is_used_only_when_it_is_ours(tmp_path, monkeypatch):
+    """The fallback cache folder has a fixed name in the shared temp folder, and numba unpickles its cache index:
+    one made first by another user (or a link to one) would have run their code."""
+    import tempfile
+
+    from smorphi_rl.rundir import own_temp_folder
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    ours = tmp_path / f"smorphi-rl-numba-{os.getuid()}"
+    assert own_temp_folder("numba") == str(ours) and ours.stat().st_mode & 0o777 == 0o700
+    ours.chmod(0o777)  # writable by others: not used
+    other = Path(own_temp_folder("numba"))
+    assert other != ours and other.parent == tmp_path and other.name.startswith("smorphi-rl-numba-")
+    ours.chmod(0o700)
+    ours.rename(tmp_path / "elsewhere")
+    ours.symlink_to(tmp_path / "elsewhere")  # a link planted under the name: not followed
+    assert own_temp_folder("numba") != str(ours)
