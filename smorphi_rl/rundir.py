@@ -402,9 +402,10 @@ def _remove_stale_temporaries(path: Path, suffix: str) -> None:
     for good. A live writer's stays."""
     import glob
 
+    ours = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[0-9a-f]{{12}}{re.escape(suffix)}")
     for stale in path.parent.glob(f".{glob.escape(path.stem)}.*-*{glob.escape(suffix)}"):
-        pid, sep, _ = stale.name.removeprefix(f".{path.stem}.").partition("-")
-        if sep and pid.isdigit() and int(pid) != os.getpid() and not _alive(int(pid)):
+        # exactly `_fresh_temporary`'s name for this file: `room.json`'s is no `room.2024-01.json`'s
+        if (m := ours.fullmatch(stale.name)) and int(m[1]) != os.getpid() and not _alive(int(m[1])):
             with contextlib.suppress(OSError):
                 stale.unlink()
 

@@ -113,7 +113,11 @@ def test_a_temporary_a_killed_writer_left_is_removed_by_the_next_write_and_a_liv
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     try:
         left = [tmp_path / f".pareto.{dead}-0123456789ab.tmp.png", tmp_path / f".summary.{dead}-0123456789ab.tmp"]
-        kept = [tmp_path / f".pareto.{live.pid}-0123456789ab.tmp.png", tmp_path / ".pareto.notes.tmp.png"]
+        kept = [
+            tmp_path / f".pareto.{live.pid}-0123456789ab.tmp.png",
+            tmp_path / ".pareto.notes.tmp.png",
+            tmp_path / f".summary.2024-01.{dead}-0123456789ab.tmp",
+        ]  # summary.2024-01.json's, not summary.json's
         for path in left + kept:
             path.write_bytes(b"")
         with atomic_path(tmp_path / "pareto.png") as tmp:
