@@ -274,6 +274,7 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
                 img = img.convert("L")
             data = np.asarray(img)
             mode = img.mode
+            key = img.info.get("transparency") if mode.startswith("I") else None  # a 16-bit grey's transparent grey
     except FileNotFoundError:
         raise MapError(f"map image not found: {path}") from None
     except (UnidentifiedImageError, OSError, ValueError, SyntaxError) as exc:  # SyntaxError: Pillow's damaged PNG
@@ -284,6 +285,8 @@ def _read_image(path: Path) -> tuple[np.ndarray, np.ndarray | None, float]:
     alpha = None
     if mode in ("RGBA", "LA"):
         alpha, data = data[..., -1], data[..., :-1]
+    elif isinstance(key, int) and data.ndim == 2:  # Pillow keeps a 16-bit grey's key aside: alpha 0 there, as nav2
+        alpha = np.where(data == key, 0.0, max_value)
     if data.ndim == 3:  # map_server averages the colour channels; summed a channel at a time (integers: exact), so
         gray = data[..., 0].astype(np.float64)  # a 5,000 x 5,000 16-bit RGBA image takes 0.2 GB of floats, not 0.8
         for channel in range(1, data.shape[2]):
@@ -391,7 +394,7 @@ def load_map(yaml_path: str | Path) -> Map:
     # negate and the thresholds decide which cell is floor: a default would guess it (ROS refuses too)
     negate = _require(meta, "negate", path, CLASSIFYING_HINT)
     if not isinstance(negate, int):  # an integer, any but 0 true, as map_server reads it (bool is an int)
-        raise MapError(f"{path}: 'negate' must be 0 or 1, got {_shown(negate)}")
+        raise MapError(f"{path}: 'negate' must be an integer (0, or any other to negate), got {_shown(negate)}")
     occupied_thresh = _number(meta, "occupied_thresh", path, hint=CLASSIFYING_HINT)
     free_thresh = _number(meta, "free_thresh", path, hint=CLASSIFYING_HINT)
     if not 0.0 < free_thresh < occupied_thresh < 1.0:  # compared strictly: at 0 no grey is free, at 1 none occupied

@@ -111,8 +111,9 @@ def in_use_by(run_dir: Path) -> int | None:
     return pid if _alive(pid) else None
 
 
-FINISHED_FILES = ("summary.json", "report.md")
-"""What a run writes once its results are whole (train, search: summary.json; compare: report.md)."""
+FINISHED_FILES = ("summary.json", "report.md", "transfer.md", "sweep.md")
+"""What a run writes once its results are whole (train, search: summary.json; compare: report.md; a transfer job
+and a sweep: their tables)."""
 
 
 def cut_short(run_dir: Path) -> bool:

@@ -68,6 +68,15 @@ def test_a_pngs_transparent_colour_is_alpha_as_nav2_reads_it(tmp_path, colour):
         assert load_map(tmp_path / "key.yaml").cells[0].tolist() == cells, mode
 
 
+def test_a_16_bit_grey_pngs_transparent_grey_is_alpha_too(tmp_path):
+    """Pillow reads a 16-bit grey PNG with a transparent grey as mode I;16 and keeps the key aside: it read opaque."""
+    grey = np.array([[65_278, 0, 65_535, 52_685]], dtype=np.uint16)  # 254, 0, 255, 205 on 8 bits
+    Image.fromarray(grey).save(tmp_path / "key16.png", transparency=65_535)
+    doc = {"image": "key16.png", "resolution": 0.05, "mode": "scale"} | THRESHOLDS
+    (tmp_path / "key16.yaml").write_text(yaml.safe_dump(doc))
+    assert load_map(tmp_path / "key16.yaml").cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED, Cell.UNKNOWN, Cell.FREE]
+
+
 def test_scale_mode_frees_a_grey_whose_occupancy_rounds_to_0(tmp_path):
     """nav2 writes rint(100 (p - free) / (occupied - free)) between the thresholds: just above free_thresh that is 0,
     which an OccupancyGrid reads as free. Grey 205 under 0.65 / 0.196: p = 0.19608, 0.0 after rounding."""
@@ -105,7 +114,7 @@ def test_negate_and_mode_are_read_as_map_server_reads_them(tmp_path):
     assert m.cells[0].tolist() == [Cell.FREE, Cell.OCCUPIED]
     assert load_map(write_map(tmp_path, np.array([[0, 255]]), mode="RAW")).cells[0].tolist() == [
         Cell.FREE, Cell.UNKNOWN]  # fmt: skip
-    with pytest.raises(MapError, match="'negate' must be 0 or 1, got 'yes please'"):
+    with pytest.raises(MapError, match=r"'negate' must be an integer \(0, or any other to negate\), got 'yes please'"):
         load_map(write_map(tmp_path, np.array([[0, 255]]), negate="yes please"))
 
 

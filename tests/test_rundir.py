@@ -166,9 +166,11 @@ def test_a_run_killed_before_it_finished_is_named_so_when_its_name_or_its_files_
         prepare_run_dir(tmp_path, "cut")
     with pytest.raises(SmorphiError, match=r"no search summary: the run stopped before it finished and wrote it"):
         load_result(cut)
-    (cut / "summary.json").write_text("{}")  # a run that finished: only taken
-    with pytest.raises(RunDirError, match=r"cut already exists: choose another --name$"):
-        prepare_run_dir(tmp_path, "cut")
+    for finished in ("summary.json", "transfer.md"):  # a run that finished (a transfer job: its table): only taken
+        (cut / finished).write_text("{}")
+        with pytest.raises(RunDirError, match=r"cut already exists: choose another --name$"):
+            prepare_run_dir(tmp_path, "cut")
+        (cut / finished).unlink()
     with pytest.raises(SmorphiError, match=r"no such file"):  # not a run's folder at all
         load_result(tmp_path)
 
