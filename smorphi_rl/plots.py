@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -18,10 +19,10 @@ from smorphi_rl.words import counted
 
 def config_fallback() -> str | None:
     """Where matplotlib should keep its config and font cache when it cannot write its own folders (an unwritable
-    HOME): it would make a fresh temp folder each run, rebuild its font cache there and print two lines saying
-    so; None where it can, or MPLCONFIGDIR says."""
-    if os.environ.get("MPLCONFIGDIR"):
-        return None
+    HOME, on Linux): it would make a fresh temp folder each run, rebuild its font cache there and print two lines
+    saying so; None where it can, or MPLCONFIGDIR says."""
+    if os.environ.get("MPLCONFIGDIR") or not sys.platform.startswith(("linux", "freebsd")):
+        return None  # (elsewhere matplotlib keeps one folder, ~/.matplotlib, which is left to it)
     own = [Path(os.path.expanduser(os.environ.get(name) or default)) / "matplotlib"
            for name, default in (("XDG_CONFIG_HOME", "~/.config"), ("XDG_CACHE_HOME", "~/.cache"))]  # fmt: skip
     if not all(folder.is_absolute() for folder in own) or all(writable_folder(folder) for folder in own):
