@@ -268,14 +268,27 @@ def usable_cpus() -> int:
     return max(1, min(cores, math.ceil(quota)) if quota else cores)
 
 
-def _cgroup_quota(root: Path = Path("/sys/fs/cgroup")) -> float | None:
-    """The CPUs the cgroup's quota allows (cgroup v2's cpu.max, else v1's CFS quota), None where unlimited or not
-    Linux."""
+def _cgroup_quota(root: Path = Path("/sys/fs/cgroup"), own: Path = Path("/proc/self/cgroup")) -> float | None:
+    """The CPUs the cgroup quotas allow this process (cgroup v2's cpu.max on its own group and every group above it,
+    the least; else v1's CFS quota), None where unlimited or not Linux. `own`: the file naming the process's group
+    (a systemd unit's CPUQuota, a container started in the host's cgroup namespace lie below the top)."""
     try:
-        quota, period = (root / "cpu.max").read_text().split()[:2]
-        return None if quota == "max" else int(quota) / int(period)
-    except (OSError, ValueError):
-        pass
+        group = next((line[3:].strip() for line in own.read_text().splitlines() if line.startswith("0::")), "/")
+    except OSError:
+        group = "/"
+    here = Path(os.path.normpath(root / group.lstrip("/")))
+    quotas = []
+    for level in (here, *here.parents):
+        if not level.is_relative_to(root):
+            break
+        try:
+            quota, period = (level / "cpu.max").read_text().split()[:2]
+            if quota != "max":
+                quotas.append(int(quota) / int(period))
+        except (OSError, ValueError):
+            continue
+    if quotas:
+        return min(quotas)
     try:
         v1 = root / "cpu"
         quota_us = int((v1 / "cpu.cfs_quota_us").read_text())

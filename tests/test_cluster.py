@@ -181,7 +181,23 @@ def test_a_containers_cpu_quota_is_read_from_cgroup_v2_or_v1(tmp_path, files, qu
     for name, text in files.items():
         (tmp_path / name).parent.mkdir(exist_ok=True)
         (tmp_path / name).write_text(text)
-    assert cluster._cgroup_quota(tmp_path) == quota
+    assert cluster._cgroup_quota(tmp_path, tmp_path / "no-such-file") == quota
+
+
+def test_a_quota_on_the_processs_own_cgroup_below_the_top_counts(tmp_path):
+    """Only the top group's cpu.max was read: a systemd unit's CPUQuota (or a container in the host's cgroup
+    namespace) lies on the process's own group, below it. The least quota on the way up holds."""
+    (tmp_path / "cpu.max").write_text("max 100000\n")
+    (tmp_path / "jobs.slice" / "job-7.scope").mkdir(parents=True)
+    (tmp_path / "jobs.slice" / "cpu.max").write_text("400000 100000\n")
+    (tmp_path / "jobs.slice" / "job-7.scope" / "cpu.max").write_text("150000 100000\n")
+    own = tmp_path / "cgroup"
+    own.write_text("0::/jobs.slice/job-7.scope\n")
+    assert cluster._cgroup_quota(tmp_path, own) == 1.5
+    own.write_text("0::/jobs.slice/other.scope\n")  # a group with no file of its own: the one above
+    assert cluster._cgroup_quota(tmp_path, own) == 4.0
+    own.write_text("0::/../../etc\n")  # nothing above the top is read
+    assert cluster._cgroup_quota(tmp_path, own) is None
 
 
 def test_the_usable_cores_are_within_the_machines_and_the_quota(monkeypatch):
