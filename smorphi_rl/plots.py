@@ -222,6 +222,52 @@ def plot_learning_curves(
     return _save(fig, out)
 
 
+def _steps_axis(ax: plt.Axes) -> None:
+    """Env steps in thousands, five ticks at most: 200,000-step runs' full numbers ran into one another."""
+    from matplotlib.ticker import FuncFormatter, MaxNLocator
+
+    ax.xaxis.set_major_locator(MaxNLocator(5))
+    ax.xaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v / 1000:g}k"))
+    ax.set_xlabel("env steps")
+    ax.grid(alpha=0.3)
+
+
+TRANSFER_COLOURS = {"fine-tune": "#1f77b4", "scratch": "#ff7f0e"}
+
+
+def plot_transfer_curves(
+    maps: dict[str, dict[str, list[tuple[list[float], list[float]]]]], out: str | Path, equal_steps: int = 0
+) -> Path:
+    """Table 5's curves: one panel per held-out map, the greedy median gap to the exact optimum against env steps,
+    a thin line per seed coloured by mode (fine-tuned, from scratch), the table's comparison point dashed. One
+    legend of the modes: a line per run in the legend (18 runs) covered the panels."""
+    cols = max(1, min(3, len(maps)))
+    rows = max(1, -(-len(maps) // cols))
+    fig, axes = plt.subplots(rows, cols, figsize=(5 * cols, 3.6 * rows), squeeze=False)
+    for ax in axes.ravel()[len(maps) :]:
+        ax.set_axis_off()
+    for ax, (name, modes) in zip(axes.ravel(), maps.items(), strict=False):
+        for mode, runs in modes.items():
+            colour = TRANSFER_COLOURS.get(mode, "grey")
+            for n, (steps, gaps) in enumerate(runs):
+                x, y = np.asarray(steps, dtype=float), np.asarray(gaps, dtype=float)
+                ok = np.isfinite(y)
+                ax.plot(x[ok], y[ok], color=colour, lw=1.1, alpha=0.8, marker="o" if ok.sum() < FEW_POINTS else None,
+                        ms=2.5, label=f"{mode} ({counted(len(runs), 'seed')})" if n == 0 else None)  # fmt: skip
+        ax.axhline(0.0, color="black", lw=0.8)
+        if equal_steps:
+            ax.axvline(equal_steps, color="grey", ls="--", lw=0.9, label=f"compared at {equal_steps:,}")
+        ax.set_title(name, fontsize=10)
+        ax.set_ylabel("greedy median gap to R1* (R1)")
+        _steps_axis(ax)
+    handles, labels = axes.ravel()[0].get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, labels, loc="lower center", bbox_to_anchor=(0.5, 1.0), ncol=len(handles), fontsize=8,
+                   frameon=False, title="fine-tuned against from scratch on each held-out map (a line per seed)",
+                   title_fontsize=10)  # fmt: skip
+    return _save(fig, out)
+
+
 def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | Path) -> Path:
     """A sweep's Figure 5: per map set (columns), mean episode return and the greedy settled R1 (rows) against env
     steps, one line per algorithm and hyperparameters: the mean over seeds, shaded over its 95 % bootstrap band."""

@@ -117,3 +117,25 @@ def test_matplotlib_keeps_one_folder_of_its_own_where_it_cannot_write_in_home(tm
     env["MPLCONFIGDIR"] = str(tmp_path / "mine")  # the user's choice stands
     proc = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, cwd=tmp_path)
     assert proc.stdout.strip() == str(tmp_path / "mine")
+
+
+def test_transfer_curves_take_a_panel_a_map_and_a_legend_entry_a_mode(tmp_path, monkeypatch):
+    """With 18 runs in one figure the legend (a line per run) covered the panels and colours repeated."""
+    import matplotlib.pyplot as plt
+
+    from smorphi_rl import plots
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    runs = [([10_000.0, 20_000.0, 30_000.0], [5.0, 2.0, float("nan")])] * 3
+    maps = {f"m{k}": {"fine-tune": runs, "scratch": runs} for k in range(4)}
+    out = plots.plot_transfer_curves(maps, tmp_path / "t.png", 20_000)
+    assert out.stat().st_size > 10_000
+    (fig,) = saved
+    drawn = [ax for ax in fig.axes if ax.get_visible() and ax.axison]
+    assert [ax.get_title() for ax in drawn] == ["m0", "m1", "m2", "m3"]
+    (legend,) = fig.legends
+    assert [t.get_text() for t in legend.get_texts()] == ["fine-tune (3 seeds)", "scratch (3 seeds)",
+                                                          "compared at 20,000"]  # fmt: skip
+    plt.close(fig)

@@ -331,7 +331,7 @@ def summary_curve(run_dir: Path) -> dict[str, list[float]]:
 
 def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, Path]:
     """transfer.csv, transfer.md (the paper's Table 5) and transfer_curves.png."""
-    from smorphi_rl.plots import plot_learning_curves
+    from smorphi_rl.plots import plot_transfer_curves
 
     files = {"csv": job_dir / "transfer.csv", "md": job_dir / "transfer.md", "png": job_dir / "transfer_curves.png"}
     cut = sum(r.interrupted for r in runs)
@@ -374,8 +374,11 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
             f"| {median_interval([r.plateau for r in m.scratch]).text()} | {best} |"
         )
     write_text_atomic(files["md"], "\n".join(lines) + "\n")
-    curves = {f"{r.map_name} {r.mode} s{r.seed}": r.curve for r in runs}
-    plot_learning_curves(curves, files["png"])
+    curves: dict[str, dict[str, list[tuple[list[float], list[float]]]]] = {}
+    for r in runs:
+        if GAP_KEY in r.curve:
+            curves.setdefault(r.map_name, {}).setdefault(r.mode, []).append((r.curve["env_steps"], r.curve[GAP_KEY]))
+    plot_transfer_curves(curves, files["png"], equal)
     return files
 
 
