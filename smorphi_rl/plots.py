@@ -402,6 +402,10 @@ def _save(fig: plt.Figure, out: str | Path) -> Path:
     return path
 
 
+BEST_MARKERS = (("*", 170), ("P", 110), ("X", 110), ("D", 70), ("^", 90), ("v", 90), ("s", 70), ("p", 100))
+"""Each method's best-R1 marker and size; earlier methods' drawn larger, so where they coincide all show."""
+
+
 def plot_pareto(
     methods: dict[str, tuple[np.ndarray, np.ndarray]],
     out: str | Path,
@@ -417,13 +421,15 @@ def plot_pareto(
     for n, (label, (p_len, p_c)) in enumerate(methods.items()):
         colour = f"C{n}"
         ax.scatter(p_len, p_c, s=22, color=colour, alpha=0.85, label=label, zorder=2)
-        if best and label in best:
-            ax.scatter(*best[label], s=160, marker="*", color=colour, edgecolor="black", zorder=3)
+        if best and label in best:  # a marker of its own each: methods' bests often fall on one shape
+            marker, size = BEST_MARKERS[n % len(BEST_MARKERS)]
+            ax.scatter(*best[label], s=size + 60 * (len(best) - n - 1), marker=marker, facecolor=colour,
+                       edgecolor="black", alpha=0.9, zorder=3 + n, label=f"{label}: best R1")  # fmt: skip
     ax.set_xlabel("P_len (tile moves)")
     ax.set_ylabel("P_c (%)")
     ax.set_title(title, fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=8, loc="lower right", ncol=2 if best and len(methods) > 2 else 1, markerscale=0.7)
     return _save(fig, out)
 
 

@@ -139,3 +139,21 @@ def test_transfer_curves_take_a_panel_a_map_and_a_legend_entry_a_mode(tmp_path, 
     assert [t.get_text() for t in legend.get_texts()] == ["fine-tune (3 seeds)", "scratch (3 seeds)",
                                                           "compared at 20,000"]  # fmt: skip
     plt.close(fig)
+
+
+def test_each_methods_best_shape_shows_and_is_named_where_they_coincide(tmp_path, monkeypatch):
+    """compare.png drew every method's best as a star of its colour: on one shape only the last showed, unnamed."""
+    from smorphi_rl import plots
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    points = (np.array([60.0, 69.0]), np.array([95.0, 97.3]))
+    methods = {"PPO": points, "NSGA-II": points, "random": points}
+    plots.plot_pareto(methods, tmp_path / "p.png", "t", front=points, best=dict.fromkeys(methods, (69.0, 97.3)))
+    (ax,) = saved[0].axes
+    labels = [t.get_text() for t in ax.get_legend().get_texts()]
+    assert {"PPO: best R1", "NSGA-II: best R1", "random: best R1"} <= set(labels)
+    bests = [c for c in ax.collections if c.get_label().endswith(": best R1")]
+    assert len({c.get_paths()[0].vertices.tobytes() for c in bests}) == 3  # a marker shape each
+    assert sorted(c.get_sizes()[0] for c in bests) == sorted({c.get_sizes()[0] for c in bests})  # no two one size
