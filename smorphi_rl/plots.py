@@ -144,6 +144,10 @@ def draw_coverage(
         for y in np.arange(y0 + (row0 % l) * r, y1 + 1e-9, l * r):
             ax.axhline(y, color="#4a90d9", lw=0.4, alpha=0.5)
     pts = path_points_m(result, grid_map)
+    ax.set_facecolor("#ececec")  # beyond the map's edge: not to be read as free floor
+    (xa, xb), (ya, yb) = ax.get_xlim(), ax.get_ylim()  # the paper's planner may stand the robot past the map's edge:
+    ax.set_xlim(min(xa, pts[:, 0].min() - w * r / 2), max(xb, pts[:, 0].max() + w * r / 2))  # its whole path shows
+    ax.set_ylim(min(ya, pts[:, 1].min() - l * r / 2), max(yb, pts[:, 1].max() + l * r / 2))
     ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=path_width(len(pts)), label="coverage path")
     ax.plot(pts[0, 0], pts[0, 1], "o", color="#ffd700", mec="black", mew=1.2, ms=9, zorder=5, label="start")
     draw_morphology(ax, morphology, block_side_m, (x0 + col0 * r, y0 + row0 * r))

@@ -157,3 +157,28 @@ def test_each_methods_best_shape_shows_and_is_named_where_they_coincide(tmp_path
     bests = [c for c in ax.collections if c.get_label().endswith(": best R1")]
     assert len({c.get_paths()[0].vertices.tobytes() for c in bests}) == 3  # a marker shape each
     assert sorted(c.get_sizes()[0] for c in bests) == sorted({c.get_sizes()[0] for c in bests})  # no two one size
+
+
+def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_maps_edge(tmp_path, monkeypatch):
+    """The paper's planner lets tiles overhang the map: on map-1 (95, 59, 103) 13 of 91 path points lay at y 5.2
+    of a 5 m map, cut off by axes that stopped at its edge."""
+    from pathlib import Path
+
+    from smorphi_rl import plots
+    from smorphi_rl.coverage import path_points_m
+    from smorphi_rl.geometry import Morphology
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import Evaluator
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    grid = load_map(Path(__file__).resolve().parents[1] / "maps" / "map-1.yaml")
+    shape = Morphology.of((95, 59, 103))
+    result = Evaluator(grid).plan(shape)
+    plots.plot_coverage(result, grid, shape, 0.17, tmp_path / "e.png")
+    pts = path_points_m(result, grid)
+    assert pts[:, 1].max() > grid.origin[1] + grid.height * grid.resolution_m  # past the edge: the case at hand
+    ax = saved[0].axes[1]
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    assert x0 <= pts[:, 0].min() and pts[:, 0].max() <= x1 and y0 <= pts[:, 1].min() and pts[:, 1].max() <= y1
