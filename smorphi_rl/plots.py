@@ -193,16 +193,18 @@ FEW_POINTS = 20
 
 
 def plot_learning_curves(
-    curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None
-) -> Path:
+    curves: dict[str, dict[str, list[float]]], out: str | Path, optimum_r1: float | None = None,
+    title: str | None = None, kept_steps: float | None = None,
+) -> Path:  # fmt: skip
     """Mean episode return, the iteration's best R1 and the greedy policy's settled R1 (the evaluation protocol;
-    the stochastic final-shape R1 beside it) against env steps (paper Figure 5).
+    the stochastic final-shape R1 beside it) against env steps (paper Figure 5), under `title` (the run), the
+    policy a run ends on marked at `kept_steps` where it is not the last.
 
     `curves[label]` has lists `env_steps`, `episode_return_mean`, `best_R1` and optionally `eval_R1`, `final_R1`."""
     panels = [("episode_return_mean", "mean episode return"), ("best_R1", "best R1 of the episodes in each iteration"),
               ("eval_R1", "greedy settled R1, mean over the fixed starts")]  # fmt: skip
     fig, axes = plt.subplots(1, 3, figsize=(17, 4.4))
-    for ax, (key, title) in zip(axes, panels, strict=True):
+    for ax, (key, heading) in zip(axes, panels, strict=True):
         for label, c in curves.items():
             if key in c:
                 x, y = np.asarray(c["env_steps"], dtype=float), np.asarray(c[key], dtype=float)
@@ -218,11 +220,14 @@ def plot_learning_curves(
         if optimum_r1 is not None and key != "episode_return_mean":
             ax.axhline(optimum_r1, color="black", ls="--", lw=1, label=f"optimum {optimum_r1:.2f}")
             ax.axhline(0.99 * optimum_r1, color="grey", ls=":", lw=1, label="99 % of optimum")
-        ax.set_title(title, fontsize=10)
-        ax.set_xlabel("env steps")
-        ax.grid(alpha=0.3)
+        if kept_steps is not None and key == "eval_R1":
+            ax.axvline(kept_steps, color="#2ca02c", ls="-.", lw=1, label=f"policy kept ({kept_steps:,.0f} env steps)")
+        ax.set_title(heading, fontsize=10)
+        _steps_axis(ax)
         if ax.get_legend_handles_labels()[0]:  # a panel with nothing drawn (evaluation off) has no legend
             ax.legend(fontsize=8)
+    if title:
+        fig.suptitle(title, fontsize=11)
     return _save(fig, out)
 
 
@@ -296,8 +301,7 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
                 (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, marker=dots, ms=3, label=label)
                 ax.fill_between(c["env_steps"], c[f"{key}_lo"], c[f"{key}_hi"], color=drawn.get_color(), alpha=0.15)
             ax.set_title(f"{maps}: {title}", fontsize=10)
-            ax.set_xlabel("env steps")
-            ax.grid(alpha=0.3)
+            _steps_axis(ax)
             if not ax.get_legend_handles_labels()[0]:
                 continue
             if crowded:

@@ -182,3 +182,20 @@ def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_ma
     ax = saved[0].axes[1]
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
     assert x0 <= pts[:, 0].min() and pts[:, 0].max() <= x1 and y0 <= pts[:, 1].min() and pts[:, 1].max() <= y1
+
+
+def test_learning_curves_name_their_run_and_mark_the_policy_it_keeps(tmp_path, monkeypatch):
+    """The figure had no title (which map, algorithm, seed?) and its last point read as the result, though the run
+    keeps an earlier policy."""
+    from smorphi_rl import plots
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    curve = {"env_steps": [1e4, 2e4, 3e4], "episode_return_mean": [1.0, 2.0, 3.0], "best_R1": [80.0, 85.0, 90.0],
+             "eval_R1": [84.0, 90.1, 88.0]}  # fmt: skip
+    plots.plot_learning_curves({"PPO": curve}, tmp_path / "c.png", 90.4, "PPO on map-1, seed 0: run", 20_000)
+    fig = saved[0]
+    assert fig.get_suptitle() == "PPO on map-1, seed 0: run"
+    labels = [t.get_text() for t in fig.axes[2].get_legend().get_texts()]
+    assert "policy kept (20,000 env steps)" in labels

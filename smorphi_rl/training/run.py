@@ -21,6 +21,7 @@ from smorphi_rl import cluster, interrupts, jsontext
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import Morphology, angles_text
+from smorphi_rl.map_sources import map_label
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import StatusLine, bar, optimum_progress
 from smorphi_rl.protocol import (
@@ -207,9 +208,14 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
             files[key] = plot_top_morphologies(items, grid_map, cfg.env.block_side_m, png)
     if progress.curve["env_steps"]:
         reference = next(iter(optimum.values())).R1 if len(optimum) == 1 else None
+        kept = progress.last_eval.get("policy_env_steps")
+        kept = kept if isinstance(kept, int | float) and kept < max(progress.curve["env_steps"]) else None
+        labels = [map_label(entry) for entry in cfg.env.maps]
+        maps = " + ".join(labels if len(labels) <= 3 else [*labels[:2], f"{len(labels) - 2} more"])
         files["curves_png"] = plot_learning_curves(
-            {cfg.algo.upper(): progress.curve}, run_dir / "learning_curves.png", reference
-        )
+            {cfg.algo.upper(): progress.curve}, run_dir / "learning_curves.png", reference,
+            f"{cfg.algo.upper()} on {maps}, seed {cfg.seed}: {run_dir.name}", kept,
+        )  # fmt: skip
     return files
 
 
