@@ -277,12 +277,17 @@ def plot_transfer_curves(
     return _save(fig, out)
 
 
-def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | Path) -> Path:
+def plot_sweep_curves(
+    groups: dict[str, dict[str, dict[str, Any]]], out: str | Path, optima: dict[str, float] | None = None
+) -> Path:
     """A sweep's Figure 5: per map set (columns), mean episode return and the greedy settled R1 (rows) against env
-    steps, one line per algorithm and hyperparameters: the mean over seeds, shaded over its 95 % bootstrap band."""
+    steps, one line per algorithm and hyperparameters: the mean over seeds, shaded over its 95 % bootstrap band; a
+    map set's exact optimum (`optima`, by its label) and 99 % of it on the settled R1 (a plateau 7 R1 below the
+    optimum read as converged)."""
     cols = max(1, len(groups))
     crowded = max((len(lines) for lines in groups.values()), default=0) > 6  # legend beside the plots
-    panels = [("episode_return_mean", "mean episode return"), ("eval_R1", "greedy settled R1 (fixed starts)")]
+    panels = [("episode_return_mean", "mean episode return"),
+              ("eval_R1", "greedy settled R1 (fixed starts; band: 95 % bootstrap over seeds)")]  # fmt: skip
     if any("design_gap_mean" in c for lines in groups.values() for c in lines.values()):
         panels.append(("design_gap", "designer's median gap on the evaluated maps (% of R1*)"))
     fig, axes = plt.subplots(len(panels), cols, figsize=(6 * cols + (5 if crowded else 0), 4 * len(panels)),
@@ -300,6 +305,9 @@ def plot_sweep_curves(groups: dict[str, dict[str, dict[str, Any]]], out: str | P
                 dots = "o" if len(c["env_steps"]) < FEW_POINTS else None
                 (drawn,) = ax.plot(c["env_steps"], c[f"{key}_mean"], lw=1.4, marker=dots, ms=3, label=label)
                 ax.fill_between(c["env_steps"], c[f"{key}_lo"], c[f"{key}_hi"], color=drawn.get_color(), alpha=0.15)
+            if key == "eval_R1" and optima and maps in optima:
+                ax.axhline(optima[maps], color="black", ls="--", lw=1, label=f"optimum {optima[maps]:.2f}")
+                ax.axhline(0.99 * optima[maps], color="grey", ls=":", lw=1, label="99 % of optimum")
             ax.set_title(f"{maps}: {title}", fontsize=10)
             _steps_axis(ax)
             if not ax.get_legend_handles_labels()[0]:

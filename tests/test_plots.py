@@ -199,3 +199,19 @@ def test_learning_curves_name_their_run_and_mark_the_policy_it_keeps(tmp_path, m
     assert fig.get_suptitle() == "PPO on map-1, seed 0: run"
     labels = [t.get_text() for t in fig.axes[2].get_legend().get_texts()]
     assert "policy kept (20,000 env steps)" in labels
+
+
+def test_sweep_curves_draw_each_single_maps_optimum_under_its_settled_r1(tmp_path, monkeypatch):
+    """Without it a plateau 7 R1 below the optimum read as converged (sweep_groups.md: 0 of 2 converged)."""
+    from smorphi_rl import plots
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    steps = np.array([1e4, 2e4])
+    line = {"env_steps": steps} | {f"{k}_{s}": np.array([80.0, 83.5]) for k in ("episode_return_mean", "eval_R1")
+                                   for s in ("mean", "lo", "hi")}  # fmt: skip
+    plots.plot_sweep_curves({"map-1": {"PPO": line}, "map-1+map-2": {"PPO": line}}, tmp_path / "s.png",
+                            {"map-1": 90.42})  # fmt: skip
+    legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in saved[0].axes[2:]]
+    assert "optimum 90.42" in legends[0] and not any("optimum" in t for t in legends[1])  # a set has no one optimum

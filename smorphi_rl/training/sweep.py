@@ -9,6 +9,7 @@ did not finish, each in its own folder again, continuing from our state file of 
 
 from __future__ import annotations
 
+import math
 import sys
 import threading
 import time
@@ -388,7 +389,7 @@ def run_sweep(
             raise TrainingError(failed.line)  # no tables either
         rows = read_sweep(exp)
         write_trial_files(exp, rows, optima, digests, sweep.step_budget)
-        files = write_sweep_outputs(exp, rows)
+        files = write_sweep_outputs(exp, rows, optima)
     if failed:
         raise TrainingError(f"{failed.line}; tables under {exp} (unfinished trials marked, left out of the groups)")
     finished_count = sum(1 for d in exp.iterdir() if d.is_dir() and trial_spec(d) is not None and finished(d))
@@ -466,9 +467,9 @@ def write_trial_files(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum
         write_text_atomic(files["summary"], summary.to_json())
 
 
-def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:
+def write_sweep_outputs(exp: Path, rows: list[TrialRow], optima: dict[str, Optimum] | None = None) -> dict[str, Path]:
     """sweep.csv, sweep.md, sweep_groups.md (over seeds, with intervals) and sweep_curves.png (the paper's Figure 5
-    per algorithm and map)."""
+    per algorithm and map, over each single map's exact optimum in `optima`)."""
     from smorphi_rl.plots import plot_sweep_curves
 
     if not rows:
@@ -477,7 +478,8 @@ def write_sweep_outputs(exp: Path, rows: list[TrialRow]) -> dict[str, Path]:
              "png": exp / "sweep_curves.png"}  # fmt: skip
     write_sweep_tables(rows, files["csv"], files["md"])
     write_sweep_groups(rows, files["groups"])
-    plot_sweep_curves(group_curves(rows), files["png"])
+    references = {name: opt.R1 for name, opt in (optima or {}).items() if math.isfinite(opt.R1)}
+    plot_sweep_curves(group_curves(rows), files["png"], references)
     return files
 
 
