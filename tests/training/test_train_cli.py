@@ -476,7 +476,7 @@ def test_a_stop_as_a_sweep_writes_its_tables_waits_for_them(tmp_path, monkeypatc
         signal.signal(signal.SIGTERM, signal.SIG_DFL)  # as Ray's shutdown leaves it
         return object(), None
 
-    def outputs(exp, rows):
+    def outputs(exp, rows, optima=None):
         signal.raise_signal(getattr(signal, signame))
         written.append(exp)
         return {}
