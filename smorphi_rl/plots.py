@@ -44,7 +44,8 @@ matplotlib.rcParams["text.parse_math"] = False  # names are the user's (a map `r
 
 BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 # free, occupied, unknown, covered free
-MAP_COLOURS = ListedColormap(["#ffffff", "#202020", "#b0b0b0", "#7bd389"])
+CELL_COLOURS = ("#ffffff", "#202020", "#b0b0b0", "#7bd389")
+MAP_COLOURS = ListedColormap(list(CELL_COLOURS))
 
 
 MAX_GRID_LINES = 60
@@ -160,8 +161,7 @@ def plot_coverage(
     fig, (ax_fp, ax_map) = plt.subplots(1, 2, figsize=(11, 5.2), gridspec_kw={"width_ratios": [1, 2]})
     plot_footprint(ax_fp, result, morphology, block_side_m, grid_map.resolution_m)
     draw_coverage(ax_map, result, grid_map, morphology, block_side_m)
-    if result.feasible:
-        ax_map.legend(loc="upper right", fontsize=8, framealpha=0.9)
+    map_key(ax_map, covered=True)
     status = "" if result.feasible else "  (infeasible: blocks overlap)"
     ax_map.set_title(
         f"{grid_map.name}: P_c = {result.P_c:.2f} %, free covered = {result.coverage_free_pct:.2f} %, "
@@ -393,15 +393,40 @@ def plot_map_grid(maps: list[Map], titles: list[str], cols: int, out: str | Path
     return _save(fig, out)
 
 
+def map_key(ax: plt.Axes, covered: bool = False) -> None:
+    """A legend below the axes naming the map's colours (and the lines drawn on it): what was grey or white, and
+    over the map, hiding cells."""
+    from matplotlib.patches import Patch
+
+    colours = CELL_COLOURS
+    names = [("covered", colours[3])] if covered else []
+    names += [("free" + (", not covered" if covered else ""), colours[0]), ("occupied", colours[1]),
+              ("unknown", colours[2])]  # fmt: skip
+    handles, labels = ax.get_legend_handles_labels()
+    handles += [Patch(facecolor=c, edgecolor="#555555", lw=0.6) for _, c in names]
+    labels += [n for n, _ in names]
+    from matplotlib.transforms import ScaledTranslation
+
+    below = ax.transAxes + ScaledTranslation(0, -0.5, ax.figure.dpi_scale_trans)  # under the x label, any height
+    ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=below,
+              ncol=min(len(labels), 6), fontsize=8, frameon=False)  # fmt: skip
+
+
 def plot_map(grid_map: Map, out: str | Path) -> Path:
-    """The map alone, with its size and cell fractions in the title."""
-    fig, ax = plt.subplots(figsize=(6, 6))
+    """The map alone, zoomed to its known cells: its grid, the known area's size and its share of free floor in the
+    title (the grid's size and occupied share included the unknown margin drawn only in part)."""
+    fig, ax = plt.subplots(figsize=(6, 6.4))
     draw_map(ax, grid_map)
-    ax.set_title(
-        f"{grid_map.name}: {grid_map.width} × {grid_map.height} cells at {grid_map.resolution_m:g} m, "
-        f"occupied {100 * grid_map.fraction(Cell.OCCUPIED):.1f} %",
-        fontsize=9,
-    )
+    known = grid_map.cells != Cell.UNKNOWN
+    rows, cols = np.nonzero(known)
+    r = grid_map.resolution_m
+    across = "none"
+    if rows.size:
+        across = f"{(cols.max() - cols.min() + 1) * r:.1f} × {(rows.max() - rows.min() + 1) * r:.1f} m"
+    free = 100 * (grid_map.cells == Cell.FREE).sum() / max(int(known.sum()), 1)
+    ax.set_title(f"{grid_map.name}: {grid_map.width} × {grid_map.height} cells at {r:g} m\n"
+                 f"known area {across}, {free:.1f} % of it free", fontsize=9)  # fmt: skip
+    map_key(ax)
     return _save(fig, out)
 
 

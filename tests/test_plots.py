@@ -215,3 +215,21 @@ def test_sweep_curves_draw_each_single_maps_optimum_under_its_settled_r1(tmp_pat
                             {"map-1": 90.42})  # fmt: skip
     legends = [[t.get_text() for t in ax.get_legend().get_texts()] for ax in saved[0].axes[2:]]
     assert "optimum 90.42" in legends[0] and not any("optimum" in t for t in legends[1])  # a set has no one optimum
+
+
+def test_a_maps_figure_sizes_its_known_area_and_names_its_colours(tmp_path, monkeypatch):
+    """The title gave the grid's size and occupied share, the unknown margin included, though the figure shows the
+    known area; nothing said what grey and white were."""
+    from smorphi_rl import plots
+    from smorphi_rl.maps import Cell, Map
+
+    saved = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
+    cells = np.full((40, 60), Cell.UNKNOWN, dtype=np.uint8)
+    cells[10:20, 10:30] = Cell.FREE  # a 2 x 1 m known area, one cell in ten of it occupied
+    cells[10, 10:30] = Cell.OCCUPIED
+    plots.plot_map(Map(cells, 0.1, name="margin"), tmp_path / "m.png")
+    (ax,) = saved[0].axes
+    assert ax.get_title() == "margin: 60 × 40 cells at 0.1 m\nknown area 2.0 × 1.0 m, 90.0 % of it free"
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == ["free", "occupied", "unknown"]
