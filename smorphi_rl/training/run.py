@@ -201,7 +201,7 @@ def write_outputs(run_dir: Path, cfg: TrainConfig, progress: _Progress, optimum:
             items = []
             for rank, f in enumerate(top, 1):
                 morphology = Morphology.of(f.theta)
-                items.append((f"#{rank}", evaluator.plan(morphology), morphology))
+                items.append((f"#{rank}, R1 {f.R1:.2f}", evaluator.plan(morphology), morphology))
             single = len(cfg.env.map_files) == 1
             key = "top_png" if single else f"top_png_{grid_map.name}"
             png = run_dir / ("top_morphologies.png" if single else f"top_morphologies_{grid_map.name}.png")
