@@ -82,14 +82,30 @@ def safe_name(text: str) -> str:
     return name
 
 
-def _claimant(run_dir: Path) -> int:
-    """The pid a run directory's claim names (0 when it names none or cannot be read)."""
+def claim_line() -> str:
+    """What a claim holds: this process's pid, the time and the machine (a log folder shared between machines holds
+    claims whose pids mean nothing here)."""
+    import socket
+
+    return f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')} on {socket.gethostname()}\n"
+
+
+def _claim(run_dir: Path) -> tuple[int, str]:
+    """(pid, machine) a run directory's claim names: pid 0 when it names none or cannot be read, machine '' where
+    the claim names none (written before machines were recorded: taken as this one)."""
     try:
         with (run_dir / MARKER).open(errors="replace") as fh:
-            words = fh.read(256).split()  # "pid N at HOST": no more is read of a marker grown huge
-        return int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
+            words = fh.read(256).split()  # "pid N at TIME on HOST": no more is read of a marker grown huge
+        pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
+        return pid, words[5] if len(words) > 5 and words[4] == "on" else ""
     except (OSError, ValueError):
-        return 0
+        return 0, ""
+
+
+def _here(host: str) -> bool:
+    import socket
+
+    return not host or host == socket.gethostname()
 
 
 def _alive(pid: int) -> bool:
@@ -105,10 +121,20 @@ def _alive(pid: int) -> bool:
     return True
 
 
-def in_use_by(run_dir: Path) -> int | None:
-    """The pid of the running process whose claim `run_dir` holds (another job writing there now); None if none."""
-    pid = _claimant(run_dir)
-    return pid if _alive(pid) else None
+def _gone(run_dir: Path) -> bool:
+    """Whether the process `run_dir`'s claim names is known to have ended: one of this machine, not running. Another
+    machine's is never known to have ended (its pid means nothing here): its run may be writing there now."""
+    pid, host = _claim(run_dir)
+    return pid > 0 and _here(host) and pid != os.getpid() and not _alive(pid)
+
+
+def in_use_by(run_dir: Path) -> str | None:
+    """The process whose claim `run_dir` holds while it may run (another job writing there now): its pid, with its
+    machine where that is another; None if none."""
+    pid, host = _claim(run_dir)
+    if pid > 0 and not _here(host):
+        return f"{pid} on {host}"
+    return str(pid) if _alive(pid) else None
 
 
 FINISHED_FILES = ("summary.json", "report.md", "transfer.md", "sweep.md")
@@ -119,9 +145,7 @@ and a sweep: their tables)."""
 def cut_short(run_dir: Path) -> bool:
     """Whether `run_dir` is a run stopped before it finished (killed, out of memory, a job's time limit): it holds
     the claim of a process no longer running and none of FINISHED_FILES."""
-    pid = _claimant(run_dir)
-    gone = pid > 0 and pid != os.getpid() and not _alive(pid)
-    return gone and not any((run_dir / name).exists() for name in FINISHED_FILES)
+    return _gone(run_dir) and not any((run_dir / name).exists() for name in FINISHED_FILES)
 
 
 def _abandoned(run_dir: Path) -> bool:
@@ -132,17 +156,16 @@ def _abandoned(run_dir: Path) -> bool:
             return False
     except OSError:
         return False
-    pid = _claimant(run_dir)
-    return pid > 0 and pid != os.getpid() and not _alive(pid)
+    return _gone(run_dir)
 
 
 def claim_again(run_dir: Path) -> None:
     """Claim a run directory an earlier process made, to continue it (`--resume`): refused while the process
-    its claim names still runs (two writers would mix their files)."""
+    its claim names still runs (two writers would mix their files), or may (another machine's)."""
     with _write_lock(run_dir / MARKER):
         if (pid := in_use_by(run_dir)) is not None:
             raise RunDirError(f"{rel(run_dir)} is in use by process {pid}: stop it first, or wait for it to finish")
-        write_text_atomic(run_dir / MARKER, f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+        write_text_atomic(run_dir / MARKER, claim_line())
 
 
 def refuse_links(root: Path) -> None:
@@ -241,7 +264,7 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
         raise RunDirError(f"cannot create the run directory {rel(run_dir)} ({exc.strerror or exc})") from None
     try:
         with os.fdopen(fd, "w") as fh:
-            fh.write(f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+            fh.write(claim_line())
     except OSError as exc:  # a full disk: the claim is taken back (a user's folder keeps whatever else is in it)
         (run_dir / MARKER).unlink(missing_ok=True)
         if run_dir in _MADE:
@@ -397,18 +420,23 @@ def write_atomic(path: Path, data: bytes) -> None:
         tmp.unlink(missing_ok=True)
 
 
+STALE_TEMPORARY_S = 600
+"""A temporary older than this whose writer is not running here is a killed writer's: writes take seconds."""
+
+
 def _remove_stale_temporaries(path: Path, suffix: str) -> None:
     """Remove the temporaries beside `path` that writers no longer running left (`_fresh_temporary`'s names carry
     the writer's pid): a process killed mid-write (SIGKILL, out of memory) left its empty `.pareto.<hex>.tmp.png`
-    for good. A live writer's stays."""
+    for good. A live writer's stays, and so does a fresh one (another machine's writer, on a shared folder)."""
     import glob
 
     ours = re.compile(rf"\.{re.escape(path.stem)}\.(\d+)-[0-9a-f]{{12}}{re.escape(suffix)}")
     for stale in path.parent.glob(f".{glob.escape(path.stem)}.*-*{glob.escape(suffix)}"):
         # exactly `_fresh_temporary`'s name for this file: `room.json`'s is no `room.2024-01.json`'s
         if (m := ours.fullmatch(stale.name)) and int(m[1]) != os.getpid() and not _alive(int(m[1])):
-            with contextlib.suppress(OSError):
-                stale.unlink()
+            with contextlib.suppress(OSError):  # an old one only: on a shared folder the pid may be another machine's
+                if time.time() - stale.lstat().st_mtime > STALE_TEMPORARY_S:
+                    stale.unlink()
 
 
 FORCE_HINT = "pass --force to overwrite it"

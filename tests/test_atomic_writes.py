@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import ast
+import os
+import time
 from pathlib import Path
 
 PACKAGE = Path(__file__).resolve().parent.parent / "smorphi_rl"
@@ -118,8 +120,12 @@ def test_a_temporary_a_killed_writer_left_is_removed_by_the_next_write_and_a_liv
             tmp_path / ".pareto.notes.tmp.png",
             tmp_path / f".summary.2024-01.{dead}-0123456789ab.tmp",
         ]  # summary.2024-01.json's, not summary.json's
+        fresh = tmp_path / f".pareto.{dead}-ba9876543210.tmp.png"  # a dead pid here: another machine's, maybe
+        kept.append(fresh)
         for path in left + kept:
             path.write_bytes(b"")
+            if path != fresh:
+                os.utime(path, (time.time() - 3600, time.time() - 3600))
         with atomic_path(tmp_path / "pareto.png") as tmp:
             tmp.write_bytes(b"png")
         write_atomic(tmp_path / "summary.json", b"{}")

@@ -347,3 +347,27 @@ def test_a_cache_folder_another_user_could_plant_is_used_only_when_it_is_ours(tm
     ours.rename(tmp_path / "elsewhere")
     ours.symlink_to(tmp_path / "elsewhere")  # a link planted under the name: not followed
     assert own_temp_folder("numba") != str(ours)
+
+
+def test_another_machines_claim_is_taken_as_alive_on_a_shared_log_folder(tmp_path):
+    """Claims named a pid alone: on a log folder shared between machines, a run writing there from another one was
+    taken for dead here; its folder was reused under it, or called cut short."""
+    import socket
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import MARKER, RunDirError, claim_again, claim_line, cut_short, in_use_by, prepare_run_dir
+
+    dead = int(subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True,
+                              text=True).stdout)  # fmt: skip
+    there = tmp_path / "there"
+    there.mkdir()
+    (there / MARKER).write_text(f"pid {dead} at 2026-01-01T00:00:00 on not-{socket.gethostname()}\n")
+    with pytest.raises(RunDirError, match="already exists: choose another --name"):  # not reused, nor cut short
+        prepare_run_dir(tmp_path, "there")
+    assert in_use_by(there) == f"{dead} on not-{socket.gethostname()}" and not cut_short(there)
+    with pytest.raises(RunDirError, match=f"in use by process {dead} on not-"):
+        claim_again(there)
+    (there / MARKER).write_text(f"pid {dead} at 2026-01-01T00:00:00 on {socket.gethostname()}\n")  # this machine's
+    assert in_use_by(there) is None and cut_short(there)
+    assert claim_line().rstrip().endswith(f" on {socket.gethostname()}")
