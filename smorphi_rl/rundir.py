@@ -278,6 +278,20 @@ def prepare_run_dir(log_dir: str | Path, name: str) -> Path:
     return run_dir
 
 
+def prepare_stamped_run_dir(log_dir: str | Path, name: str) -> Path:
+    """`prepare_run_dir` for a name the command made from the time, to the second: where two runs started within
+    one second took it, the first free `<name>-2`, `-3`, ... (the second run was refused a name its user never
+    gave)."""
+    for k in range(1, 100):
+        candidate = name if k == 1 else f"{name}-{k}"
+        try:
+            return prepare_run_dir(log_dir, candidate)
+        except RunDirError:
+            if not (Path(log_dir).resolve() / candidate).exists():  # refused for another reason: said as it is
+                raise
+    return prepare_run_dir(log_dir, name)  # every one taken: the refusal names the first
+
+
 _MADE: set[Path] = set()
 """Run folders this process made (`prepare_run_dir`); a folder the user made is emptied, never removed."""
 

@@ -371,3 +371,18 @@ def test_another_machines_claim_is_taken_as_alive_on_a_shared_log_folder(tmp_pat
     (there / MARKER).write_text(f"pid {dead} at 2026-01-01T00:00:00 on {socket.gethostname()}\n")  # this machine's
     assert in_use_by(there) is None and cut_short(there)
     assert claim_line().rstrip().endswith(f" on {socket.gethostname()}")
+
+
+def test_two_runs_started_within_one_second_take_two_stamped_names(tmp_path):
+    """`train` names a run by the second it starts: the second of two started together was refused a name its user
+    never gave ("already exists: choose another --name")."""
+    from smorphi_rl.rundir import RunDirError, prepare_run_dir, prepare_stamped_run_dir
+
+    first = prepare_stamped_run_dir(tmp_path, "ppo-map-1-20261207-102613")
+    second = prepare_stamped_run_dir(tmp_path, "ppo-map-1-20261207-102613")
+    assert (first.name, second.name) == ("ppo-map-1-20261207-102613", "ppo-map-1-20261207-102613-2")
+    with pytest.raises(RunDirError, match="already exists"):  # a name the user gave stays theirs alone
+        prepare_run_dir(tmp_path, "ppo-map-1-20261207-102613")
+    (tmp_path / "file").write_text("")
+    with pytest.raises(RunDirError, match="not a folder"):  # refused for another reason: said as it is
+        prepare_stamped_run_dir(tmp_path / "file", "x")

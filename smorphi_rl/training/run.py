@@ -38,7 +38,15 @@ from smorphi_rl.protocol import (
     optimum_cache,
 )
 from smorphi_rl.quiet import quiet
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, discard_run_dir, prepare_run_dir, rel, shell_path, write_text_atomic
+from smorphi_rl.rundir import (
+    DEFAULT_LOG_DIR,
+    discard_run_dir,
+    prepare_run_dir,
+    prepare_stamped_run_dir,
+    rel,
+    shell_path,
+    write_text_atomic,
+)
 from smorphi_rl.score import degenerate_warning
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
@@ -366,6 +374,7 @@ def train(
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`; the exact optima are cached under
     `optima_log_dir` (default `log_dir`), so a job's runs share the cache of the folder the user named. `graceful`
     (the `train` command): a first Ctrl-C ends the run as its budget's end would, its final policy checkpointed."""
+    stamped = not name
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
     digests = map_digests(cfg)
@@ -378,7 +387,9 @@ def train(
     out = out or sys.stderr
     progress = _Progress(cfg, out, label)
     late, held = threading.Event(), ExitStack()  # a stop once training has ended waits for the tables and summary
-    run_dir = prepare_run_dir(log_dir, name)  # claimed atomically; removed again if the run never starts
+    # claimed atomically; removed again if the run never starts
+    run_dir = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
+    name = run_dir.name
     try:
         optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
         callbacks = trial_callbacks(cfg, optima, callbacks)
