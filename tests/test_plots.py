@@ -5,8 +5,20 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 from smorphi_rl.plots import plot_gap_curves
+
+
+@pytest.fixture
+def saved(monkeypatch):
+    """The figures the plots write, kept open for a test to read, each still written to its file."""
+    from smorphi_rl import plots
+
+    figures = []
+    real_save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, out: (figures.append(fig), real_save(fig, out))[1])
+    return figures
 
 
 def test_gap_curves_are_written_for_several_seeds_and_for_one(tmp_path, monkeypatch):
@@ -119,15 +131,12 @@ def test_matplotlib_keeps_one_folder_of_its_own_where_it_cannot_write_in_home(tm
     assert proc.stdout.strip() == str(tmp_path / "mine")
 
 
-def test_transfer_curves_take_a_panel_a_map_and_a_legend_entry_a_mode(tmp_path, monkeypatch):
+def test_transfer_curves_take_a_panel_a_map_and_a_legend_entry_a_mode(tmp_path, saved):
     """With 18 runs in one figure the legend (a line per run) covered the panels and colours repeated."""
     import matplotlib.pyplot as plt
 
     from smorphi_rl import plots
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     runs = [([10_000.0, 20_000.0, 30_000.0], [5.0, 2.0, float("nan")])] * 3
     maps = {f"m{k}": {"fine-tune": runs, "scratch": runs} for k in range(4)}
     out = plots.plot_transfer_curves(maps, tmp_path / "t.png", 20_000)
@@ -141,13 +150,10 @@ def test_transfer_curves_take_a_panel_a_map_and_a_legend_entry_a_mode(tmp_path, 
     plt.close(fig)
 
 
-def test_each_methods_best_shape_shows_and_is_named_where_they_coincide(tmp_path, monkeypatch):
+def test_each_methods_best_shape_shows_and_is_named_where_they_coincide(tmp_path, saved):
     """compare.png drew every method's best as a star of its colour: on one shape only the last showed, unnamed."""
     from smorphi_rl import plots
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     points = (np.array([60.0, 69.0]), np.array([95.0, 97.3]))
     methods = {"PPO": points, "NSGA-II": points, "random": points}
     plots.plot_pareto(methods, tmp_path / "p.png", "t", front=points, best=dict.fromkeys(methods, (69.0, 97.3)))
@@ -159,7 +165,7 @@ def test_each_methods_best_shape_shows_and_is_named_where_they_coincide(tmp_path
     assert sorted(c.get_sizes()[0] for c in bests) == sorted({c.get_sizes()[0] for c in bests})  # no two one size
 
 
-def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_maps_edge(tmp_path, monkeypatch):
+def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_maps_edge(tmp_path, saved):
     """The paper's planner lets tiles overhang the map: on map-1 (95, 59, 103) 13 of 91 path points lay at y 5.2
     of a 5 m map, cut off by axes that stopped at its edge."""
     from pathlib import Path
@@ -170,9 +176,6 @@ def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_ma
     from smorphi_rl.maps import load_map
     from smorphi_rl.planning import Evaluator
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     grid = load_map(Path(__file__).resolve().parents[1] / "maps" / "map-1.yaml")
     shape = Morphology.of((95, 59, 103))
     result = Evaluator(grid).plan(shape)
@@ -184,14 +187,11 @@ def test_a_coverage_plot_shows_the_whole_path_where_the_robot_stands_past_the_ma
     assert x0 <= pts[:, 0].min() and pts[:, 0].max() <= x1 and y0 <= pts[:, 1].min() and pts[:, 1].max() <= y1
 
 
-def test_learning_curves_name_their_run_and_mark_the_policy_it_keeps(tmp_path, monkeypatch):
+def test_learning_curves_name_their_run_and_mark_the_policy_it_keeps(tmp_path, saved):
     """The figure had no title (which map, algorithm, seed?) and its last point read as the result, though the run
     keeps an earlier policy."""
     from smorphi_rl import plots
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     curve = {"env_steps": [1e4, 2e4, 3e4], "episode_return_mean": [1.0, 2.0, 3.0], "best_R1": [80.0, 85.0, 90.0],
              "eval_R1": [84.0, 90.1, 88.0]}  # fmt: skip
     plots.plot_learning_curves({"PPO": curve}, tmp_path / "c.png", 90.4, "PPO on map-1, seed 0: run", 20_000)
@@ -201,13 +201,10 @@ def test_learning_curves_name_their_run_and_mark_the_policy_it_keeps(tmp_path, m
     assert "policy kept (20,000 env steps)" in labels
 
 
-def test_sweep_curves_draw_each_single_maps_optimum_under_its_settled_r1(tmp_path, monkeypatch):
+def test_sweep_curves_draw_each_single_maps_optimum_under_its_settled_r1(tmp_path, saved):
     """Without it a plateau 7 R1 below the optimum read as converged (sweep_groups.md: 0 of 2 converged)."""
     from smorphi_rl import plots
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     steps = np.array([1e4, 2e4])
     line = {"env_steps": steps} | {f"{k}_{s}": np.array([80.0, 83.5]) for k in ("episode_return_mean", "eval_R1")
                                    for s in ("mean", "lo", "hi")}  # fmt: skip
@@ -217,15 +214,12 @@ def test_sweep_curves_draw_each_single_maps_optimum_under_its_settled_r1(tmp_pat
     assert "optimum 90.42" in legends[0] and not any("optimum" in t for t in legends[1])  # a set has no one optimum
 
 
-def test_a_maps_figure_sizes_its_known_area_and_names_its_colours(tmp_path, monkeypatch):
+def test_a_maps_figure_sizes_its_known_area_and_names_its_colours(tmp_path, saved):
     """The title gave the grid's size and occupied share, the unknown margin included, though the figure shows the
     known area; nothing said what grey and white were."""
     from smorphi_rl import plots
     from smorphi_rl.maps import Cell, Map
 
-    saved = []
-    real_save = plots._save
-    monkeypatch.setattr(plots, "_save", lambda fig, out: (saved.append(fig), real_save(fig, out))[1])
     cells = np.full((40, 60), Cell.UNKNOWN, dtype=np.uint8)
     cells[10:20, 10:30] = Cell.FREE  # a 2 x 1 m known area, one cell in ten of it occupied
     cells[10, 10:30] = Cell.OCCUPIED
