@@ -132,8 +132,9 @@ def in_use_by(run_dir: Path) -> str | None:
     """The process whose claim `run_dir` holds while it may run (another job writing there now): its pid, with its
     machine where that is another; None if none."""
     pid, host = _claim(run_dir)
-    if pid > 0 and not _here(host):
-        return f"{pid} on {host}"
+    if pid > 0 and not _here(host):  # a container's name changes with each container: the way out is said
+        return (f"{pid} on {host} (another machine's, or an earlier container's: if nothing runs there now, remove "
+                f"{rel(run_dir / MARKER)})")  # fmt: skip
     return str(pid) if _alive(pid) else None
 
 
