@@ -397,16 +397,14 @@ def map_key(ax: plt.Axes, covered: bool = False) -> None:
     """A legend below the axes naming the map's colours (and the lines drawn on it): what was grey or white, and
     over the map, hiding cells."""
     from matplotlib.patches import Patch
+    from matplotlib.transforms import ScaledTranslation
 
-    colours = CELL_COLOURS
-    names = [("covered", colours[3])] if covered else []
-    names += [("free" + (", not covered" if covered else ""), colours[0]), ("occupied", colours[1]),
-              ("unknown", colours[2])]  # fmt: skip
+    free, occupied, unknown, covered_colour = CELL_COLOURS
+    names = [("covered", covered_colour)] if covered else []
+    names += [("free, not covered" if covered else "free", free), ("occupied", occupied), ("unknown", unknown)]
     handles, labels = ax.get_legend_handles_labels()
     handles += [Patch(facecolor=c, edgecolor="#555555", lw=0.6) for _, c in names]
     labels += [n for n, _ in names]
-    from matplotlib.transforms import ScaledTranslation
-
     below = ax.transAxes + ScaledTranslation(0, -0.5, ax.figure.dpi_scale_trans)  # under the x label, any height
     ax.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 0.0), bbox_transform=below,
               ncol=min(len(labels), 6), fontsize=8, frameon=False)  # fmt: skip
@@ -417,15 +415,11 @@ def plot_map(grid_map: Map, out: str | Path) -> Path:
     title (the grid's size and occupied share included the unknown margin drawn only in part)."""
     fig, ax = plt.subplots(figsize=(6, 6.4))
     draw_map(ax, grid_map)
-    known = grid_map.cells != Cell.UNKNOWN
-    rows, cols = np.nonzero(known)
-    r = grid_map.resolution_m
-    across = "none"
-    if rows.size:
-        across = f"{(cols.max() - cols.min() + 1) * r:.1f} × {(rows.max() - rows.min() + 1) * r:.1f} m"
-    free = 100 * (grid_map.cells == Cell.FREE).sum() / max(int(known.sum()), 1)
-    ax.set_title(f"{grid_map.name}: {grid_map.width} × {grid_map.height} cells at {r:g} m\n"
-                 f"known area {across}, {free:.1f} % of it free", fontsize=9)  # fmt: skip
+    x0, x1, y0, y1 = known_extent(grid_map, margin_m=0.0)
+    free, occupied = grid_map.counts[Cell.FREE], grid_map.counts[Cell.OCCUPIED]
+    ax.set_title(f"{grid_map.name}: {grid_map.width} × {grid_map.height} cells at {grid_map.resolution_m:g} m\n"
+                 f"known area {x1 - x0:.1f} × {y1 - y0:.1f} m, {100 * free / max(free + occupied, 1):.1f} % of it "
+                 "free", fontsize=9)  # fmt: skip
     map_key(ax)
     return _save(fig, out)
 
