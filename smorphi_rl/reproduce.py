@@ -114,8 +114,27 @@ def _whole(run: _Run) -> _Run:
     return run
 
 
-def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = None) -> Path:
-    """Run every experiment of `budget_name`; returns the report's path."""
+def reproduce(
+    budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR, out: Any = None, stamped: bool = False
+) -> Path:
+    """Run every experiment of `budget_name`; returns the report's path. `stamped`: `name` is one the command made
+    from the time, so a job started in the same second takes `<name>-2`. A stop request names the job's folder."""
+    from smorphi_rl.rundir import prepare_run_dir, prepare_stamped_run_dir
+
+    if budget_name not in BUDGETS:
+        raise SmorphiError(f"unknown budget '{budget_name}' (choose from {', '.join(BUDGETS)})")
+    b = BUDGETS[budget_name]
+    root = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
+    try:
+        return _run_job(b, budget_name, root, log_dir, out)
+    except KeyboardInterrupt as exc:  # Ctrl-C, or a run a stop request cut short: what was written stays
+        if isinstance(exc, ReportWhole) or not root.is_dir():  # a run's own word is not the job's
+            raise
+        raise Interrupted(f"what it wrote is kept in {rel(root)}") from None
+
+
+def _run_job(b: Budget, budget_name: str, root: Path, log_dir: str | Path, out: Any) -> Path:
+    """`reproduce`'s experiments in their order, under `root`; the report's path."""
     from smorphi_rl import cluster
     from smorphi_rl.env_config import EnvConfig
     from smorphi_rl.maps import load_map
@@ -128,10 +147,6 @@ def reproduce(budget_name: str, name: str, log_dir: str | Path = DEFAULT_LOG_DIR
     from smorphi_rl.training.run import train
     from smorphi_rl.training.transfer import TransferJob, run_transfer
 
-    if budget_name not in BUDGETS:
-        raise SmorphiError(f"unknown budget '{budget_name}' (choose from {', '.join(BUDGETS)})")
-    b = BUDGETS[budget_name]
-    root = prepare_run_dir(log_dir, name)
     defaults = EnvConfig()
     weights = {m: defaults.weights_on(load_map(_map(m))) for m in b.train_maps}  # R1 on each map, as the env ranks
     t0 = time.monotonic()

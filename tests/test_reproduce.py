@@ -175,3 +175,31 @@ def test_the_search_claims_compare_seed_by_seed_and_each_algorithm_on_its_own():
     assert "IMPALA's best is dominated by a shape of NSGA-II's front (same seed) on 3 of 3: **does not agree**" in front
     (gap,) = [c for c in claims if "gap to the exact optimum" in c]
     assert "PPO 0.90 [0.80, 1.00]" in gap and "NSGA-II 4.00" in gap
+
+
+def test_a_job_started_in_the_same_second_takes_the_next_stamped_name(capsys, monkeypatch, tmp_path):
+    """The default name is stamped to the second: a second job in that second was refused a name its user never
+    gave; it now takes `-2`, and a stop names the folder it took."""
+    import contextlib
+    from types import SimpleNamespace
+
+    from smorphi_rl import cluster
+    from smorphi_rl.cli import train as cli_train
+    from smorphi_rl.training import run
+
+    def cut_short(cfg, name, log_dir, **kwargs):
+        (log_dir / name).mkdir()
+        return SimpleNamespace(run_dir=log_dir / name, interrupted=True)
+
+    monkeypatch.setattr(cli_train, "time", SimpleNamespace(strftime=lambda fmt: "20261207-120000"))
+    monkeypatch.setattr(run, "train", cut_short)
+    monkeypatch.setattr(cluster, "ray_session", lambda address: contextlib.nullcontext())
+    (tmp_path / "reproduce-tiny-20261207-120000").mkdir()
+    (tmp_path / "reproduce-tiny-20261207-120000" / "report.md").write_text("keep me")
+    assert main(["reproduce", "--budget", "tiny", "--log-dir", str(tmp_path)]) == 130
+    said = capsys.readouterr().err.strip().splitlines()[-1]
+    assert said == f"smorphi-rl: interrupted: what it wrote is kept in {tmp_path / 'reproduce-tiny-20261207-120000-2'}"
+    assert (tmp_path / "reproduce-tiny-20261207-120000" / "report.md").read_text() == "keep me"
+    assert main(["reproduce", "--budget", "tiny", "--name", "reproduce-tiny-20261207-120000",
+                 "--log-dir", str(tmp_path)]) == 1  # fmt: skip
+    assert "already exists" in capsys.readouterr().err  # a name the user gave is never changed

@@ -195,7 +195,8 @@ def cmd_transfer(args: argparse.Namespace) -> int:
     name = args.name or f"transfer-{time.strftime('%Y%m%d-%H%M%S')}"
     stopped = False
     try:
-        job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume)
+        job_dir, runs = run_transfer(job, name, args.log_dir, args.address, resume=args.resume,
+                                     stamped=not args.name)  # fmt: skip
     except TransferInterrupted as stop:  # a run was starting: the finished ones are reported, the job resumable
         job_dir, runs, stopped = stop.job_dir, stop.runs, True
     cut = sum(r.interrupted for r in runs)
@@ -264,15 +265,10 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from smorphi_rl.reproduce import ReportWhole, reproduce
 
     name = args.name or f"reproduce-{args.budget}-{time.strftime('%Y%m%d-%H%M%S')}"
-    try:
-        report = reproduce(args.budget, name, args.log_dir)
+    try:  # a stop request elsewhere says where what was written is kept (Interrupted)
+        report = reproduce(args.budget, name, args.log_dir, stamped=not args.name)
     except ReportWhole as stop:  # a stop as the report was written, which it waited for
         print(f"{PROG}: interrupted {stop}", file=sys.stderr)
-        return EXIT_INTERRUPTED
-    except KeyboardInterrupt:  # Ctrl-C, or a run a stop request cut short: what was written stays
-        root = Path(args.log_dir) / name
-        kept = f": what it wrote is kept in {rel(root)}" if root.is_dir() else ""
-        print(f"{PROG}: interrupted{kept}", file=sys.stderr)
         return EXIT_INTERRUPTED
     print(f"report: {rel(report)}")
     return 0

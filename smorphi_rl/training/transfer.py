@@ -137,12 +137,14 @@ def run_transfer(
     out: Any = None,
     resume: bool = False,
     optima_log_dir: str | Path | None = None,
+    stamped: bool = False,
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget.
     `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
     short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
     raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked. The
-    exact optima are cached under `optima_log_dir` (default `log_dir`, the folder the user named)."""
+    exact optima are cached under `optima_log_dir` (default `log_dir`, the folder the user named). `stamped`: `name`
+    is one the command made from the time, so a job started in the same second takes `<name>-2`."""
     from smorphi_rl import cluster
     from smorphi_rl.errors import SmorphiError
     from smorphi_rl.rundir import (
@@ -151,6 +153,7 @@ def run_transfer(
         discard_run_dir,
         in_use_by,
         prepare_run_dir,
+        prepare_stamped_run_dir,
         rename_cut_run,
     )
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
@@ -190,7 +193,7 @@ def run_transfer(
         cluster.check_capacity(configs[0].cpus, configs[0].env_runners, None)
     if job_dir is None:
         try:
-            job_dir = prepare_run_dir(log_dir, name)
+            job_dir = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
         except RunDirError as exc:
             running = in_use_by(Path(log_dir) / name)
             if running is not None:  # a job writing there now: no resume either

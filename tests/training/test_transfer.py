@@ -443,6 +443,24 @@ def test_a_job_name_taken_by_an_earlier_job_says_how_to_continue_it(tmp_path, fa
     assert "already exists: choose another --name\n" in capsys.readouterr().err
 
 
+def test_a_job_started_in_the_same_second_takes_the_next_stamped_name(tmp_path, fake_runs, monkeypatch, capsys):
+    """The default name is stamped to the second: a second job in that second was refused a name its user never
+    gave; it now takes `-2`."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.cli import main
+    from smorphi_rl.cli import train as cli_train
+
+    argv, calls, _stops, _algos = fake_runs
+    monkeypatch.setattr(cli_train, "time", SimpleNamespace(strftime=lambda fmt: "20261207-120000"))
+    unnamed = [*argv[:-4], "--log-dir", str(tmp_path / "logs"), "--seeds", "0"]
+    assert main(unnamed) == 0 and main(unnamed) == 0
+    out = capsys.readouterr().out
+    jobs = tmp_path / "logs" / "transfer-20261207-120000", tmp_path / "logs" / "transfer-20261207-120000-2"
+    assert all((job / "transfer.csv").is_file() for job in jobs) and len(calls) == 4
+    assert f"runs: {jobs[1]}" in out
+
+
 def test_a_resumed_job_folder_holding_a_link_is_refused_before_anything_trains(tmp_path, fake_runs, capsys):
     """A handed-over job whose run folder links elsewhere: the resume would have written that run there."""
     from smorphi_rl.cli import main
