@@ -320,9 +320,10 @@ def plot_sweep_curves(
 
 
 def _draw_replay_frame(ax: plt.Axes, grid_map: Map, frame: dict[str, Any], title: str) -> None:
-    """One recorded step: the map, the coverage path of the step's morphology, its four blocks at the path start."""
+    """One recorded step: the map (with the area its morphology covers, where the frame has it), the coverage path
+    of the step's morphology, its four blocks at the path start."""
     ax.clear()
-    draw_map(ax, grid_map)
+    draw_map(ax, grid_map, frame.get("covered"))
     path = frame["path"]
     if len(path):
         ax.plot(path[:, 0], path[:, 1], "-", color="#d62728", lw=1.3)
@@ -336,10 +337,12 @@ def _draw_replay_frame(ax: plt.Axes, grid_map: Map, frame: dict[str, Any], title
 
 
 def plot_replay(grid_map: Map, frames: list[dict[str, Any]], titles: list[str], out: str | Path) -> Path:
-    """Recorded steps side by side (the paper's Figure 6 for one episode): map, path and blocks of each."""
+    """Recorded steps side by side (the paper's Figure 6 for one episode): map, covered area, path and blocks of
+    each, their colours named below."""
     fig, axes = plt.subplots(1, len(frames), figsize=(5.2 * len(frames), 5.2), squeeze=False)
     for ax, frame, title in zip(axes[0], frames, titles, strict=True):
         _draw_replay_frame(ax, grid_map, frame, title)
+        map_key(ax, covered=frame.get("covered") is not None)
     return _save(fig, out)
 
 

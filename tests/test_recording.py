@@ -224,6 +224,32 @@ def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     assert listing[-1] == f"4 recordings in {tmp_path / 'episodes'} (1 unreadable)"
 
 
+def test_replay_draws_the_area_each_step_covers_planned_again_with_the_recordings_planner(tmp_path):
+    """`replay --png` drew the path alone: the recording holds no cells, so the area is planned again, and only
+    where the plan gives the recorded P_c and P_len."""
+    from dataclasses import replace
+
+    from smorphi_rl.geometry import Morphology
+    from smorphi_rl.maps import load_map
+    from smorphi_rl.planning import PAPER_PLANNING
+
+    env = recorded_env(tmp_path, max_steps=12)
+    play(env, 3, np.random.default_rng(3))
+    env.close()
+    (recording,) = episode_files(tmp_path / "episodes")
+    ep = read_episode(recording)
+    grid, picks = ep.grid_map(), [0, len(ep.steps) - 1]
+    evaluator = PAPER_PLANNING.evaluator(load_map(MAP_1))
+    for index, mask in zip(picks, ep.covered(picks, grid), strict=True):
+        expected = evaluator.plan(Morphology(*ep.steps[index]["theta"])).covered
+        assert mask is not None and expected is not None and mask.any() and np.array_equal(mask, expected)
+    other = json.loads(ep.metadata["env_config"]) | {"planner": "fit"}  # another planner's figures: none drawn
+    assert replace(ep, metadata=ep.metadata | {"env_config": json.dumps(other)}).covered(picks, grid) == [None, None]
+    assert replace(ep, metadata={}).covered(picks, grid) == [None, None]
+    png = tmp_path / "r.png"
+    assert main(["replay", str(recording), "--png", str(png)]) == 0
+
+
 def test_replays_listing_is_as_wide_as_what_its_columns_hold(tmp_path, capsys, monkeypatch):
     """A map named `turtlebot3_world` ran into the algorithm's column (the map column was 8 wide)."""
     from smorphi_rl.maps import load_map, save_map

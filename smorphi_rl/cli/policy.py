@@ -242,11 +242,14 @@ def _draw_replay(ep: Any, png: str | None, gif: str | None) -> None:
     if png:
         picks = {"start": 0, "best": steps.index(ep.best), "final": len(steps) - 1}
         titles = [f"{label} - {title(i)}" for label, i in picks.items()]
-        out = plot_replay(grid_map, [ep.frame(i) for i in picks.values()], titles, png)
+        covered = ep.covered(list(picks.values()), grid_map)
+        frames = [ep.frame(i) | {"covered": c} for i, c in zip(picks.values(), covered, strict=True)]
+        out = plot_replay(grid_map, frames, titles, png)
         print(f"png        {rel(out)}")
     if gif:
         changed = ep.changed_steps(GIF_MAX_FRAMES)
-        out = animate_replay(grid_map, [ep.frame(i) for i in changed], [title(i) for i in changed], gif,
+        frames = [ep.frame(i) | {"covered": c} for i, c in zip(changed, ep.covered(changed, grid_map), strict=True)]
+        out = animate_replay(grid_map, frames, [title(i) for i in changed], gif,
                              progress=progress_line("gif: frames drawn"))  # fmt: skip
         print(f"gif        {rel(out)} ({counted(len(changed), 'frame')})")
 

@@ -14,8 +14,9 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES
+from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES, EnvConfig
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import Morphology
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import MAX_ORIGIN_M, MAX_RESOLUTION_M, MIN_RESOLUTION_M, Cell, Map
 from smorphi_rl.recording.messages import (
@@ -106,6 +107,27 @@ class Episode:
             return Map(cells, cell, origin, self.steps[0]["map"])
         except (KeyError, TypeError, ValueError, OverflowError, SmorphiError) as exc:  # Overflow: a 400-digit integer
             raise self._damaged("the map message", exc) from None
+
+    def covered(self, indices: list[int], grid_map: Map) -> list[np.ndarray | None]:
+        """The cells each step's shape covers, planned again on the recorded map with the recording's own planner
+        (its `env_config`); None for a step whose plan does not give the recorded P_c and P_len (another planner's
+        recording) or where the recording names no usable planner: a replay draws no area it cannot vouch for."""
+        try:
+            raw = json.loads(self.metadata["env_config"])
+            raw = {key: value for key, value in raw.items() if key != "maps"}  # the planner's keys, not the floors
+            evaluator = EnvConfig.from_dict(raw).planning.evaluator(grid_map, cache=False)
+        except (KeyError, TypeError, ValueError, AttributeError, RecursionError, SmorphiError):
+            return [None] * len(indices)
+        found: list[np.ndarray | None] = []
+        for index in indices:
+            step = self.steps[index]
+            try:
+                plan = evaluator.plan(Morphology(*step["theta"]))
+            except SmorphiError:  # a start the recorded map does not hold, say
+                plan = None
+            same = plan is not None and plan.P_len == step["P_len"] and math.isclose(plan.P_c, step["P_c"])
+            found.append(plan.covered if same and plan is not None else None)
+        return found
 
     def changed_steps(self, max_frames: int) -> list[int]:
         """Indices of the steps where the shape changed (and the first), thinned evenly to at most `max_frames`."""
