@@ -87,19 +87,44 @@ def claim_line() -> str:
     claims whose pids mean nothing here)."""
     import socket
 
-    return f"pid {os.getpid()} at {time.strftime('%Y-%m-%dT%H:%M:%S')} on {socket.gethostname()}\n"
+    return f"pid {os.getpid()} at {time.strftime(CLAIM_TIME)} on {socket.gethostname()}\n"
 
 
-def _claim(run_dir: Path) -> tuple[int, str]:
-    """(pid, machine) a run directory's claim names: pid 0 when it names none or cannot be read, machine '' where
-    the claim names none (written before machines were recorded: taken as this one)."""
+CLAIM_TIME = "%Y-%m-%dT%H:%M:%S%z"
+"""A claim's time, with its UTC offset: a process that started after it is not the claimant (a pid used again)."""
+
+
+def _claim(run_dir: Path) -> tuple[int, str, float | None]:
+    """(pid, machine, time) a run directory's claim names: pid 0 when it names none or cannot be read, machine ''
+    where the claim names none (written before machines were recorded: taken as this one), time None where it names
+    none with its UTC offset (written before they were)."""
+    from datetime import datetime
+
     try:
         with (run_dir / MARKER).open(errors="replace") as fh:
             words = fh.read(256).split()  # "pid N at TIME on HOST": no more is read of a marker grown huge
         pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
-        return pid, words[5] if len(words) > 5 and words[4] == "on" else ""
     except (OSError, ValueError):
-        return 0, ""
+        return 0, "", None
+    try:
+        when: float | None = datetime.strptime(words[3], CLAIM_TIME).timestamp() if len(words) > 3 else None
+    except ValueError:  # an older claim's time, without its offset
+        when = None
+    return pid, words[5] if len(words) > 5 and words[4] == "on" else "", when
+
+
+def _started_after(pid: int, when: float) -> bool:
+    """Whether process `pid` of this machine is known to have started after `when` (epoch seconds; Linux's /proc,
+    to its whole seconds): then it is not the process that wrote a claim at `when`, only one given its pid again."""
+    try:
+        with open(f"/proc/{pid}/stat", "rb") as fh:
+            ticks = int(fh.read().rsplit(b")", 1)[1].split()[19])  # field 22, after the name in parentheses
+        with open("/proc/stat", "rb") as fh:
+            boot = next(int(line.split()[1]) for line in fh if line.startswith(b"btime "))
+        started = boot + ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError, StopIteration):
+        return False
+    return started > when + 2  # the claim's time and the boot time are whole seconds
 
 
 def _here(host: str) -> bool:
@@ -124,18 +149,24 @@ def _alive(pid: int) -> bool:
 def _gone(run_dir: Path) -> bool:
     """Whether the process `run_dir`'s claim names is known to have ended: one of this machine, not running. Another
     machine's is never known to have ended (its pid means nothing here): its run may be writing there now."""
-    pid, host = _claim(run_dir)
-    return pid > 0 and _here(host) and pid != os.getpid() and not _alive(pid)
+    pid, host, when = _claim(run_dir)
+    return pid > 0 and _here(host) and pid != os.getpid() and not _claimant_alive(pid, when)
+
+
+def _claimant_alive(pid: int, when: float | None) -> bool:
+    """Whether the process that wrote a claim of this machine at `when` still runs: `pid` runs and did not start
+    after the claim."""
+    return _alive(pid) and not (when is not None and _started_after(pid, when))
 
 
 def in_use_by(run_dir: Path) -> str | None:
     """The process whose claim `run_dir` holds while it may run (another job writing there now): its pid, with its
     machine where that is another; None if none."""
-    pid, host = _claim(run_dir)
+    pid, host, when = _claim(run_dir)
     if pid > 0 and not _here(host):  # a container's name changes with each container: the way out is said
         return (f"{pid} on {host} (another machine's, or an earlier container's: if nothing runs there now, remove "
                 f"{rel(run_dir / MARKER)})")  # fmt: skip
-    return str(pid) if _alive(pid) else None
+    return str(pid) if _claimant_alive(pid, when) else None
 
 
 FINISHED_FILES = ("summary.json", "report.md", "transfer.md", "sweep.md")

@@ -149,6 +149,30 @@ def test_a_folder_claimed_by_a_dead_process_is_reused_and_a_live_one_is_not(tmp_
         live.kill()
 
 
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="a process's start time is read from Linux's /proc")
+def test_a_process_given_a_dead_claimants_pid_again_is_not_the_claimant(tmp_path):
+    """A claim named its pid alone: after a reboot, or once pids wrapped, whatever process holds that pid now kept
+    the folder "in use" for ever. A process that started after the claim was written did not write it."""
+    import socket
+    import subprocess
+    import sys
+    import time
+
+    from smorphi_rl.rundir import CLAIM_TIME, MARKER, cut_short, in_use_by
+
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        for name, age_s in (("earlier", 3600), ("later", -5)):  # claimed an hour before it started; after
+            (tmp_path / name).mkdir()
+            when = time.strftime(CLAIM_TIME, time.localtime(time.time() - age_s))
+            (tmp_path / name / MARKER).write_text(f"pid {live.pid} at {when} on {socket.gethostname()}\n")
+        assert in_use_by(tmp_path / "earlier") is None and cut_short(tmp_path / "earlier")
+        assert in_use_by(tmp_path / "later") == str(live.pid) and not cut_short(tmp_path / "later")
+    finally:
+        live.kill()
+        live.wait()
+
+
 def test_a_run_killed_before_it_finished_is_named_so_when_its_name_or_its_files_are_asked_for(tmp_path):
     """SIGKILLed mid-run (a job's time limit), a search left results.npz without summary.json: the same command said
     only "already exists", and `compare` "not a readable search summary (FileNotFoundError)"."""
