@@ -203,5 +203,5 @@ def test_no_collision_on_any_shipped_or_real_map(name):
     for theta in ((0, 180, 0), (110, 60, 67)):
         plan = Evaluator(grid_map, planner=Planner.FIT).plan(Morphology.of(theta))
         assert plan.placements is not None and plan.footprint is not None
-        if len(plan.placements):
-            assert _collisions(grid_map, plan.placements.tolist(), plan.footprint.astype(bool)) == 0, path.name
+        assert len(plan.placements) and plan.feasible, (path.name, theta)  # a plan of no placements checks nothing
+        assert _collisions(grid_map, plan.placements.tolist(), plan.footprint.astype(bool)) == 0, path.name

@@ -295,7 +295,8 @@ def test_what_a_generated_floor_must_allow_is_checked_when_the_config_is_read(co
     """Seed 8 of `rooms` has 0.065 m cells: a block of 0.06 m built, then failed at a reset mid-run."""
     with pytest.raises(EnvConfigError, match=message):
         EnvConfig.from_dict({"maps": ["generate:rooms:0-10"], **config})
-    assert EnvConfig.from_dict({"maps": ["maps/map-1.yaml"], **config})  # a map file is checked as it is built
+    built = EnvConfig.from_dict({"maps": [str(MAPS / "map-1.yaml")], **config})  # a map file is checked as it is built
+    assert all(getattr(built, key) == (tuple(v) if isinstance(v, list) else v) for key, v in config.items())
 
 
 @pytest.mark.parametrize("reward", ["paper", "peak"])

@@ -2,9 +2,13 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 
 from smorphi_rl.vector_env import MorphologyVectorEnv, make_env, stack_observations, sub_env_generator
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 class _Ctx(dict):
@@ -97,7 +101,8 @@ def test_one_shared_map_is_broadcast_and_anything_else_stacked():
 
 
 def test_sub_envs_on_different_maps_get_their_own_map_rows():
-    venv = make_env({"num_envs": 8, "run_seed": 0, "maps": ["maps/map-1.yaml", "maps/map-2.yaml"]})
+    maps = [str(ROOT / "maps" / "map-1.yaml"), str(ROOT / "maps" / "map-2.yaml")]
+    venv = make_env({"num_envs": 8, "run_seed": 0, "maps": maps})
     obs, _ = venv.reset()
     on_map = [e.unwrapped.grid_map.name for e in venv.envs]
     assert len(set(on_map)) == 2  # seed 0 puts the 8 sub-envs on both maps

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import itertools
 import signal
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -12,6 +13,8 @@ import pytest
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.protocol import eval_starts
 from smorphi_rl.search.local import METHODS, run_local
+
+MAP_1 = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
 
 
 @pytest.mark.parametrize("method", METHODS)
@@ -188,5 +191,5 @@ def test_a_search_records_the_budget_it_ran_with():
     """A budget past the lattice runs as the lattice, and the result says so rather than what was asked."""
     from smorphi_rl.search.local import run_local_search
 
-    result = run_local_search("hillclimb", "maps/map-1.yaml", 1_000, 0, starts=1, env_config={"angle_step_deg": 45.0})
+    result = run_local_search("hillclimb", MAP_1, 1_000, 0, starts=1, env_config={"angle_step_deg": 45.0})
     assert result.params["budget_per_start"] == 125

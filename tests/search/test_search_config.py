@@ -1,12 +1,14 @@
 """SearchConfig: the one home of the search methods' defaults, validated before anything runs."""
 
+from pathlib import Path
+
 import pytest
 
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.search.config import SearchConfig, SearchConfigError, run_search
 
-MAP = "maps/map-1.yaml"
+MAP = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
 
 
 def test_defaults_come_from_their_homes():

@@ -1,5 +1,7 @@
 """Fine-tuning's weights: the pretrained critic predicts the same values under the new run's normalisation."""
 
+from pathlib import Path
+
 import numpy as np
 import torch
 
@@ -9,7 +11,7 @@ from smorphi_rl.training.finetune import critic_renormalised
 
 
 def test_the_pretrained_critic_predicts_the_same_values_under_a_new_normalisation():
-    env = MorphologyEnv({"maps": ["maps/val-1.yaml"]})
+    env = MorphologyEnv({"maps": [str(Path(__file__).resolve().parents[2] / "maps" / "val-1.yaml")]})
     trained_with = {"value_offset": 45.6, "value_scale": 634.6}
     now = {"value_offset": 13.3, "value_scale": 224.9}
     pretrained = build_module(env.observation_space, env.action_space, trained_with)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -12,6 +14,7 @@ from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.training.learners import CompactMaps
 from smorphi_rl.training.module import INDEX, MorphologyModule, pack_maps, unpack_maps
 
+MAPS = Path(__file__).resolve().parents[2] / "maps"
 MODE_DEPENDENT = (nn.modules.dropout._DropoutNd, nn.modules.batchnorm._NormBase)
 
 
@@ -59,7 +62,7 @@ def test_pack_maps_leaves_what_it_cannot_pack():
 
 def _two_map_batch(rows: int = 200) -> dict:
     """A learner-sized batch over two maps (the index form needs at least MIN_GROUPED_ROWS rows)."""
-    envs = [MorphologyEnv(maps=[m]) for m in ("maps/map-1.yaml", "maps/map-2.yaml")]
+    envs = [MorphologyEnv(maps=[m]) for m in (str(MAPS / "map-1.yaml"), str(MAPS / "map-2.yaml"))]
     observations = [envs[i % 2].reset(seed=i)[0] for i in range(rows)]
     return {Columns.OBS: {k: torch.from_numpy(np.stack([o[k] for o in observations])) for k in observations[0]}}
 
