@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.design import DEFAULT_BUDGET, DESIGN_SEED, Design, run_design
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout
 from smorphi_rl.errors import MapError, SmorphiError
 from smorphi_rl.floorplans import DEFAULT_RANGE
@@ -22,7 +23,7 @@ from smorphi_rl.inputs import is_finite_number
 from smorphi_rl.map_sources import is_generator
 from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
-from smorphi_rl.policy_file import PolicyFile, layout_problem, read_policy
+from smorphi_rl.policy_file import SHIPPED_DESIGNER, PolicyFile, layout_problem, read_policy
 
 ACCEPTS = {"max_side_m": 20.0, "min_cells_per_block": 1.0, "max_cells_per_block": 4.0, "max_free_m2": 200.0}
 """What the `floor` observation's scale features represent without saturating (`env.floor_scale`): a known area
@@ -183,3 +184,18 @@ def designer_env(designer: Designer, map_path: str, start_xy: tuple[float, float
     if problem:
         raise SmorphiError(f"{designer.path}: {problem}")
     return env
+
+
+def design_map(
+    map_path: str | Path,
+    budget: int = DEFAULT_BUDGET,
+    policy: str | Path | None = None,
+    start_xy: tuple[float, float] | None = None,
+    seed: int = DESIGN_SEED,
+) -> Design:
+    """A designer's shape for one map file, as `smorphi-rl design` finds it: the shipped designer (or the exported
+    policy at `policy`) walked for `budget` planner evaluations, then compass search (`design.run_design`). Its
+    `best` holds the shape and its scores under the designer's own weights (`path_term: per_area`)."""
+    designer = load_designer(Path(policy) if policy is not None else SHIPPED_DESIGNER)
+    env = designer_env(designer, str(map_path), start_xy)
+    return run_design(env, designer.logits, budget, seed=seed)

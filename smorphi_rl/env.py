@@ -65,6 +65,7 @@ from __future__ import annotations
 
 import copy
 import hashlib
+import itertools
 from collections import OrderedDict
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
@@ -84,6 +85,8 @@ from smorphi_rl.planning import Evaluator, Planning
 from smorphi_rl.score import Scored, Weights
 
 ENV_ID = "smorphi_rl/Morphology-v0"
+"""The id `import smorphi_rl` registers this env under with gymnasium (`smorphi_rl.ENV_ID`, checked equal by the
+tests: the package's own import stays light)."""
 
 
 PEAK_SHARPNESS = 10.0
@@ -242,9 +245,14 @@ def squash(x: float) -> float:
 class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     """Smorphi morphology design as an MDP (module docstring has the full spec)."""
 
-    metadata: dict[str, Any] = {"render_modes": []}  # noqa: RUF012 (gymnasium's convention)
+    metadata: dict[str, Any] = {"render_modes": ["rgb_array"], "render_fps": 4}  # noqa: RUF012 (gymnasium's)
 
-    def __init__(self, env_config: dict[str, Any] | None = None, **kwargs: Any) -> None:
+    def __init__(self, env_config: dict[str, Any] | None = None, render_mode: str | None = None, **kwargs: Any) -> None:
+        """`env_config` (and keyword arguments, which win) as `docs/commands.md` lists; `render_mode` None or
+        "rgb_array" (`render` returns the floor with the current shape's covered area and path)."""
+        if render_mode not in (None, *self.metadata["render_modes"]):
+            raise EnvConfigError(f"render_mode {render_mode!r} is not one of None, 'rgb_array'")
+        self.render_mode = render_mode
         self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
         cfg = self.config
         self._mode = RewardMode(cfg.reward)
@@ -451,6 +459,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
         if len(moves) != 3 or any(m not in self._indices for m in moves):
             raise SmorphiError(f"action must be three values in 0..{2 * self._stay}, got {action!r}")
+        moves = [int(m) for m in moves]  # 1.0 is the index 1
         self._steps += 1
         before = self._last
         truncated = self._steps >= self.config.max_steps
@@ -478,11 +487,41 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
             reward = -self.config.step_cost + (scored.R1 / stats.sigma if truncated or terminated else 0.0)
         return self._observe(), float(reward), bool(terminated), bool(truncated), self._info()
 
+    def render(self) -> np.ndarray | None:  # type: ignore[override]  # gymnasium types it as any RenderFrame
+        """`render_mode="rgb_array"`: the current floor as an RGB image, north up, at least RENDER_MIN_PX on its
+        longer side: free white, occupied black, unknown grey, what the current shape covers green, its coverage
+        path red (the colours of the figures). None, with gymnasium's warning, without a render mode."""
+        if self.render_mode is None:
+            gym.logger.warn("render() without a render_mode: make the env with render_mode='rgb_array'")
+            return None
+        if self._last is UNSCORED:
+            raise gym.error.ResetNeeded("call reset() before render()")
+        return floor_image(self.grid_map, self.plan(self.theta))
 
-def register() -> None:
-    """Register with gymnasium under ENV_ID (idempotent)."""
-    if ENV_ID not in gym.registry:
-        gym.register(id=ENV_ID, entry_point="smorphi_rl.env:MorphologyEnv")
+
+RENDER_MIN_PX = 256
+"""`render`'s image is scaled by whole cells to at least this many pixels on its longer side."""
+RENDER_COLOURS = np.array([[255, 255, 255], [0, 0, 0], [170, 170, 170], [124, 205, 137]], dtype=np.uint8)
+"""Free, occupied, unknown and covered cells (Cell's values, then covered), as the figures draw them."""
+PATH_COLOUR = np.array([214, 39, 40], dtype=np.uint8)
 
 
-register()
+def floor_image(grid_map: Map, plan: CoverageResult) -> np.ndarray:
+    """`grid_map` as an RGB image (rows north first) with `plan`'s covered free cells and its path between the
+    footprint's centres; the path's points past the map's edge (the paper's planner may stand there) are left out."""
+    codes = grid_map.cells.astype(np.intp)
+    if plan.covered is not None:
+        codes = np.where(plan.covered & (grid_map.cells == Cell.FREE), len(RENDER_COLOURS) - 1, codes)
+    scale = max(1, -(-RENDER_MIN_PX // max(codes.shape)))
+    image = np.repeat(np.repeat(RENDER_COLOURS[codes], scale, axis=0), scale, axis=1)
+    if plan.placements is not None and len(plan.placements):
+        l, w = plan.footprint_cells
+        centres = (plan.placements + np.array([l / 2, w / 2])) * scale  # (row, col) in pixels, as path_points_m
+        for a, b in itertools.pairwise(centres):
+            n = int(np.abs(b - a).max()) + 1
+            rows, cols = (np.rint(np.linspace(a[i], b[i], n)).astype(np.intp) for i in (0, 1))
+            for dr, dc in ((0, 0), (1, 0), (0, 1), (1, 1))[: 4 if scale > 2 else 1]:  # 2 px wide where cells are
+                r, c = rows + dr, cols + dc
+                keep = (r >= 0) & (r < image.shape[0]) & (c >= 0) & (c < image.shape[1])
+                image[r[keep], c[keep]] = PATH_COLOUR
+    return np.ascontiguousarray(image[::-1])  # row 0 of a map is its lowest y: north up

@@ -9,6 +9,8 @@ from enum import Enum
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import DEFAULT_BLOCK_SIDE_M, Morphology
@@ -248,7 +250,10 @@ class EnvConfig:
 
 
 def _coerce(name: str, value: Any) -> Any:
-    """Check one env_config value's type; lists become tuples, numbers floats or ints."""
+    """Check one env_config value's type; lists become tuples, numbers floats or ints (numpy's, and its arrays,
+    as Python's: a value a user's code or a sampler computed)."""
+    if isinstance(value, np.generic | np.ndarray):
+        value = value.tolist()
     try:
         if name == "maps":
             from smorphi_rl.map_sources import MapSourceError, resolve

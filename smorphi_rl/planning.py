@@ -8,14 +8,16 @@ in one compiled call, deduplicated by F, and only unseen footprints are planned.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
 from smorphi_rl import _kernels as k
 from smorphi_rl.coverage import (
     AUTO_START,
+    PLANNERS,
     CoverageResult,
     Footprint,
     Planner,
@@ -26,9 +28,9 @@ from smorphi_rl.coverage import (
     raise_for_status,
     result_dict,
 )
-from smorphi_rl.errors import MorphologyError
+from smorphi_rl.errors import MorphologyError, SmorphiError
 from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
-from smorphi_rl.maps import Cell, Map, check_fits
+from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.score import Weights
 
 _PLAN_COLS = [k.COL_COVERED, k.COL_PLEN, k.COL_EW, k.COL_NS, k.COL_BOUND]  # what the cache holds per F
@@ -106,6 +108,14 @@ def validate_thetas(thetas: np.ndarray) -> np.ndarray:
     return np.require(arr, requirements=("C", "W"))
 
 
+def as_planner(planner: Planner | str) -> Planner:
+    """`planner` as a Planner; an unknown name is one line naming the planners."""
+    try:
+        return Planner(planner)
+    except ValueError:
+        raise SmorphiError(f"unknown planner {planner!r} (choose from {', '.join(PLANNERS)})") from None
+
+
 class Evaluator:
     """FBCPP metrics of morphologies on one map, cached by footprint matrix.
 
@@ -113,13 +123,17 @@ class Evaluator:
 
     def __init__(
         self,
-        grid_map: Map,
+        grid_map: Map | str | Path,
         block_side_m: float = DEFAULT_BLOCK_SIDE_M,
         start: Start = AUTO_START,
         cache: bool = True,
-        planner: Planner = Planner.PAPER,
+        planner: Planner | str = Planner.PAPER,
         cache_limit: int | None = None,
     ) -> None:
+        """`grid_map` a Map or a map file's path; `planner` a Planner or its name."""
+        if not isinstance(grid_map, Map):
+            grid_map = load_map(grid_map)
+        planner = as_planner(planner)
         self.block_side_m = check_fits(grid_map, block_side_m, whole_footprint=planner is Planner.FIT)
         self.start = start
         self.use_cache = cache
@@ -149,18 +163,22 @@ class Evaluator:
             self._cache.clear()
         self._cache[key] = counts
 
-    def footprint(self, morphology: Morphology) -> Footprint:
+    def footprint(self, morphology: Morphology | Sequence[float]) -> Footprint:
         """F and the footprint size of one morphology (compiled rasteriser)."""
         feasible, l, w, w_m, l_m = self._rasterise(morphology)
         return Footprint(self._buf[:l, :w].astype(bool), w_m, l_m, bool(feasible))
 
-    def _rasterise(self, morphology: Morphology) -> tuple[bool, int, int, float, float]:
+    def _rasterise(self, morphology: Morphology | Sequence[float]) -> tuple[bool, int, int, float, float]:
+        """F into the buffer; a shape given as three angles is checked as a Morphology is."""
+        if not isinstance(morphology, Morphology):
+            morphology = Morphology.of(morphology)
         t1, t2, t3 = (float(t) for t in morphology.angles)
         r = self.grid_map.resolution_m
         return k.footprint_into(t1, t2, t3, self.block_side_m, r, self._buf)
 
-    def evaluate(self, morphology: Morphology) -> CoverageResult:
-        """Metrics of one morphology (no path): the env's per-step call."""
+    def evaluate(self, morphology: Morphology | Sequence[float]) -> CoverageResult:
+        """Metrics of one morphology, or three hinge angles (no path): the env's per-step call."""
+        morphology = morphology if isinstance(morphology, Morphology) else Morphology.of(morphology)
         feasible, l, w, w_m, l_m = self._rasterise(morphology)
         if not feasible:
             return CoverageResult(morphology.angles, False, 0.0, 0.0, 0, 0.0, 0, (w_m, l_m), (l, w),
@@ -196,8 +214,9 @@ class Evaluator:
             planner=self.planner.value,
         )
 
-    def plan(self, morphology: Morphology) -> CoverageResult:
+    def plan(self, morphology: Morphology | Sequence[float]) -> CoverageResult:
         """Metrics plus path tiles and covered mask, for plots and replays (not cached)."""
+        morphology = morphology if isinstance(morphology, Morphology) else Morphology.of(morphology)
         return plan_coverage(self.prepared, self.footprint(morphology), morphology.angles, self.start)
 
     def evaluate_many(self, thetas: np.ndarray) -> BatchResult:
@@ -305,6 +324,9 @@ class Planning:
     planner: Planner = Planner.PAPER
     start_xy: tuple[float, float] | None = None
     """A free point (metres, map frame) the plan starts from; None: the planner's default start."""
+
+    def __post_init__(self) -> None:  # a planner's name ("fit") is the planner, as in env_config
+        object.__setattr__(self, "planner", as_planner(self.planner))
 
     def start_on(self, grid_map: Map) -> Start:
         """The start on `grid_map` (the point must be free there)."""

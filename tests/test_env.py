@@ -21,7 +21,8 @@ NOOP = np.array([1, 1, 1])
 
 
 def test_passes_gymnasium_check_env_unmodified():
-    check_env(MorphologyEnv(), skip_render_check=True)
+    check_env(gym.make(ENV_ID).unwrapped)  # made, for its spec: the render modes are checked too
+    check_env(gym.make(ENV_ID, render_mode="rgb_array").unwrapped)
 
 
 def test_registered_with_gymnasium():
@@ -29,6 +30,56 @@ def test_registered_with_gymnasium():
     obs, info = env.reset(seed=1)
     assert env.observation_space.contains(obs)
     assert info["map"] == "map-1"
+
+
+def test_importing_the_package_registers_the_env():
+    """Only `import smorphi_rl.env` registered it: `import smorphi_rl; gymnasium.make(...)` found no namespace."""
+    import subprocess
+    import sys
+
+    import smorphi_rl
+
+    code = "import gymnasium, smorphi_rl; print(gymnasium.make(smorphi_rl.ENV_ID).reset(seed=0)[1]['map'])"
+    made = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert made.returncode == 0 and made.stdout.split() == ["map-1"], made.stderr[-2000:]
+    assert smorphi_rl.ENV_ID == ENV_ID
+
+
+def test_rgb_array_render_draws_the_floor_north_up_with_what_the_shape_covers():
+    """gymnasium's `render_mode` was refused as an unknown env_config key, even None."""
+    from smorphi_rl.env import PATH_COLOUR, RENDER_COLOURS
+    from smorphi_rl.maps import Cell
+
+    env = gym.make(ENV_ID, render_mode="rgb_array")
+    with pytest.raises(gym.error.ResetNeeded):
+        env.render()
+    env.reset(seed=0, options={"theta": (0, 180, 0)})  # the O: every free cell of map-1 but a few covered
+    image = env.render()
+    grid, plan = env.unwrapped.grid_map, env.unwrapped.plan((0, 180, 0))
+    scale = image.shape[0] // grid.height
+    assert image.shape == (grid.height * scale, grid.width * scale, 3) and image.dtype == np.uint8 and scale * 50 >= 256
+    cells = image[scale // 2 :: scale, scale // 2 :: scale][::-1]  # a pixel a cell, row 0 the map's lowest y again
+    occupied = np.all(cells == RENDER_COLOURS[Cell.OCCUPIED], axis=-1)
+    covered = np.all(cells == RENDER_COLOURS[-1], axis=-1)
+    path = np.all(cells == PATH_COLOUR, axis=-1)
+    assert np.array_equal(occupied | path & (grid.cells == Cell.OCCUPIED), grid.cells == Cell.OCCUPIED)
+    assert np.array_equal((covered | path) & ~(grid.cells == Cell.OCCUPIED), plan.covered & (grid.cells == Cell.FREE))
+    assert path.sum() > 20
+    with pytest.warns(UserWarning, match="render\\(\\) without a render_mode"):
+        assert MorphologyEnv().render() is None  # no render mode: gymnasium's warning, no image
+    with pytest.raises(EnvConfigError, match="render_mode 'human' is not one of None, 'rgb_array'"):
+        MorphologyEnv(render_mode="human")
+
+
+def test_an_action_of_whole_floats_is_the_same_action():
+    """`step(np.array([1., 2., 1.]))` passed the range check and failed indexing a tuple with a float."""
+    ints, floats = MorphologyEnv(), MorphologyEnv()
+    ints.reset(seed=4)
+    floats.reset(seed=4)
+    assert ints.step(np.array([2, 0, 1]))[1] == floats.step(np.array([2.0, 0.0, 1.0]))[1]
+    assert ints.theta == floats.theta
+    with pytest.raises(SmorphiError, match="action must be three values"):
+        floats.step(np.array([1.5, 1.0, 1.0]))
 
 
 def _rollout(seed: int, actions: np.ndarray, config: dict | None = None):
@@ -426,3 +477,15 @@ def test_move_sizes_give_seven_moves_per_hinge():
 def test_the_default_layout_is_the_papers():
     env = MorphologyEnv()
     assert set(env.observation_space.spaces) == {"map", "angles", "metrics"} and list(env.action_space.nvec) == [3] * 3
+
+
+def test_numpy_values_in_env_config_are_read_as_pythons():
+    """`w1=np.int64(1)` or `moves=np.array([1, 4])` were refused as bad values while `max_steps=np.int32(50)`
+    passed: a value a user's code or a sampler computed is numpy's as often as not."""
+    built = EnvConfig.from_dict({"w1": np.int64(2), "w2": np.float64(0.25), "moves": np.array([1, 4]),
+                                 "planner": np.str_("fit"), "start_theta": np.array([10, 20, 30])})  # fmt: skip
+    assert (built.w1, built.w2, built.moves, built.planner, built.start_theta) == (2.0, 0.25, (1, 4), "fit",
+                                                                                   (10.0, 20.0, 30.0))  # fmt: skip
+    assert type(built.w1) is float and all(type(m) is int for m in built.moves)
+    with pytest.raises(EnvConfigError, match=r"env_config 'w1': bad value \[1, 2\]"):
+        EnvConfig.from_dict({"w1": np.array([1, 2])})

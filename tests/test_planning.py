@@ -177,3 +177,22 @@ def test_the_paper_planners_start_warning_counts_the_walls_its_tiles_cross():
     one_metre = Map.from_text("\n".join([*floor, *["#" * 40] * 20, "." * 40]), 0.05, name="one")
     assert Planning().start_warning(one_metre) is None  # the I along y (0.68 m) straddles a 1 m wall
     assert Planning(planner=Planner.FIT).start_warning(thin) is None  # `fit` starts in the largest free area
+
+
+def test_a_map_file_a_planners_name_and_three_angles_are_taken_as_they_are_written():
+    """From Python, `Evaluator("map.yaml")`, `.evaluate((95, 59, 103))` and `Planning(planner="fit")` failed deep
+    inside (an AttributeError on 'resolution_m', 'angles' or 'code'), though env_config takes "fit" as a name."""
+    from smorphi_rl.coverage import Planner
+    from smorphi_rl.planning import Planning
+
+    by_path = Evaluator(str(MAP_1), planner="fit")
+    by_value = Evaluator(load_map(MAP_1), planner=Planner.FIT)
+    shape = Morphology(95, 59, 103)
+    ours, theirs = by_path.evaluate((95, 59, 103)), by_value.evaluate(shape)
+    assert (ours.planner, ours.P_c, ours.P_len) == ("fit", theirs.P_c, theirs.P_len)
+    assert by_path.plan(np.array([95, 59, 103])).P_len == by_value.plan(shape).P_len
+    assert Planning(planner="fit") == Planning(planner=Planner.FIT) and hash(Planning(planner="fit"))
+    with pytest.raises(SmorphiError, match=r"unknown planner 'fast' \(choose from paper, fit\)"):
+        Planning(planner="fast")
+    with pytest.raises(MorphologyError, match="needs 3 hinge angles, got 2"):
+        by_path.evaluate((95, 59))

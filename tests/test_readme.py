@@ -120,3 +120,19 @@ def test_every_command_and_option_is_documented(capsys):
             named = [o for o in options if re.search(re.escape(o) + r"(?![\w-])", readme + reference)]
             missing += [f"{' '.join(argv)} {o}" for o in sorted(options - set(named))]
     assert not missing
+
+
+def test_the_python_example_of_the_reference_runs_as_written(tmp_path):
+    """docs/commands.md's "From Python" block, run as a script where `maps/` is the project's: every name it imports
+    exists and every call it shows works (the printed values are the library's)."""
+    workdir = tmp_path
+    (workdir / "maps").symlink_to(ROOT / "maps")
+    text = (ROOT / "docs" / "commands.md").read_text()
+    (code,) = re.findall(r"## From Python\n.*?```python\n(.*?)```", text, flags=re.S)
+    env = {"PATH": str(Path(sys.executable).parent), "HOME": str(workdir), "PYTHONUNBUFFERED": "1"}
+    run = subprocess.run([sys.executable, "-c", code], cwd=workdir, capture_output=True, text=True, timeout=600,
+                         env=env)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    printed = run.stdout.splitlines()
+    assert len(printed) == 3 and float(printed[0]) > 0 and printed[1].startswith("(") and printed[2].startswith("(")
+    assert [p.name for p in workdir.iterdir()] == ["maps"]  # the library writes nothing it was not asked to

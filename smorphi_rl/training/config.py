@@ -427,7 +427,8 @@ def algorithm_config(
     """The RLlib AlgorithmConfig (new API stack) for `cfg`: 2 env runners, our module and callbacks
     (`callbacks`, default MorphologyCallbacks; fine-tuning passes its own subclass). `recording`, a
     RecordingConfig dict, makes the env runners record episodes to MCAP. `lean`: the env runners use our
-    connector pipelines (`sampling.py`), which sample exactly what RLlib's default ones do, faster."""
+    connector pipelines (`sampling.py`), which sample exactly what RLlib's default ones do, faster. The env's name
+    is registered here, so that `algorithm_config(cfg).build_algo()` works outside Tune too."""
     from ray.rllib.algorithms.appo import APPOConfig
     from ray.rllib.algorithms.impala import IMPALAConfig
     from ray.rllib.algorithms.ppo import PPOConfig
@@ -439,6 +440,7 @@ def algorithm_config(
     from smorphi_rl.training.sampling import LEAN_SAMPLING
     from smorphi_rl.vector_env import RECORDING_KEY, SEED_KEY
 
+    register_env()
     hp = cfg.hyperparameters
     offset, scale = value_normalisation(cfg.env, hp.gamma)
     config_cls = {"ppo": PPOConfig, "impala": IMPALAConfig, "appo": APPOConfig}[cfg.algo]

@@ -379,3 +379,14 @@ def test_a_floor_narrower_than_a_block_is_named_as_the_map(capsys, tmp_path):
     code, _, err = run(capsys, "design", "--map", str(tmp_path / "tiny.yaml"))
     assert code == 1 and "map tiny (3 x 3 cells of 0.05 m) is narrower than one block" in err
     assert "env_config" not in err
+
+
+def test_design_map_gives_the_design_the_command_gives(capsys):
+    """From Python, one call designs as `smorphi-rl design` does (its default budget, seed and designer)."""
+    from smorphi_rl.designer import design_map
+
+    code, out, _ = run(capsys, "design", "--map", str(FLOOR), "--json")
+    record = json.loads(out)
+    design = design_map(FLOOR)
+    assert code == 0 and list(design.best.theta) == record["theta"] and record["R1"] == design.best.R1
+    assert design.evaluations == record["evaluations"] == 200
