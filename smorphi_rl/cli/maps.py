@@ -40,8 +40,8 @@ def register(sub: Any) -> None:
                               ("--density", "obstacle_density", "target fraction of occupied cells")):  # fmt: skip
         default = param_default(generate_map, param)
         gen.add_argument(flag, type=finite_arg, default=default, help=f"{text} (default: {default:g})")
-    gen.add_argument("--seed", type=seed_arg, default=0)
-    gen.add_argument("--format", choices=("pgm", "png"), default="pgm")
+    gen.add_argument("--seed", type=seed_arg, default=0, help="the floor's seed, or the first of --count (default: 0)")
+    gen.add_argument("--format", choices=("pgm", "png"), default="pgm", help="the image's format (default: pgm)")
     gen.add_argument("--force", action="store_true", help="overwrite an existing map")
     gen.set_defaults(func=cmd_maps_generate)
     show = maps_sub.add_parser("show", help="print a map's size and fractions and draw it")

@@ -72,15 +72,14 @@ def register(sub: Any) -> None:
     sw.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto)")
     sw.add_argument("--resume", action="store_true", help="continue the interrupted experiment of this sweep")
     sw.add_argument("--log-dir", type=nonempty, default=DEFAULT_LOG_DIR,
-                    help="the experiment goes to LOG_DIR/<the sweep's name>")  # fmt: skip
+                    help=f"the experiment goes to LOG_DIR/<the sweep's name> (default: {DEFAULT_LOG_DIR})")  # fmt: skip
     sw.set_defaults(func=cmd_sweep)
 
     from smorphi_rl.reproduce import BUDGETS
 
     rp = sub.add_parser("reproduce", help="the paper's experiments end to end, with a claim-by-claim report")
-    rp.add_argument(
-        "--budget", choices=tuple(BUDGETS), default="small", help="small (~10 min), paper (hours), tiny (smoke)"
-    )
+    rp.add_argument("--budget", choices=tuple(BUDGETS), default="small",
+                    help="small (~10 min, the default), paper (hours), tiny (smoke)")  # fmt: skip
     run_options(rp, "run name (default: reproduce-BUDGET-TIMESTAMP)")
     rp.set_defaults(func=cmd_reproduce)
 

@@ -252,11 +252,12 @@ def test_a_signal_while_ray_starts_stops_the_run(cached_optimum, signame):
     assert proc.stderr is not None
     first = proc.stderr.readline()  # the optimum line, from the cache: Ray starts next and takes seconds
     deadline = time.monotonic() + 120
-    while not _ray_daemon_of(proc.pid) and time.monotonic() < deadline:  # inside ray.init
+    while not (starting := _ray_daemon_of(proc.pid)) and time.monotonic() < deadline:  # inside ray.init
         time.sleep(0.05)
     time.sleep(0.3)
     proc.send_signal(getattr(signal, signame))
     _, err = proc.communicate(timeout=180)
+    assert starting, "Ray's daemons never showed: the stop did not come as Ray started"
     assert "exact optimum" in first and proc.returncode == 130, (first, err)
     nothing = f"smorphi-rl: interrupted: stopped before the run's first report: nothing was kept ({logs / name} was"
     assert err.strip().splitlines()[-1] == f"{nothing} removed)" and "Traceback" not in err
@@ -277,11 +278,12 @@ def test_a_run_stopped_before_its_first_report_leaves_no_folder(cached_optimum):
     proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)  # fmt: skip
     deadline = time.monotonic() + 180
-    while not list((logs / name).glob("ppo-*")) and time.monotonic() < deadline:
+    while not (trial := list((logs / name).glob("ppo-*"))) and time.monotonic() < deadline:
         time.sleep(0.05)
     reported = any(f.stat().st_size for f in (logs / name).glob("ppo-*/result.json"))
     proc.send_signal(signal.SIGINT)
     _, err = proc.communicate(timeout=180)
+    assert trial, "Tune never made the trial's folder: the stop did not come between it and the first report"
     assert not reported, "the first iteration finished before the signal"
     nothing = f"stopped before the run's first report: nothing was kept ({logs / name} was removed)"
     assert proc.returncode == 130 and err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: {nothing}", err
