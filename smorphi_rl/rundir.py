@@ -84,47 +84,48 @@ def safe_name(text: str) -> str:
 
 def claim_line() -> str:
     """What a claim holds: this process's pid, the time and the machine (a log folder shared between machines holds
-    claims whose pids mean nothing here)."""
+    claims whose pids mean nothing here) and, on Linux, which process that pid was (`process_identity`)."""
     import socket
 
-    return f"pid {os.getpid()} at {time.strftime(CLAIM_TIME)} on {socket.gethostname()}\n"
+    me = process_identity(os.getpid())
+    known = "" if me is None else f" started {me[0]} boot {me[1]}"
+    return f"pid {os.getpid()} at {time.strftime(CLAIM_TIME)} on {socket.gethostname()}{known}\n"
 
 
 CLAIM_TIME = "%Y-%m-%dT%H:%M:%S%z"
-"""A claim's time, with its UTC offset: a process that started after it is not the claimant (a pid used again)."""
+"""A claim's time, for the reader: with its UTC offset."""
 
 
-def _claim(run_dir: Path) -> tuple[int, str, float | None]:
-    """(pid, machine, time) a run directory's claim names: pid 0 when it names none or cannot be read, machine ''
-    where the claim names none (written before machines were recorded: taken as this one), time None where it names
-    none with its UTC offset (written before they were)."""
-    from datetime import datetime
-
-    try:
-        with (run_dir / MARKER).open(errors="replace") as fh:
-            words = fh.read(256).split()  # "pid N at TIME on HOST": no more is read of a marker grown huge
-        pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
-    except (OSError, ValueError):
-        return 0, "", None
-    try:
-        when: float | None = datetime.strptime(words[3], CLAIM_TIME).timestamp() if len(words) > 3 else None
-    except ValueError:  # an older claim's time, without its offset
-        when = None
-    return pid, words[5] if len(words) > 5 and words[4] == "on" else "", when
-
-
-def _started_after(pid: int, when: float) -> bool:
-    """Whether process `pid` of this machine is known to have started after `when` (epoch seconds; Linux's /proc,
-    to its whole seconds): then it is not the process that wrote a claim at `when`, only one given its pid again."""
+def process_identity(pid: int) -> tuple[int, str] | None:
+    """(start time in clock ticks since boot, the boot's id) of process `pid`, from Linux's /proc: the same pid with
+    either different is another process (the pid given again, or a reboot since). Read from counters, never from the
+    wall clock, which a clock step (NTP, a VM resumed) moves. None where /proc does not tell."""
     try:
         with open(f"/proc/{pid}/stat", "rb") as fh:
             ticks = int(fh.read().rsplit(b")", 1)[1].split()[19])  # field 22, after the name in parentheses
-        with open("/proc/stat", "rb") as fh:
-            boot = next(int(line.split()[1]) for line in fh if line.startswith(b"btime "))
-        started = boot + ticks / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError, StopIteration):
-        return False
-    return started > when + 2  # the claim's time and the boot time are whole seconds
+        with open("/proc/sys/kernel/random/boot_id") as fh:
+            boot = fh.read().strip()
+    except (OSError, ValueError, IndexError):
+        return None
+    return (ticks, boot) if boot and " " not in boot else None
+
+
+def _claim(run_dir: Path) -> tuple[int, str, tuple[int, str] | None]:
+    """(pid, machine, identity) a run directory's claim names: pid 0 when it names none or cannot be read, machine ''
+    where the claim names none (written before machines were recorded: taken as this one), identity None where it
+    names none (written before they were, or where /proc does not tell)."""
+    try:
+        with (run_dir / MARKER).open(errors="replace") as fh:
+            words = fh.read(256).split()  # "pid N at TIME on HOST started T boot B": no more of a marker grown huge
+        pid = int(words[1]) if len(words) > 1 and words[0] == "pid" else 0
+    except (OSError, ValueError):
+        return 0, "", None
+    host = words[5] if len(words) > 5 and words[4] == "on" else ""
+    try:
+        identity = (int(words[7]), words[9]) if len(words) > 9 and (words[6], words[8]) == ("started", "boot") else None
+    except ValueError:
+        identity = None
+    return pid, host, identity
 
 
 def _here(host: str) -> bool:
@@ -149,24 +150,27 @@ def _alive(pid: int) -> bool:
 def _gone(run_dir: Path) -> bool:
     """Whether the process `run_dir`'s claim names is known to have ended: one of this machine, not running. Another
     machine's is never known to have ended (its pid means nothing here): its run may be writing there now."""
-    pid, host, when = _claim(run_dir)
-    return pid > 0 and _here(host) and pid != os.getpid() and not _claimant_alive(pid, when)
+    pid, host, identity = _claim(run_dir)
+    return pid > 0 and _here(host) and pid != os.getpid() and not _claimant_alive(pid, identity)
 
 
-def _claimant_alive(pid: int, when: float | None) -> bool:
-    """Whether the process that wrote a claim of this machine at `when` still runs: `pid` runs and did not start
-    after the claim."""
-    return _alive(pid) and not (when is not None and _started_after(pid, when))
+def _claimant_alive(pid: int, identity: tuple[int, str] | None) -> bool:
+    """Whether the process that wrote a claim of this machine still runs: `pid` runs and, where the claim says which
+    process it was, is that one (a reused pid, or one of a later boot, is not)."""
+    if not _alive(pid):
+        return False
+    now = None if identity is None else process_identity(pid)
+    return identity is None or now is None or now == identity
 
 
 def in_use_by(run_dir: Path) -> str | None:
     """The process whose claim `run_dir` holds while it may run (another job writing there now): its pid, with its
     machine where that is another; None if none."""
-    pid, host, when = _claim(run_dir)
+    pid, host, identity = _claim(run_dir)
     if pid > 0 and not _here(host):  # a container's name changes with each container: the way out is said
         return (f"{pid} on {host} (another machine's, or an earlier container's: if nothing runs there now, remove "
                 f"{rel(run_dir / MARKER)})")  # fmt: skip
-    return str(pid) if _claimant_alive(pid, when) else None
+    return str(pid) if _claimant_alive(pid, identity) else None
 
 
 FINISHED_FILES = ("summary.json", "report.md", "transfer.md", "sweep.md")

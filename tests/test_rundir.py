@@ -149,28 +149,34 @@ def test_a_folder_claimed_by_a_dead_process_is_reused_and_a_live_one_is_not(tmp_
         live.kill()
 
 
-@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="a process's start time is read from Linux's /proc")
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="a process's start is read from Linux's /proc")
 def test_a_process_given_a_dead_claimants_pid_again_is_not_the_claimant(tmp_path):
     """A claim named its pid alone: after a reboot, or once pids wrapped, whatever process holds that pid now kept
-    the folder "in use" for ever. A process that started after the claim was written did not write it."""
+    the folder "in use" for ever. A claim now says which process it was (its start in ticks since boot, the boot),
+    read from counters a clock step does not move."""
     import socket
     import subprocess
     import sys
-    import time
 
-    from smorphi_rl.rundir import CLAIM_TIME, MARKER, cut_short, in_use_by
+    from smorphi_rl.rundir import MARKER, claim_line, cut_short, in_use_by, process_identity
 
     live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
     try:
-        for name, age_s in (("earlier", 3600), ("later", -5)):  # claimed an hour before it started; after
+        ticks, boot = process_identity(live.pid)
+        claims = {"itself": f"started {ticks} boot {boot}", "pid-reused": f"started {ticks - 1} boot {boot}",
+                  "other-boot": f"started {ticks} boot not-{boot}", "older": ""}  # fmt: skip
+        for name, identity in claims.items():
             (tmp_path / name).mkdir()
-            when = time.strftime(CLAIM_TIME, time.localtime(time.time() - age_s))
-            (tmp_path / name / MARKER).write_text(f"pid {live.pid} at {when} on {socket.gethostname()}\n")
-        assert in_use_by(tmp_path / "earlier") is None and cut_short(tmp_path / "earlier")
-        assert in_use_by(tmp_path / "later") == str(live.pid) and not cut_short(tmp_path / "later")
+            line = f"pid {live.pid} at 2026-12-07T11:00:00+0000 on {socket.gethostname()} {identity}"
+            (tmp_path / name / MARKER).write_text(line.rstrip() + "\n")
+        for name in ("itself", "older"):  # a claim written before identities were: its pid alone, as before
+            assert in_use_by(tmp_path / name) == str(live.pid) and not cut_short(tmp_path / name), name
+        for name in ("pid-reused", "other-boot"):
+            assert in_use_by(tmp_path / name) is None and cut_short(tmp_path / name), name
     finally:
         live.kill()
         live.wait()
+    assert claim_line().rstrip().endswith(f" started {process_identity(os.getpid())[0]} boot {boot}")
 
 
 def test_a_run_killed_before_it_finished_is_named_so_when_its_name_or_its_files_are_asked_for(tmp_path):
@@ -396,7 +402,7 @@ def test_another_machines_claim_is_taken_as_alive_on_a_shared_log_folder(tmp_pat
         claim_again(there)
     (there / MARKER).write_text(f"pid {dead} at 2026-01-01T00:00:00 on {socket.gethostname()}\n")  # this machine's
     assert in_use_by(there) is None and cut_short(there)
-    assert claim_line().rstrip().endswith(f" on {socket.gethostname()}")
+    assert f" on {socket.gethostname()}" in claim_line()
 
 
 def test_two_runs_started_within_one_second_take_two_stamped_names(tmp_path):
