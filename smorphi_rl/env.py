@@ -80,7 +80,7 @@ from smorphi_rl.errors import MapError, MorphologyError, SmorphiError
 from smorphi_rl.floorplans import generate_floor
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.map_sources import generators
-from smorphi_rl.maps import Cell, Map, check_fits, load_map
+from smorphi_rl.maps import CELL_COLOURS, Cell, Map, check_fits, load_map
 from smorphi_rl.planning import Evaluator, Planning
 from smorphi_rl.score import Scored, Weights
 
@@ -501,8 +501,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
 RENDER_MIN_PX = 256
 """`render`'s image is scaled by whole cells to at least this many pixels on its longer side."""
-RENDER_COLOURS = np.array([[255, 255, 255], [0, 0, 0], [170, 170, 170], [124, 205, 137]], dtype=np.uint8)
-"""Free, occupied, unknown and covered cells (Cell's values, then covered), as the figures draw them."""
+RENDER_COLOURS = np.array([[int(c[i : i + 2], 16) for i in (1, 3, 5)] for c in CELL_COLOURS], dtype=np.uint8)
+"""Free, occupied, unknown and covered cells (Cell's values, then covered): the figures' `maps.CELL_COLOURS`."""
 PATH_COLOUR = np.array([214, 39, 40], dtype=np.uint8)
 
 

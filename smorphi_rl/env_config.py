@@ -252,8 +252,7 @@ class EnvConfig:
 def _coerce(name: str, value: Any) -> Any:
     """Check one env_config value's type; lists become tuples, numbers floats or ints (numpy's, and its arrays,
     as Python's: a value a user's code or a sampler computed)."""
-    if isinstance(value, np.generic | np.ndarray):
-        value = value.tolist()
+    value = _pythons(value)
     try:
         if name == "maps":
             from smorphi_rl.map_sources import MapSourceError, resolve
@@ -304,6 +303,15 @@ def _coerce(name: str, value: Any) -> Any:
         raise  # already names the problem (a ValueError too)
     except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf), float of a 400-digit integer
         raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
+
+
+def _pythons(value: Any) -> Any:
+    """`value` with numpy's scalars and arrays, at any depth of a list or tuple, as Python's."""
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    if isinstance(value, list | tuple):
+        return [_pythons(v) for v in value]
+    return value
 
 
 def _real(value: Any) -> float:

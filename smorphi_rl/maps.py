@@ -49,6 +49,11 @@ class Cell(enum.IntEnum):
     UNKNOWN = 2
 
 
+CELL_COLOURS = ("#ffffff", "#202020", "#b0b0b0", "#7bd389")
+"""Free, occupied and unknown cells (Cell's values), then covered free cells, as every figure and the env's render
+draw them."""
+
+
 class MapMode(enum.Enum):
     """How image pixels become cells (nav2 map_server's `mode`)."""
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from smorphi_rl.coverage import CoverageResult, path_points_m
 from smorphi_rl.geometry import Morphology, all_corners, angles_text
-from smorphi_rl.maps import Cell, Map
+from smorphi_rl.maps import CELL_COLOURS, Cell, Map
 from smorphi_rl.rundir import atomic_path, own_temp_folder, writable_folder
 from smorphi_rl.words import counted
 
@@ -44,7 +44,6 @@ matplotlib.rcParams["text.parse_math"] = False  # names are the user's (a map `r
 
 BLOCK_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#9467bd")
 # free, occupied, unknown, covered free
-CELL_COLOURS = ("#ffffff", "#202020", "#b0b0b0", "#7bd389")
 MAP_COLOURS = ListedColormap(list(CELL_COLOURS))
 
 

@@ -487,5 +487,7 @@ def test_numpy_values_in_env_config_are_read_as_pythons():
     assert (built.w1, built.w2, built.moves, built.planner, built.start_theta) == (2.0, 0.25, (1, 4), "fit",
                                                                                    (10.0, 20.0, 30.0))  # fmt: skip
     assert type(built.w1) is float and all(type(m) is int for m in built.moves)
+    inside = EnvConfig.from_dict({"moves": list(np.array([1, 4])), "start_xy": (np.float32(1.5), np.int64(2))})
+    assert inside.moves == (1, 4) and inside.start_xy == (1.5, 2.0)  # numpy's values in a list too
     with pytest.raises(EnvConfigError, match=r"env_config 'w1': bad value \[1, 2\]"):
         EnvConfig.from_dict({"w1": np.array([1, 2])})

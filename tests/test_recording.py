@@ -249,6 +249,9 @@ def test_replay_draws_the_area_each_step_covers_planned_again_with_the_recording
     other = json.loads(ep.metadata["env_config"]) | {"planner": "fit"}  # another planner's figures: none drawn
     assert replace(ep, metadata=ep.metadata | {"env_config": json.dumps(other)}).covered(picks, grid) == [None, None]
     assert replace(ep, metadata={}).covered(picks, grid) == [None, None]
+    older = json.loads(ep.metadata["env_config"]) | {"a_key_of_another_version": 1, "max_steps": 10**9}
+    again = replace(ep, metadata=ep.metadata | {"env_config": json.dumps(older)}).covered(picks, grid)
+    assert all(mask is not None for mask in again)  # only the planner's keys are read
     png = tmp_path / "r.png"
     assert main(["replay", str(recording), "--png", str(png)]) == 0
 

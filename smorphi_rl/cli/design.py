@@ -21,7 +21,6 @@ from smorphi_rl.maps import map_inputs
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
 from smorphi_rl.progress import progress_line
 from smorphi_rl.rundir import rel
-from smorphi_rl.score import degenerate_warning
 from smorphi_rl.words import counted
 
 
@@ -49,7 +48,7 @@ def register(sub: Any) -> None:
 def cmd_design(args: argparse.Namespace) -> int:
     """A shape for the floor from the shipped (or a given) designer within a budget of planner evaluations."""
     from smorphi_rl.design import check_budget, run_design
-    from smorphi_rl.designer import designer_env, load_designer, unfamiliar_warning
+    from smorphi_rl.designer import design_warnings, designer_env, load_designer
     from smorphi_rl.protocol import make_cache, optimum_cache
 
     t0 = time.perf_counter()
@@ -75,12 +74,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     }  # fmt: skip
     if start is not None:
         record["start_xy"] = list(start)
-    unfamiliar = unfamiliar_warning(designer, env.grid_map)  # after the design: a floor it refuses says one line
-    warnings = (
-        unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"),
-        env.config.planning.start_warning(env.grid_map, best.coverage_free_pct)
-        or degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, env.grid_map.name),
-    )
+    unfamiliar, reach = design_warnings(designer, env, best)  # after the design: a floor it refuses says one line
+    warnings = (unfamiliar and unfamiliar + ("" if args.exact else " (--exact measures the gap)"), reach)
     for warning in filter(None, warnings):  # on stderr: --json's stdout stays one object
         print(one_line(warning), file=sys.stderr)
     grid_map, about = env.grid_map, clipped(designer.summary, 200)  # what a policy.json says of itself

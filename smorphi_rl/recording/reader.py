@@ -114,7 +114,7 @@ class Episode:
         recording) or where the recording names no usable planner: a replay draws no area it cannot vouch for."""
         try:
             raw = json.loads(self.metadata["env_config"])
-            raw = {key: value for key, value in raw.items() if key != "maps"}  # the planner's keys, not the floors
+            raw = {key: raw[key] for key in PLANNING_KEYS if key in raw}  # an older recording's other keys may differ
             evaluator = EnvConfig.from_dict(raw).planning.evaluator(grid_map, cache=False)
         except (KeyError, TypeError, ValueError, AttributeError, RecursionError, SmorphiError):
             return [None] * len(indices)
@@ -164,6 +164,8 @@ class Episode:
         return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
 
 
+PLANNING_KEYS = ("planner", "start_xy", "block_side_m")
+"""The env_config keys a plan depends on (`EnvConfig.planning`): all a replay reads of a recording's configuration."""
 BLOCKS = 4
 """Smorphi's blocks: a scene draws each."""
 MAX_COORD_M = 2 * MAX_ORIGIN_M

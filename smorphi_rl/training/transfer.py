@@ -195,6 +195,8 @@ def run_transfer(
         try:
             job_dir = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
         except RunDirError as exc:
+            if stamped:  # a name the command made: no job of the user's to continue or wait for
+                raise
             running = in_use_by(Path(log_dir) / name)
             if running is not None:  # a job writing there now: no resume either
                 raise RunDirError(f"{Path(log_dir) / name} is in use by process {running}, a transfer job running now: "

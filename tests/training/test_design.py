@@ -310,6 +310,10 @@ def test_a_floor_outside_the_training_sizes_is_designed_with_a_warning(capsys, t
     edge = save_map(Map(np.zeros((40, 188), dtype=np.uint8), 0.08, name="edge"), tmp_path / "edge.yaml")
     code, _, err = run(capsys, "design", "--map", str(edge), "--json", "--budget", "5")
     assert code == 0 and "trained on floors" not in err  # 15.04 m: a 15 m floor counted in whole cells
+    from smorphi_rl.designer import design_map
+
+    with pytest.warns(UserWarning, match="closet: its known area is 1.2 x 1.0 m; this designer was trained"):
+        design_map(room, budget=20)  # from Python too, as a warning rather than a line on stderr
 
 
 def test_a_designer_records_the_sides_of_the_floors_it_was_trained_on(tmp_path, capsys):
