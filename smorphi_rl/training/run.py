@@ -20,7 +20,7 @@ from typing import Any
 from smorphi_rl import cluster, interrupts, jsontext
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import Interrupted, SmorphiError
-from smorphi_rl.geometry import Morphology, angles_text
+from smorphi_rl.geometry import O_SHAPE, Morphology, angles_text
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import StatusLine, bar, optimum_progress
@@ -47,7 +47,7 @@ from smorphi_rl.rundir import (
     shell_path,
     write_text_atomic,
 )
-from smorphi_rl.score import degenerate_warning
+from smorphi_rl.score import degenerate_warning, swamped_warning
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under
@@ -260,8 +260,13 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                           f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {shell_path(path)} --log-dir "
                           f"{shell_path(log_dir)}` finds it for train); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = found or NO_OPTIMUM
-            if found is None:
-                continue  # (`search optimum` warns when it finds it)
+            if found is None:  # the O-shape's figures stand in for the best's (its large footprint, a short path)
+                o_shape = cfg.env.planning.evaluator(grid_map, cache=False).evaluate(O_SHAPE)
+                line = None if start else swamped_warning(weights, o_shape.P_c, o_shape.P_len, cfg.env.path_term,
+                                                          grid_map.name, whose="the O-shape's")  # fmt: skip
+                if line:
+                    out.write(line + "\n")
+                continue
         elif (known := cached_optimum(grid_map, weights, cfg.env.planning, cache)) is not None:
             out.write(f"exact optimum of {grid_map.name}: read from {rel(cache)}\n")  # a transfer's later runs
             optima[grid_map.name] = known
