@@ -26,7 +26,7 @@ from pathlib import Path
 from _benchdocs import run_documented
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.training.run import fmt_duration
+from smorphi_rl.progress import fmt_duration
 from smorphi_rl.training.sweep_config import SweepConfig, load_sweep
 from smorphi_rl.training.sweep_report import read_sweep, sweep_group_lines
 from smorphi_rl.words import counted

@@ -141,10 +141,17 @@ def progress_line(
             return
         frac = done / total if total else 1.0  # nothing to do (a density of 0) is done
         rate = "-" if not math.isfinite(per_s) else f"{per_s:,.0f}/s" if per_s >= 10 else f"{per_s:.2g}/s"
-        eta = f", {left:,.0f} s left" if done < total and math.isfinite(left) else ""
+        eta = f", {fmt_duration(left)} left" if done < total and math.isfinite(left) else ""
         status.write(f"{name} {bar(frac, 30)} {done:,}/{total:,} {elapsed:5.1f} s, {rate}{eta}", end=done >= total)
 
     return show
+
+
+def fmt_duration(seconds: float) -> str:
+    """A duration as the progress lines show it: 45s, 3m 07s, 1h 05m."""
+    m, s = divmod(round(seconds), 60)
+    h, m = divmod(m, 60)
+    return f"{h}h {m:02d}m" if h else f"{m}m {s:02d}s" if m else f"{s}s"
 
 
 def optimum_progress(map_name: str, stream: TextIO | None = None) -> Callable[[int, int], None]:

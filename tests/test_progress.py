@@ -36,7 +36,7 @@ def test_the_time_left_leaves_out_the_wait_for_the_first_count(capsys, monkeypat
     show(3_100_000, 6_000_000)  # 3,000,000 in 6 s: 2,900,000 left in about 6 s
     err = capsys.readouterr().err
     assert "min more" not in err
-    assert err.splitlines()[-1].endswith(" 500,000/s, 6 s left")  # the rate the time left is read from
+    assert err.splitlines()[-1].endswith(" 500,000/s, 6s left")  # the rate the time left is read from
 
 
 def test_a_long_time_left_is_said_once_with_the_hint(capsys, monkeypatch):
@@ -132,3 +132,11 @@ def test_a_terminal_that_does_not_know_its_width_gets_the_widest_line(monkeypatc
     finally:
         os.close(leader)
         os.close(follower)
+
+
+def test_durations_read_in_the_units_a_person_uses():
+    """A search's time left read "1,902 s left": long ones are minutes and hours."""
+    from smorphi_rl.progress import fmt_duration
+
+    assert [fmt_duration(s) for s in (6, 59.6, 61, 1902, 3600, 5830)] == ["6s", "1m 00s", "1m 01s", "31m 42s",
+                                                                         "1h 00m", "1h 37m"]  # fmt: skip

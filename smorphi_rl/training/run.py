@@ -23,7 +23,7 @@ from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import O_SHAPE, Morphology, angles_text
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.maps import load_map
-from smorphi_rl.progress import StatusLine, bar, optimum_progress
+from smorphi_rl.progress import StatusLine, bar, fmt_duration, optimum_progress
 from smorphi_rl.protocol import (
     EVAL_KEY,
     NO_OPTIMUM,
@@ -127,12 +127,6 @@ class RunSummary:
     def to_json(self) -> str:
         """summary.json's text: strict JSON, a figure with no value (no optimum on a map too large) written null."""
         return jsontext.dumps(self.to_dict(), indent=2)
-
-
-def fmt_duration(seconds: float) -> str:
-    """A duration as the progress lines show it: 45s, 3m 07s."""
-    m, s = divmod(round(seconds), 60)
-    return f"{m}m {s:02d}s" if m else f"{s}s"
 
 
 class _Progress:

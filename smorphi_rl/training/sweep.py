@@ -24,7 +24,7 @@ from smorphi_rl import cluster, interrupts, jsontext
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml
 from smorphi_rl.map_sources import map_set_label
-from smorphi_rl.progress import StatusLine, bar
+from smorphi_rl.progress import StatusLine, bar, fmt_duration
 from smorphi_rl.protocol import Optimum
 from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import (
@@ -51,7 +51,6 @@ from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_
 from smorphi_rl.training.run import (
     RunSummary,
     TrainingError,
-    fmt_duration,
     map_digests,
     nothing_kept,
     training_optima,
