@@ -78,6 +78,20 @@ def test_maps_crop_then_resample_a_real_map_and_refuse_to_overwrite(tmp_path, ca
     assert "exists" in capsys.readouterr().err and load_map(cropped).cells.shape == (112, 121)
 
 
+def test_a_crop_that_cuts_nothing_says_so(tmp_path, capsys):
+    """`maps crop` of a map without an unknown margin wrote an identical copy without a word."""
+    from smorphi_rl.maps import Map, save_map
+
+    assert main(["maps", "crop", str(ROOT / "maps" / "map-1.yaml"), "--out", str(tmp_path / "same.yaml")]) == 0
+    said = capsys.readouterr().out.splitlines()[-1]
+    assert said == "note     no unknown margin wider than --margin 0.2 m: written whole"
+    framed = np.full((30, 30), Cell.UNKNOWN, dtype=np.uint8)
+    framed[5:25, 5:25] = Cell.FREE
+    save_map(Map(framed, 0.1, name="framed"), tmp_path / "framed.yaml")
+    assert main(["maps", "crop", str(tmp_path / "framed.yaml"), "--out", str(tmp_path / "cut.yaml")]) == 0
+    assert "note" not in capsys.readouterr().out
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

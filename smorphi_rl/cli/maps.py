@@ -200,7 +200,8 @@ def cmd_maps_crop(args: argparse.Namespace) -> int:
                 raise MapError(f"maps crop: nothing written, the crop holds no robot of {block:g} m blocks ({exc})") \
                     from None  # fmt: skip
 
-    return _write_prepared(args, crop, holds_robot)
+    whole = None if args.rect is not None else f"no unknown margin wider than --margin {args.margin:g} m: written whole"
+    return _write_prepared(args, crop, holds_robot, whole)
 
 
 def cmd_maps_resample(args: argparse.Namespace) -> int:
@@ -222,9 +223,9 @@ def warn_coarser_than_a_block(resolution_m: float) -> None:
               f"of at least {resolution_m:g}, plans on it)", file=sys.stderr)  # fmt: skip
 
 
-def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None) -> int:
+def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None, whole: str | None = None) -> int:
     """Read the map, transform it, drop small islands, `check(source, result)` it, write it (never over the input
-    or an existing map without --force) and print both maps' sizes."""
+    or an existing map without --force) and print both maps' sizes; `whole`, a note when the size did not change."""
     from smorphi_rl.maps import save_map
     from smorphi_rl.maptools import drop_islands
 
@@ -255,6 +256,8 @@ def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None)
     print(f"{'read':<8} {args.map}: {size(source)}")
     print(f"{'wrote':<8} {out}: {size(grid_map)}")
     print(f"{'islands':<8} {islands.count} dropped ({islands.area_m2:.2f} m^2 of free floor marked unknown)")
+    if whole and grid_map.cells.shape == source.cells.shape:
+        print(f"{'note':<8} {whole}")
     warn_coarser_than_a_block(grid_map.resolution_m)
     return 0
 
