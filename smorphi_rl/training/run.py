@@ -176,6 +176,14 @@ class _Progress:
                 f"{settled_txt}").rstrip()  # fmt: skip
         self.status.write(line, end=done)
 
+    def starting(self) -> None:
+        """On a terminal, a line in place until the first iteration's bar: building the env runners and their floors
+        takes seconds (a minute on a floor of millions of cells), which read as a hang."""
+        if self.status.tty:
+            runners = f"{self.cfg.env_runners} env runner{'' if self.cfg.env_runners == 1 else 's'}"
+            self.status.write(f"{self.label} {bar(0, 24)} 0/{self.cfg.timesteps:,} steps  starting Ray's trial, "
+                              f"{runners} and their floors")  # fmt: skip
+
     def finish(self) -> None:
         self.status.finish()
 
@@ -324,6 +332,7 @@ def _fit(
         ),
     )
     t0 = progress.t0 = time.monotonic()  # the bar's clock and the summary's: training alone, from here
+    progress.starting()
     if stopper is None:
         with tune_stop_seen(late):
             _, failed = fit(tuner, run_dir)

@@ -104,3 +104,20 @@ def test_an_optimum_in_the_cache_is_said_to_be_read_not_searched(tmp_path, monke
     assert "exact optimum of map-1 (every 1-degree shape; cached under" in first.getvalue()
     assert training_optima(cfg, tmp_path, again) == found
     assert again.getvalue() == f"exact optimum of map-1: read from {tmp_path / '.cache'}\n"
+
+
+def test_a_terminal_sees_the_run_starting_before_its_first_bar():
+    """On a floor of millions of cells the first bar came after 52 s of nothing: it read as a hang."""
+    import io
+
+    from smorphi_rl.training.config import TrainConfig
+    from smorphi_rl.training.run import _Progress
+
+    class Terminal(io.StringIO):
+        def isatty(self) -> bool:
+            return True
+
+    for out, shown in ((Terminal(), True), (io.StringIO(), False)):  # a log file gets the bars alone
+        _Progress(TrainConfig(timesteps=4000), out).starting()
+        assert ("PPO [" in out.getvalue() and "0/4,000 steps  starting Ray's trial, 2 env runners" in out.getvalue()
+                if shown else out.getvalue() == "")  # fmt: skip
