@@ -25,7 +25,7 @@ from smorphi_rl.map_sources import is_generator
 from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.numpy_policy import NumpyPolicy
 from smorphi_rl.policy_file import SHIPPED_DESIGNER, PolicyFile, layout_problem, read_policy
-from smorphi_rl.score import Scored
+from smorphi_rl.score import Scored, degenerate_warning
 
 ACCEPTS = {"max_side_m": 20.0, "min_cells_per_block": 1.0, "max_cells_per_block": 4.0, "max_free_m2": 200.0}
 """What the `floor` observation's scale features represent without saturating (`env.floor_scale`): a known area
@@ -200,8 +200,11 @@ def design_map(
     `best` holds the shape and its scores under the designer's own weights (`path_term: per_area`)."""
     designer = load_designer(Path(policy) if policy is not None else SHIPPED_DESIGNER)
     env = designer_env(designer, str(map_path), start_xy)
+    frame = env.grid_map.frame_warning()  # before the design, which costs the whole frame: as the command says it
+    if frame:
+        warnings.warn(frame, UserWarning, stacklevel=2)
     design = run_design(env, designer.logits, budget, seed=seed)
-    for text in filter(None, (env.grid_map.frame_warning(), *design_warnings(designer, env, design.best))):
+    for text in filter(None, design_warnings(designer, env, design.best)):
         warnings.warn(text, UserWarning, stacklevel=2)  # what the command prints on stderr
     return design
 
@@ -209,8 +212,6 @@ def design_map(
 def design_warnings(designer: Designer, env: Any, best: Scored) -> tuple[str | None, str | None]:
     """What a design's figures do not say: a floor unlike those the designer was trained on, and a start that cannot
     reach most of the floor or weights under which the best shape is degenerate (None where there is nothing)."""
-    from smorphi_rl.score import degenerate_warning
-
     planning, grid_map = env.config.planning, env.grid_map
     return unfamiliar_warning(designer, grid_map), planning.start_warning(grid_map, best.coverage_free_pct) or (
         degenerate_warning(env.floor.weights, best.P_c, best.P_len, env.config.path_term, grid_map.name)

@@ -80,7 +80,7 @@ from smorphi_rl.errors import MapError, MorphologyError, SmorphiError
 from smorphi_rl.floorplans import generate_floor
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.map_sources import generators
-from smorphi_rl.maps import CELL_COLOURS, Cell, Map, check_fits, load_map
+from smorphi_rl.maps import CELL_COLOURS, PATH_COLOUR, Cell, Map, check_fits, load_map
 from smorphi_rl.planning import Evaluator, Planning
 from smorphi_rl.score import Scored, Weights
 
@@ -501,9 +501,15 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
 RENDER_MIN_PX = 256
 """`render`'s image is scaled by whole cells to at least this many pixels on its longer side."""
-RENDER_COLOURS = np.array([[int(c[i : i + 2], 16) for i in (1, 3, 5)] for c in CELL_COLOURS], dtype=np.uint8)
+
+
+def _rgb(colour: str) -> list[int]:
+    return [int(colour[i : i + 2], 16) for i in (1, 3, 5)]
+
+
+RENDER_COLOURS = np.array([_rgb(c) for c in CELL_COLOURS], dtype=np.uint8)
 """Free, occupied, unknown and covered cells (Cell's values, then covered): the figures' `maps.CELL_COLOURS`."""
-PATH_COLOUR = np.array([214, 39, 40], dtype=np.uint8)
+RENDER_PATH = np.array(_rgb(PATH_COLOUR), dtype=np.uint8)
 
 
 def floor_image(grid_map: Map, plan: CoverageResult) -> np.ndarray:
@@ -523,5 +529,5 @@ def floor_image(grid_map: Map, plan: CoverageResult) -> np.ndarray:
             for dr, dc in ((0, 0), (1, 0), (0, 1), (1, 1))[: 4 if scale > 2 else 1]:  # 2 px wide where cells are
                 r, c = rows + dr, cols + dc
                 keep = (r >= 0) & (r < image.shape[0]) & (c >= 0) & (c < image.shape[1])
-                image[r[keep], c[keep]] = PATH_COLOUR
+                image[r[keep], c[keep]] = RENDER_PATH
     return np.ascontiguousarray(image[::-1])  # row 0 of a map is its lowest y: north up

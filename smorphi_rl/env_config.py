@@ -22,6 +22,8 @@ if TYPE_CHECKING:
     from smorphi_rl.planning import Planning  # loads the compiled kernels: imported where planning starts
 
 DEFAULT_MAPS = (str(SHIPPED_DEFAULT_MAP),)
+PLANNING_KEYS = ("block_side_m", "planner", "start_xy")
+"""The keys `EnvConfig.planning` reads: a `planning.Planning`'s fields (a test holds them equal)."""
 
 
 class RewardMode(str, Enum):
@@ -243,7 +245,7 @@ class EnvConfig:
 
     @property
     def planning(self) -> Planning:
-        """How this env plans every shape (block side, planner, start)."""
+        """How this env plans every shape (block side, planner, start: PLANNING_KEYS)."""
         from smorphi_rl.planning import Planning
 
         return Planning(self.block_side_m, Planner(self.planner), self.start_xy)
@@ -252,8 +254,8 @@ class EnvConfig:
 def _coerce(name: str, value: Any) -> Any:
     """Check one env_config value's type; lists become tuples, numbers floats or ints (numpy's, and its arrays,
     as Python's: a value a user's code or a sampler computed)."""
-    value = _pythons(value)
     try:
+        value = _pythons(value)
         if name == "maps":
             from smorphi_rl.map_sources import MapSourceError, resolve
 
@@ -301,6 +303,8 @@ def _coerce(name: str, value: Any) -> Any:
         return _real(value)
     except EnvConfigError:
         raise  # already names the problem (a ValueError too)
+    except RecursionError:  # a crafted file's lists 900 deep: their repr would recurse too
+        raise EnvConfigError(f"env_config '{name}': bad value (lists nested too deep)") from None
     except (TypeError, ValueError, OverflowError):  # OverflowError: int(inf), float of a 400-digit integer
         raise EnvConfigError(f"env_config '{name}': bad value {value!r}") from None
 

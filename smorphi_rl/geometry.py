@@ -18,9 +18,6 @@ from smorphi_rl.inputs import is_finite_number
 DEFAULT_BLOCK_SIDE_M = 0.17
 """Side of one Smorphi block, the commercial module (docs/spec/fbcpp.md section 1)."""
 
-O_SHAPE = (0.0, 180.0, 0.0)
-"""The O (2 x 2 blocks): the largest footprint, so about the shortest coverage path of any shape."""
-
 ANGLE_MIN_DEG = 0.0
 ANGLE_MAX_DEG = 180.0
 POINT_TOLERANCE_M = 1e-9

@@ -52,6 +52,8 @@ class Cell(enum.IntEnum):
 CELL_COLOURS = ("#ffffff", "#202020", "#b0b0b0", "#7bd389")
 """Free, occupied and unknown cells (Cell's values), then covered free cells, as every figure and the env's render
 draw them."""
+PATH_COLOUR = "#d62728"
+"""The coverage path, as every figure and the env's render draw it."""
 
 
 class MapMode(enum.Enum):

@@ -12,7 +12,7 @@ import numpy as np
 
 from smorphi_rl.coverage import CoverageResult, path_points_m
 from smorphi_rl.geometry import Morphology, all_corners, angles_text
-from smorphi_rl.maps import CELL_COLOURS, Cell, Map
+from smorphi_rl.maps import CELL_COLOURS, PATH_COLOUR, Cell, Map
 from smorphi_rl.rundir import atomic_path, own_temp_folder, writable_folder
 from smorphi_rl.words import counted
 
@@ -148,7 +148,7 @@ def draw_coverage(
     (xa, xb), (ya, yb) = ax.get_xlim(), ax.get_ylim()  # the paper's planner may stand the robot past the map's edge:
     ax.set_xlim(min(xa, pts[:, 0].min() - w * r / 2), max(xb, pts[:, 0].max() + w * r / 2))  # its whole path shows
     ax.set_ylim(min(ya, pts[:, 1].min() - l * r / 2), max(yb, pts[:, 1].max() + l * r / 2))
-    ax.plot(pts[:, 0], pts[:, 1], "-", color="#d62728", lw=path_width(len(pts)), label="coverage path")
+    ax.plot(pts[:, 0], pts[:, 1], "-", color=PATH_COLOUR, lw=path_width(len(pts)), label="coverage path")
     ax.plot(pts[0, 0], pts[0, 1], "o", color="#ffd700", mec="black", mew=1.2, ms=9, zorder=5, label="start")
     draw_morphology(ax, morphology, block_side_m, (x0 + col0 * r, y0 + row0 * r))
 
@@ -325,7 +325,7 @@ def _draw_replay_frame(ax: plt.Axes, grid_map: Map, frame: dict[str, Any], title
     draw_map(ax, grid_map, frame.get("covered"))
     path = frame["path"]
     if len(path):
-        ax.plot(path[:, 0], path[:, 1], "-", color="#d62728", lw=1.3)
+        ax.plot(path[:, 0], path[:, 1], "-", color=PATH_COLOUR, lw=1.3)
     for n, ((x, y, yaw, side), colour) in enumerate(zip(frame["blocks"], BLOCK_COLOURS, strict=True)):
         c, s = np.cos(yaw), np.sin(yaw)
         local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * side / 2

@@ -150,8 +150,10 @@ def progress_line(
 def fmt_duration(seconds: float) -> str:
     """A duration as the progress lines show it: 45s, 3m 07s, 1h 05m."""
     m, s = divmod(round(seconds), 60)
-    h, m = divmod(m, 60)
-    return f"{h}h {m:02d}m" if h else f"{m}m {s:02d}s" if m else f"{s}s"
+    if m >= 60:  # to the nearest minute
+        h, m = divmod(round(seconds / 60), 60)
+        return f"{h}h {m:02d}m"
+    return f"{m}m {s:02d}s" if m else f"{s}s"
 
 
 def optimum_progress(map_name: str, stream: TextIO | None = None) -> Callable[[int, int], None]:

@@ -151,7 +151,11 @@ def _gone(run_dir: Path) -> bool:
     """Whether the process `run_dir`'s claim names is known to have ended: one of this machine, not running. Another
     machine's is never known to have ended (its pid means nothing here): its run may be writing there now."""
     pid, host, identity = _claim(run_dir)
-    return pid > 0 and _here(host) and pid != os.getpid() and not _claimant_alive(pid, identity)
+    if pid <= 0 or not _here(host):
+        return False
+    if pid == os.getpid():  # this process's claim, unless it names another process that had this pid (a container's)
+        return identity is not None and process_identity(pid) not in (None, identity)
+    return not _claimant_alive(pid, identity)
 
 
 def _claimant_alive(pid: int, identity: tuple[int, str] | None) -> bool:

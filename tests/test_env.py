@@ -47,7 +47,7 @@ def test_importing_the_package_registers_the_env():
 
 def test_rgb_array_render_draws_the_floor_north_up_with_what_the_shape_covers():
     """gymnasium's `render_mode` was refused as an unknown env_config key, even None."""
-    from smorphi_rl.env import PATH_COLOUR, RENDER_COLOURS
+    from smorphi_rl.env import RENDER_COLOURS, RENDER_PATH
     from smorphi_rl.maps import Cell
 
     env = gym.make(ENV_ID, render_mode="rgb_array")
@@ -61,7 +61,7 @@ def test_rgb_array_render_draws_the_floor_north_up_with_what_the_shape_covers():
     cells = image[scale // 2 :: scale, scale // 2 :: scale][::-1]  # a pixel a cell, row 0 the map's lowest y again
     occupied = np.all(cells == RENDER_COLOURS[Cell.OCCUPIED], axis=-1)
     covered = np.all(cells == RENDER_COLOURS[-1], axis=-1)
-    path = np.all(cells == PATH_COLOUR, axis=-1)
+    path = np.all(cells == RENDER_PATH, axis=-1)
     assert np.array_equal(occupied | path & (grid.cells == Cell.OCCUPIED), grid.cells == Cell.OCCUPIED)
     assert np.array_equal((covered | path) & ~(grid.cells == Cell.OCCUPIED), plan.covered & (grid.cells == Cell.FREE))
     assert path.sum() > 20
@@ -489,5 +489,20 @@ def test_numpy_values_in_env_config_are_read_as_pythons():
     assert type(built.w1) is float and all(type(m) is int for m in built.moves)
     inside = EnvConfig.from_dict({"moves": list(np.array([1, 4])), "start_xy": (np.float32(1.5), np.int64(2))})
     assert inside.moves == (1, 4) and inside.start_xy == (1.5, 2.0)  # numpy's values in a list too
+    deep: list = [1.0]
+    for _ in range(5000):  # a crafted policy.json's list: one line, not a RecursionError
+        deep = [deep]
+    with pytest.raises(EnvConfigError, match="env_config 'start_theta': bad value"):
+        EnvConfig.from_dict({"start_theta": deep})
     with pytest.raises(EnvConfigError, match=r"env_config 'w1': bad value \[1, 2\]"):
         EnvConfig.from_dict({"w1": np.array([1, 2])})
+
+
+def test_the_planning_keys_are_the_planning_fields():
+    """A replay plans from a recording's PLANNING_KEYS alone: a field Planning gains must be one of them."""
+    from dataclasses import fields
+
+    from smorphi_rl.env_config import PLANNING_KEYS
+    from smorphi_rl.planning import Planning
+
+    assert tuple(f.name for f in fields(Planning)) == PLANNING_KEYS

@@ -84,7 +84,7 @@ def test_a_crop_that_cuts_nothing_says_so(tmp_path, capsys):
 
     assert main(["maps", "crop", str(ROOT / "maps" / "map-1.yaml"), "--out", str(tmp_path / "same.yaml")]) == 0
     said = capsys.readouterr().out.splitlines()[-1]
-    assert said == "note     no unknown margin wider than --margin 0.2 m: written whole"
+    assert said == "note     nothing cut: no unknown margin beyond --margin 0.2 m"
     framed = np.full((30, 30), Cell.UNKNOWN, dtype=np.uint8)
     framed[5:25, 5:25] = Cell.FREE
     save_map(Map(framed, 0.1, name="framed"), tmp_path / "framed.yaml")

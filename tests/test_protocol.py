@@ -179,12 +179,18 @@ def test_train_reads_a_cached_optimum_of_a_map_too_large_to_search(tmp_path, mon
     assert math.isnan(training_optima(cfg, tmp_path / "logs", out)["hall"].R1)
     assert "not computed" in out.getvalue()
     assert f"`smorphi-rl search optimum --map {hall} --log-dir {tmp_path / 'logs'}`" in out.getvalue()  # runnable
-    swamped = "warning: on hall the path term swamps coverage (the O-shape's R1 "  # said without the optimum too
+    swamped = "warning: on hall the path term swamps coverage (a broad shape's R1 "  # said without the optimum too
     assert swamped in out.getvalue()
     per_area = replace(cfg, env=replace(cfg.env, path_term="per_area"))
     out = io.StringIO()
     training_optima(per_area, tmp_path / "logs", out)
     assert "not computed" in out.getvalue() and "swamps" not in out.getvalue()
+    room = np.full((side, side), 2, dtype=np.uint8)  # a 10 m room in a SLAM frame of unknown: no swamping there
+    room[:100, :100] = np.tile(load_map(Path(__file__).parents[1] / "maps" / "map-1.yaml").cells, (2, 2))
+    framed = save_map(Map(room, 0.1, name="framed"), tmp_path / "framed.yaml")
+    out = io.StringIO()
+    training_optima(TrainConfig(env=EnvConfig.from_dict({"maps": [str(framed)]})), tmp_path / "logs", out)
+    assert "not computed" in out.getvalue() and "swamps" not in out.getvalue()  # the O alone read as swamped
     grid_map = load_map(hall)
     weights = cfg.env.weights_on(grid_map)
     planned = cfg.env.planning.evaluator(grid_map).evaluate_many(np.array([[10.0, 20.0, 30.0]]))

@@ -177,6 +177,12 @@ def test_a_process_given_a_dead_claimants_pid_again_is_not_the_claimant(tmp_path
         live.kill()
         live.wait()
     assert claim_line().rstrip().endswith(f" started {process_identity(os.getpid())[0]} boot {boot}")
+    (tmp_path / "mine").mkdir()  # this process's pid in a claim another process wrote (a container's pid 1, say)
+    (tmp_path / "mine" / MARKER).write_text(claim_line())
+    assert not cut_short(tmp_path / "mine")  # this process's own claim
+    me = process_identity(os.getpid())[0]
+    (tmp_path / "mine" / MARKER).write_text(claim_line().replace(f" started {me} ", f" started {me + 1} "))
+    assert cut_short(tmp_path / "mine")
 
 
 def test_a_run_killed_before_it_finished_is_named_so_when_its_name_or_its_files_are_asked_for(tmp_path):

@@ -200,7 +200,7 @@ def cmd_maps_crop(args: argparse.Namespace) -> int:
                 raise MapError(f"maps crop: nothing written, the crop holds no robot of {block:g} m blocks ({exc})") \
                     from None  # fmt: skip
 
-    whole = None if args.rect is not None else f"no unknown margin wider than --margin {args.margin:g} m: written whole"
+    whole = None if args.rect is not None else f"nothing cut: no unknown margin beyond --margin {args.margin:g} m"
     return _write_prepared(args, crop, holds_robot, whole)
 
 
@@ -225,7 +225,8 @@ def warn_coarser_than_a_block(resolution_m: float) -> None:
 
 def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None, whole: str | None = None) -> int:
     """Read the map, transform it, drop small islands, `check(source, result)` it, write it (never over the input
-    or an existing map without --force) and print both maps' sizes; `whole`, a note when the size did not change."""
+    or an existing map without --force) and print both maps' sizes; `whole`, a note when the transform kept the size
+    (islands dropped later may leave a new margin, which a second crop cuts)."""
     from smorphi_rl.maps import save_map
     from smorphi_rl.maptools import drop_islands
 
@@ -240,7 +241,8 @@ def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None,
     if not args.force and taken is not None:
         raise SmorphiError(f"{taken} exists; pass --force to overwrite it")
     source = load_map(args.map)
-    grid_map, islands = drop_islands(transform(source), args.min_island)
+    transformed = transform(source)
+    grid_map, islands = drop_islands(transformed, args.min_island)
     if check is not None:
         check(source, grid_map)
     from smorphi_rl.rundir import claimed_files
@@ -256,7 +258,7 @@ def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None,
     print(f"{'read':<8} {args.map}: {size(source)}")
     print(f"{'wrote':<8} {out}: {size(grid_map)}")
     print(f"{'islands':<8} {islands.count} dropped ({islands.area_m2:.2f} m^2 of free floor marked unknown)")
-    if whole and grid_map.cells.shape == source.cells.shape:
+    if whole and transformed.cells.shape == source.cells.shape:
         print(f"{'note':<8} {whole}")
     warn_coarser_than_a_block(grid_map.resolution_m)
     return 0

@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES, EnvConfig
+from smorphi_rl.env_config import MAX_EPISODE_STEPS, MAX_MOVE_SIZES, PLANNING_KEYS, EnvConfig
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.inputs import check_not_special, is_finite_number
@@ -114,7 +114,7 @@ class Episode:
         recording) or where the recording names no usable planner: a replay draws no area it cannot vouch for."""
         try:
             raw = json.loads(self.metadata["env_config"])
-            raw = {key: raw[key] for key in PLANNING_KEYS if key in raw}  # an older recording's other keys may differ
+            raw = {key: raw[key] for key in PLANNING_KEYS if key in raw}  # all a plan reads: other keys may differ
             evaluator = EnvConfig.from_dict(raw).planning.evaluator(grid_map, cache=False)
         except (KeyError, TypeError, ValueError, AttributeError, RecursionError, SmorphiError):
             return [None] * len(indices)
@@ -164,8 +164,6 @@ class Episode:
         return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
 
 
-PLANNING_KEYS = ("planner", "start_xy", "block_side_m")
-"""The env_config keys a plan depends on (`EnvConfig.planning`): all a replay reads of a recording's configuration."""
 BLOCKS = 4
 """Smorphi's blocks: a scene draws each."""
 MAX_COORD_M = 2 * MAX_ORIGIN_M

@@ -17,12 +17,15 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from smorphi_rl import cluster, interrupts, jsontext
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import Interrupted, SmorphiError
-from smorphi_rl.geometry import O_SHAPE, Morphology, angles_text
+from smorphi_rl.geometry import Morphology, angles_text
 from smorphi_rl.map_sources import map_label
 from smorphi_rl.maps import load_map
+from smorphi_rl.planning import REACH_SHAPES
 from smorphi_rl.progress import StatusLine, bar, fmt_duration, optimum_progress
 from smorphi_rl.protocol import (
     EVAL_KEY,
@@ -179,10 +182,10 @@ class _Progress:
     def starting(self) -> None:
         """On a terminal, a line in place until the first iteration's bar: building the env runners and their floors
         takes seconds (a minute on a floor of millions of cells), which read as a hang."""
-        if self.status.tty:
-            runners = f"{self.cfg.env_runners} env runner{'' if self.cfg.env_runners == 1 else 's'}"
-            self.status.write(f"{self.label} {bar(0, 24)} 0/{self.cfg.timesteps:,} steps  starting Ray's trial, "
-                              f"{runners} and their floors")  # fmt: skip
+        if self.status.tty:  # short, to fit a narrow terminal: the first bar writes over it
+            n = self.cfg.env_runners
+            runners = "its envs" if n == 0 else f"{n} env runner{'' if n == 1 else 's'}"
+            self.status.write(f"{self.label} starting: the trial, {runners}, their floors"[: self.status.width()])
 
     def finish(self) -> None:
         self.status.finish()
@@ -262,10 +265,21 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
                           f"{OPTIMUM_MAX_CELLS:,}; `smorphi-rl search optimum --map {shell_path(path)} --log-dir "
                           f"{shell_path(log_dir)}` finds it for train); gaps are not reported\n")  # fmt: skip
             optima[grid_map.name] = found or NO_OPTIMUM
-            if found is None:  # the O-shape's figures stand in for the best's (its large footprint, a short path)
-                o_shape = cfg.env.planning.evaluator(grid_map, cache=False).evaluate(O_SHAPE)
-                line = None if start else swamped_warning(weights, o_shape.P_c, o_shape.P_len, cfg.env.path_term,
-                                                          grid_map.name, whose="the O-shape's")  # fmt: skip
+            if found is None:  # the best of a few broad shapes (long tiles, short paths) stands in for the optimum
+                broad = cfg.env.planning.evaluator(grid_map, cache=False).evaluate_many(np.array(REACH_SHAPES))
+                i = int(np.argmax(weights.r1(broad.P_c, broad.P_len)))
+                line = (
+                    None
+                    if start
+                    else swamped_warning(
+                        weights,
+                        float(broad.P_c[i]),
+                        int(broad.P_len[i]),
+                        cfg.env.path_term,
+                        grid_map.name,
+                        whose="a broad shape's",
+                    )
+                )
                 if line:
                     out.write(line + "\n")
                 continue

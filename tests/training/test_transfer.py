@@ -482,3 +482,28 @@ def test_a_jobs_runs_cache_the_exact_optima_under_the_log_dir_the_user_named(tmp
     argv, _calls, _stops, _algos = fake_runs
     assert main([*argv, "--seeds", "0"]) == 0
     assert (tmp_path / "logs" / ".cache").is_dir() and not (tmp_path / "logs" / "job" / ".cache").exists()
+
+
+def test_a_stamped_name_refused_is_said_as_it_is(tmp_path, fake_runs, monkeypatch, capsys):
+    """A name the command made names no job of the user's: its refusal offered to wait for, or --resume, the job
+    under the first stamped name."""
+    from types import SimpleNamespace
+
+    from smorphi_rl import rundir
+    from smorphi_rl.cli import main
+    from smorphi_rl.cli import train as cli_train
+    from smorphi_rl.training.transfer import JOB_FILE
+
+    argv, calls, _stops, _algos = fake_runs
+    monkeypatch.setattr(cli_train, "time", SimpleNamespace(strftime=lambda fmt: "20261207-120000"))
+
+    def refused(log_dir, name):
+        raise rundir.RunDirError(f"cannot create the run directory {log_dir}/{name}-2 (No space left on device)")
+
+    monkeypatch.setattr(rundir, "prepare_stamped_run_dir", refused)
+    earlier = tmp_path / "logs" / "transfer-20261207-120000"  # a job under the first stamped name: not this one's
+    earlier.mkdir(parents=True)
+    (earlier / JOB_FILE).write_text("{}")
+    assert main([*argv[:-4], "--log-dir", str(tmp_path / "logs"), "--seeds", "0"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.endswith("-2 (No space left on device)") and "--resume" not in err and calls == []
