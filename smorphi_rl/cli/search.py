@@ -92,6 +92,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     from smorphi_rl.plots import plot_pareto
     from smorphi_rl.rundir import discarded_on_failure, prepare_run_dir
     from smorphi_rl.search.config import METHOD_FIELDS, SearchConfig, run_search
+    from smorphi_rl.search.exhaustive import SearchStopped
     from smorphi_rl.search.results import save
 
     w = weights(args)
@@ -117,7 +118,10 @@ def cmd_search(args: argparse.Namespace) -> int:
     hint = cut_hint(args.method)
     with ExitStack() as held:  # a hold of stops, left (its handlers put back) with the plot drawn, however it ends
         with discarded_on_failure(run_dir):  # interrupted, failed, or a full disk mid-way: no whole run, the name free
-            result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
+            try:
+                result = run_search(cfg, progress_line(PROGRESS_UNITS.get(args.method, args.method), hint))
+            except SearchStopped as stop:  # an hour's search stopped still says what it found
+                raise Interrupted(stop.best_so_far(on_map)) from None
             # from here a stop waits for the files and the plot (a second is at once): raised as it came, it could land
             # in a callback of the garbage collector, which Python prints as "ignored" and drops
             late = held.enter_context(stop_requests(again=True))

@@ -24,7 +24,7 @@ import numpy as np
 
 from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.cluster import usable_cpus
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import check_step
 from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import Map, load_map
@@ -349,10 +349,38 @@ def _two_passes(
     if progress is not None:  # the settling pass starts below its end, so the bar shows it under its own label
         progress(state.settled, n)
     plan_tasks = (("plan", i, reps[part].astype(np.int32), state.threshold) for i, part in enumerate(parts))
-    for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
-        state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
-        if progress is not None:
-            progress(state.settled, n)
-    if stop.is_set():  # a stop as the last answers came in: the loop ended without seeing it, which then was lost
-        raise KeyboardInterrupt
+    try:
+        for _, i, c_pc, c_len, c_ok, c_pruned, c_best in pool.run(plan_tasks, stop):
+            state.record(parts[i], c_pc, c_len, c_ok, c_pruned, c_best, sizes)
+            if progress is not None:
+                progress(state.settled, n)
+        if stop.is_set():  # a stop as the last answers came in: the loop ended without seeing it, which then was lost
+            raise KeyboardInterrupt
+    except KeyboardInterrupt as exc:  # what the footprints planned so far say, for the line the stop ends in
+        if isinstance(exc, Interrupted):
+            raise
+        ok = state.feasible & ~state.pruned
+        raise SearchStopped(state.settled, n, thetas[reps[ok]], state.p_c[ok], state.p_len[ok]) from None
     return rows, inverse, reps, state
+
+
+class SearchStopped(Interrupted):
+    """A stop request as the search planned its footprints: the shapes settled so far, of which the best is said
+    (never written: the run's files are of whole searches only)."""
+
+    def __init__(self, settled: int, total: int, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray) -> None:
+        super().__init__(f"stopped with {settled:,} of {total:,} shapes settled")
+        self.settled, self.total, self.thetas, self.p_c, self.p_len = settled, total, thetas, p_c, p_len
+
+    def best_so_far(self, weights: Weights) -> str:
+        """One line: how far the search came and the best shape of those settled, under `weights`."""
+        share = f"stopped with {100 * self.settled / self.total:.0f} % of the shapes settled"
+        if not len(self.thetas):
+            return f"{share}, none planned yet; nothing was written"
+        r1 = weights.r1(self.p_c, self.p_len)
+        i = int(np.argmax(r1))
+        t1, t2, t3 = (f"{float(t):g}" for t in self.thetas[i])
+        return (
+            f"{share}; the best of them, not the optimum: ({t1}, {t2}, {t3}) P_c {self.p_c[i]:.2f} %, "
+            f"P_len {int(self.p_len[i])}, R1 {float(r1[i]):.2f}; nothing was written"
+        )

@@ -170,3 +170,30 @@ def test_a_stop_as_the_last_answers_come_in_stops_the_search():
     path = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
     with pytest.raises(KeyboardInterrupt):
         exhaustive.run_exhaustive(path, step_deg=30.0, workers=1, progress=progress)
+
+
+def test_a_search_stopped_as_it_plans_says_the_best_shape_it_settled():
+    """A stop an hour into a 97-minute search kept nothing and said nothing of what it had found."""
+    from smorphi_rl.search.exhaustive import SearchStopped, run_exhaustive
+
+    seen = {"last": -1, "planning": 0}
+
+    def stop_in_the_second_pass(done: int, total: int) -> None:
+        if done < seen["last"] or seen["planning"]:  # the count starts again: the planning pass
+            seen["planning"] += 1
+        seen["last"] = done
+        if seen["planning"] == 2:  # as a Ctrl-C lands: some footprints planned
+            raise KeyboardInterrupt
+
+    with pytest.raises(SearchStopped) as stopped:
+        run_exhaustive(MAP_1, 2.0, progress=stop_in_the_second_pass)
+    stop, weights = stopped.value, Weights(1.0, 0.1)
+    assert 0 < stop.settled < stop.total == len(lattice_thetas(2.0)) and len(stop.thetas)
+    r1 = weights.r1(stop.p_c, stop.p_len)
+    t = stop.thetas[int(np.argmax(r1))]
+    said = stop.best_so_far(weights)
+    assert said.startswith("stopped with ") and "% of the shapes settled; the best of them, not the optimum: " in said
+    assert f"({t[0]:g}, {t[1]:g}, {t[2]:g}) " in said and f"R1 {r1.max():.2f}; nothing was written" in said
+    empty = SearchStopped(10, 100, np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int32))
+    none_yet = "stopped with 10 % of the shapes settled, none planned yet; nothing was written"
+    assert empty.best_so_far(weights) == none_yet

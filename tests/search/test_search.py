@@ -183,7 +183,8 @@ def test_an_interrupted_search_stops_its_workers_at_once_and_frees_its_name(tmp_
         proc.send_signal(getattr(signal, signame))
     _, err = proc.communicate(timeout=60)  # a hang guard, not a speed: the cores may be busy
     assert proc.returncode == 130, err
-    assert "Traceback" not in err and err.strip().splitlines()[-1] == "smorphi-rl: interrupted"
+    said = err.strip().splitlines()[-1]  # while planning, with the best shape settled so far
+    assert "Traceback" not in err and (said == "smorphi-rl: interrupted" or said.endswith("; nothing was written"))
     deadline = time.monotonic() + 10  # the parent has exited: its workers are reaped, or dying
     while time.monotonic() < deadline and [w for w in workers if _running(w)]:
         time.sleep(0.1)
