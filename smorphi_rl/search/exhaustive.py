@@ -364,9 +364,10 @@ def _two_passes(
     return rows, inverse, reps, state
 
 
-class SearchStopped(Interrupted):
-    """A stop request as the search planned its footprints: the shapes settled so far, of which the best is said
-    (never written: the run's files are of whole searches only)."""
+class SearchStopped(KeyboardInterrupt):
+    """A stop request as the search planned its footprints: the shapes settled so far, of which `search` says the
+    best (never written: the run's files are of whole searches only). A plain stop to every other caller (`train`'s
+    and `design --exact`'s optimum), whose own lines say what they kept."""
 
     def __init__(self, settled: int, total: int, thetas: np.ndarray, p_c: np.ndarray, p_len: np.ndarray) -> None:
         super().__init__(f"stopped with {settled:,} of {total:,} shapes settled")
