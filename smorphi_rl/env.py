@@ -67,6 +67,7 @@ import copy
 import hashlib
 import itertools
 from collections import OrderedDict
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any, NamedTuple
 
@@ -253,6 +254,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if render_mode not in (None, *self.metadata["render_modes"]):
             raise EnvConfigError(f"render_mode {render_mode!r} is not one of None, 'rgb_array'")
         self.render_mode = render_mode
+        if env_config is not None and not isinstance(env_config, Mapping):
+            raise EnvConfigError(f"env_config must be a dict of the keys docs/commands.md lists, not a "
+                                 f"{type(env_config).__name__} (a map: {{'maps': [path]}})")  # fmt: skip
         self.config = EnvConfig.from_dict({**(env_config or {}), **kwargs})
         cfg = self.config
         self._mode = RewardMode(cfg.reward)

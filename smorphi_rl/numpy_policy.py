@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
@@ -80,6 +80,12 @@ class NumpyPolicy:
         return features
 
     def logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
+        missing = [k for k in ("map", "angles", *self.extras) if k not in obs]
+        if missing:
+            raise SmorphiError(
+                f"the observation has no {missing[0]!r} entry, which this policy reads: it was trained "
+                f"on another observation layout (it reads {', '.join(('map', 'angles', *self.extras))})"
+            )
         angles = np.asarray(obs["angles"], dtype=np.float32)
         parts = [self.map_features(obs["map"]), angles]
         if self.freqs.size:
@@ -91,8 +97,10 @@ class NumpyPolicy:
             h = np.tanh(weight @ h + bias)
         return (self.head[0] @ h + self.head[1]).astype(np.float32)
 
-    def act(self, observations: Sequence[dict[str, np.ndarray]]) -> np.ndarray:
-        """The most likely move of each hinge for every observation (n, 3)."""
+    def act(self, observations: Sequence[dict[str, np.ndarray]] | dict[str, np.ndarray]) -> np.ndarray:
+        """The most likely move of each hinge for every observation (n, 3); for one observation, its move (3,)."""
+        if isinstance(observations, Mapping):
+            return self.act([observations])[0]
         out = np.empty((len(observations), len(self.nvec)), dtype=np.int64)
         for i, obs in enumerate(observations):
             logits = self.logits(obs)

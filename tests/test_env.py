@@ -506,3 +506,9 @@ def test_the_planning_keys_are_the_planning_fields():
     from smorphi_rl.planning import Planning
 
     assert tuple(f.name for f in fields(Planning)) == PLANNING_KEYS
+
+
+def test_an_env_config_that_is_not_a_dict_is_named():
+    """`MorphologyEnv("maps/map-1.yaml")` failed with "'str' object is not a mapping"."""
+    with pytest.raises(EnvConfigError, match=r"env_config must be a dict .* not a str \(a map: \{'maps': \[path\]\}\)"):
+        MorphologyEnv("maps/map-1.yaml")

@@ -394,3 +394,17 @@ def test_design_map_gives_the_design_the_command_gives(capsys):
     design = design_map(FLOOR)
     assert code == 0 and list(design.best.theta) == record["theta"] and record["R1"] == design.best.R1
     assert design.evaluations == record["evaluations"] == 200
+
+
+def test_the_numpy_policy_takes_one_observation_and_names_a_layout_it_cannot_read():
+    """`act(obs)` with one observation failed on 'string indices'; a `picture` env's observation raised KeyError."""
+    from smorphi_rl.designer import load_designer
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.policy_file import SHIPPED_DESIGNER
+
+    net = load_designer(SHIPPED_DESIGNER).net
+    obs, _ = MorphologyEnv(CONFIG | {"maps": [str(FLOOR)]}).reset(seed=0)
+    assert net.act(obs).tolist() == net.act([obs])[0].tolist() and net.act(obs).shape == (3,)
+    picture, _ = MorphologyEnv({"maps": [str(FLOOR)]}).reset(seed=0)
+    with pytest.raises(SmorphiError, match="the observation has no 'scale' entry, which this policy reads"):
+        net.act(picture)
