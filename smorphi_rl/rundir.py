@@ -273,9 +273,11 @@ def _taken(run_dir: Path) -> str:
     """The refusal of a taken name, the folder named as every message names it (`rel`); one a run was cut short in
     says so (a job killed at its time limit and queued again met only "already exists")."""
     if run_dir.is_dir() and cut_short(run_dir):
+        resumable = ", add --resume to continue it (`train`)" if (run_dir / "config.json").is_file() else ""
         return (
             f"run directory {rel(run_dir)} already exists, left by a run that stopped before it finished (its "
-            "process is gone); its files stay there: choose another --name, or move it away to use this one"
+            f"process is gone); its files stay there: choose another --name{resumable}, or move it away to use this "
+            "one"
         )
     return f"run directory {rel(run_dir)} already exists: choose another --name"
 

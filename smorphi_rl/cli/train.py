@@ -111,6 +111,8 @@ def _register_train(sub: Any) -> None:
     option(tr, TrainConfig, "preset", choices=tuple(PRESETS))
     tr.add_argument("--address", help="attach to a running Ray cluster (HOST:PORT or auto); default: a local Ray")
     run_options(tr, "run name: results go to LOG_DIR/NAME (default: ALGO-MAP-TIMESTAMP)")
+    tr.add_argument("--resume", action="store_true", help="continue the run --name that was killed before it "
+                    "finished, from its last checkpoint (give the options it ran with)")  # fmt: skip
     option(tr, TrainConfig, "checkpoint_every", metavar="K")
     option(tr, TrainConfig, "pretrained", type=str, metavar="PATH")
     option(tr, EnvConfig, "reward", unset=True, choices=REWARD_MODES)
@@ -143,7 +145,8 @@ def cmd_train(args: argparse.Namespace) -> int:
                                "train without the evaluation protocol")  # fmt: skip
     from smorphi_rl.training.run import format_summary, train
 
-    summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address, graceful=True)
+    summary = train(cfg, name=args.name, log_dir=args.log_dir, address=args.address, graceful=True,
+                    resume=args.resume)  # fmt: skip
     print(format_summary(summary))
     if summary.interrupted:
         kept = ("it ended early, its final policy checkpointed" if summary.ended_on_request and summary.checkpoint

@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import pickle
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -212,3 +213,60 @@ def finished(trial_dir: Path) -> bool:
     """Whether the trial's last recorded result says it reached its budget or its stop criteria."""
     files = result_files(trial_dir)
     return trial_done(result_rows(*files) if files else [])
+
+
+@dataclass(frozen=True)
+class ResumedTrial:
+    """A `train` run continued (`train --resume`): its trial's folder, the checkpoint it continues from (set aside
+    with the trial's earlier files) and the results it recorded up to that checkpoint, which the run reports too."""
+
+    trial_dir: Path
+    checkpoint: Path
+    rows: list[dict[str, Any]]
+
+    @property
+    def env_steps(self) -> int:
+        return int(self.rows[-1].get(keys.STEPS) or 0) if self.rows else 0
+
+
+def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> ResumedTrial:
+    """Claim the `train` run in `run_dir` again to continue it with the settings `wanted` (`TrainConfig.to_dict`):
+    refused in one line when it is not a run of `train`, finished, in use, trained with other settings or holds no
+    checkpoint with our state; its later checkpoints and results are set aside, never deleted."""
+    from smorphi_rl.inputs import read_json_object
+    from smorphi_rl.rundir import claim_again, refuse_links, rel
+    from smorphi_rl.training.config import TrainConfigError
+    from smorphi_rl.training.settings_diff import setting_differs
+
+    if run_dir.is_symlink() or not run_dir.is_dir():
+        raise TrainConfigError(f"--resume: there is no run {rel(run_dir)} to continue")
+    refuse_links(run_dir)  # Tune and RLlib would write wherever a link points
+    if not (run_dir / "config.json").is_file():
+        raise TrainConfigError(f"--resume: {rel(run_dir)} holds no run of `train` (no config.json): give the --name "
+                               "(and --log-dir) of the run to continue")  # fmt: skip
+    if (run_dir / "summary.json").is_file():
+        raise TrainConfigError(f"--resume: {rel(run_dir)} finished (its summary.json): nothing to continue; "
+                               "`train --pretrained` starts a new run from its checkpoint")  # fmt: skip
+    claim_again(run_dir)  # refused while the process that ran it still runs
+    differ = setting_differs(read_json_object(run_dir / "config.json", "run configuration"), wanted)
+    if differ is not None:
+        raise TrainConfigError(f"--resume: {rel(run_dir)} was trained with other settings ({differ}): give the "
+                               "options it ran with (its config.json)")  # fmt: skip
+    trials = sorted(d for d in run_dir.glob(f"{algo}-*") if d.is_dir() and not d.is_symlink())
+    if len(trials) != 1:
+        raise TrainConfigError(f"--resume: {rel(run_dir)} holds {len(trials)} trial folders of {algo}, where a run "
+                               "of `train` makes one")  # fmt: skip
+    trial = trials[0]
+    point = resume_point(trial)
+    if point is None:
+        raise TrainConfigError(f"--resume: {rel(trial)} holds no checkpoint to continue from (one is written every "
+                               "--checkpoint-every iterations); start it again with another --name")  # fmt: skip
+    iteration = load_state(point)["training_iteration"]
+    try:
+        aside = set_aside(trial)
+    except OSError as exc:
+        raise TrainConfigError(f"--resume: {rel(trial)}: its checkpoints cannot be set aside ({exc.strerror or exc})") \
+            from None  # fmt: skip
+    checkpoint = aside / point.name if aside is not None and point.parent == trial else point
+    rows = [r for r in result_rows(*result_files(trial)) if int(r.get(keys.ALGO_ITERATION) or 0) <= iteration]
+    return ResumedTrial(trial, checkpoint, rows)

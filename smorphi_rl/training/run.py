@@ -7,6 +7,7 @@ Everything lands under `logs/<run>/`: the resolved configuration, Tune's trial d
 
 from __future__ import annotations
 
+import io
 import math
 import sys
 import threading
@@ -43,6 +44,7 @@ from smorphi_rl.protocol import (
 from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import (
     DEFAULT_LOG_DIR,
+    check_run_name,
     discard_run_dir,
     prepare_run_dir,
     prepare_stamped_run_dir,
@@ -54,9 +56,10 @@ from smorphi_rl.score import degenerate_warning, swamped_warning
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.callbacks import MorphologyCallbacks, with_evaluation
 from smorphi_rl.training.checkpoints import checkpoints_under
-from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, default_run_name
+from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, TrainConfigError, default_run_name
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
+from smorphi_rl.training.resume import ResumedTrial, continue_train_run
 from smorphi_rl.training.stopping import GracefulStop, tune_stop_seen
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests, write_found
@@ -101,6 +104,8 @@ class RunSummary:
     `train` exits 130, `transfer` and `reproduce` end the job there."""
     address: str | None = None
     """The Ray cluster the run trained on (`--address`, `auto` resolved); None: a Ray of this machine's own."""
+    resumed_at: int | None = None
+    """`train --resume`: the env steps of the checkpoint the run continued from (`wall_s` is the time since)."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -125,6 +130,7 @@ class RunSummary:
             "pretrained_in_runners": self.pretrained_in_runners,
             "files": {k: str(v) for k, v in self.files.items()},
             "address": self.address,
+            "resumed_at": self.resumed_at,
         }
 
     def to_json(self) -> str:
@@ -163,6 +169,15 @@ class _Progress:
         if isinstance(mean_r1, int | float) and math.isfinite(mean_r1):
             self._last_mean = float(mean_r1)  # iterations in which no episode ended report NaN: keep the last
         self._show(steps, done=steps >= self.cfg.timesteps)
+
+    def replay(self, rows: list[dict[str, Any]]) -> None:
+        """Results a run recorded before it was resumed, taken in as if reported (not shown)."""
+        status, self.status = self.status, StatusLine(io.StringIO())
+        try:
+            for row in rows:
+                self.on_result(row)
+        finally:
+            self.status = status
 
     def _show(self, steps: int, done: bool) -> None:
         if not self.status.due(force=done):
@@ -313,15 +328,17 @@ def trial_callbacks(cfg: TrainConfig, optima: dict[str, Optimum], base: type | N
 
 
 def _train_trainable(
-    config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path, stop_name: str | None
-) -> None:
-    """`train`'s one trial: the project's one trainable, recording (if on) under the run's folder."""
-    run_trial(cfg, callbacks, run_dir, stop_name=stop_name)
+    config: dict[str, Any], cfg: TrainConfig, callbacks: type | None, run_dir: Path, stop_name: str | None,
+    resume_from: Path | None = None,
+) -> None:  # fmt: skip
+    """`train`'s one trial: the project's one trainable, recording (if on) under the run's folder; every checkpoint
+    holds the state `train --resume` continues from (`resume_from`)."""
+    run_trial(cfg, callbacks, run_dir, resume_from=resume_from, stop_name=stop_name, resumable=True)
 
 
 def _fit(
     cfg: TrainConfig, name: str, run_dir: Path, callbacks: Any, progress: _Progress,
-    stopper: GracefulStop | None, late: threading.Event,
+    stopper: GracefulStop | None, late: threading.Event, resumed: ResumedTrial | None = None,
 ) -> float:  # fmt: skip
     """The Tune run itself (a local Ray or a cluster is already up), its results shown and kept by `progress`: the
     wall time; a failed trial raises TrainingError in one line. With `stopper`, a first Ctrl-C ends the run as its
@@ -331,13 +348,25 @@ def _fit(
     from smorphi_rl.training.tensorboard import TensorBoardLogger
 
     stop_name = None if stopper is None else stopper.name
+    resume_from = None if resumed is None else resumed.checkpoint
     trainable = tune.with_resources(
-        tune.with_parameters(_train_trainable, cfg=cfg, callbacks=callbacks, run_dir=run_dir, stop_name=stop_name),
+        tune.with_parameters(
+            _train_trainable,
+            cfg=cfg,
+            callbacks=callbacks,
+            run_dir=run_dir,
+            stop_name=stop_name,
+            resume_from=resume_from,
+        ),
         resources(cfg),
     )
     tuner = tune.Tuner(
         trainable,
-        tune_config=tune.TuneConfig(trial_dirname_creator=lambda trial: f"{cfg.algo}-{trial.trial_id}"),
+        tune_config=tune.TuneConfig(
+            trial_dirname_creator=lambda trial: (
+                f"{cfg.algo}-{trial.trial_id}" if resumed is None else resumed.trial_dir.name
+            )
+        ),  # a resumed run: its own folder
         run_config=tune.RunConfig(
             name=name,
             storage_path=str(run_dir.parent),
@@ -392,10 +421,14 @@ def train(
     label: str | None = None,
     optima_log_dir: str | Path | None = None,
     graceful: bool = False,
+    resume: bool = False,
 ) -> RunSummary:
     """Run `cfg` through Ray Tune and write everything under `log_dir/<name>/`; the exact optima are cached under
     `optima_log_dir` (default `log_dir`), so a job's runs share the cache of the folder the user named. `graceful`
-    (the `train` command): a first Ctrl-C ends the run as its budget's end would, its final policy checkpointed."""
+    (the `train` command): a first Ctrl-C ends the run as its budget's end would, its final policy checkpointed.
+    `resume`: continue the run `name` that stopped before it finished (killed), from its last checkpoint."""
+    if resume and not name:
+        raise TrainConfigError("--resume continues a run: give its --name (and --log-dir, if not the default)")
     stamped = not name
     name = name or default_run_name(cfg, datetime.now().strftime("%Y%m%d-%H%M%S"))
     MorphologyEnv(cfg.env.to_dict())  # a bad map or a block too small for it fails here, before Ray starts
@@ -409,8 +442,16 @@ def train(
     out = out or sys.stderr
     progress = _Progress(cfg, out, label)
     late, held = threading.Event(), ExitStack()  # a stop once training has ended waits for the tables and summary
-    # claimed atomically; removed again if the run never starts
-    run_dir = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
+    resumed = None
+    if resume:  # its results up to the checkpoint are the run's too
+        run_dir = Path(log_dir).resolve() / check_run_name(name)
+        resumed = continue_train_run(run_dir, cfg.to_dict(), cfg.algo)
+        out.write(
+            f"resuming {name} from its checkpoint of {resumed.env_steps:,} env steps ({rel(resumed.checkpoint)})\n"
+        )
+        progress.replay(resumed.rows)
+    else:  # claimed atomically; removed again if the run never starts
+        run_dir = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
     name = run_dir.name
     try:
         optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
@@ -421,7 +462,7 @@ def train(
             config = cfg.to_dict() | {"name": name, "address": address}
             write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
             stopper = GracefulStop(out) if graceful else None
-            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late)
+            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)
             held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
@@ -436,7 +477,8 @@ def train(
         raise
     try:
         with interrupts.results_held(late, held):
-            summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address)
+            summary = _finish(run_dir, cfg, progress, optima, wall, pretrained, digests, stopper, address,
+                              None if resumed is None else resumed.env_steps)  # fmt: skip
     except KeyboardInterrupt as exc:  # a second stop as the results are written: at once
         raise exc if isinstance(exc, Interrupted) else Interrupted(stopped_at_once(run_dir)) from None
     summary.stop_held = late.is_set() or (stopper is not None and stopper.requested.is_set())  # at the budget too
@@ -446,6 +488,7 @@ def train(
 def _finish(
     run_dir: Path, cfg: TrainConfig, progress: _Progress, optima: dict[str, Optimum], wall: float,
     pretrained: Path | None, digests: dict[str, str], stopper: GracefulStop | None, address: str | None,
+    resumed_at: int | None = None,
 ) -> RunSummary:  # fmt: skip
     """A run's tables, plots and summary.json once training has ended; a run that never reported is removed."""
     if not reported_any(run_dir, cfg.algo, progress):  # stopped (Ctrl-C, SIGTERM) before its first report
@@ -473,6 +516,7 @@ def _finish(
         budget=cfg.timesteps,
         ended_on_request=cut and stopper is not None and stopper.requested.is_set(),  # not a request at the end
         address=cluster.auto_address() if address == "auto" else address,
+        resumed_at=resumed_at,
     )
     if (run_dir / EPISODES_DIR).is_dir():
         files["episodes"] = run_dir / EPISODES_DIR
@@ -487,6 +531,8 @@ def format_summary(s: RunSummary) -> str:
     iterations = f"{s.iterations} iteration{'' if s.iterations == 1 else 's'}"
     if s.budget is not None and s.env_steps > s.budget:  # whole iterations: the last one runs past the budget
         iterations += f", the last ending past the {s.budget:,} asked"
+    if s.resumed_at is not None:
+        iterations += f"; resumed at {s.resumed_at:,} env steps, the time since"
     lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} ({iterations})"
              + (f" on the Ray cluster at {s.address}" if s.address else "")]  # fmt: skip
     if s.best is not None:

@@ -400,3 +400,43 @@ def test_a_trial_killed_as_it_wrote_its_first_checkpoint_is_kept_aside_and_train
     assert (kept / "checkpoint_000000" / "rllib_checkpoint.json").is_file() and not cut.parent.exists()
     assert f"kept as {kept.name}, and the trial trains again" in out.getvalue()
     assert read_resume(exp, trials)[2] == []  # the kept folder is no trial's: the next resume passes it by
+
+
+def test_train_resume_refuses_what_it_cannot_continue_in_one_line(tmp_path):
+    """No run, a finished one, one trained otherwise, one without a checkpoint to continue from, one in use."""
+    import json
+    import subprocess
+    import sys
+
+    from smorphi_rl.rundir import MARKER
+    from smorphi_rl.training.config import TrainConfig, TrainConfigError
+    from smorphi_rl.training.resume import continue_train_run
+    from smorphi_rl.training.run import train
+
+    cfg = TrainConfig(timesteps=4000)
+    with pytest.raises(TrainConfigError, match="--resume continues a run: give its --name"):
+        train(cfg, log_dir=tmp_path, resume=True)
+    run = tmp_path / "run"
+    with pytest.raises(TrainConfigError, match=r"there is no run .*run to continue"):
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    run.mkdir()
+    with pytest.raises(TrainConfigError, match=r"holds no run of `train` \(no config\.json\)"):
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    (run / "config.json").write_text(json.dumps(cfg.to_dict() | {"timesteps": 8000, "name": "run"}))
+    with pytest.raises(TrainConfigError, match=r"trained with other settings \(timesteps.*give the options it ran"):
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    (run / "config.json").write_text(json.dumps(cfg.to_dict() | {"name": "run", "address": None}))
+    (run / "ppo-1").mkdir()
+    with pytest.raises(TrainConfigError, match="holds no checkpoint to continue from"):
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(30)"])
+    try:
+        (run / MARKER).write_text(f"pid {live.pid} at 2026-01-01T00:00:00\n")
+        with pytest.raises(RunDirError, match=f"in use by process {live.pid}"):
+            continue_train_run(run, cfg.to_dict(), "ppo")
+    finally:
+        live.kill()
+        live.wait()
+    (run / "summary.json").write_text("{}")
+    with pytest.raises(TrainConfigError, match=r"finished \(its summary\.json\): nothing to continue"):
+        continue_train_run(run, cfg.to_dict(), "ppo")

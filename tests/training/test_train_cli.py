@@ -339,7 +339,7 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
     from smorphi_rl.training import run as run_module
     from smorphi_rl.training.result_keys import STEPS
 
-    def fit(cfg, name, run_dir, callbacks, progress, stopper, late):
+    def fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed=None):
         trial = run_dir / f"{cfg.algo}-trial_00000"
         trial.mkdir()
         progress.status.out = io.StringIO()  # its progress line aside: the test reads stderr's last line
@@ -390,7 +390,7 @@ def test_a_stop_as_the_run_writes_its_results_waits_for_them(tmp_path, monkeypat
     from smorphi_rl.training import run as run_module
     from smorphi_rl.training.result_keys import STEPS
 
-    def fit(cfg, name, run_dir, callbacks, progress, stopper, late):
+    def fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed=None):
         (run_dir / f"{cfg.algo}-trial_00000").mkdir()
         progress.status.out = io.StringIO()
         progress.on_result({STEPS: cfg.timesteps})  # the whole budget, reported
@@ -490,3 +490,46 @@ def test_a_stop_as_a_sweep_writes_its_tables_waits_for_them(tmp_path, monkeypatc
     monkeypatch.setattr(sweep_module, "write_sweep_outputs", outputs)
     summary = sweep_module.run_sweep(load_sweep(config), tmp_path / "logs", None, False)
     assert written and summary.stop_held and signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL
+
+
+@pytest.mark.slow
+def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run(cached_optimum):
+    """A train killed (SIGKILL: a job's time limit, the machine's memory) could only be started again from nothing.
+    `--resume` continues it from its last checkpoint with our state; its curves and tables cover the whole run."""
+    import json
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    from smorphi_rl.training.checkpoints import checkpoints_under
+
+    logs, name = cached_optimum, "killed"
+    argv = ["train", "--timesteps", "40000", "--checkpoint-every", "2", "--env-runners", "1", "--envs-per-runner",
+            "4", "--eval-every", "2", "--eval-starts", "4", "--select-starts", "0", "--record-every", "0", "--name",
+            name, "--log-dir", str(logs)]  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+
+    def rows() -> int:
+        return sum(len(p.read_text().splitlines()) for p in (logs / name).glob("ppo-*/result.json"))
+
+    deadline = time.monotonic() + 300
+    while (len(checkpoints_under(logs / name)) < 2 or rows() < 5) and time.monotonic() < deadline:
+        time.sleep(0.2)  # two checkpoints, and the rows of the first recorded in the run's folder
+    os.killpg(proc.pid, signal.SIGKILL)  # the driver and its Ray at once, as a scheduler's kill
+    proc.wait(timeout=60)
+    assert rows() >= 5 and not (logs / name / "summary.json").exists(), "killed before two checkpoints, or at the end"
+    again = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), capture_output=True,
+                           text=True, timeout=300)  # fmt: skip
+    assert again.returncode == 1 and "stopped before it finished" in again.stderr and "add --resume" in again.stderr
+    run = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv, "--resume"], env=own_cache(),
+                         capture_output=True, text=True, timeout=600)  # fmt: skip
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert "resuming killed from its checkpoint of " in run.stderr
+    summary = json.loads((logs / name / "summary.json").read_text())
+    assert summary["env_steps"] >= 40000 and 0 < summary["resumed_at"] < 40000 and not summary["interrupted"]
+    assert summary["iterations"] == 20  # the iterations before the checkpoint and after it, each once
+    (trial,) = (logs / name).glob("ppo-*")  # the same trial's folder, the earlier files set aside in it
+    assert (trial / "before-resume-1" / "result.json").is_file() and "resumed at" in run.stdout
+    assert main(["train", *argv[1:], "--resume"]) == 1  # finished: nothing to continue
