@@ -143,7 +143,7 @@ def check_fits(state: dict[str, Any], module: dict[str, Any], checkpoint: Path) 
     if {k: v.shape for k, v in weights.items()} != ours:
         missing, extra = sorted(set(ours) - set(weights)), sorted(set(weights) - set(ours))
         raise CheckpointError(f"{checkpoint / STATE_FILE}: its weights are not this trial's module's (missing "
-                              f"{missing[:2]}, extra {extra[:2]}, or shapes differ); not the state this sweep "
+                              f"{missing[:2]}, extra {extra[:2]}, or shapes differ); not the state this run "
                               "writes")  # fmt: skip
 
 
@@ -153,13 +153,13 @@ def load_state(checkpoint: Path) -> dict[str, Any]:
     path = checkpoint / STATE_FILE
     state = safe_unpickle(path)
     if not isinstance(state, dict) or set(state) - {KEPT} != {*STATE_KEYS, ELAPSED}:
-        raise CheckpointError(f"{path}: not the state a smorphi-rl sweep writes")
+        raise CheckpointError(f"{path}: not the state a smorphi-rl run writes")
     try:
         problem = _shape_problem(state)
     except RecursionError:
         problem = "it is nested too deeply"
     if problem is not None:
-        raise CheckpointError(f"{path}: {problem}; not the state a smorphi-rl sweep writes")
+        raise CheckpointError(f"{path}: {problem}; not the state a smorphi-rl run writes")
     return state
 
 
@@ -223,6 +223,13 @@ class ResumedTrial:
     trial_dir: Path
     checkpoint: Path
     rows: list[dict[str, Any]]
+    elapsed_s: float = 0.0
+    """Training seconds before the checkpoint (its state file's), which the run's wall time adds."""
+
+    @property
+    def done(self) -> bool:
+        """The run trained its whole budget before it was killed (as it wrote its tables): nothing to train again."""
+        return trial_done(self.rows)
 
     @property
     def env_steps(self) -> int:
@@ -244,7 +251,7 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     if not (run_dir / "config.json").is_file():
         raise TrainConfigError(f"--resume: {rel(run_dir)} holds no run of `train` (no config.json): give the --name "
                                "(and --log-dir) of the run to continue")  # fmt: skip
-    if (run_dir / "summary.json").is_file():
+    if (run_dir / "summary.json").is_file() and not _stopped_early(run_dir / "summary.json"):
         raise TrainConfigError(f"--resume: {rel(run_dir)} finished (its summary.json): nothing to continue; "
                                "`train --pretrained` starts a new run from its checkpoint")  # fmt: skip
     claim_again(run_dir)  # refused while the process that ran it still runs
@@ -253,6 +260,8 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
         raise TrainConfigError(f"--resume: {rel(run_dir)} was trained with other settings ({differ}): give the "
                                "options it ran with (its config.json)")  # fmt: skip
     trials = sorted(d for d in run_dir.glob(f"{algo}-*") if d.is_dir() and not d.is_symlink())
+    if not trials:
+        raise TrainConfigError(f"--resume: {rel(run_dir)} holds no trial folder of {algo}: nothing to continue from")
     if len(trials) != 1:
         raise TrainConfigError(f"--resume: {rel(run_dir)} holds {len(trials)} trial folders of {algo}, where a run "
                                "of `train` makes one")  # fmt: skip
@@ -261,12 +270,23 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     if point is None:
         raise TrainConfigError(f"--resume: {rel(trial)} holds no checkpoint to continue from (one is written every "
                                "--checkpoint-every iterations); start it again with another --name")  # fmt: skip
-    iteration = load_state(point)["training_iteration"]
+    state = load_state(point)
+    iteration, elapsed = state["training_iteration"], float(state[ELAPSED])
+    rows = [r for r in result_rows(*result_files(trial)) if int(r.get(keys.ALGO_ITERATION) or 0) <= iteration]
+    if trial_done(rows):  # killed as it wrote its tables: they are written again, nothing trained
+        return ResumedTrial(trial, point, rows, elapsed)
     try:
         aside = set_aside(trial)
     except OSError as exc:
         raise TrainConfigError(f"--resume: {rel(trial)}: its checkpoints cannot be set aside ({exc.strerror or exc})") \
             from None  # fmt: skip
     checkpoint = aside / point.name if aside is not None and point.parent == trial else point
-    rows = [r for r in result_rows(*result_files(trial)) if int(r.get(keys.ALGO_ITERATION) or 0) <= iteration]
-    return ResumedTrial(trial, checkpoint, rows)
+    return ResumedTrial(trial, checkpoint, rows, elapsed)
+
+
+def _stopped_early(summary: Path) -> bool:
+    """Whether a run's summary.json says it stopped before its budget (a Ctrl-C or SIGTERM: a scheduler's time limit
+    sends one before its kill), so that `--resume` may continue it."""
+    from smorphi_rl.inputs import read_json_object
+
+    return read_json_object(summary, "run summary").get("interrupted") is True

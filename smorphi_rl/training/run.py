@@ -105,7 +105,8 @@ class RunSummary:
     address: str | None = None
     """The Ray cluster the run trained on (`--address`, `auto` resolved); None: a Ray of this machine's own."""
     resumed_at: int | None = None
-    """`train --resume`: the env steps of the checkpoint the run continued from (`wall_s` is the time since)."""
+    """`train --resume`: the env steps of the checkpoint the run continued from (`wall_s` adds the training time
+    before it, its state file's)."""
 
     def to_dict(self) -> dict[str, Any]:
         best = None
@@ -404,7 +405,7 @@ def reported_any(run_dir: Path, algo: str, progress: _Progress | None = None) ->
 def stopped_at_once(run_dir: Path) -> str:
     """What a run a second stop ended at once says: what its folder keeps."""
     return (f"stopped at once; {rel(run_dir)} keeps what was written so far (episodes, logs, any checkpoint), but no "
-            "tables or summary.json")  # fmt: skip
+            "tables or summary.json (`train --resume` with its --name continues it)")  # fmt: skip
 
 
 def nothing_kept(run_dir: Path, what: str = "run") -> str:
@@ -457,13 +458,18 @@ def train(
         optima = training_optima(cfg, log_dir if optima_log_dir is None else optima_log_dir, out)
         callbacks = trial_callbacks(cfg, optima, callbacks)
         quiet()
-        with cluster.ray_session(address):
-            cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
-            config = cfg.to_dict() | {"name": name, "address": address}
-            write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
-            stopper = GracefulStop(out) if graceful else None
-            wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)
-            held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs
+        stopper = GracefulStop(out) if graceful else None
+        if resumed is not None and resumed.done:  # it trained its budget: its tables and summary alone are written
+            wall = 0.0
+            held.enter_context(interrupts.stop_requests(late, again=True))
+        else:
+            with cluster.ray_session(address):
+                cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
+                config = cfg.to_dict() | {"name": name, "address": address}
+                write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
+                wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)
+                held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs
+        wall += 0.0 if resumed is None else resumed.elapsed_s  # a resumed run's time before its checkpoint too
     except TrainingError:
         raise  # a trial failed: its folder holds the errors the line names, whether or not it reported
     except BaseException as exc:
@@ -532,7 +538,7 @@ def format_summary(s: RunSummary) -> str:
     if s.budget is not None and s.env_steps > s.budget:  # whole iterations: the last one runs past the budget
         iterations += f", the last ending past the {s.budget:,} asked"
     if s.resumed_at is not None:
-        iterations += f"; resumed at {s.resumed_at:,} env steps, the time since"
+        iterations += f"; resumed at {s.resumed_at:,} env steps"
     lines = [f"{s.algorithm.upper()} {state} {s.env_steps:,} env steps in {fmt_duration(s.wall_s)} ({iterations})"
              + (f" on the Ray cluster at {s.address}" if s.address else "")]  # fmt: skip
     if s.best is not None:

@@ -20,6 +20,7 @@ from ray.tune.utils import flatten_dict
 
 from smorphi_rl import rllib_compat
 from smorphi_rl.protocol import EVAL_KEY, TRAINED_KEY
+from smorphi_rl.training import result_keys as keys
 
 NOT_LOGGED = ("config", "pid", "timestamp", TIME_TOTAL_S, TRAINING_ITERATION)
 """Result keys Tune's logger leaves out of TensorBoard (as it does)."""
@@ -57,8 +58,9 @@ def split_scalars(result: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any
 
 
 def step_of(result: dict[str, Any]) -> Any:
-    """The step Tune's logger files a result under."""
-    return result.get(TIMESTEPS_TOTAL) or result[TRAINING_ITERATION]
+    """The step Tune's logger files a result under: the algorithm's own iteration, which a resumed run (`train
+    --resume`, `sweep --resume`) continues where Tune's `training_iteration` starts again from 1."""
+    return result.get(TIMESTEPS_TOTAL) or result.get(keys.ALGO_ITERATION) or result[TRAINING_ITERATION]
 
 
 class TensorBoardLogger(TBXLoggerCallback):  # type: ignore[misc]  # Tune's classes are untyped

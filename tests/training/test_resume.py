@@ -437,6 +437,13 @@ def test_train_resume_refuses_what_it_cannot_continue_in_one_line(tmp_path):
     finally:
         live.kill()
         live.wait()
-    (run / "summary.json").write_text("{}")
+    (run / "summary.json").write_text('{"interrupted": true}')  # Ctrl-C, or a scheduler's SIGTERM before its kill
+    with pytest.raises(TrainConfigError, match="holds no checkpoint to continue from"):  # resumable, but not this one
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    (run / "summary.json").write_text('{"interrupted": false}')
     with pytest.raises(TrainConfigError, match=r"finished \(its summary\.json\): nothing to continue"):
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    (run / "ppo-1").rmdir()
+    with pytest.raises(TrainConfigError, match="holds no trial folder of ppo: nothing to continue from"):
+        (run / "summary.json").unlink()
         continue_train_run(run, cfg.to_dict(), "ppo")

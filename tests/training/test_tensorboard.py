@@ -76,3 +76,12 @@ def test_the_eval_series_follow_the_trained_policy_to_their_last_point():
     assert "ray/tune/eval/map-2/median_gap" not in scalars and not any("trained" in tag for tag in scalars)
     plain = {"timesteps_total": 2_000, "training_iteration": 1, "eval": {"median_gap": 6.54}}
     assert split_scalars(plain)[0]["ray/tune/eval/median_gap"] == 6.54  # every other row as it was
+
+
+def test_a_resumed_runs_results_are_filed_under_the_algorithms_own_iteration():
+    """A resumed run's Tune counts its iterations from 1 again: TensorBoard drew its curves back to the start."""
+    from smorphi_rl.training import result_keys as keys
+    from smorphi_rl.training.tensorboard import step_of
+
+    assert step_of({"training_iteration": 1, keys.ALGO_ITERATION: 16}) == 16
+    assert step_of({"training_iteration": 3}) == 3  # a result of Tune's alone

@@ -533,3 +533,10 @@ def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run
     (trial,) = (logs / name).glob("ppo-*")  # the same trial's folder, the earlier files set aside in it
     assert (trial / "before-resume-1" / "result.json").is_file() and "resumed at" in run.stdout
     assert main(["train", *argv[1:], "--resume"]) == 1  # finished: nothing to continue
+    (logs / name / "summary.json").unlink()  # killed as it wrote its tables: they are written again, nothing trained
+    again = subprocess.run([sys.executable, "-m", "smorphi_rl.cli", *argv, "--resume"], env=own_cache(),
+                           capture_output=True, text=True, timeout=300)  # fmt: skip
+    assert again.returncode == 0, again.stderr[-3000:]
+    rewritten = json.loads((logs / name / "summary.json").read_text())
+    assert (rewritten["env_steps"], rewritten["iterations"]) == (summary["env_steps"], 20)  # not one iteration more
+    assert not (trial / "before-resume-2").exists()
