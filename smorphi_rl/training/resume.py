@@ -225,11 +225,8 @@ class ResumedTrial:
     rows: list[dict[str, Any]]
     elapsed_s: float = 0.0
     """Training seconds before the checkpoint (its state file's), which the run's wall time adds."""
-
-    @property
-    def done(self) -> bool:
-        """The run trained its whole budget before it was killed (as it wrote its tables): nothing to train again."""
-        return trial_done(self.rows)
+    done: bool = False
+    """The run trained its whole budget before it was killed (as it wrote its tables): nothing to train again."""
 
     @property
     def env_steps(self) -> int:
@@ -273,8 +270,11 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     state = load_state(point)
     iteration, elapsed = state["training_iteration"], float(state[ELAPSED])
     rows = [r for r in result_rows(*result_files(trial)) if int(r.get(keys.ALGO_ITERATION) or 0) <= iteration]
-    if trial_done(rows):  # killed as it wrote its tables: they are written again, nothing trained
-        return ResumedTrial(trial, point, rows, elapsed)
+    steps = int(rows[-1].get(keys.STEPS) or 0) if rows else 0
+    cap = wanted.get("max_iterations")
+    budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
+    if trial_done(rows) and budget_spent:  # killed as it wrote its tables: they are written again, nothing trained
+        return ResumedTrial(trial, point, rows, elapsed, done=True)  # (a stop's last row is done too: trained on)
     try:
         aside = set_aside(trial)
     except OSError as exc:
