@@ -355,7 +355,7 @@ def test_a_run_stopped_at_once_after_it_reported_says_what_its_folder_keeps(tmp_
     code, err = run(capsys, "train", "--log-dir", str(tmp_path / "logs"), "--name", "cut", "--eval-every", "0")
     assert code == 130
     kept = (f"{tmp_path / 'logs' / 'cut'} keeps what was written so far (episodes, logs, any checkpoint), but no "
-            "tables or summary.json")  # fmt: skip
+            "tables or summary.json (`train --resume` with its --name continues it)")  # fmt: skip
     assert err.strip().splitlines()[-1] == f"smorphi-rl: interrupted: stopped at once; {kept}"
     assert (tmp_path / "logs" / "cut" / "ppo-trial_00000" / "episode.mcap").is_file()
 
