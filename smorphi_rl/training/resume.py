@@ -197,6 +197,20 @@ def set_aside(trial_dir: Path) -> Path | None:
     return aside
 
 
+def set_aside_from(trial_dir: Path, point: Path | None) -> Path | None:
+    """`set_aside` of a trial about to continue from checkpoint `point`: where that checkpoint lies once moved (None
+    for none); one line when the files cannot be moved."""
+    from smorphi_rl.rundir import RunDirError
+
+    try:
+        aside = set_aside(trial_dir)
+    except OSError as exc:
+        raise RunDirError(f"{trial_dir}: its checkpoints cannot be set aside ({exc.strerror or exc})") from None
+    if point is None:
+        return None
+    return aside / point.name if aside is not None and point.parent == trial_dir else point
+
+
 def trial_spec(trial_dir: Path) -> dict[str, Any] | None:
     """The trial's fields (`SweepConfig.trials`) as Tune's params.json in `trial_dir` records them; None for a
     folder that holds no trial of a sweep."""
@@ -275,12 +289,8 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
     if trial_done(rows) and budget_spent:  # killed as it wrote its tables: they are written again, nothing trained
         return ResumedTrial(trial, point, rows, elapsed, done=True)  # (a stop's last row is done too: trained on)
-    try:
-        aside = set_aside(trial)
-    except OSError as exc:
-        raise TrainConfigError(f"--resume: {rel(trial)}: its checkpoints cannot be set aside ({exc.strerror or exc})") \
-            from None  # fmt: skip
-    checkpoint = aside / point.name if aside is not None and point.parent == trial else point
+    checkpoint = set_aside_from(trial, point)
+    assert checkpoint is not None
     return ResumedTrial(trial, checkpoint, rows, elapsed)
 
 

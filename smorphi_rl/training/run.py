@@ -284,19 +284,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             if found is None:  # the best of a few broad shapes (long tiles, short paths) stands in for the optimum
                 broad = cfg.env.planning.evaluator(grid_map, cache=False).evaluate_many(np.array(REACH_SHAPES))
                 i = int(np.argmax(weights.r1(broad.P_c, broad.P_len)))
-                line = (
-                    None
-                    if start
-                    else swamped_warning(
-                        weights,
-                        float(broad.P_c[i]),
-                        int(broad.P_len[i]),
-                        cfg.env.path_term,
-                        grid_map.name,
-                        whose="a broad shape's",
-                    )
-                )
-                if line:
+                p_c, p_len, path_term = float(broad.P_c[i]), int(broad.P_len[i]), cfg.env.path_term
+                line = swamped_warning(weights, p_c, p_len, path_term, grid_map.name, whose="a broad shape's")
+                if line and not start:  # a start on a speck explains it first
                     out.write(line + "\n")
                 continue
         elif (known := cached_optimum(grid_map, weights, cfg.env.planning, cache)) is not None:

@@ -47,7 +47,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
-from smorphi_rl.training.resume import finished, resume_point, set_aside, trial_spec
+from smorphi_rl.training.resume import finished, resume_point, set_aside_from, trial_spec
 from smorphi_rl.training.run import (
     RunSummary,
     TrainingError,
@@ -194,12 +194,9 @@ def set_aside_started(started: _Started) -> dict[int, Path]:
     continues from, at its new place."""
     points: dict[int, Path] = {}
     for index, (d, point) in started.items():
-        try:
-            aside = set_aside(d)
-        except OSError as exc:
-            raise RunDirError(f"{d}: its checkpoints cannot be set aside ({exc.strerror or exc})") from None
-        if point is not None:
-            points[index] = aside / point.name if aside is not None and point.parent == d else point
+        moved = set_aside_from(d, point)
+        if moved is not None:
+            points[index] = moved
     return points
 
 
