@@ -116,6 +116,11 @@ def as_planner(planner: Planner | str) -> Planner:
         raise SmorphiError(f"unknown planner {planner!r} (choose from {', '.join(PLANNERS)})") from None
 
 
+def _shape(morphology: Morphology | Sequence[float]) -> Morphology:
+    """A Morphology as it is; three hinge angles checked as one (the evaluator's public calls take either)."""
+    return morphology if isinstance(morphology, Morphology) else Morphology.of(morphology)
+
+
 class Evaluator:
     """FBCPP metrics of morphologies on one map, cached by footprint matrix.
 
@@ -165,20 +170,17 @@ class Evaluator:
 
     def footprint(self, morphology: Morphology | Sequence[float]) -> Footprint:
         """F and the footprint size of one morphology (compiled rasteriser)."""
-        feasible, l, w, w_m, l_m = self._rasterise(morphology)
+        feasible, l, w, w_m, l_m = self._rasterise(_shape(morphology))
         return Footprint(self._buf[:l, :w].astype(bool), w_m, l_m, bool(feasible))
 
-    def _rasterise(self, morphology: Morphology | Sequence[float]) -> tuple[bool, int, int, float, float]:
-        """F into the buffer; a shape given as three angles is checked as a Morphology is."""
-        if not isinstance(morphology, Morphology):
-            morphology = Morphology.of(morphology)
+    def _rasterise(self, morphology: Morphology) -> tuple[bool, int, int, float, float]:
         t1, t2, t3 = (float(t) for t in morphology.angles)
         r = self.grid_map.resolution_m
         return k.footprint_into(t1, t2, t3, self.block_side_m, r, self._buf)
 
     def evaluate(self, morphology: Morphology | Sequence[float]) -> CoverageResult:
         """Metrics of one morphology, or three hinge angles (no path): the env's per-step call."""
-        morphology = morphology if isinstance(morphology, Morphology) else Morphology.of(morphology)
+        morphology = _shape(morphology)
         feasible, l, w, w_m, l_m = self._rasterise(morphology)
         if not feasible:
             return CoverageResult(morphology.angles, False, 0.0, 0.0, 0, 0.0, 0, (w_m, l_m), (l, w),
@@ -216,7 +218,7 @@ class Evaluator:
 
     def plan(self, morphology: Morphology | Sequence[float]) -> CoverageResult:
         """Metrics plus path tiles and covered mask, for plots and replays (not cached)."""
-        morphology = morphology if isinstance(morphology, Morphology) else Morphology.of(morphology)
+        morphology = _shape(morphology)
         return plan_coverage(self.prepared, self.footprint(morphology), morphology.angles, self.start)
 
     def evaluate_many(self, thetas: np.ndarray) -> BatchResult:
