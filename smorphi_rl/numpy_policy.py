@@ -80,12 +80,15 @@ class NumpyPolicy:
         return features
 
     def logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
-        missing = [k for k in ("map", "angles", *self.extras) if k not in obs]
-        if missing:
+        try:
+            return self._logits(obs)
+        except KeyError as exc:  # an observation of another layout: named, checked only when it fails
             raise SmorphiError(
-                f"the observation has no {missing[0]!r} entry, which this policy reads: it was trained "
+                f"the observation has no {exc.args[0]!r} entry, which this policy reads: it was trained "
                 f"on another observation layout (it reads {', '.join(('map', 'angles', *self.extras))})"
-            )
+            ) from None
+
+    def _logits(self, obs: dict[str, np.ndarray]) -> np.ndarray:
         angles = np.asarray(obs["angles"], dtype=np.float32)
         parts = [self.map_features(obs["map"]), angles]
         if self.freqs.size:

@@ -25,7 +25,7 @@ import numpy as np
 from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.cluster import usable_cpus
 from smorphi_rl.errors import Interrupted, SmorphiError
-from smorphi_rl.geometry import check_step
+from smorphi_rl.geometry import angles_text, check_step
 from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import Map, load_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
@@ -380,8 +380,7 @@ class SearchStopped(KeyboardInterrupt):
             return f"{share}, none planned yet; nothing was written"
         r1 = weights.r1(self.p_c, self.p_len)
         i = int(np.argmax(r1))
-        t1, t2, t3 = (f"{float(t):g}" for t in self.thetas[i])
         return (
-            f"{share}; the best of them, not the optimum: ({t1}, {t2}, {t3}) P_c {self.p_c[i]:.2f} %, "
+            f"{share}; the best of them, not the optimum: {angles_text(self.thetas[i])} P_c {self.p_c[i]:.2f} %, "
             f"P_len {int(self.p_len[i])}, R1 {float(r1[i]):.2f}; nothing was written"
         )
