@@ -200,6 +200,23 @@ def test_a_recording_whose_disk_fills_mid_episode_keeps_what_it_flushed(tmp_path
     assert ep.steps == json.loads(json.dumps(produced[: len(ep.steps)]))
 
 
+def test_a_disk_that_fills_as_the_env_closes_fails_no_close(tmp_path, monkeypatch):
+    """The disk fills elsewhere (a trial's checkpoint) and RLlib stops its runners: the recording's last write
+    failed in `close`, the runner's stop failed and Ray took 60 s to end it, with two lines on the terminal."""
+    env = recorded_env(tmp_path, flush_steps=10, max_steps=200)
+    play(env, 5, np.random.default_rng(5), steps=25)
+    writer = env._writer
+    assert writer is not None and not writer.broken
+
+    def full(*_: object) -> None:
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(writer._writer, "finish", full)
+    env.close()
+    assert writer.broken and not writer.final.exists()
+    assert read_episode(writer.part).truncated  # kept as far as it was flushed
+
+
 def test_replay_command_summary_steps_png_gif_and_listing(tmp_path, capsys):
     env = recorded_env(tmp_path, max_steps=30)
     for seed in range(2):

@@ -195,7 +195,12 @@ class RecordingWrapper(gym.Wrapper):
         return obs, reward, terminated, truncated, info
 
     def close(self) -> None:
-        self._end(f"{LOG_CUT}: the env was closed")
+        """End the episode being recorded as cut; a write that fails here (a full disk) leaves its file as far as it
+        was flushed and does not fail the close: the run already stopped, or stops, on the write that failed first."""
+        try:
+            self._end(f"{LOG_CUT}: the env was closed")
+        except OSError:
+            self._writer = None
         super().close()
 
     def _start(self, episode: int, seed: int | None, info: dict[str, Any]) -> None:
