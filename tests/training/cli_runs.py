@@ -21,6 +21,11 @@ def ray_env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
 
 
+PROMPT_ROWS = {"TUNE_GLOBAL_CHECKPOINT_S": "1"}
+"""Tune stages a trial's result rows away from the run's folder and copies them there at its experiment saves, every
+10 s or more: a short run could end before a test that waits for its rows sees them. With this, every second."""
+
+
 def cli(*argv: str, cwd: Path, timeout: float = 400, home: Path | None = None,
         drop: tuple[str, ...] = ()) -> subprocess.CompletedProcess[str]:  # fmt: skip
     """`smorphi-rl ARGV` in `cwd`; `home`: the HOME it runs with (default the test's own); `drop`: environment
@@ -43,7 +48,7 @@ def ctrl_c_after_checkpoint(argv: list[str], cwd: Path, checkpoints: Path, patte
     """Start the command; SIGINT once `checkpoints.glob(pattern)` finds a checkpoint and `ready()` holds (what the
     test reads afterwards is written: polled, not a fixed wait, as a machine under load writes it later);
     (exit code, stdout, stderr)."""
-    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], cwd=cwd, env=ray_env(),
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], cwd=cwd, env=ray_env() | PROMPT_ROWS,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)  # fmt: skip
     deadline = time.monotonic() + 240
     while time.monotonic() < deadline and not list(checkpoints.glob(pattern)):

@@ -7,6 +7,7 @@ import os
 from pathlib import Path
 
 import pytest
+from cli_runs import PROMPT_ROWS
 
 from smorphi_rl.cli import main
 from smorphi_rl.cluster import local_cpus
@@ -508,8 +509,8 @@ def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run
     argv = ["train", "--timesteps", "40000", "--checkpoint-every", "2", "--env-runners", "1", "--envs-per-runner",
             "4", "--eval-every", "2", "--eval-starts", "4", "--select-starts", "0", "--record-every", "0", "--name",
             name, "--log-dir", str(logs)]  # fmt: skip
-    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache(), start_new_session=True,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
+    proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache() | PROMPT_ROWS,
+                            start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)  # fmt: skip
 
     def rows() -> int:
         return sum(len(p.read_text().splitlines()) for p in (logs / name).glob("ppo-*/result.json"))
