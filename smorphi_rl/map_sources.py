@@ -21,6 +21,7 @@ from pathlib import Path
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.floorplans import HELD_OUT_SEED, FloorKind
 from smorphi_rl.inputs import MAX_SEED, InputError, resolved
+from smorphi_rl.maps import shipped_hint
 
 GENERATE_PREFIX = "generate:"
 VALIDATION_SEED = 900_000
@@ -99,6 +100,9 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
                 raise MapSourceError(f"map folder {text} holds no map YAML")
             out.extend(found)
         else:
+            hint = shipped_hint(Path(text)) if not Path(text).exists() else ""
+            if hint:  # `maps/...` away from the clone: said here, before the path is made absolute
+                raise MapSourceError(f"map file not found: {text}{hint}")
             out.append(_absolute(text))
     return tuple(out)
 

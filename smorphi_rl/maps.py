@@ -25,8 +25,21 @@ from smorphi_rl.inputs import MAP_IMAGE_FORMATS, is_finite_number
 EDGE_TOLERANCE_CELLS = 1e-9
 """A point within this many cells of a cell's edge lies on it: the same point names one cell on every frame."""
 
-SHIPPED_DEFAULT_MAP = Path(__file__).resolve().parent.parent / "maps" / "map-1.yaml"
-"""The default map of every command and of the env: map-1, shipped beside the package."""
+_PACKAGE = Path(__file__).resolve().parent
+SHIPPED_MAPS = _PACKAGE / "shipped_maps" if (_PACKAGE / "shipped_maps").is_dir() else _PACKAGE.parent / "maps"
+"""The maps shipped with smorphi-rl: the clone's maps/, which an installed wheel holds as smorphi_rl/shipped_maps
+(pyproject.toml)."""
+SHIPPED_DEFAULT_MAP = SHIPPED_MAPS / "map-1.yaml"
+"""The default map of every command and of the env: map-1."""
+
+
+def shipped_hint(path: Path) -> str:
+    """For a map path of the README's (`maps/...`, relative) that is not there: where the shipped one is (run from
+    elsewhere than the clone, or from an installed wheel); "" when there is none."""
+    parts = path.parts
+    if path.is_absolute() or len(parts) < 2 or parts[0] != "maps" or not (SHIPPED_MAPS / Path(*parts[1:])).exists():
+        return ""
+    return f" (the shipped one is {SHIPPED_MAPS / Path(*parts[1:])})"
 
 
 MIN_RESOLUTION_M, MAX_RESOLUTION_M = 0.001, 10.0
@@ -362,7 +375,7 @@ def load_map(yaml_path: str | Path) -> Map:
     except FileNotFoundError:
         generator = str(yaml_path).startswith("generate:")  # map_sources' floor generators: no file to read
         hint = " (a generator is for train and sweep; `maps generate` writes floors to files)" if generator else ""
-        raise MapError(f"map file not found: {path}{hint}") from None
+        raise MapError(f"map file not found: {path}{hint or shipped_hint(path)}") from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MapError(f"{path}: cannot read map YAML ({exc})") from None
     try:

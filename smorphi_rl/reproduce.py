@@ -19,6 +19,7 @@ import numpy as np
 
 from smorphi_rl import interrupts
 from smorphi_rl.errors import Interrupted, SmorphiError
+from smorphi_rl.maps import SHIPPED_MAPS
 from smorphi_rl.rundir import DEFAULT_LOG_DIR, rel, write_text_atomic
 from smorphi_rl.stats import Interval, median_interval, too_few
 from smorphi_rl.training.presets import ENVS_PER_RUNNER
@@ -29,7 +30,7 @@ if TYPE_CHECKING:
     from smorphi_rl.search.results import SearchResult
     from smorphi_rl.training.transfer import TransferRun
 
-MAPS_DIR = Path(__file__).resolve().parent.parent / "maps"
+MAPS_DIR = SHIPPED_MAPS
 TRAIN_MAPS = ("map-1", "map-2")
 VAL_MAPS = ("val-1", "val-2", "val-3")
 

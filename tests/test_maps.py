@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -440,3 +441,39 @@ def test_a_point_on_a_cell_edge_is_in_the_cell_that_edge_starts(resolution):
         assert grid_map.cell_of(-3.0 + edge, -1.7 + edge) == (k, k)
     with pytest.raises(MapError, match="outside the map"):
         grid_map.cell_of(-3.0 + 200 * resolution, 0.0)  # the far edge starts no cell of this map
+
+
+def test_a_built_wheel_ships_every_map_and_its_default_map_loads_anywhere(tmp_path):
+    """A wheel held no maps/: an installed smorphi-rl named its own default map missing. The clone's maps/ is now
+    shipped as smorphi_rl/shipped_maps; a README path away from the clone names the shipped file."""
+    import shutil
+    import subprocess
+    import sys
+
+    root, src = MAPS.parent, tmp_path / "src"  # built from a copy: the build writes beside its sources
+    skip = shutil.ignore_patterns("__pycache__", "*.egg-info")
+    for name in ("smorphi_rl", "maps"):
+        shutil.copytree(root / name, src / name, ignore=skip)
+    for name in ("pyproject.toml", "README.md"):
+        shutil.copy(root / name, src / name)
+    pip = [sys.executable, "-m", "pip", "-q", "--disable-pip-version-check"]
+    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(tmp_path / "dist"), str(src)],
+                   check=True, capture_output=True, timeout=300)  # fmt: skip
+    (wheel,) = (tmp_path / "dist").glob("*.whl")
+    site = tmp_path / "site"
+    subprocess.run([*pip, "install", "--no-deps", "--no-index", "--target", str(site), str(wheel)], check=True,
+                   capture_output=True, timeout=300)  # fmt: skip
+    shipped = sorted(p.relative_to(MAPS) for p in MAPS.rglob("*") if p.suffix in (".yaml", ".pgm"))
+    assert shipped and all((site / "smorphi_rl" / "shipped_maps" / p).is_file() for p in shipped)
+    package = [p.relative_to(root) for p in (root / "smorphi_rl").rglob("*") if p.suffix in (".py", ".json", ".npz")]
+    assert [p for p in package if not (site / p).is_file() and "__pycache__" not in p.parts] == []  # pyproject's list
+    probe = ("from smorphi_rl.maps import SHIPPED_DEFAULT_MAP, load_map\n"
+             "print(SHIPPED_DEFAULT_MAP, load_map(SHIPPED_DEFAULT_MAP).name)\n"
+             "try:\n    load_map('maps/val-2.yaml')\nexcept Exception as exc:\n    print(exc)\n")  # fmt: skip
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    out = subprocess.run([sys.executable, "-c", probe], cwd=elsewhere, capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": str(site)}, timeout=120).stdout.splitlines()  # fmt: skip
+    there = site / "smorphi_rl" / "shipped_maps"
+    assert out[0] == f"{there / 'map-1.yaml'} map-1"
+    assert out[1] == f"map file not found: maps/val-2.yaml (the shipped one is {there / 'val-2.yaml'})"
