@@ -294,6 +294,19 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     return ResumedTrial(trial, checkpoint, rows, elapsed)
 
 
+def can_continue(run_dir: Path, algo: str) -> bool:
+    """Whether the `train` run of `algo` in `run_dir`, cut short, holds what `continue_train_run` continues from (its
+    configuration, one trial folder and a checkpoint with our state that its results record): a transfer job's cut
+    run continues rather than trains again from nothing. A state file that does not read is not continued from."""
+    trials = [d for d in run_dir.glob(f"{algo}-*") if d.is_dir() and not d.is_symlink()]
+    if run_dir.is_symlink() or not (run_dir / "config.json").is_file() or len(trials) != 1:
+        return False
+    try:
+        return resume_point(trials[0]) is not None
+    except CheckpointError:
+        return False
+
+
 def _stopped_early(summary: Path) -> bool:
     """Whether a run's summary.json says it stopped before its budget (a Ctrl-C or SIGTERM: a scheduler's time limit
     sends one before its kill), so that `--resume` may continue it."""

@@ -141,7 +141,8 @@ def run_transfer(
 ) -> tuple[Path, list[TransferRun]]:
     """For every held-out map and seed: fine-tune from the pretrained policy and train from scratch, same budget.
     `resume`: continue the job of that name: its finished runs of exactly these settings are read back, a run cut
-    short is set aside (renamed, never deleted) and trained again. A stop request before a run's first report
+    short continues from its last checkpoint (`train --resume`), or, with none to continue from, is set aside
+    (renamed, never deleted) and trained again. A stop request before a run's first report
     raises `TransferInterrupted` with the runs that finished; one after it ends the job with that run marked. The
     exact optima are cached under `optima_log_dir` (default `log_dir`, the folder the user named). `stamped`: `name`
     is one the command made from the time, so a job started in the same second takes `<name>-2`."""
@@ -158,6 +159,7 @@ def run_transfer(
     )
     from smorphi_rl.training.checkpoints import find_checkpoint, load_module
     from smorphi_rl.training.finetune import check_pretrained, model_setup
+    from smorphi_rl.training.resume import can_continue
     from smorphi_rl.training.run import TrainingError, train
 
     checkpoint = find_checkpoint(job.pretrained)
@@ -218,11 +220,14 @@ def run_transfer(
             for number, (map_name, seed, mode, run_cfg, run_name) in enumerate(planned, start=1):
                 if run_name in finished:
                     continue
-                if (job_dir / run_name).exists():
-                    rename_cut_run(job_dir / run_name)
+                cut = job_dir / run_name  # a run cut short continues from its checkpoint, else is set aside
+                go_on = cut.exists() and can_continue(cut, run_cfg.algo)
+                if cut.exists() and not go_on:
+                    rename_cut_run(cut)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{run_cfg.algo.upper()} {run_name} (run {number} of {len(planned)})",
-                                optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir)  # fmt: skip
+                                optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir,
+                                resume=go_on)  # fmt: skip
                 done[run_name] = transfer_run(map_name, seed, mode, trained.run_dir, trained.to_dict())
                 if trained.stop_held:  # a stop as the run ended, held until it was written: the job ends here
                     raise KeyboardInterrupt
@@ -328,10 +333,10 @@ def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: di
 
 def summary_curve(run_dir: Path) -> dict[str, list[float]]:
     """The curves (env steps, episode return, best R1, final-shape R1) of a training run, from its result.json."""
-    from smorphi_rl.training.sweep_report import result_curve, result_rows
+    from smorphi_rl.training.sweep_report import result_curve, result_files, result_rows
 
-    (trial,) = [p for p in run_dir.iterdir() if (p / "result.json").is_file()]
-    return result_curve(result_rows(trial / "result.json"))
+    (trial,) = [p for p in run_dir.iterdir() if result_files(p)]  # a continued run's rows: those set aside too
+    return result_curve(result_rows(*result_files(trial)))
 
 
 def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, Path]:

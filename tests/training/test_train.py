@@ -24,6 +24,7 @@ from smorphi_rl.protocol import CACHE_ENV, OPTIMUM_CACHE
 from smorphi_rl.training.checkpoints import find_checkpoint, load_module
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.policy import rollout
+from smorphi_rl.training.resume import STATE_FILE
 from smorphi_rl.training.run import train
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -262,13 +263,23 @@ def test_transfer_resume_reads_finished_runs_back_and_trains_the_one_cut_short(t
     assert resumed.returncode == 0, resumed.stderr[-3000:]
     assert "read back (--resume): 1 of 2 runs, finished earlier in this job" in resumed.stdout
     assert {p: p.read_bytes() for p in tuned.rglob("*") if p.is_file()} == tuned_files  # read, not retrained
-    cut = job / "val-1-scratch-seed0.cut-1"
-    assert json.loads((cut / "summary.json").read_text())["interrupted"] is True  # kept, never deleted
-    assert json.loads((scratch / "summary.json").read_text())["interrupted"] is False  # trained again
+    assert "resuming val-1-scratch-seed0 from its checkpoint of 2,000 env steps" in resumed.stdout + resumed.stderr
+    assert not list(job.glob("*.cut-*"))  # continued from its checkpoint (as `train --resume`), not trained again
+    assert json.loads((scratch / "summary.json").read_text())["interrupted"] is False
     before = {r["mode"]: r for r in csv.DictReader((work / "logs" / "job" / "transfer.csv").open())}
     rows = list(csv.DictReader((job / "transfer.csv").open()))
     assert [r["mode"] for r in rows] == ["fine-tune", "scratch"]
-    assert rows[0] == before["fine-tune"] and int(rows[1]["env_steps"]) >= 2000
+    assert rows[0] == before["fine-tune"] and rows[1]["env_steps"] == before["scratch"]["env_steps"]
+
+    (scratch / "summary.json").unlink()  # cut short with no checkpoint whose state reads: set aside, trained again
+    for state in scratch.rglob(STATE_FILE):
+        state.write_bytes(b"\x80\x04")
+    again = cli(*args, "--resume", cwd=tmp_path)
+    assert again.returncode == 0, again.stderr[-3000:]
+    cut = job / "val-1-scratch-seed0.cut-1"
+    assert cut.is_dir() and not (cut / "summary.json").exists()  # kept, never deleted
+    assert json.loads((scratch / "summary.json").read_text())["interrupted"] is False  # trained again
+    assert int(list(csv.DictReader((job / "transfer.csv").open()))[1]["env_steps"]) >= 2000
 
 
 @pytest.mark.parametrize(
