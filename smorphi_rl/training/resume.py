@@ -166,13 +166,24 @@ def load_state(checkpoint: Path) -> dict[str, Any]:
 def resume_point(trial_dir: Path) -> Path | None:
     """The newest checkpoint under `trial_dir` holding our state file of an iteration the trial's results record
     (an interrupt can land between a checkpoint and its row; the state is read and checked, `load_state`); None:
-    start the trial afresh."""
+    start the trial afresh. A state file that does not read (a kill as Tune copied the checkpoint) is passed over
+    for an older one; CheckpointError names it when no older one reads."""
     files = result_files(trial_dir)
     logged = max((int(r.get(keys.ALGO_ITERATION) or 0) for r in result_rows(*files)), default=0) if files else 0
+    unread: CheckpointError | None = None
     for checkpoint in reversed(checkpoints_under(trial_dir)):
         here = checkpoint / STATE_FILE
-        if (here.exists() or here.is_symlink()) and load_state(checkpoint)["training_iteration"] <= logged:
+        if not (here.exists() or here.is_symlink()):
+            continue
+        try:
+            iteration = load_state(checkpoint)["training_iteration"]
+        except CheckpointError as exc:
+            unread = unread or exc
+            continue
+        if iteration <= logged:
             return checkpoint
+    if unread is not None:
+        raise unread
     return None
 
 

@@ -174,6 +174,20 @@ def test_a_trial_without_a_state_file_starts_afresh(sweep, tmp_path):
     assert resume_point(d) is None
 
 
+def test_a_newest_state_file_cut_short_is_passed_over_for_the_one_before(sweep, tmp_path):
+    """Killed as Tune copied its newest checkpoint: that state file is cut short, and the resume was refused where
+    the checkpoint before it reads. With none before it that reads, the error names the file."""
+    checkpoints = {f"checkpoint_{i:06d}": state(i + 1) for i in range(3)}
+    d = write_trial(tmp_path, sweep.trials()[0], [row(1), row(2), row(3)], checkpoints)
+    whole = (d / "checkpoint_000002" / STATE_FILE).read_bytes()
+    (d / "checkpoint_000002" / STATE_FILE).write_bytes(whole[: len(whole) // 2])
+    assert resume_point(d) == d / "checkpoint_000001"
+    for name in ("checkpoint_000000", "checkpoint_000001"):
+        (d / name / STATE_FILE).write_bytes(b"\x80\x04")
+    with pytest.raises(CheckpointError, match=f"checkpoint_000002/{STATE_FILE}"):
+        resume_point(d)
+
+
 def test_result_lines_that_are_no_rows_of_ours_are_skipped(tmp_path):
     path = tmp_path / "result.json"
     path.write_text("\n".join([json.dumps(row(1)), "garbage", "{not json", "[1, 2, 3]", '"str"',
