@@ -2,7 +2,8 @@
 
 The core (geometry -> maps -> coverage) imports numpy, and for map files Pillow, PyYAML and SciPy; the
 compiled fast path loads numba lazily, on the first evaluation. Importing the package registers the
-environment with gymnasium (`gymnasium.make(smorphi_rl.ENV_ID)`), which loads it only when made.
+environment with gymnasium (`gymnasium.make(smorphi_rl.ENV_ID)`, and `gymnasium.make_vec` for many at once), which
+loads it only when made.
 """
 
 __version__ = "0.1.0"
@@ -16,7 +17,8 @@ def _register() -> None:
     import gymnasium
 
     if ENV_ID not in gymnasium.registry:
-        gymnasium.register(id=ENV_ID, entry_point="smorphi_rl.env:MorphologyEnv")
+        gymnasium.register(id=ENV_ID, entry_point="smorphi_rl.env:MorphologyEnv",
+                           vector_entry_point="smorphi_rl.vector_env:make_vector")  # fmt: skip
 
 
 _register()

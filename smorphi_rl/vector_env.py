@@ -22,6 +22,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfigError
 
 RECORDING_KEY = "recording"
 """The env_config key that carries a RecordingConfig dict to the env runners (not an EnvConfig field)."""
@@ -177,3 +178,17 @@ def make_env(
     first = MorphologyEnv(raw)
     envs = [first] + [first.sibling() for _ in range(int(num_envs) - 1)]
     return MorphologyVectorEnv([wrapped(e) for e in envs], run_seed=run_seed, worker_index=worker)
+
+
+def make_vector(
+    num_envs: int = 1, env_config: dict[str, Any] | None = None, render_mode: str | None = None, **kwargs: Any
+) -> MorphologyVectorEnv:
+    """gymnasium's vector entry point of the env (`gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=8)`): `num_envs`
+    envs sharing one set of maps and caches, as an env runner's; `reset(seed=s)` seeds sub-env i with s + i, as
+    gymnasium's own vector envs do."""
+    if isinstance(num_envs, bool) or not isinstance(num_envs, int | np.integer) or num_envs < 1:
+        raise EnvConfigError(f"num_envs must be a whole number of at least 1, not {num_envs!r}")
+    if render_mode is not None:
+        raise EnvConfigError("a vector env renders nothing: make one env (gymnasium.make) to render")
+    first = MorphologyEnv(env_config, **kwargs)
+    return MorphologyVectorEnv([first, *(first.sibling() for _ in range(int(num_envs) - 1))])

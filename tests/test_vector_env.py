@@ -5,7 +5,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
+from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.env_config import EnvConfigError
 from smorphi_rl.vector_env import MorphologyVectorEnv, make_env, stack_observations, sub_env_generator
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -109,3 +112,24 @@ def test_sub_envs_on_different_maps_get_their_own_map_rows():
     assert obs["map"].strides[0] != 0
     for row, env in zip(obs["map"], venv.envs, strict=True):
         assert np.array_equal(row, env.unwrapped._observe()["map"])
+
+
+def test_gymnasium_make_vec_builds_ours_seeded_as_gymnasiums_own():
+    """`gymnasium.make_vec(ENV_ID)` had no vector entry point: it fell back to gymnasium's SyncVectorEnv, each env with
+    its own maps and caches. Ours now, sub-env i of `reset(seed=s)` as one env of `reset(seed=s + i)`."""
+    import gymnasium
+
+    import smorphi_rl
+
+    config = {"maps": [str(ROOT / "maps" / "map-2.yaml")]}
+    vec = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=3, env_config=config)
+    assert isinstance(vec, MorphologyVectorEnv) and vec.num_envs == 3
+    obs, _ = vec.reset(seed=7)
+    for i in range(3):
+        single, _ = MorphologyEnv(config).reset(seed=7 + i)
+        assert np.array_equal(obs["angles"][i], single["angles"])
+    obs, rewards, *_ = vec.step(np.ones((3, 3), dtype=np.int64))
+    assert rewards.shape == (3,) and obs["angles"].shape == (3, 3)
+    for bad in ({"num_envs": 0}, {"render_mode": "rgb_array"}):
+        with pytest.raises(EnvConfigError):
+            gymnasium.make_vec(smorphi_rl.ENV_ID, **({"num_envs": 2} | bad))
