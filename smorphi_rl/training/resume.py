@@ -21,10 +21,11 @@ from typing import Any
 
 import numpy as np
 
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import checkpoints_under
-from smorphi_rl.training.safe_pickle import CheckpointError, safe_unpickle
+from smorphi_rl.training.safe_pickle import CheckpointError, UnreadableCheckpoint, safe_unpickle
 from smorphi_rl.training.sweep_report import (
     MAX_PARAMS_BYTES,
     SET_ASIDE,
@@ -163,28 +164,38 @@ def load_state(checkpoint: Path) -> dict[str, Any]:
     return state
 
 
-def resume_point(trial_dir: Path) -> Path | None:
+def resume_point(trial_dir: Path, passed_over: list[Path] | None = None) -> Path | None:
     """The newest checkpoint under `trial_dir` holding our state file of an iteration the trial's results record
     (an interrupt can land between a checkpoint and its row; the state is read and checked, `load_state`); None:
-    start the trial afresh. A state file that does not read (a kill as Tune copied the checkpoint) is passed over
-    for an older one; CheckpointError names it when no older one reads."""
+    start the trial afresh. A state file that does not read as a pickle (a kill as Tune copied the checkpoint) is
+    passed over for an older one, and added to `passed_over`; CheckpointError names it when no older one reads. One
+    read and refused for what it holds stops the resume, named."""
     files = result_files(trial_dir)
     logged = max((int(r.get(keys.ALGO_ITERATION) or 0) for r in result_rows(*files)), default=0) if files else 0
-    unread: CheckpointError | None = None
+    unread: list[tuple[Path, UnreadableCheckpoint]] = []
     for checkpoint in reversed(checkpoints_under(trial_dir)):
         here = checkpoint / STATE_FILE
         if not (here.exists() or here.is_symlink()):
             continue
         try:
             iteration = load_state(checkpoint)["training_iteration"]
-        except CheckpointError as exc:
-            unread = unread or exc
+        except UnreadableCheckpoint as exc:
+            unread.append((here, exc))
             continue
         if iteration <= logged:
+            if passed_over is not None:
+                passed_over.extend(path for path, _ in unread)
             return checkpoint
-    if unread is not None:
-        raise unread
+    if unread:
+        raise unread[0][1]
     return None
+
+
+def passed_over_line(state_file: Path) -> str:
+    """What a resume says of a state file it passed over (`resume_point`)."""
+    from smorphi_rl.rundir import rel
+
+    return f"passed over {rel(state_file)}: it does not read (cut short by the kill?); continuing from the one before"
 
 
 SET_ASIDE_FILES = ("result.json", "progress.csv", "summary.json")
@@ -252,6 +263,8 @@ class ResumedTrial:
     """Training seconds before the checkpoint (its state file's), which the run's wall time adds."""
     done: bool = False
     """The run trained its whole budget before it was killed (as it wrote its tables): nothing to train again."""
+    passed_over: tuple[Path, ...] = ()
+    """Newer state files that did not read (`resume_point`), said as the run resumes."""
 
     @property
     def env_steps(self) -> int:
@@ -288,7 +301,8 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
         raise TrainConfigError(f"--resume: {rel(run_dir)} holds {len(trials)} trial folders of {algo}, where a run "
                                "of `train` makes one")  # fmt: skip
     trial = trials[0]
-    point = resume_point(trial)
+    passed: list[Path] = []
+    point = resume_point(trial, passed)
     if point is None:
         raise TrainConfigError(f"--resume: {rel(trial)} holds no checkpoint to continue from (one is written every "
                                "--checkpoint-every iterations); start it again with another --name")  # fmt: skip
@@ -299,10 +313,10 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     cap = wanted.get("max_iterations")
     budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
     if trial_done(rows) and budget_spent:  # killed as it wrote its tables: they are written again, nothing trained
-        return ResumedTrial(trial, point, rows, elapsed, done=True)  # (a stop's last row is done too: trained on)
-    checkpoint = set_aside_from(trial, point)
+        return ResumedTrial(trial, point, rows, elapsed, done=True, passed_over=tuple(passed))  # (a stop's last row
+    checkpoint = set_aside_from(trial, point)  # is done too: trained on)
     assert checkpoint is not None
-    return ResumedTrial(trial, checkpoint, rows, elapsed)
+    return ResumedTrial(trial, checkpoint, rows, elapsed, passed_over=tuple(passed))
 
 
 def can_continue(run_dir: Path, algo: str) -> bool:
@@ -313,8 +327,9 @@ def can_continue(run_dir: Path, algo: str) -> bool:
     if run_dir.is_symlink() or not (run_dir / "config.json").is_file() or len(trials) != 1:
         return False
     try:
-        return resume_point(trials[0]) is not None
-    except CheckpointError:
+        summary = run_dir / "summary.json"  # one that does not say the run stopped early is not continued
+        return (not summary.exists() or _stopped_early(summary)) and resume_point(trials[0]) is not None
+    except SmorphiError:  # a state or summary that does not read: trained again
         return False
 
 

@@ -32,6 +32,11 @@ class CheckpointError(SmorphiError):
     """A path that holds no checkpoint of ours."""
 
 
+class UnreadableCheckpoint(CheckpointError):
+    """A checkpoint file that does not read as a pickle at all (cut short, damaged), as opposed to one read and
+    refused for what it holds."""
+
+
 class _ModuleClass:
     """What the checkpoint's reference to our module class reads as: a marker, not the class (so nothing in the
     file can construct a module with arguments of its own)."""
@@ -343,7 +348,7 @@ def safe_unpickle(path: Path) -> Any:
         raise CheckpointError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     problem = _opcode_problem(data)
     if problem == UNREADABLE:  # damaged, cut short, or read otherwise by the unpickler: never loaded
-        raise CheckpointError(f"{path}: not a readable checkpoint file ({UNREADABLE})")
+        raise UnreadableCheckpoint(f"{path}: not a readable checkpoint file ({UNREADABLE})")
     try:
         if problem:
             raise Refused(problem)
@@ -351,7 +356,7 @@ def safe_unpickle(path: Path) -> Any:
     except Refused as exc:
         raise CheckpointError(f"{path}: refused, {exc} (load only checkpoints written by smorphi-rl)") from None
     except Exception as exc:
-        raise CheckpointError(f"{path}: not a readable checkpoint file ({type(exc).__name__})") from None
+        raise UnreadableCheckpoint(f"{path}: not a readable checkpoint file ({type(exc).__name__})") from None
     problem = _shared_problem(obj, len(data))
     if problem:
         raise CheckpointError(f"{path}: refused, {problem} (load only checkpoints written by smorphi-rl)")

@@ -47,7 +47,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
-from smorphi_rl.training.resume import finished, resume_point, set_aside_from, trial_spec
+from smorphi_rl.training.resume import finished, passed_over_line, resume_point, set_aside_from, trial_spec
 from smorphi_rl.training.run import (
     RunSummary,
     TrainingError,
@@ -130,10 +130,12 @@ def check_maps_unchanged(exp: Path, digests: dict[str, dict[str, str]]) -> None:
                               "restore it to resume, or give the sweep another `name`")  # fmt: skip
 
 
-def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str, Any]], _Started, list[Path]]:
+def read_resume(
+    exp: Path, trials: list[dict[str, Any]], out: Any = None
+) -> tuple[list[dict[str, Any]], _Started, list[Path]]:
     """(the trials left to run, the started ones among them, the folders of trials with no record) of experiment
-    `exp`, moving nothing. The state files are read back safely here, before Ray starts, so a damaged or crafted one
-    is refused in one line."""
+    `exp`, moving nothing. The state files are read back safely here, before Ray starts, so a crafted one is refused
+    in one line; one cut short by a kill is passed over for the checkpoint before it, said on `out`."""
     started: _Started = {}
     done: set[int] = set()
     unrecorded: list[Path] = []
@@ -164,7 +166,10 @@ def read_resume(exp: Path, trials: list[dict[str, Any]]) -> tuple[list[dict[str,
         if finished(d):
             done.add(index)
         else:
-            started[index] = (d, resume_point(d))  # reads every state file it weighs: CheckpointError names it
+            passed: list[Path] = []
+            started[index] = (d, resume_point(d, passed))  # reads every state file it weighs: CheckpointError names it
+            for state_file in passed if out is not None else []:
+                print(passed_over_line(state_file), file=out)
     return [t for t in trials if t["index"] not in done], started, unrecorded
 
 
@@ -347,7 +352,7 @@ def run_sweep(
     earlier: list[TrialRow] = []
     if resume:  # the folder's checks first: they are instant, the optima are not
         exp = prepare_experiment(sweep, log_dir, resume)
-        pending, started, unrecorded = read_resume(exp, trials)
+        pending, started, unrecorded = read_resume(exp, trials, out)
         earlier = read_sweep(exp)  # a finished trial's damaged records: named before anything trains, not after
         check_maps_unchanged(exp, digests)
     else:

@@ -107,18 +107,30 @@ def _result_lines(path: Path) -> Iterator[str]:
 
 
 def result_rows(*result_json: Path) -> list[dict[str, Any]]:
-    """The rows of a trial's result.json files (oldest first), one per iteration in order: an iteration re-run
-    after a resume keeps its last row; a line cut short by a kill, or that is no result row, is skipped."""
+    """The rows of a trial's result.json files (oldest first), one per iteration in order; a line cut short by a
+    kill, or that is no result row, is skipped. A later file (a resume's) starts after the checkpoint it continued
+    from: the earlier files' rows from its first iteration on belong to the training it discarded, and are dropped
+    even where the resumed run stopped before it reached them again."""
     by_iter: dict[int, dict[str, Any]] = {}
-    for line in (line for path in result_json for line in _result_lines(path)):
+    for path in result_json:
+        rows = list(_rows_of(path))
+        if rows:
+            first = min(i for i, _ in rows)
+            by_iter = {i: row for i, row in by_iter.items() if i < first}
+        by_iter.update(rows)
+    return [by_iter[i] for i in sorted(by_iter)]
+
+
+def _rows_of(path: Path) -> Iterator[tuple[int, dict[str, Any]]]:
+    """(iteration, row) of each result row in one result.json (any other line is not a result row of ours)."""
+    for line in _result_lines(path):
         try:
             row = json.loads(line)
         except (json.JSONDecodeError, RecursionError):
             continue
         iteration = row.get(keys.ALGO_ITERATION, row.get(keys.ITERATION, 0)) if isinstance(row, dict) else None
         if isinstance(iteration, int) and not isinstance(iteration, bool) and 0 <= iteration <= 10**9:
-            by_iter[iteration] = row  # any other line is not a result row of ours
-    return [by_iter[i] for i in sorted(by_iter)]
+            yield iteration, row
 
 
 CURVE_NAMES = ("env_steps", "episode_return_mean", "best_R1", "final_R1", "eval_R1", "eval_gap", "eval_within",

@@ -174,14 +174,47 @@ def test_a_trial_without_a_state_file_starts_afresh(sweep, tmp_path):
     assert resume_point(d) is None
 
 
+def test_rows_past_the_checkpoint_a_resume_continued_from_are_dropped_even_where_not_reached_again(tmp_path):
+    """A resumed run stopped again before it re-reached the iterations the kill had discarded: those rows stayed in
+    its curves (a transfer run's convergence), where its own report left them out."""
+    aside, own = tmp_path / "aside.json", tmp_path / "result.json"
+    aside.write_text("".join(json.dumps(row(i) | {"n": "old"}) + "\n" for i in range(1, 6)))
+    own.write_text(json.dumps(row(4) | {"n": "new"}) + "\n")  # continued from iteration 3's checkpoint
+    assert [(r[keys.ALGO_ITERATION], r["n"]) for r in result_rows(aside, own)] == [
+        (1, "old"), (2, "old"), (3, "old"), (4, "new")]  # fmt: skip
+
+
+def test_a_transfer_run_is_continued_only_where_train_resume_would_continue_it(sweep, tmp_path):
+    """`transfer --resume` continues a cut run when `can_continue` says so: one whose summary does not say it stopped
+    early would then be refused by `continue_train_run` as finished, on every resume of the job."""
+    from smorphi_rl.training.resume import can_continue
+
+    trial = sweep.trials()[0]
+    write_trial(tmp_path, trial, [row(1), row(2)], {"checkpoint_000000": state(2)})
+    assert not can_continue(tmp_path, trial["algo"])  # no config.json: no run of `train`
+    (tmp_path / "config.json").write_text("{}")
+    assert can_continue(tmp_path, trial["algo"])  # killed: no summary
+    for interrupted, expected in ((True, True), (None, False), (False, False)):
+        (tmp_path / "summary.json").write_text(json.dumps({"interrupted": interrupted}))
+        assert can_continue(tmp_path, trial["algo"]) is expected
+    (tmp_path / "summary.json").write_text("{not json")
+    assert not can_continue(tmp_path, trial["algo"])
+
+
 def test_a_newest_state_file_cut_short_is_passed_over_for_the_one_before(sweep, tmp_path):
     """Killed as Tune copied its newest checkpoint: that state file is cut short, and the resume was refused where
     the checkpoint before it reads. With none before it that reads, the error names the file."""
     checkpoints = {f"checkpoint_{i:06d}": state(i + 1) for i in range(3)}
     d = write_trial(tmp_path, sweep.trials()[0], [row(1), row(2), row(3)], checkpoints)
-    whole = (d / "checkpoint_000002" / STATE_FILE).read_bytes()
-    (d / "checkpoint_000002" / STATE_FILE).write_bytes(whole[: len(whole) // 2])
-    assert resume_point(d) == d / "checkpoint_000001"
+    newest = d / "checkpoint_000002" / STATE_FILE
+    whole = newest.read_bytes()
+    newest.write_bytes(whole[: len(whole) // 2])
+    passed: list[Path] = []
+    assert resume_point(d, passed) == d / "checkpoint_000001" and passed == [newest]  # said where it resumes
+    newest.write_bytes(pickle.dumps({"training_iteration": print}))  # read, and refused for what it holds: named
+    with pytest.raises(CheckpointError, match="refused"):
+        resume_point(d)
+    newest.write_bytes(whole[: len(whole) // 2])
     for name in ("checkpoint_000000", "checkpoint_000001"):
         (d / name / STATE_FILE).write_bytes(b"\x80\x04")
     with pytest.raises(CheckpointError, match=f"checkpoint_000002/{STATE_FILE}"):
