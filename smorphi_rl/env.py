@@ -464,8 +464,10 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if len(moves) != 3 or any(m not in self._indices for m in moves):
             raise SmorphiError(f"action must be three values in 0..{2 * self._stay}, got {action!r}")
         moves = [int(m) for m in moves]  # 1.0 is the index 1
-        self._steps += 1
         before = self._last
+        if before is UNSCORED:  # gymnasium.make's wrapper refuses it too; a raw env played an episode of no reset
+            raise gym.error.ResetNeeded("call reset() before step()")
+        self._steps += 1
         truncated = self._steps >= self.config.max_steps
         if self._mode is RewardMode.COMMIT and all(m == self._stay for m in moves):
             # committing keeps the shape and ends the episode, paid the value of that one design

@@ -45,6 +45,18 @@ def test_importing_the_package_registers_the_env():
     assert smorphi_rl.ENV_ID == ENV_ID
 
 
+def test_a_raw_env_refuses_a_step_before_its_first_reset():
+    """gymnasium.make's wrapper refused it, but the env itself (RLlib's, a script's) played an episode that had no
+    start: the first map at (0, 0, 0) with a state no reset drew."""
+    from smorphi_rl.env import MorphologyEnv
+
+    env = MorphologyEnv()
+    with pytest.raises(gym.error.ResetNeeded, match="reset"):
+        env.step(np.array([1, 1, 1]))
+    env.reset(seed=0)
+    assert env.step(np.array([1, 1, 1]))[4]["theta"] is not None
+
+
 def test_rgb_array_render_draws_the_floor_north_up_with_what_the_shape_covers():
     """gymnasium's `render_mode` was refused as an unknown env_config key, even None."""
     from smorphi_rl.env import RENDER_COLOURS, RENDER_PATH
