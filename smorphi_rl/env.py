@@ -285,6 +285,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._idx: tuple[int, int, int] = (0, 0, 0)  # theta = idx * angle_step_deg
         self._steps = 0
         self._last = self._best = UNSCORED  # until the first reset
+        self._started = False  # reset at least once: step and render refuse before (ResetNeeded)
 
     def _build(self, grid_map: Map, generated: bool) -> Floor:
         """A map's Floor; a block under one cell, a floor smaller than the robot or a start off the floor fails here
@@ -318,6 +319,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         (an env runner's sub-envs share them, so a shape scored by one is free for all); unseeded."""
         twin = copy.copy(self)
         twin._idx, twin._steps, twin._last, twin._best = (0, 0, 0), 0, UNSCORED, UNSCORED
+        twin._started = False
         twin._np_random, twin._np_random_seed = None, None
         return twin
 
@@ -445,6 +447,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
     ) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
         super().reset(seed=seed)
         self._floor = self._draw_floor()
+        self._started = True
         start = (options or {}).get("theta", self.config.start_theta)
         if start is not None:  # options={"theta": ...}: the evaluation protocol's fixed starts
             try:
@@ -460,14 +463,14 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         return self._observe(), self._info()
 
     def step(self, action: np.ndarray) -> tuple[dict[str, np.ndarray], float, bool, bool, dict[str, Any]]:
+        if not self._started:  # gymnasium.make's wrapper refuses it too; a raw env played an episode of no reset
+            raise gym.error.ResetNeeded("call reset() before step()")
         moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
         if len(moves) != 3 or any(m not in self._indices for m in moves):
             raise SmorphiError(f"action must be three values in 0..{2 * self._stay}, got {action!r}")
         moves = [int(m) for m in moves]  # 1.0 is the index 1
-        before = self._last
-        if before is UNSCORED:  # gymnasium.make's wrapper refuses it too; a raw env played an episode of no reset
-            raise gym.error.ResetNeeded("call reset() before step()")
         self._steps += 1
+        before = self._last
         truncated = self._steps >= self.config.max_steps
         if self._mode is RewardMode.COMMIT and all(m == self._stay for m in moves):
             # committing keeps the shape and ends the episode, paid the value of that one design
@@ -500,7 +503,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if self.render_mode is None:
             gym.logger.warn("render() without a render_mode: make the env with render_mode='rgb_array'")
             return None
-        if self._last is UNSCORED:
+        if not self._started:
             raise gym.error.ResetNeeded("call reset() before render()")
         return floor_image(self.grid_map, self.plan(self.theta))
 

@@ -190,7 +190,8 @@ def make_vector(
         raise EnvConfigError(f"num_envs must be a whole number of at least 1, not {num_envs!r}")
     if render_mode is not None:
         raise EnvConfigError("a vector env renders nothing: make one env (gymnasium.make) to render")
-    if "max_episode_steps" in kwargs:  # gymnasium's name (`make` wraps a TimeLimit): the env truncates at max_steps
-        kwargs["max_steps"] = kwargs.pop("max_episode_steps")
+    cap = kwargs.pop("max_episode_steps", None)  # gymnasium's TimeLimit: a cap on the env's own max_steps
     first = MorphologyEnv(env_config, **kwargs)
+    if cap is not None and cap < first.config.max_steps:
+        first = MorphologyEnv(env_config, **(kwargs | {"max_steps": cap}))
     return MorphologyVectorEnv([first, *(first.sibling() for _ in range(int(num_envs) - 1))])

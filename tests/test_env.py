@@ -48,11 +48,14 @@ def test_importing_the_package_registers_the_env():
 def test_a_raw_env_refuses_a_step_before_its_first_reset():
     """gymnasium.make's wrapper refused it, but the env itself (RLlib's, a script's) played an episode that had no
     start: the first map at (0, 0, 0) with a state no reset drew."""
+    import copy
+
     from smorphi_rl.env import MorphologyEnv
 
     env = MorphologyEnv()
-    with pytest.raises(gym.error.ResetNeeded, match="reset"):
-        env.step(np.array([1, 1, 1]))
+    for fresh, action in ((env, [1, 1, 1]), (copy.deepcopy(env), [1, 1, 1]), (env, [9, 9, 9])):
+        with pytest.raises(gym.error.ResetNeeded, match="reset"):
+            fresh.step(np.array(action))
     env.reset(seed=0)
     assert env.step(np.array([1, 1, 1]))[4]["theta"] is not None
 

@@ -130,9 +130,11 @@ def test_gymnasium_make_vec_builds_ours_seeded_as_gymnasiums_own():
         assert np.array_equal(obs["angles"][i], single["angles"])
     obs, rewards, *_ = vec.step(np.ones((3, 3), dtype=np.int64))
     assert rewards.shape == (3,) and obs["angles"].shape == (3, 3)
-    short = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=2, env_config=config, max_episode_steps=2)  # gymnasium's
-    short.reset(seed=0)
-    assert [bool(short.step(np.ones((2, 3), dtype=np.int64))[3].all()) for _ in range(2)] == [False, True]
+    for own, cap in ((None, 2), (2, 50), (2, None)):  # gymnasium's max_episode_steps caps the env's max_steps
+        short = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=2, env_config=config | {"max_steps": own or 200},
+                                   max_episode_steps=cap)  # fmt: skip
+        short.reset(seed=0)
+        assert [bool(short.step(np.ones((2, 3), dtype=np.int64))[3].all()) for _ in range(2)] == [False, True]
     for bad in ({"num_envs": 0}, {"render_mode": "rgb_array"}):
         with pytest.raises(EnvConfigError):
             gymnasium.make_vec(smorphi_rl.ENV_ID, **({"num_envs": 2} | bad))

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.errors import SmorphiError
+from smorphi_rl.inputs import InputError
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import checkpoints_under
@@ -164,12 +164,12 @@ def load_state(checkpoint: Path) -> dict[str, Any]:
     return state
 
 
-def resume_point(trial_dir: Path, passed_over: list[Path] | None = None) -> Path | None:
+def resume_point(trial_dir: Path, said: list[str] | None = None) -> Path | None:
     """The newest checkpoint under `trial_dir` holding our state file of an iteration the trial's results record
     (an interrupt can land between a checkpoint and its row; the state is read and checked, `load_state`); None:
     start the trial afresh. A state file that does not read as a pickle (a kill as Tune copied the checkpoint) is
-    passed over for an older one, and added to `passed_over`; CheckpointError names it when no older one reads. One
-    read and refused for what it holds stops the resume, named."""
+    passed over for an older one, a line saying so added to `said`; CheckpointError names it when no older one reads.
+    One read and refused for what it holds stops the resume, named."""
     files = result_files(trial_dir)
     logged = max((int(r.get(keys.ALGO_ITERATION) or 0) for r in result_rows(*files)), default=0) if files else 0
     unread: list[tuple[Path, UnreadableCheckpoint]] = []
@@ -183,19 +183,21 @@ def resume_point(trial_dir: Path, passed_over: list[Path] | None = None) -> Path
             unread.append((here, exc))
             continue
         if iteration <= logged:
-            if passed_over is not None:
-                passed_over.extend(path for path, _ in unread)
+            if said is not None:
+                said.extend(_passed_over(trial_dir, path.parent, checkpoint) for path, _ in unread)
             return checkpoint
     if unread:
         raise unread[0][1]
     return None
 
 
-def passed_over_line(state_file: Path) -> str:
-    """What a resume says of a state file it passed over (`resume_point`)."""
+def _passed_over(trial_dir: Path, skipped: Path, point: Path) -> str:
+    """What a resume says of a checkpoint whose state file it passed over (by the checkpoints' names, which stay
+    true when they are set aside)."""
     from smorphi_rl.rundir import rel
 
-    return f"passed over {rel(state_file)}: it does not read (cut short by the kill?); continuing from the one before"
+    return (f"{rel(trial_dir)}: the state file of {skipped.name} does not read (cut short by a kill?): it resumes "
+            f"from {point.name}")  # fmt: skip
 
 
 SET_ASIDE_FILES = ("result.json", "progress.csv", "summary.json")
@@ -263,8 +265,8 @@ class ResumedTrial:
     """Training seconds before the checkpoint (its state file's), which the run's wall time adds."""
     done: bool = False
     """The run trained its whole budget before it was killed (as it wrote its tables): nothing to train again."""
-    passed_over: tuple[Path, ...] = ()
-    """Newer state files that did not read (`resume_point`), said as the run resumes."""
+    said: tuple[str, ...] = ()
+    """What `resume_point` said of newer state files that did not read, printed as the run resumes."""
 
     @property
     def env_steps(self) -> int:
@@ -301,8 +303,8 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
         raise TrainConfigError(f"--resume: {rel(run_dir)} holds {len(trials)} trial folders of {algo}, where a run "
                                "of `train` makes one")  # fmt: skip
     trial = trials[0]
-    passed: list[Path] = []
-    point = resume_point(trial, passed)
+    said: list[str] = []
+    point = resume_point(trial, said)
     if point is None:
         raise TrainConfigError(f"--resume: {rel(trial)} holds no checkpoint to continue from (one is written every "
                                "--checkpoint-every iterations); start it again with another --name")  # fmt: skip
@@ -313,10 +315,10 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     cap = wanted.get("max_iterations")
     budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
     if trial_done(rows) and budget_spent:  # killed as it wrote its tables: they are written again, nothing trained
-        return ResumedTrial(trial, point, rows, elapsed, done=True, passed_over=tuple(passed))  # (a stop's last row
+        return ResumedTrial(trial, point, rows, elapsed, done=True, said=tuple(said))  # (a stop's last row
     checkpoint = set_aside_from(trial, point)  # is done too: trained on)
     assert checkpoint is not None
-    return ResumedTrial(trial, checkpoint, rows, elapsed, passed_over=tuple(passed))
+    return ResumedTrial(trial, checkpoint, rows, elapsed, said=tuple(said))
 
 
 def can_continue(run_dir: Path, algo: str) -> bool:
@@ -329,8 +331,8 @@ def can_continue(run_dir: Path, algo: str) -> bool:
     try:
         summary = run_dir / "summary.json"  # one that does not say the run stopped early is not continued
         return (not summary.exists() or _stopped_early(summary)) and resume_point(trials[0]) is not None
-    except SmorphiError:  # a state or summary that does not read: trained again
-        return False
+    except (UnreadableCheckpoint, InputError):  # no state or summary that reads: trained again (one read and
+        return False  # refused for what it holds stops the job, named)
 
 
 def _stopped_early(summary: Path) -> bool:

@@ -59,7 +59,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import EPISODES_DIR, TrainConfig, TrainConfigError, default_run_name
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import PRETRAINED_KEY, fine_tune_from
-from smorphi_rl.training.resume import ResumedTrial, continue_train_run, passed_over_line
+from smorphi_rl.training.resume import ResumedTrial, continue_train_run
 from smorphi_rl.training.stopping import GracefulStop, tune_stop_seen
 from smorphi_rl.training.sweep_report import CURVE_NAMES, curve_point
 from smorphi_rl.training.topk import Found, TopMorphologies, episode_bests, write_found
@@ -437,7 +437,7 @@ def train(
     if resume:  # its results up to the checkpoint are the run's too
         run_dir = Path(log_dir).resolve() / check_run_name(name)
         resumed = continue_train_run(run_dir, cfg.to_dict(), cfg.algo)
-        out.writelines(passed_over_line(p) + "\n" for p in resumed.passed_over)
+        out.writelines(line + "\n" for line in resumed.said)
         out.write(
             f"resuming {name} from its checkpoint of {resumed.env_steps:,} env steps ({rel(resumed.checkpoint)})\n"
         )

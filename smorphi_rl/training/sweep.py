@@ -47,7 +47,7 @@ from smorphi_rl.training.checkpoints import checkpoints_under
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.failures import fit
 from smorphi_rl.training.finetune import fine_tune_from
-from smorphi_rl.training.resume import finished, passed_over_line, resume_point, set_aside_from, trial_spec
+from smorphi_rl.training.resume import finished, resume_point, set_aside_from, trial_spec
 from smorphi_rl.training.run import (
     RunSummary,
     TrainingError,
@@ -166,10 +166,10 @@ def read_resume(
         if finished(d):
             done.add(index)
         else:
-            passed: list[Path] = []
-            started[index] = (d, resume_point(d, passed))  # reads every state file it weighs: CheckpointError names it
-            for state_file in passed if out is not None else []:
-                print(passed_over_line(state_file), file=out)
+            said: list[str] = []
+            started[index] = (d, resume_point(d, said))  # reads every state file it weighs: CheckpointError names it
+            for line in said if out is not None else []:
+                print(line, file=out)
     return [t for t in trials if t["index"] not in done], started, unrecorded
 
 

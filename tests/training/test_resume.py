@@ -199,6 +199,12 @@ def test_a_transfer_run_is_continued_only_where_train_resume_would_continue_it(s
         assert can_continue(tmp_path, trial["algo"]) is expected
     (tmp_path / "summary.json").write_text("{not json")
     assert not can_continue(tmp_path, trial["algo"])
+    (tmp_path / "summary.json").unlink()
+    (tmp_path / trial_dirname(trial) / "checkpoint_000000" / STATE_FILE).write_bytes(b"\x80\x04")
+    assert not can_continue(tmp_path, trial["algo"])  # no state that reads: trained again
+    (tmp_path / trial_dirname(trial) / "checkpoint_000000" / STATE_FILE).write_bytes(pickle.dumps({"x": print}))
+    with pytest.raises(CheckpointError, match="refused"):  # one read and refused for what it holds stops the job
+        can_continue(tmp_path, trial["algo"])
 
 
 def test_a_newest_state_file_cut_short_is_passed_over_for_the_one_before(sweep, tmp_path):
@@ -209,8 +215,10 @@ def test_a_newest_state_file_cut_short_is_passed_over_for_the_one_before(sweep, 
     newest = d / "checkpoint_000002" / STATE_FILE
     whole = newest.read_bytes()
     newest.write_bytes(whole[: len(whole) // 2])
-    passed: list[Path] = []
-    assert resume_point(d, passed) == d / "checkpoint_000001" and passed == [newest]  # said where it resumes
+    said: list[str] = []
+    assert resume_point(d, said) == d / "checkpoint_000001"
+    assert said == [f"{d}: the state file of checkpoint_000002 does not read (cut short by a kill?): it resumes from "
+                    "checkpoint_000001"]  # fmt: skip
     newest.write_bytes(pickle.dumps({"training_iteration": print}))  # read, and refused for what it holds: named
     with pytest.raises(CheckpointError, match="refused"):
         resume_point(d)
