@@ -434,6 +434,12 @@ def load_map(yaml_path: str | Path) -> Map:
     return Map(cells, resolution, origin_t, name=path.stem)
 
 
+def as_map(source: str | Path | Map) -> Map:
+    """A Map as given, or the map_server YAML at a path loaded (`load_map`): what the searches and the exact optimum
+    take, so a script's Map in memory needs no file."""
+    return source if isinstance(source, Map) else load_map(source)
+
+
 def map_inputs(yaml_path: str | Path) -> tuple[Path, ...]:
     """The files a map is read from: its YAML and (when the YAML names one) its image; what no output may replace."""
     from smorphi_rl.inputs import MAX_YAML_BYTES, strict_yaml

@@ -178,12 +178,12 @@ class MapEvaluation:
                 "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
 
 
-def map_key(map_path: str, weights: Weights, planning: Planning) -> str:
+def map_key(map_source: str | Path | Map, weights: Weights, planning: Planning) -> str:
     """A digest of the map's cells and resolution, the weights and the planning: what the optimum depends on
     (the paper planner's default keys are those from before there was a choice: their cached optima stay)."""
-    from smorphi_rl.maps import load_map
+    from smorphi_rl.maps import as_map
 
-    return key_of(load_map(map_path), weights, planning)
+    return key_of(as_map(map_source), weights, planning)
 
 
 def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
@@ -206,12 +206,12 @@ IN_PROCESS_KEPT = 32
 
 
 def _optimum_in_process(
-    key: str, map_path: str, weights: Weights, planning: Planning, progress: Callable[[int, int], None] | None = None
+    key: str, grid_map: Map, weights: Weights, planning: Planning, progress: Callable[[int, int], None] | None = None
 ) -> Optimum:
     from smorphi_rl.search.exhaustive import run_exhaustive
 
     if key not in _IN_PROCESS:
-        result = run_exhaustive(map_path, 1.0, planning, best_for=weights, progress=progress)  # the best R1 alone
+        result = run_exhaustive(grid_map, 1.0, planning, best_for=weights, progress=progress)  # the best R1 alone
         if len(_IN_PROCESS) >= IN_PROCESS_KEPT:
             del _IN_PROCESS[next(iter(_IN_PROCESS))]  # the oldest
         _IN_PROCESS[key] = Optimum.of(result.thetas, result.P_c, result.P_len, weights)
@@ -283,7 +283,7 @@ def _cached_optimum(file: Path, weights: Weights) -> Optimum | None:
 
 
 def exact_optimum(
-    map_path: str,
+    map_source: str | Path | Map,
     weights: Weights,
     planning: Planning,
     cache_dir: Path | None = None,
@@ -291,18 +291,20 @@ def exact_optimum(
 ) -> Optimum:
     """R1* of the map over every 1-degree triple (seconds on 2 cores the first time), cached in this
     process and, given `cache_dir`, in a small JSON file there keyed by the map's content, the weights and
-    the planning. `progress(done, total)` is called as the search goes (two passes: shapes keyed, settled)."""
-    from smorphi_rl.maps import load_map
+    the planning. `progress(done, total)` is called as the search goes (two passes: shapes keyed, settled). The map:
+    a map_server YAML's path, or a Map."""
+    from smorphi_rl.maps import as_map
 
-    key = map_key(map_path, weights, planning)
+    grid_map = as_map(map_source)
+    key = key_of(grid_map, weights, planning)
     file = None if cache_dir is None else Path(cache_dir) / f"optimum-{key}.json"
     if file is not None and file.is_file():
         cached = _cached_optimum(file, weights)
-        if cached is not None and _as_planned(cached, load_map(map_path), planning):
+        if cached is not None and _as_planned(cached, grid_map, planning):
             return cached  # else a damaged or doctored entry: recomputed and rewritten
     if file is not None:  # before the computation: a folder that cannot hold it is named in seconds, not minutes
         make_cache(file.parent, writing=True)
-    optimum = _optimum_in_process(key, str(map_path), weights, planning, progress)
+    optimum = _optimum_in_process(key, grid_map, weights, planning, progress)
     if file is not None:
         _write_entry(file, optimum)
     return optimum

@@ -230,3 +230,27 @@ def test_a_shape_that_ties_the_optimum_has_a_gap_of_zero_not_minus_zero():
     gaps = gaps_to(0.3, [r1, 0.25])
     assert f"{gaps[0]:.2f}" == "0.00" and gaps[1] == pytest.approx(0.05)
     assert f"{0.3 - r1:.2f}" == "-0.00"  # what it printed
+
+
+@pytest.mark.slow
+def test_the_exact_optimum_and_the_searches_take_a_map_in_memory(tmp_path):
+    """They took map files only: a script's Map (cropped, edited, generated) had to be saved first."""
+    from smorphi_rl.maps import Cell, Map, load_map, save_map
+    from smorphi_rl.planning import Evaluator, Planning, lattice_thetas
+    from smorphi_rl.search.nsga2 import run_nsga2
+    from smorphi_rl.search.random import run_random
+
+    cells = load_map(MAP_1).cells.copy()
+    cells[20:30, 20:23] = Cell.OCCUPIED  # a floor no file holds
+    grid = Map(cells, 0.1, name="edited")
+    opt = exact_optimum(grid, Weights(1.0, 0.1), Planning())
+    path = save_map(grid, tmp_path / "edited.yaml")
+    assert map_key(grid, Weights(1.0, 0.1), Planning()) == map_key(path, Weights(1.0, 0.1), Planning())
+    thetas = lattice_thetas(10.0)
+    coarse = Evaluator(grid).evaluate_many(thetas)
+    assert opt.R1 >= Optimum.of(thetas, coarse.P_c, coarse.P_len, Weights(1.0, 0.1), 10.0).R1
+    planned = Evaluator(load_map(path)).evaluate_many(np.array([opt.theta]))  # the edited floor's, not map-1's
+    assert (float(planned.P_c[0]), int(planned.P_len[0])) == (opt.P_c, opt.P_len)
+    for run in (lambda m: run_random(m, samples=40, seed=3), lambda m: run_nsga2(m, pop=8, generations=2, seed=3)):
+        a, b = run(grid), run(path)
+        assert np.array_equal(a.thetas, b.thetas) and np.array_equal(a.P_c, b.P_c)

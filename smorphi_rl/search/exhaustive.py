@@ -18,6 +18,7 @@ import time
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack, contextmanager
 from multiprocessing import connection as mp_connection
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -27,7 +28,7 @@ from smorphi_rl.cluster import usable_cpus
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.geometry import angles_text, check_step
 from smorphi_rl.interrupts import stop_requests
-from smorphi_rl.maps import Map, load_map
+from smorphi_rl.maps import Map, as_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
 from smorphi_rl.score import Weights
 from smorphi_rl.search.lattice_tasks import footprint_keys, run_task
@@ -64,7 +65,7 @@ _lattice: np.ndarray | None = None
 it (a task names rows of it, never carries shapes)."""
 
 
-def _init(map_path: str, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
+def _init(grid_map: Map, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
     global _worker, _lattice, _bound
     import signal
 
@@ -75,15 +76,15 @@ def _init(map_path: str, planning: Planning, parent: int, step: float, weights: 
     # `timeout`, a scheduler): it stops its loop and kills the workers (SIGKILL); they die with it all the same
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    _worker = planning.evaluator(load_map(map_path), cache=False)
+    _worker = planning.evaluator(grid_map, cache=False)
     _bound = _worker.prune_bound(weights)
 
 
-def _serve(conn: Any, map_path: str, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
+def _serve(conn: Any, grid_map: Map, planning: Planning, parent: int, step: float, weights: Weights | None) -> None:
     """A worker: tasks in, answers out, over its own pipe (no lock shared with any other process, so killing a
     worker anywhere can never block the parent), until it is sent None."""
     try:
-        _init(map_path, planning, parent, step, weights)
+        _init(grid_map, planning, parent, step, weights)
         while (task := conn.recv()) is not None:
             if _worker is None or _lattice is None:  # pragma: no cover (the initializer always runs first)
                 raise RuntimeError("worker not initialised")
@@ -141,10 +142,10 @@ def footprint_classes(keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class _Workers:
     """Worker processes, each with its own pipe, that run tasks (`lattice_tasks.run_task`); `close` ends them all."""
 
-    def __init__(self, n: int, map_path: str, planning: Planning, step: float, weights: Weights | None) -> None:
+    def __init__(self, n: int, grid_map: Map, planning: Planning, step: float, weights: Weights | None) -> None:
         context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
         self.procs: list[tuple[Any, Any]] = []
-        args = (str(map_path), planning, os.getpid(), step, weights)
+        args = (grid_map, planning, os.getpid(), step, weights)  # forked: shared, not copied
         for _ in range(n):
             here, there = context.Pipe()
             proc = context.Process(target=_serve, args=(there, *args), daemon=True)
@@ -235,14 +236,14 @@ class _Settled:
 
 @contextmanager
 def _local_pool(
-    map_path: str, planning: Planning, step: float, weights: Weights | None, workers: int | None, thetas: np.ndarray
+    grid_map: Map, planning: Planning, step: float, weights: Weights | None, workers: int | None, thetas: np.ndarray
 ) -> Iterator[tuple[_Workers, int]]:
     """`workers` processes (default: every core this process may use) forked with the lattice, all gone when the
     block is left."""
     global _lattice
     n = max(1, workers or usable_cpus())
     _lattice = thetas  # the forked workers read their tasks' shapes from here
-    pool = _Workers(n, map_path, planning, step, weights)
+    pool = _Workers(n, grid_map, planning, step, weights)
     finished = False
     try:
         yield pool, n
@@ -264,7 +265,7 @@ def _ray_pool(
 
 
 def run_exhaustive(
-    map_path: str,
+    map_source: str | Path | Map,
     step_deg: float = 1.0,
     planning: Planning = PAPER_PLANNING,
     workers: int | None = None,
@@ -282,13 +283,13 @@ def run_exhaustive(
     footprint was planned (every shape of the best R1 among them). `progress(done, total)` counts shapes keyed,
     then (from 0 again) shapes settled."""
     step = check_step(step_deg)
-    grid_map = load_map(map_path)
+    grid_map = as_map(map_source)
     thetas = lattice_thetas(step)
     per_chunk = chunk_shapes(grid_map, planning)  # also compiles the kernels, before any worker forks
     with ExitStack() as stack:
         if address is None:  # stops held before the workers fork: a Ctrl-C raised in the parent's at-fork hooks
             stop = stack.enter_context(stop_requests())  # (logging's) was printed as "ignored" and lost
-            pool, n_workers = stack.enter_context(_local_pool(str(map_path), planning, step, best_for, workers,
+            pool, n_workers = stack.enter_context(_local_pool(grid_map, planning, step, best_for, workers,
                                                               thetas))  # fmt: skip
         else:  # after Ray's start, which sets handlers of its own
             pool, n_workers = stack.enter_context(_ray_pool(grid_map, planning, step, best_for, workers, address))

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ from pymoo.operators.sampling.rnd import IntegerRandomSampling
 from pymoo.optimize import minimize
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.maps import load_map
+from smorphi_rl.maps import Map, as_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning
 from smorphi_rl.search.on_ray import evaluator_for
 from smorphi_rl.search.results import SearchResult
@@ -55,7 +56,7 @@ class _Generations(Callback):
 
 
 def run_nsga2(
-    map_path: str,
+    map_source: str | Path | Map,
     pop: int,
     generations: int,
     seed: int,
@@ -70,7 +71,7 @@ def run_nsga2(
         raise SmorphiError(f"--pop must be >= 2, got {pop}")
     if generations < 1:
         raise SmorphiError(f"--generations must be >= 1, got {generations}")
-    grid_map = load_map(map_path)
+    grid_map = as_map(map_source)
     algorithm = NSGA2(
         pop_size=pop,
         sampling=IntegerRandomSampling(),

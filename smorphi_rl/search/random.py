@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.interrupts import stop_requests
-from smorphi_rl.maps import load_map
+from smorphi_rl.maps import Map, as_map
 from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.search.on_ray import evaluator_for
 from smorphi_rl.search.results import SearchResult
@@ -18,13 +19,17 @@ CHUNK = 50_000
 
 
 def run_random(
-    map_path: str, samples: int, seed: int, planning: Planning = PAPER_PLANNING, address: str | None = None
+    map_source: str | Path | Map,
+    samples: int,
+    seed: int,
+    planning: Planning = PAPER_PLANNING,
+    address: str | None = None,
 ) -> SearchResult:
     """`samples` shapes, each angle uniform on 0..180 degrees, scored with FBCPP as `planning` says: here, or on
     the Ray cluster at `address` (the same shapes and scores)."""
     if samples < 1:
         raise SmorphiError(f"--samples must be >= 1, got {samples}")
-    grid_map = load_map(map_path)
+    grid_map = as_map(map_source)
     thetas = np.random.default_rng(seed).integers(0, 181, size=(samples, 3)).astype(np.float64)
     params: dict[str, object] = {"samples": samples, "seed": seed, "planner": planning.planner.value}
     with evaluator_for(grid_map, planning, address) as evaluator, stop_requests() as stop:
