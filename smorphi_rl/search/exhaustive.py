@@ -145,7 +145,7 @@ class _Workers:
     def __init__(self, n: int, grid_map: Map, planning: Planning, step: float, weights: Weights | None) -> None:
         context = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
         self.procs: list[tuple[Any, Any]] = []
-        args = (grid_map, planning, os.getpid(), step, weights)  # forked: shared, not copied
+        args = (grid_map, planning, os.getpid(), step, weights)  # forked workers inherit the Map, spawned ones copy it
         for _ in range(n):
             here, there = context.Pipe()
             proc = context.Process(target=_serve, args=(there, *args), daemon=True)

@@ -314,9 +314,11 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
     steps = int(rows[-1].get(keys.STEPS) or 0) if rows else 0
     cap = wanted.get("max_iterations")
     budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
-    if trial_done(rows) and budget_spent:  # killed as it wrote its tables: they are written again, nothing trained
-        return ResumedTrial(trial, point, rows, elapsed, done=True, said=tuple(said))  # (a stop's last row
-    checkpoint = set_aside_from(trial, point)  # is done too: trained on)
+    # killed as it wrote its tables: they are written again, nothing trained (a stop's last row is done too, but its
+    # budget is not spent: it trains on)
+    if trial_done(rows) and budget_spent:
+        return ResumedTrial(trial, point, rows, elapsed, done=True, said=tuple(said))
+    checkpoint = set_aside_from(trial, point)
     assert checkpoint is not None
     return ResumedTrial(trial, checkpoint, rows, elapsed, said=tuple(said))
 
