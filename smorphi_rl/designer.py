@@ -8,6 +8,7 @@ sides of the floors it was trained on (`trained_sides_m`, written at export), so
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -117,8 +118,9 @@ def sides_trained_on(maps: Iterable[str]) -> tuple[float, float] | None:
     return (round(min(lows), 3), round(max(highs), 3)) if lows else None
 
 
-def accepts(designer: Designer, grid_map: Map) -> None:
-    """Refuse, naming the limit, a floor the designer's observation cannot represent."""
+def accepts(designer: Designer, grid_map: Map, map_path: str | Path | None = None) -> None:
+    """Refuse, naming the limit, a floor the designer's observation cannot represent; given the map's file, with the
+    `maps resample` or `maps crop` command that makes one it can (a crop holding as much free floor as fits)."""
     given = designer.policy.meta.get("accepts") or {}
     if not isinstance(given, dict) or not all(k in ACCEPTS and is_finite_number(v) and v > 0 for k, v in given.items()):
         raise SmorphiError(f"{designer.path}: its policy.json's 'accepts' must map {', '.join(ACCEPTS)} to positive "
@@ -136,7 +138,13 @@ def accepts(designer: Designer, grid_map: Map) -> None:
     if not limits["min_cells_per_block"] <= cells_per_block <= limits["max_cells_per_block"]:
         lo = designer.env_config.block_side_m / limits["max_cells_per_block"]
         hi = designer.env_config.block_side_m / limits["min_cells_per_block"]
-        fix = " (`maps resample` coarsens a finer map)" if r < lo else ""
+        k = math.ceil(lo / r - 1e-9)  # the finest whole multiple of the map's cell the designer represents
+        if r < lo and k * r <= hi:
+            fix = f" (`{_command('resample', map_path, f'--resolution {k * r:g}')}` coarsens it)"
+        elif r < lo:
+            fix = " (`maps resample` coarsens a finer map, to a whole multiple of its cell)"
+        else:
+            fix = f" (a map cannot be made finer: record or save the floor at {hi:.4g} m a cell or finer)"
         raise SmorphiError(f"{name}: resolution {r:g} m; this designer represents {lo:.4g}-{hi:.4g} m a cell{fix}")
     wide, large = max(sides) > limits["max_side_m"], free_m2 > limits["max_free_m2"]
     if wide or large:  # both limits named at once: a crop that meets one may still break the other
@@ -144,9 +152,47 @@ def accepts(designer: Designer, grid_map: Map) -> None:
             text for text, past in ((f"its known area is {max(sides):.1f} m across", wide),
                                     (f"it holds {free_m2:.0f} m^2 of free floor", large)) if past
         )  # fmt: skip
+        x0, y0, x1, y1 = fitting_rect(grid_map, limits["max_side_m"], limits["max_free_m2"])
+        rect = " ".join(f"{v:.6f}".rstrip("0").rstrip(".") for v in (x0, y0, x1, y1))
+        crop = _command("crop", map_path, f"--rect {rect}")
         raise SmorphiError(f"{name}: {over}; this designer takes floors up to {limits['max_side_m']:g} m across "
-                           f"holding up to {limits['max_free_m2']:g} m^2 of free floor (cut a part of it with `maps "
-                           "crop --rect X0 Y0 X1 Y1`, metres in the map frame)")  # fmt: skip
+                           f"holding up to {limits['max_free_m2']:g} m^2 of free floor (cut a part of it: `{crop}` "
+                           "keeps the part of most free floor that fits; --rect is X0 Y0 X1 Y1, metres in the map "
+                           "frame)")  # fmt: skip
+
+
+def _command(tool: str, map_path: str | Path | None, option: str) -> str:
+    """`smorphi-rl maps TOOL MAP OPTION --out NEW`, the map named by its file (MAP where none is known)."""
+    where = "MAP" if map_path is None else str(map_path)
+    out = "NEW.yaml" if map_path is None else f"{Path(map_path).stem}-{'crop' if tool == 'crop' else 'coarse'}.yaml"
+    return f"smorphi-rl maps {tool} {where} {option} --out {out}"
+
+
+def fitting_rect(grid_map: Map, max_side_m: float, max_free_m2: float) -> tuple[float, float, float, float]:
+    """(x0, y0, x1, y1), metres in the map frame on cell edges, of a rectangle inside the known area at most
+    `max_side_m` a side and holding at most `max_free_m2` of free floor: of those tried (a grid of places, the
+    rectangle shrunk until one fits), the one holding the most free floor."""
+    r = grid_map.resolution_m
+    r0, r1, c0, c1 = grid_map.known_box()
+    side = max(1, math.floor(max_side_m / r + 1e-9))
+    most = math.floor(max_free_m2 / (r * r) + 1e-9)  # free cells
+    free = np.pad(np.cumsum(np.cumsum(grid_map.cells == Cell.FREE, axis=0), axis=1), ((1, 0), (1, 0)))
+    h, w = min(r1 - r0, side), min(c1 - c0, side)
+    best = (-1, r0, c0, h, w)
+    while best[0] < 0:
+        rows = np.unique(np.linspace(r0, r1 - h, 9).round().astype(int))
+        cols = np.unique(np.linspace(c0, c1 - w, 9).round().astype(int))
+        for i in rows:
+            for j in cols:
+                n = int(free[i + h, j + w] - free[i, j + w] - free[i + h, j] + free[i, j])
+                if best[0] < n <= most:
+                    best = (n, int(i), int(j), h, w)
+        h, w = max(1, int(h * 0.9)), max(1, int(w * 0.9))
+    _, i, j, h, w = best
+    ox, oy = grid_map.origin[0], grid_map.origin[1]
+    inward = (math.ceil((ox + j * r) * 1e6) / 1e6, math.ceil((oy + i * r) * 1e6) / 1e6,
+              math.floor((ox + (j + w) * r) * 1e6) / 1e6, math.floor((oy + (i + h) * r) * 1e6) / 1e6)  # fmt: skip
+    return inward  # printed to 6 decimals at most, always inside the cells meant (crop_to_rect rounds outward)
 
 
 def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:
@@ -175,8 +221,8 @@ def designer_env(designer: Designer, map_path: str, start_xy: tuple[float, float
                            f"'{designer.env_config.observation}' (evaluate it with evaluate-policy)")  # fmt: skip
     grid_map = load_map(map_path)
     whole = designer.env_config.planner == "fit"
+    accepts(designer, grid_map, map_path)  # first: a cell coarser than a block is said with the designer's range
     check_fits(grid_map, designer.env_config.block_side_m, whole_footprint=whole)  # said of the map, not the env
-    accepts(designer, grid_map)
     config = replace(designer.env_config, maps=EnvConfig.from_dict({"maps": [map_path]}).maps, reward="paper")
     config = config if start_xy is None else replace(config, start_xy=start_xy)
     env = MorphologyEnv(config.to_dict())  # `paper`: no reward scales to compute, so no planner calls for them

@@ -7,6 +7,7 @@ never changed); `smorphi-rl maps crop` and `maps resample` write the result as a
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -103,7 +104,9 @@ def resample(grid_map: Map, resolution_m: float) -> Map:
                        f"({side} cells of {grid_map.resolution_m:g} m); at most {most:g} m")  # fmt: skip
     if abs(factor - round(factor)) > 1e-6:
         own = grid_map.resolution_m
-        raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m")
+        near = sorted({max(2, math.floor(factor)), max(2, math.ceil(factor))})  # coarser than its own
+        raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m "
+                       f"(the nearest: {' or '.join(f'{k * own:g}' for k in near)})")  # fmt: skip
     check_resolution(resolution_m, "--resolution")  # a map no map file may hold: refused before it is written
     return coarsen(grid_map, round(factor))
 

@@ -128,25 +128,42 @@ def test_bad_design_input_is_one_line(policy, capsys, tmp_path, monkeypatch, arg
     assert not list(tmp_path.iterdir())
 
 
-def test_floors_the_designer_cannot_represent_are_refused(policy, capsys, tmp_path):
-    from smorphi_rl.maps import Map, save_map
+def test_floors_the_designer_cannot_represent_are_refused_with_the_command_that_makes_one(
+    policy, capsys, tmp_path, monkeypatch
+):
+    """The refusals named `maps crop --rect X0 Y0 X1 Y1` and `maps resample` without a rectangle or a resolution
+    that works (0.05 m is no whole multiple of 0.03 m); a cell coarser than a block was refused by the planner's
+    check, without the designer's range. Each now prints a command that makes a floor it designs, run here as
+    printed."""
+    from conftest import printed_command
 
-    big = save_map(Map(np.zeros((260, 260), dtype=np.uint8), 0.1, name="big"), tmp_path / "big.yaml")
+    from smorphi_rl.maps import Cell, Map, save_map
+
+    monkeypatch.chdir(tmp_path)  # the commands' --out are relative
+    cells = np.full((300, 260), Cell.UNKNOWN, dtype=np.uint8)
+    cells[10:290, 10:250] = Cell.FREE
+    cells[150:160, 10:200] = Cell.OCCUPIED  # a wall: the crop keeps the side of more floor that fits
+    big = save_map(Map(cells, 0.1, origin=(-3.0, 2.0, 0.0), name="big"), tmp_path / "big.yaml")
     code, _, err = run(capsys, "design", "--map", str(big), "--policy", str(policy))
-    assert code == 1 and "its known area is 26.0 m across and it holds 676 m^2 of free floor" in err  # both at once
-    assert "takes floors up to 20 m across holding up to 200 m^2" in err and "maps crop --rect X0 Y0 X1 Y1" in err
-    part = tmp_path / "part.yaml"  # the fix it names (a plain crop keeps a floor that has no unknown margin whole)
-    assert run(capsys, "maps", "crop", str(big), "--rect", "0", "0", "12", "12", "--out", str(part))[0] == 0
-    assert run(capsys, "design", "--map", str(part), "--policy", str(policy), "--log-dir", str(tmp_path / "l"))[0] == 0
-    fine = save_map(Map(np.zeros((100, 100), dtype=np.uint8), 0.02, name="fine"), tmp_path / "fine.yaml")
-    code, _, err = run(capsys, "design", "--map", str(fine), "--policy", str(policy))
-    assert code == 1 and "resolution 0.02 m" in err and "maps resample" in err
+    assert code == 1 and "its known area is 28.0 m across and it holds 653 m^2 of free floor" in err  # both at once
+    assert "takes floors up to 20 m across holding up to 200 m^2" in err
+    fine = save_map(Map(np.zeros((100, 100), dtype=np.uint8), 0.03, name="fine"), tmp_path / "fine.yaml")
+    code, _, fine_err = run(capsys, "design", "--map", str(fine), "--policy", str(policy))
+    assert code == 1 and "resolution 0.03 m" in fine_err and "--resolution 0.06" in fine_err
+    for hint in (err, fine_err):
+        assert main(printed_command(hint)[3:]) == 0
+        made = tmp_path / printed_command(hint)[-1]
+        capsys.readouterr()
+        assert run(capsys, "design", "--map", str(made), "--policy", str(policy), "--log-dir", "l")[0] == 0, made
+    coarse = save_map(Map(np.zeros((30, 30), dtype=np.uint8), 0.2, name="coarse"), tmp_path / "coarse.yaml")
+    code, _, err = run(capsys, "design", "--map", str(coarse), "--policy", str(policy))
+    assert code == 1 and "coarse: resolution 0.2 m; this designer represents 0.0425-0.17 m a cell" in err
     hall = save_map(Map(np.zeros((190, 190), dtype=np.uint8), 0.1, name="hall"), tmp_path / "hall.yaml")  # 361 m^2
     code, _, err = run(capsys, "design", "--map", str(hall), "--policy", str(policy))
     assert (
         code == 1
         and "hall: it holds 361 m^2 of free floor; this designer takes floors up to 20 m across holding"
-        " up to 200 m^2 of free floor (cut a part of it with"
+        " up to 200 m^2 of free floor (cut a part of it: `smorphi-rl maps crop"
         in err
     )
 
