@@ -273,10 +273,13 @@ class ResumedTrial:
         return int(self.rows[-1].get(keys.STEPS) or 0) if self.rows else 0
 
 
-def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> ResumedTrial:
-    """Claim the `train` run in `run_dir` again to continue it with the settings `wanted` (`TrainConfig.to_dict`):
-    refused in one line when it is not a run of `train`, finished, in use, trained with other settings or holds no
-    checkpoint with our state; its later checkpoints and results are set aside, never deleted."""
+def continue_train_run(
+    run_dir: Path, wanted: dict[str, Any], algo: str, digests: dict[str, str] | None = None
+) -> ResumedTrial:
+    """Claim the `train` run in `run_dir` again to continue it with the settings `wanted` (`TrainConfig.to_dict`) on
+    maps of `digests` (`run.map_digests`): refused in one line when it is not a run of `train`, finished, in use,
+    trained with other settings or on a map file changed since, or holds no checkpoint with our state; its later
+    checkpoints and results are set aside, never deleted."""
     from smorphi_rl.inputs import read_json_object
     from smorphi_rl.rundir import claim_again, refuse_links, rel
     from smorphi_rl.training.config import TrainConfigError
@@ -292,10 +295,16 @@ def continue_train_run(run_dir: Path, wanted: dict[str, Any], algo: str) -> Resu
         raise TrainConfigError(f"--resume: {rel(run_dir)} finished (its summary.json): nothing to continue; "
                                "`train --pretrained` starts a new run from its checkpoint")  # fmt: skip
     claim_again(run_dir)  # refused while the process that ran it still runs
-    differ = setting_differs(read_json_object(run_dir / "config.json", "run configuration"), wanted)
+    stored = read_json_object(run_dir / "config.json", "run configuration")
+    differ = setting_differs(stored, wanted)
     if differ is not None:
         raise TrainConfigError(f"--resume: {rel(run_dir)} was trained with other settings ({differ}): give the "
                                "options it ran with (its config.json)")  # fmt: skip
+    recorded = stored.get("map_digests")  # a run of an earlier version recorded none: its settings alone
+    changed = sorted(m for m, d in (digests or {}).items() if isinstance(recorded, dict) and recorded.get(m, d) != d)
+    if changed:
+        raise TrainConfigError(f"--resume: {rel(run_dir)} was trained on another floor named {changed[0]!r} (the "
+                               "map file changed since); restore it, or train again under another --name")  # fmt: skip
     trials = sorted(d for d in run_dir.glob(f"{algo}-*") if d.is_dir() and not d.is_symlink())
     if not trials:
         raise TrainConfigError(f"--resume: {rel(run_dir)} holds no trial folder of {algo}: nothing to continue from")

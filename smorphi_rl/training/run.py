@@ -436,7 +436,7 @@ def train(
     resumed = None
     if resume:  # its results up to the checkpoint are the run's too
         run_dir = Path(log_dir).resolve() / check_run_name(name)
-        resumed = continue_train_run(run_dir, cfg.to_dict(), cfg.algo)
+        resumed = continue_train_run(run_dir, cfg.to_dict(), cfg.algo, digests)
         out.writelines(line + "\n" for line in resumed.said)
         out.write(
             f"resuming {name} from its checkpoint of {resumed.env_steps:,} env steps ({rel(resumed.checkpoint)})\n"
@@ -456,7 +456,7 @@ def train(
         else:
             with cluster.ray_session(address):
                 cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
-                config = cfg.to_dict() | {"name": name, "address": address}
+                config = cfg.to_dict() | {"name": name, "address": address, "map_digests": digests}
                 write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
                 wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)
                 held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs

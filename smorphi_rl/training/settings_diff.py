@@ -13,8 +13,9 @@ from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.training.config import TrainConfig
 from smorphi_rl.training.presets import Preset
 
-IGNORED = ("name", "address")
-"""Written beside the settings but not settings: the run's folder name and the cluster it ran on."""
+IGNORED = ("name", "address", "map_digests")
+"""Written beside the settings but not settings: the run's folder name, the cluster it ran on and its maps' digests
+(which a resume checks apart: `resume.continue_train_run`)."""
 
 
 def setting_differs(stored: dict[str, Any], wanted_config: dict[str, Any]) -> str | None:

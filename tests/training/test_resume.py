@@ -502,3 +502,19 @@ def test_train_resume_refuses_what_it_cannot_continue_in_one_line(tmp_path):
     with pytest.raises(TrainConfigError, match="holds no trial folder of ppo: nothing to continue from"):
         (run / "summary.json").unlink()
         continue_train_run(run, cfg.to_dict(), "ppo")
+
+
+def test_a_run_is_not_continued_on_a_map_file_changed_since(tmp_path):
+    """A killed run resumed on a map edited since trained on a floor its checkpoints never saw: its config.json now
+    records the maps' digests, as a finished run's summary does."""
+    from smorphi_rl.training.config import TrainConfig, TrainConfigError
+    from smorphi_rl.training.resume import continue_train_run
+
+    cfg, run = TrainConfig(), tmp_path / "run"
+    run.mkdir()
+    recorded = {"name": "run", "address": None, "map_digests": {"map-1": "a" * 24}}
+    (run / "config.json").write_text(json.dumps(cfg.to_dict() | recorded))
+    with pytest.raises(TrainConfigError, match="trained on another floor named 'map-1' \\(the map file changed since"):
+        continue_train_run(run, cfg.to_dict(), cfg.algo, {"map-1": "b" * 24})
+    with pytest.raises(TrainConfigError, match="holds no trial folder"):  # the same floor: on to the next check
+        continue_train_run(run, cfg.to_dict(), cfg.algo, {"map-1": "a" * 24})
