@@ -9,6 +9,7 @@ sides of the floors it was trained on (`trained_sides_m`, written at export), so
 from __future__ import annotations
 
 import math
+import shlex
 import warnings
 from collections.abc import Iterable
 from dataclasses import dataclass, replace
@@ -140,7 +141,7 @@ def accepts(designer: Designer, grid_map: Map, map_path: str | Path | None = Non
         hi = designer.env_config.block_side_m / limits["min_cells_per_block"]
         k = math.ceil(lo / r - 1e-9)  # the finest whole multiple of the map's cell the designer represents
         if r < lo and k * r <= hi:
-            fix = f" (`{_command('resample', map_path, f'--resolution {k * r:g}')}` coarsens it)"
+            fix = f" (`{_command('resample', map_path, f'--resolution {round(k * r, 12):.12g}')}` coarsens it)"
         elif r < lo:
             fix = " (`maps resample` coarsens a finer map, to a whole multiple of its cell)"
         else:
@@ -153,46 +154,60 @@ def accepts(designer: Designer, grid_map: Map, map_path: str | Path | None = Non
                                     (f"it holds {free_m2:.0f} m^2 of free floor", large)) if past
         )  # fmt: skip
         x0, y0, x1, y1 = fitting_rect(grid_map, limits["max_side_m"], limits["max_free_m2"])
-        rect = " ".join(f"{v:.6f}".rstrip("0").rstrip(".") for v in (x0, y0, x1, y1))
+        rect = " ".join(f"{v + 0.0:.6f}".rstrip("0").rstrip(".") for v in (x0, y0, x1, y1))  # + 0.0: no "-0"
         crop = _command("crop", map_path, f"--rect {rect}")
         raise SmorphiError(f"{name}: {over}; this designer takes floors up to {limits['max_side_m']:g} m across "
                            f"holding up to {limits['max_free_m2']:g} m^2 of free floor (cut a part of it: `{crop}` "
-                           "keeps the part of most free floor that fits; --rect is X0 Y0 X1 Y1, metres in the map "
+                           "keeps a part that fits; --rect is X0 Y0 X1 Y1, metres in the map "
                            "frame)")  # fmt: skip
 
 
 def _command(tool: str, map_path: str | Path | None, option: str) -> str:
-    """`smorphi-rl maps TOOL MAP OPTION --out NEW`, the map named by its file (MAP where none is known)."""
-    where = "MAP" if map_path is None else str(map_path)
+    """`smorphi-rl maps TOOL MAP OPTION --out NEW`, the map named by its file (MAP where none is known), quoted for a
+    shell."""
+    where = "MAP" if map_path is None else shlex.quote(str(map_path))
     out = "NEW.yaml" if map_path is None else f"{Path(map_path).stem}-{'crop' if tool == 'crop' else 'coarse'}.yaml"
-    return f"smorphi-rl maps {tool} {where} {option} --out {out}"
+    return f"smorphi-rl maps {tool} {where} {option} --out {shlex.quote(out)}"
 
 
 def fitting_rect(grid_map: Map, max_side_m: float, max_free_m2: float) -> tuple[float, float, float, float]:
     """(x0, y0, x1, y1), metres in the map frame on cell edges, of a rectangle inside the known area at most
-    `max_side_m` a side and holding at most `max_free_m2` of free floor: of those tried (a grid of places, the
-    rectangle shrunk until one fits), the one holding the most free floor."""
+    `max_side_m` a side and holding at most `max_free_m2` of free floor: of those tried (12 heights by 12 widths,
+    each at places a quarter of it apart), the one holding the most free floor."""
     r = grid_map.resolution_m
     r0, r1, c0, c1 = grid_map.known_box()
     side = max(1, math.floor(max_side_m / r + 1e-9))
-    most = math.floor(max_free_m2 / (r * r) + 1e-9)  # free cells
-    free = np.pad(np.cumsum(np.cumsum(grid_map.cells == Cell.FREE, axis=0), axis=1), ((1, 0), (1, 0)))
-    h, w = min(r1 - r0, side), min(c1 - c0, side)
-    best = (-1, r0, c0, h, w)
-    while best[0] < 0:
-        rows = np.unique(np.linspace(r0, r1 - h, 9).round().astype(int))
-        cols = np.unique(np.linspace(c0, c1 - w, 9).round().astype(int))
-        for i in rows:
-            for j in cols:
-                n = int(free[i + h, j + w] - free[i, j + w] - free[i + h, j] + free[i, j])
-                if best[0] < n <= most:
-                    best = (n, int(i), int(j), h, w)
-        h, w = max(1, int(h * 0.9)), max(1, int(w * 0.9))
+    most = max(1, math.floor(max_free_m2 / (r * r) + 1e-9))  # free cells
+    total = np.pad(np.cumsum(np.cumsum(grid_map.cells == Cell.FREE, axis=0), axis=1), ((1, 0), (1, 0)))
+    best = (-1, r0, c0, 1, 1)
+    heights = np.unique(np.linspace(1, min(r1 - r0, side), 12).round().astype(int))
+    widths = np.unique(np.linspace(1, min(c1 - c0, side), 12).round().astype(int))
+    for h in heights[::-1]:
+        for w in widths[::-1]:
+            if h * w <= best[0]:  # holds no more free cells than the best found
+                continue
+            rows = np.unique(np.append(np.arange(r0, r1 - h + 1, max(1, h // 4)), r1 - h))
+            cols = np.unique(np.append(np.arange(c0, c1 - w + 1, max(1, w // 4)), c1 - w))
+            free = (total[np.ix_(rows + h, cols + w)] - total[np.ix_(rows, cols + w)] - total[np.ix_(rows + h, cols)]
+                    + total[np.ix_(rows, cols)])  # fmt: skip
+            free = np.where(free <= most, free, -1)
+            at = np.unravel_index(int(np.argmax(free)), free.shape)
+            if free[at] > best[0]:
+                best = (int(free[at]), int(rows[at[0]]), int(cols[at[1]]), int(h), int(w))
     _, i, j, h, w = best
     ox, oy = grid_map.origin[0], grid_map.origin[1]
-    inward = (math.ceil((ox + j * r) * 1e6) / 1e6, math.ceil((oy + i * r) * 1e6) / 1e6,
-              math.floor((ox + (j + w) * r) * 1e6) / 1e6, math.floor((oy + (i + h) * r) * 1e6) / 1e6)  # fmt: skip
-    return inward  # printed to 6 decimals at most, always inside the cells meant (crop_to_rect rounds outward)
+    return (_edge(ox, j, r, True), _edge(oy, i, r, True), _edge(ox, j + w, r, False), _edge(oy, i + h, r, False))
+
+
+def _edge(origin: float, cells: int, r: float, low: bool) -> float:
+    """The map-frame coordinate of a cell edge, to 6 decimals at most, that `maps crop --rect` reads as that edge: the
+    plain rounded value where it does, else one rounded inward (`crop_to_rect` rounds outward)."""
+    exact = origin + cells * r
+    clean = round(exact, 6)
+    at = (clean - origin) / r
+    if (math.floor(at + 1e-9) if low else math.ceil(at - 1e-9)) == cells:
+        return clean
+    return (math.ceil if low else math.floor)(exact * 1e6) / 1e6
 
 
 def unfamiliar_warning(designer: Designer, grid_map: Map) -> str | None:

@@ -106,7 +106,7 @@ def resample(grid_map: Map, resolution_m: float) -> Map:
         own = grid_map.resolution_m
         near = sorted({max(2, math.floor(factor)), max(2, math.ceil(factor))})  # coarser than its own
         raise MapError(f"resolution {resolution_m:g} m is not a whole multiple of map {grid_map.name}'s {own:g} m "
-                       f"(the nearest: {' or '.join(f'{k * own:g}' for k in near)})")  # fmt: skip
+                       f"(the nearest: {' or '.join(f'{round(k * own, 12):.12g}' for k in near)})")  # fmt: skip
     check_resolution(resolution_m, "--resolution")  # a map no map file may hold: refused before it is written
     return coarsen(grid_map, round(factor))
 

@@ -285,6 +285,7 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
     there is none to reuse (never started, or cut short). A run trained with other settings stops the resume:
     its figures would measure another job."""
     from smorphi_rl.inputs import read_json_object
+    from smorphi_rl.training.run import map_digests
     from smorphi_rl.training.settings_diff import setting_differs
 
     if not (run_dir / "config.json").is_file():
@@ -294,18 +295,16 @@ def finished_run(run_dir: Path, cfg: TrainConfig) -> dict[str, Any] | None:
     if differ is not None:
         raise TrainConfigError(f"--resume: {run_dir} was trained with other settings ({differ}); start a new job "
                                "with another --name")  # fmt: skip
-    if not (run_dir / "summary.json").is_file():
-        return None
-    summary = read_json_object(run_dir / "summary.json", "run summary")
-    recorded = summary.get("map_digests")
-    if isinstance(recorded, dict):  # runs written before digests were kept: the settings alone
-        from smorphi_rl.training.run import map_digests
-
-        changed = sorted(m for m, d in map_digests(cfg).items() if recorded.get(m, d) != d)
-        if changed:
-            raise TrainConfigError(f"--resume: {run_dir} was trained on another floor named {changed[0]!r} (the map "
-                                   "file changed since); restore it, or start a job with another --name")  # fmt: skip
-    return None if summary.get("interrupted", True) is not False else summary
+    summary = read_json_object(run_dir / "summary.json", "run summary") if (run_dir / "summary.json").is_file() else {}
+    # the maps' digests a run's config.json (a cut run's too) and summary record; a run from before they were kept:
+    # its settings alone
+    records = [r for r in (stored.get("map_digests"), summary.get("map_digests")) if isinstance(r, dict)]
+    now = map_digests(cfg) if records else {}
+    changed = sorted({m for r in records for m, d in now.items() if r.get(m, d) != d})
+    if changed:
+        raise TrainConfigError(f"--resume: {run_dir} was trained on another floor named {changed[0]!r} (the map file "
+                               "changed since); restore it, or start a job with another --name")  # fmt: skip
+    return None if not summary or summary.get("interrupted", True) is not False else summary
 
 
 def transfer_run(map_name: str, seed: int, mode: str, run_dir: Path, summary: dict[str, Any],

@@ -425,3 +425,42 @@ def test_the_numpy_policy_takes_one_observation_and_names_a_layout_it_cannot_rea
     picture, _ = MorphologyEnv({"maps": [str(FLOOR)]}).reset(seed=0)
     with pytest.raises(SmorphiError, match="the observation has no 'scale' entry, which this policy reads"):
         net.act(picture)
+
+
+@pytest.mark.parametrize("floor", ["sparse", "room", "offset"])
+def test_the_crop_a_refusal_names_fits_and_holds_as_much_floor_as_it_may(floor):
+    """Its first search stopped at the first size any window fitted, even an empty one (a crop `maps crop` refuses),
+    and shrank both sides together (a 35 x 30 m room got 13 x 13 m, 170 m^2 of the 200 allowed)."""
+    from smorphi_rl.designer import fitting_rect
+    from smorphi_rl.maps import Cell, Map
+    from smorphi_rl.maptools import crop_to_rect
+
+    origin = (0.0, 0.0, 0.0)
+    if floor == "sparse":  # a 200 m frame, the free floor in a band of it
+        cells = np.full((2000, 2000), Cell.UNKNOWN, dtype=np.uint8)
+        cells[0, 0] = cells[-1, -1] = Cell.OCCUPIED
+        cells[50:1060, 50:2000] = Cell.FREE
+    else:
+        cells = np.full((600, 700), Cell.FREE, dtype=np.uint8)  # 35 x 30 m at 0.05 m
+        origin = (-12.345, 6.789, 0.0) if floor == "offset" else origin
+    grid = Map(cells, 0.1 if floor == "sparse" else 0.05, origin, name=floor)
+    crop = crop_to_rect(grid, *fitting_rect(grid, 20.0, 200.0))
+    free_m2 = crop.counts[Cell.FREE] * crop.resolution_m**2
+    sides = crop.known_sides_m()
+    assert max(sides) <= 20.0 + 1e-9 and 195.0 <= free_m2 <= 200.0 + 1e-9, (sides, free_m2)
+
+
+def test_the_printed_command_runs_as_printed_where_the_path_has_a_space(policy, capsys, tmp_path, monkeypatch):
+    from conftest import printed_command
+
+    from smorphi_rl.maps import Map, save_map
+
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "my maps").mkdir()
+    big = save_map(Map(np.zeros((260, 260), dtype=np.uint8), 0.1, name="sp ace"), tmp_path / "my maps" / "sp ace.yaml")
+    code, _, err = run(capsys, "design", "--map", str(big), "--policy", str(policy))
+    assert code == 1 and main(printed_command(err)[3:]) == 0
+    capsys.readouterr()
+    made = tmp_path / printed_command(err)[-1]
+    assert made.name == "sp ace-crop.yaml" and run(capsys, "design", "--map", str(made), "--policy", str(policy),
+                                                   "--log-dir", "l")[0] == 0  # fmt: skip

@@ -416,6 +416,11 @@ def test_a_finished_run_of_a_map_file_changed_since_stops_the_resume(tmp_path):
     (run / "summary.json").write_text(json.dumps(summary | {"map_digests": {"val-1": "another floor"}}))
     with pytest.raises(TrainConfigError, match="was trained on another floor named 'val-1'"):
         finished_run(run, cfg)
+    (run / "summary.json").unlink()  # a cut run: its config.json's digests, before anything trains
+    assert finished_run(run, cfg) is None
+    (run / "config.json").write_text(json.dumps(cfg.to_dict() | {"map_digests": {"val-1": "another floor"}}))
+    with pytest.raises(TrainConfigError, match="was trained on another floor named 'val-1'"):
+        finished_run(run, cfg)
 
 
 def test_a_layout_this_machine_cannot_place_leaves_no_folder(tmp_path, fake_runs, capsys):
