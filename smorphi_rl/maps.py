@@ -133,7 +133,7 @@ class Map:
     @property
     def digest(self) -> str:
         """A digest of the cells and the resolution: what tells two maps of one name apart (results name a map by
-        its file name, and ROS maps are often all `map.yaml`). `protocol.map_key` hashes the same with the weights
+        its file name, and ROS maps are often all `map.yaml`). `protocol.key_of` hashes the same with the weights
         and planning, for the optima's cache (its keys stay as they were)."""
         import hashlib
 

@@ -178,19 +178,16 @@ class MapEvaluation:
                 "outcomes": [asdict(o) for o in self.outcomes]}  # fmt: skip
 
 
-def map_key(map_source: str | Path | Map, weights: Weights, planning: Planning) -> str:
-    """A digest of the map's cells and resolution, the weights and the planning: what the optimum depends on
-    (the paper planner's default keys are those from before there was a choice: their cached optima stay)."""
+def key_of(map_source: str | Path | Map, weights: Weights, planning: Planning) -> str:
+    """A digest of the map's cells and resolution (a Map, or a map file's), the weights and the planning: what the
+    optimum depends on (the paper planner's default keys are those from before there was a choice: their cached
+    optima stay). A start given in metres (`--start-xy`) lands on a cell through the map's origin, so the cell it
+    lands on is keyed with it: a map saved again with another origin starts its plans elsewhere (and an optimum
+    cached before a point on a cell's edge counted in the cell that edge starts is not taken for one from that
+    cell)."""
     from smorphi_rl.maps import as_map
 
-    return key_of(as_map(map_source), weights, planning)
-
-
-def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
-    """`map_key` of a map already loaded. A start given in metres (`--start-xy`) lands on a cell through the map's
-    origin, so the cell it lands on is keyed with it: a map saved again with another origin starts its plans
-    elsewhere (and an optimum cached before a point on a cell's edge counted in the cell that edge starts is not
-    taken for one from that cell)."""
+    grid_map = as_map(map_source)
     h = hashlib.blake2b(digest_size=12)
     h.update(np.ascontiguousarray(grid_map.cells).tobytes())
     fields = [grid_map.cells.shape, grid_map.resolution_m, weights.w1, weights.w2, *planning.key()]
@@ -201,7 +198,7 @@ def key_of(grid_map: Map, weights: Weights, planning: Planning) -> str:
 
 
 _IN_PROCESS: dict[str, Optimum] = {}
-"""Optima found in this process, by `map_key` (the map's content, the weights, the planning)."""
+"""Optima found in this process, by `key_of` (the map's content, the weights, the planning)."""
 IN_PROCESS_KEPT = 32
 
 

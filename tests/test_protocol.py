@@ -18,7 +18,7 @@ from smorphi_rl.protocol import (
     eval_starts,
     exact_optimum,
     gaps_to,
-    map_key,
+    key_of,
     settled_theta,
 )
 from smorphi_rl.score import Weights
@@ -63,7 +63,6 @@ def test_a_start_in_metres_keys_the_cache_on_the_cell_it_lands_on():
 
     from smorphi_rl.maps import load_map
     from smorphi_rl.planning import Planning
-    from smorphi_rl.protocol import key_of
 
     grid_map = load_map(MAP_1)
     moved = replace(grid_map, origin=(-1.0, -1.0, 0.0))
@@ -74,7 +73,7 @@ def test_a_start_in_metres_keys_the_cache_on_the_cell_it_lands_on():
     assert start.start_on(grid_map) == start.start_on(nudged)
     assert key_of(grid_map, weights, start) == key_of(nudged, weights, start)
     assert key_of(grid_map, weights, Planning(0.17)) == key_of(moved, weights, Planning(0.17))
-    assert key_of(grid_map, weights, Planning(0.17)) == map_key(MAP_1, weights, Planning(0.17))
+    assert key_of(grid_map, weights, Planning(0.17)) == key_of(MAP_1, weights, Planning(0.17))
 
 
 @pytest.mark.slow
@@ -88,7 +87,7 @@ def test_exact_optimum_is_the_best_of_the_lattice_and_is_cached(tmp_path, monkey
     coarse = Optimum.of(thetas, batch.P_c, batch.P_len, Weights(1.0, 0.1), 10.0)
     assert opt.R1 >= coarse.R1 and opt.step_deg == 1.0 and math.isfinite(opt.R1)
     (cached,) = tmp_path.glob("optimum-*.json")
-    assert map_key(MAP_1, Weights(1.0, 0.1), Planning(0.17)) in cached.name
+    assert key_of(MAP_1, Weights(1.0, 0.1), Planning(0.17)) in cached.name
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
     cached.write_text("{broken")  # a damaged entry is recomputed
     assert exact_optimum(MAP_1, Weights(1.0, 0.1), Planning(0.17), tmp_path) == opt
@@ -245,7 +244,7 @@ def test_the_exact_optimum_and_the_searches_take_a_map_in_memory(tmp_path):
     grid = Map(cells, 0.1, name="edited")
     opt = exact_optimum(grid, Weights(1.0, 0.1), Planning())
     path = save_map(grid, tmp_path / "edited.yaml")
-    assert map_key(grid, Weights(1.0, 0.1), Planning()) == map_key(path, Weights(1.0, 0.1), Planning())
+    assert key_of(grid, Weights(1.0, 0.1), Planning()) == key_of(path, Weights(1.0, 0.1), Planning())
     thetas = lattice_thetas(10.0)
     coarse = Evaluator(grid).evaluate_many(thetas)
     assert opt.R1 >= Optimum.of(thetas, coarse.P_c, coarse.P_len, Weights(1.0, 0.1), 10.0).R1
