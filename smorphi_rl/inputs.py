@@ -34,6 +34,10 @@ class InputError(SmorphiError):
 
 MAX_YAML_DEPTH = 64
 """Nesting of a map YAML or a sweep file (ours need 4 levels)."""
+MAX_YAML_INT_BITS = 10_000
+"""The longest integer a YAML file may spell (about 3,000 decimal digits, which Python still shows: its limit is
+4,300): a hexadecimal one of 5,000 digits read, as Python limits only decimal ones, and every message that then
+showed it raised ValueError instead."""
 
 
 class _StrictLoader(yaml.SafeLoader):
@@ -66,7 +70,16 @@ def _no_duplicates(loader: yaml.SafeLoader, node: yaml.MappingNode, deep: bool =
     return loader.construct_mapping(node, deep=deep)
 
 
+def _bounded_int(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int:
+    value: int = loader.construct_yaml_int(node)  # type: ignore[no-untyped-call]
+    if value.bit_length() > MAX_YAML_INT_BITS:
+        raise yaml.constructor.ConstructorError(None, None, f"an integer of over {MAX_YAML_INT_BITS:,} bits",
+                                                node.start_mark)  # fmt: skip
+    return value
+
+
 _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _no_duplicates)
+_StrictLoader.add_constructor("tag:yaml.org,2002:int", _bounded_int)
 _StrictLoader.add_implicit_resolver(  # YAML 1.2's 1e-4 (1.1, PyYAML's, reads it as a string: 'lr: 1e-4' failed)
     "tag:yaml.org,2002:float", re.compile(r"^[-+]?[0-9][0-9_]*(?:\.[0-9_]*)?[eE][-+]?[0-9]+$"), list("-+0123456789")
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 from pathlib import Path
 
@@ -116,6 +117,28 @@ def test_yaml_nested_past_the_limit_is_refused_in_a_map_and_a_sweep_file(tmp_pat
     (tmp_path / "s.yaml").write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\nenv: {nested}\n")
     code, _, err = run(capsys, "sweep", str(tmp_path / "s.yaml"), "--log-dir", str(tmp_path / "logs"))
     assert code == 1 and "nested more than 64 levels deep" in one_line(err) and not (tmp_path / "logs").exists()
+
+
+@pytest.mark.parametrize("field", ["resolution", "seeds", "timesteps", "env w1", "search lr"])
+def test_a_hexadecimal_integer_of_thousands_of_digits_is_refused_in_a_map_and_a_sweep_file(tmp_path, capsys, field):
+    """PyYAML reads 0x and 5,000 digits (Python limits only decimal ones), and each message that showed the value
+    raised ValueError: a traceback."""
+    huge = "0x" + "f" * 5_000
+    text = Path(MAP_1).read_text().replace("image: map-1.pgm", f"image: {MAP_1[:-5]}.pgm")
+    if field == "resolution":
+        (tmp_path / "m.yaml").write_text(re.sub(r"resolution: .*", f"resolution: {huge}", text))
+        code, _, err = run(capsys, "maps", "show", str(tmp_path / "m.yaml"))
+    else:
+        items = {
+            "seeds": f"seeds: [{huge}]",
+            "timesteps": f"seeds: [0]\ntimesteps: {huge}",
+            "env w1": f"seeds: [0]\nenv: {{w1: {huge}}}",
+            "search lr": f"seeds: [0]\nsearch: {{lr: {huge}}}",
+        }
+        (tmp_path / "s.yaml").write_text(f"algorithms: [ppo]\nmaps: [{MAP_1}]\n{items[field]}\n")
+        code, _, err = run(capsys, "sweep", str(tmp_path / "s.yaml"), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "an integer of over 10,000 bits" in one_line(err) and "Traceback" not in err
+    assert not (tmp_path / "logs").exists()
 
 
 def test_a_duplicate_key_in_a_map_yaml_is_refused(tmp_path, capsys):
@@ -620,6 +643,21 @@ def test_an_angles_file_that_never_ends_is_refused_before_reading(tmp_path, caps
     for path in ("/dev/zero", str(fifo), str(tmp_path)):
         code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", path)
         assert code == 1 and "not a regular file" in one_line(err)
+
+
+@pytest.mark.parametrize("row", ["ab,", "12,"])
+def test_an_angles_file_of_one_endless_line_is_refused_by_its_length(tmp_path, capsys, row):
+    """A 2 MB line was split whole to look for a header and shown whole in its refusal (a 100 MB file: 3 GB and a
+    100 MB line on the terminal)."""
+    f = tmp_path / "long.csv"
+    f.write_text("10,20,30\n" + row * 700_000 + "1\n")
+    code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(f))
+    assert code == 1 and one_line(err).endswith(f"{f} line 2: 2,100,002 characters, where a row of three angles "
+                                                 "t1,t2,t3 takes a few dozen (at most 1,000)")  # fmt: skip
+    f.write_text("10,20,30\n" + "x" * 900 + ",1,2\n")
+    code, _, err = run(capsys, "evaluate", "--map", MAP_1, "--angles-file", str(f))
+    assert code == 1 and "line 2: expected three numbers t1,t2,t3, got 'xxx" in one_line(err)
+    assert len(one_line(err)) < len(str(f)) + 200
 
 
 def test_a_start_tile_beyond_the_map_is_one_line(capsys):

@@ -411,6 +411,21 @@ def test_messages_that_parse_into_millions_of_lists_are_refused_before_they_are_
     assert len(err.splitlines()) == 1 and "a message on /log holds more lists and objects than smorphi-rl" in err, err
 
 
+def test_metadata_that_parses_into_millions_of_lists_is_refused_before_it_is_parsed(tmp_path, capsys):
+    """The metadata's env_config was parsed without the messages' count: 15 MB of `[[],[],...]` took 364 MB."""
+    from mcap.writer import CompressionType, Writer
+
+    path = tmp_path / "meta.mcap"
+    with path.open("wb") as fh:
+        writer = Writer(fh, compression=CompressionType.ZSTD)
+        writer.start()
+        writer.add_metadata("smorphi_rl", {"env_config": "[" + "[]," * 1_000_000 + "[]]"})
+        writer.finish()
+    assert main(["replay", str(path)]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "the metadata holds more lists and objects than smorphi-rl" in err, err
+
+
 def test_replay_of_a_folder_without_recordings_and_of_a_missing_file(tmp_path, capsys):
     assert main(["replay", str(tmp_path)]) == 1
     assert "holds no MCAP recordings" in capsys.readouterr().err

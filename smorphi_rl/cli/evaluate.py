@@ -9,14 +9,14 @@ import stat
 import sys
 import warnings
 from array import array
-from collections.abc import Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_MAP, number, planner_option, start_option, weight_options, weights
+from smorphi_rl.cli.common import DEFAULT_MAP, clipped, number, planner_option, start_option, weight_options, weights
 from smorphi_rl.cli.fields import finite_arg, option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -55,6 +55,9 @@ def register(sub: Any) -> None:
 
 MAX_ANGLES_FILE_BYTES = 100_000_000
 """The largest angles file `evaluate --angles-file` reads."""
+MAX_ANGLES_LINE = 1_000
+"""The longest line of an angles file (a row of three angles is a few dozen characters): one line of 10 MB was
+split whole to look for a header (6 s, 300 MB) and shown whole in its refusal."""
 
 
 def read_angles_file(path: Path) -> np.ndarray:
@@ -75,8 +78,8 @@ def read_angles_file(path: Path) -> np.ndarray:
                            "(about 4 million rows)")  # fmt: skip
     try:
         with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
-            first = fh.readline()
-        header = int(_is_header(first.split(",")))
+            first = fh.readline(MAX_ANGLES_LINE + 1)
+        header = int(len(first) <= MAX_ANGLES_LINE and _is_header(first.split(",")))
         with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
             warnings.simplefilter("ignore")  # an empty file: reported below, with its name
             values = np.loadtxt(fh, delimiter=",", skiprows=header, ndmin=2, dtype=np.float64)
@@ -96,7 +99,7 @@ def _read_angles_rows(path: Path) -> np.ndarray:
     values, first = array("d"), True
     try:
         with path.open(newline="", encoding="utf-8-sig") as fh:
-            for n, row in enumerate(csv.reader(fh), start=1):
+            for n, row in enumerate(csv.reader(_short_lines(path, fh)), start=1):
                 if not any(c.strip() for c in row):
                     continue
                 header, first = first and _is_header(row), False
@@ -111,11 +114,20 @@ def _read_angles_rows(path: Path) -> np.ndarray:
     return np.array(values, dtype=float).reshape(-1, 3)
 
 
+def _short_lines(path: Path, lines: Iterable[str]) -> Iterator[str]:
+    """`lines`, refused at the first longer than MAX_ANGLES_LINE before the CSV reader splits it."""
+    for n, line in enumerate(lines, start=1):
+        if len(line) > MAX_ANGLES_LINE:
+            raise SmorphiError(f"{path} line {n}: {len(line):,} characters, where a row of three angles t1,t2,t3 "
+                               f"takes a few dozen (at most {MAX_ANGLES_LINE:,})")  # fmt: skip
+        yield line
+
+
 def _angles_row(path: Path, n: int, row: list[str]) -> list[float]:
     """Line `n` of an angles file as three angles in 0-180, or one line naming what is wrong with it."""
     cells = [c.strip() for c in row]
     if len(cells) != 3 or not _is_numeric_row(cells):
-        raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {','.join(row)!r}")
+        raise SmorphiError(f"{path} line {n}: expected three numbers t1,t2,t3, got {clipped(repr(','.join(row)))}")
     angles = [float(c) for c in cells]
     for j, v in enumerate(angles):
         if not 0 <= v <= 180:

@@ -218,15 +218,21 @@ MAX_JSON_CONTAINERS = 16_000_000
 episode on map-1: 27,000 in 780 KB)."""
 
 
+def _count_containers(data: bytes, what: str, path: Path, budget: list[int]) -> None:
+    """Take the lists and objects of JSON `data` from `budget`, refusing, before it is parsed, JSON of more than one
+    a MIN_BYTES_PER_CONTAINER bytes or beyond what is left."""
+    containers = data.count(b"[") + data.count(b"{")  # counted before parsing: a bound, strings' brackets too
+    budget[0] -= containers
+    if budget[0] < 0 or containers * MIN_BYTES_PER_CONTAINER > len(data) + 64:
+        raise RecordingError(f"{path}: {what} holds more lists and objects than smorphi-rl writes "
+                             f"({containers:,} in {len(data):,} bytes)")  # fmt: skip
+
+
 def _message(data: bytes, topic: str, path: Path, budget: list[int]) -> Any:
     """One message's JSON, within what is left of `budget` (lists and objects) and at most one a
     MIN_BYTES_PER_CONTAINER bytes; one that is not JSON (or nested past Python's limit) is named, not read as a
     cut."""
-    containers = data.count(b"[") + data.count(b"{")  # counted before parsing: a bound, strings' brackets too
-    budget[0] -= containers
-    if budget[0] < 0 or containers * MIN_BYTES_PER_CONTAINER > len(data) + 64:
-        raise RecordingError(f"{path}: a message on {topic} holds more lists and objects than smorphi-rl writes "
-                             f"({containers:,} in {len(data):,} bytes)")  # fmt: skip
+    _count_containers(data, f"a message on {topic}", path, budget)
     try:
         return json.loads(data)
     except (ValueError, RecursionError):
@@ -282,7 +288,8 @@ def read_episode(path: str | Path) -> Episode:
                         _message(record.data, topics[record.channel_id], file, containers)
                     )
                 elif isinstance(record, Metadata) and record.name == METADATA_NAME:
-                    meta = dict(record.metadata)
+                    meta = dict(record.metadata)  # its env_config is parsed as it is used: counted here
+                    _count_containers(meta.get("env_config", "").encode(), "the metadata", file, containers)
                 elif isinstance(record, Footer):
                     complete = True
         except RecordingError:

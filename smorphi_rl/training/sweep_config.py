@@ -230,7 +230,7 @@ def load_sweep(path: str | Path) -> SweepConfig:
         mark = getattr(exc, "problem_mark", None)
         at = f" at line {mark.line + 1}" if mark is not None else ""
         problem = getattr(exc, "problem", "") or ""
-        detail = f" ({problem})" if problem.startswith(("duplicate key", "aliases", "nested")) else ""
+        detail = f" ({problem})" if problem.startswith(("duplicate key", "aliases", "nested", "an integer")) else ""
         raise SweepConfigError(f"{where}: not valid YAML{at}{detail}") from None
     if not isinstance(raw, dict):
         raise SweepConfigError(f"{where}: expected a mapping of keys ({', '.join(KEYS)})")

@@ -411,6 +411,23 @@ def test_a_tuple_key_nested_too_deep_to_hash_is_refused_before_it_is_built(genui
     assert pickle.loads(_nested_tuple_key(3, build_every=2))  # the same pickles, shallow, are a dict of a tuple key
 
 
+def _wide_tuple_key(depth: int, fan_out: int) -> bytes:
+    """A pickle of `{t: 0}`, t a tuple holding the one below `fan_out` times, `depth` levels (fan_out ** depth
+    leaves in about 13 bytes a level; 4 x 15 levels: a billion)."""
+    out = bytearray(b"\x80\x02}K\x01\x85q\x000")  # EMPTY_DICT, (1,) as memo 0, POP
+    for level in range(1, depth):  # MARK, BINGET fan_out times, TUPLE, BINPUT, POP
+        out += b"(" + (b"h" + bytes([level - 1])) * fan_out + b"tq" + bytes([level]) + b"0"
+    return bytes(out + b"h" + bytes([depth - 1]) + b"K\x00s.")  # BINGET the top, BININT1 0, SETITEM, STOP
+
+
+def test_a_refused_key_is_named_without_spelling_it_out(genuine, tmp_path):
+    """The refusal of a tuple key spelt the whole tuple before cutting it to 40 characters: 210 bytes of a tuple
+    sharing its parts held every loader for minutes (and gigabytes). The same pickle, shallow, is a dict."""
+    with pytest.raises(CheckpointError, match="it keys a table by a tuple of 4 items"):
+        read_planted(genuine, tmp_path, _wide_tuple_key(15, 4))
+    assert len(str(next(iter(pickle.loads(_wide_tuple_key(3, 4)))))) > 40
+
+
 def _ctor_with_model_config(genuine: Path, model_config: object) -> bytes:
     ctor = pickle.loads((genuine / MODULE_SUBDIR / "class_and_ctor_args.pkl").read_bytes())  # our own test file
     kwargs = dict(ctor["ctor_args_and_kwargs"][1]) | {"model_config": model_config}
