@@ -12,11 +12,14 @@ from __future__ import annotations
 
 import math
 import os
+import sys
 from pathlib import Path
+from typing import Any
 
 import numba
 import numpy as np
 from numba import njit
+from numba.core.dispatcher import Dispatcher
 from numba.misc.appdirs import AppDirs
 
 from smorphi_rl.rundir import own_temp_folder, writable_folder
@@ -1227,3 +1230,22 @@ def footprint_keys(thetas: np.ndarray, s: float, r: float, side: int) -> np.ndar
         a, b = _mix(a ^ word), _mix(b + word * np.uint64(0xA24BAED4963EE407))
         keys[i, 0], keys[i, 1] = a | _ONE, b  # never (0, 0)
     return keys
+
+
+def _index_file(kernel: Any) -> Path:
+    """Where numba's cache keeps a kernel's index for this Python, named as numba names it (`tests/test_kernels.py`
+    checks the name against numba's own)."""
+    version = f"py{sys.version_info[0]}{sys.version_info[1]}"
+    name = f"{__name__.rpartition('.')[2]}.{kernel.__name__}-{kernel.py_func.__code__.co_firstlineno}.{version}.nbi"
+    return Path(kernel.stats.cache_path) / name
+
+
+def compiled_before() -> bool:
+    """Whether any kernel of this file, as it is now, was compiled into numba's cache: where none was (a new install,
+    a new Python), the first command that plans compiles for about 40 s."""
+    return any(_index_file(v).is_file() for v in list(globals().values()) if isinstance(v, Dispatcher))
+
+
+COMPILE_NOTICE = "smorphi-rl: compiling the coverage planner, once (about 40 s on 2 cores; then cached)"
+if getattr(sys.stderr, "isatty", lambda: False)() and not compiled_before():  # a terminal: a log need not know
+    print(COMPILE_NOTICE, file=sys.stderr, flush=True)
