@@ -14,12 +14,11 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any
 
 import numba
 import numpy as np
 from numba import njit
-from numba.core.dispatcher import Dispatcher
+from numba.core import event as numba_events
 from numba.misc.appdirs import AppDirs
 
 from smorphi_rl.rundir import own_temp_folder, writable_folder
@@ -1232,20 +1231,26 @@ def footprint_keys(thetas: np.ndarray, s: float, r: float, side: int) -> np.ndar
     return keys
 
 
-def _index_file(kernel: Any) -> Path:
-    """Where numba's cache keeps a kernel's index for this Python, named as numba names it (`tests/test_kernels.py`
-    checks the name against numba's own)."""
-    version = f"py{sys.version_info[0]}{sys.version_info[1]}"
-    name = f"{__name__.rpartition('.')[2]}.{kernel.__name__}-{kernel.py_func.__code__.co_firstlineno}.{version}.nbi"
-    return Path(kernel.stats.cache_path) / name
+COMPILE_NOTICE = "smorphi-rl: compiling the coverage planner (the first run only: up to about 40 s; then cached)"
 
 
-def compiled_before() -> bool:
-    """Whether any kernel of this file, as it is now, was compiled into numba's cache: where none was (a new install,
-    a new Python), the first command that plans compiles for about 40 s."""
-    return any(_index_file(v).is_file() for v in list(globals().values()) if isinstance(v, Dispatcher))
+class CompileNotice(numba_events.Listener):
+    """Says COMPILE_NOTICE on a terminal as the first kernel of this file is compiled in this process (numba's
+    public compile event, which a kernel loaded from the cache does not raise): a first run, or one after an upgrade,
+    was silent for about 40 s."""
+
+    said = False
+
+    def on_start(self, event: numba_events.Event) -> None:
+        kernel = getattr(event.data.get("dispatcher"), "py_func", None)
+        if self.said or getattr(kernel, "__module__", None) != __name__:
+            return
+        self.said = True
+        if getattr(sys.stderr, "isatty", lambda: False)():  # a log or a pipe need not know
+            print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+
+    def on_end(self, event: numba_events.Event) -> None:
+        pass
 
 
-COMPILE_NOTICE = "smorphi-rl: compiling the coverage planner, once (about 40 s on 2 cores; then cached)"
-if getattr(sys.stderr, "isatty", lambda: False)() and not compiled_before():  # a terminal: a log need not know
-    print(COMPILE_NOTICE, file=sys.stderr, flush=True)
+numba_events.register("numba:compile", CompileNotice())
