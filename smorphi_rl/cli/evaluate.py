@@ -78,7 +78,7 @@ def read_angles_file(path: Path) -> np.ndarray:
                            "(about 4 million rows)")  # fmt: skip
     try:
         with path.open(encoding="utf-8-sig") as fh:  # a spreadsheet's byte-order mark is not part of row 1
-            first = fh.readline(MAX_ANGLES_LINE + 1)
+            first = fh.readline(MAX_ANGLES_LINE + 2).rstrip("\r\n")
         header = int(len(first) <= MAX_ANGLES_LINE and _is_header(first.split(",")))
         with warnings.catch_warnings(), path.open(encoding="utf-8-sig") as fh:
             warnings.simplefilter("ignore")  # an empty file: reported below, with its name
@@ -117,8 +117,8 @@ def _read_angles_rows(path: Path) -> np.ndarray:
 def _short_lines(path: Path, lines: Iterable[str]) -> Iterator[str]:
     """`lines`, refused at the first longer than MAX_ANGLES_LINE before the CSV reader splits it."""
     for n, line in enumerate(lines, start=1):
-        if len(line) > MAX_ANGLES_LINE:
-            raise SmorphiError(f"{path} line {n}: {len(line):,} characters, where a row of three angles t1,t2,t3 "
+        if (size := len(line.rstrip("\r\n"))) > MAX_ANGLES_LINE:
+            raise SmorphiError(f"{path} line {n}: {size:,} characters, where a row of three angles t1,t2,t3 "
                                f"takes a few dozen (at most {MAX_ANGLES_LINE:,})")  # fmt: skip
         yield line
 

@@ -25,7 +25,7 @@ from smorphi_rl.inputs import InputError
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import checkpoints_under
-from smorphi_rl.training.safe_pickle import CheckpointError, UnreadableCheckpoint, safe_unpickle
+from smorphi_rl.training.safe_pickle import CheckpointError, UnreadableCheckpoint, safe_unpickle, shown
 from smorphi_rl.training.sweep_report import (
     MAX_PARAMS_BYTES,
     SET_ASIDE,
@@ -91,9 +91,9 @@ def _shape_problem(state: dict[str, Any]) -> str | None:
     """What in `state` is not of the shape `save_state` writes (None: nothing)."""
     it, elapsed = state["training_iteration"], state[ELAPSED]
     if isinstance(it, bool) or not isinstance(it, int) or not 1 <= it <= MAX_ITERATION:
-        return f"its iteration {it!r} is not a whole number in 1..{MAX_ITERATION:,}"
+        return f"its iteration {shown(it)} is not a whole number in 1..{MAX_ITERATION:,}"
     if not isinstance(elapsed, float) or not 0 <= elapsed < 1e9:
-        return f"its elapsed time {elapsed!r} is out of range"
+        return f"its elapsed time {shown(elapsed)} is out of range"
     learner = state["learner_group"].get("learner") if isinstance(state["learner_group"], dict) else None
     if not isinstance(learner, dict) or not all(isinstance(learner.get(k), dict) for k in ("rl_module", "optimizer")):
         return "its learner state is not a learner's (module weights and optimiser)"
@@ -123,9 +123,9 @@ def _kept_problem(kept: Any, weights: dict[str, Any]) -> str | None:
     score, steps, kept_weights = kept["score"], kept["env_steps"], kept["weights"]
     if (not isinstance(score, list) or len(score) != 2 or isinstance(score[0], bool) or not isinstance(score[0], int)
             or score[0] < 0 or not isinstance(score[1], float) or not np.isfinite(score[1])):  # fmt: skip
-        return f"its kept policy's score {score!r} is not a count and a finite number"
+        return f"its kept policy's score {shown(score)} is not a count and a finite number"
     if isinstance(steps, bool) or not isinstance(steps, int) or steps < 0:
-        return f"its kept policy's env steps {steps!r} are not a whole number"
+        return f"its kept policy's env steps {shown(steps)} are not a whole number"
     if (
         not isinstance(kept_weights, dict)
         or set(kept_weights) != set(weights)

@@ -87,7 +87,7 @@ def _empty_ordered_dict(*args: Any, **kwargs: Any) -> Any:
     return collections.OrderedDict()
 
 
-def _shown(value: Any, typed: bool = False) -> str:
+def shown(value: Any, typed: bool = False) -> str:
     """A refused value as its refusal shows it: its first 40 characters where it is a plain value or a short tuple
     of them (after its type's name, `typed`), else its type and length. `str` of a tuple nested 15 deep, each level
     sharing the one below four times, spells a billion leaves (210 bytes of pickle); of a 5,000-digit int, fails."""
@@ -96,7 +96,7 @@ def _shown(value: Any, typed: bool = False) -> str:
         return (v is None or type(v) in (bool, float) or (type(v) is int and abs(v) < 1 << 64)
                 or (type(v) is str and len(v) <= 40) or (isinstance(v, np.dtype) and v.fields is None))  # fmt: skip
 
-    if plain(value) or (type(value) is tuple and len(value) <= 8 and all(plain(v) for v in value)):
+    if plain(value) or (type(value) in (tuple, list) and len(value) <= 8 and all(plain(v) for v in value)):
         return f"{type(value).__name__} {str(value)[:40]}" if typed else str(value)[:40]
     if type(value) is int:
         return f"an int of {value.bit_length():,} bits"
@@ -114,7 +114,7 @@ def _dtype_problem(dtype: Any) -> str:
     """Why `dtype` is not one an array of ours holds (a plain number or boolean), or ''. An object dtype's array
     holds pointers: one built from a file's bytes is memory the file chose."""
     if not _numbers(dtype):
-        return f"it holds an array of dtype {_shown(dtype)}, not of numbers, which a smorphi-rl checkpoint never does"
+        return f"it holds an array of dtype {shown(dtype)}, not of numbers, which a smorphi-rl checkpoint never does"
     return ""
 
 
@@ -137,7 +137,7 @@ def _whole_sizes(shape: Any) -> bool:
 def _bytes_problem(data: Any, dtype: np.dtype, shape: Any) -> str:
     """Why `data` is not the bytes of an array of `shape` and `dtype`, or ''."""
     if not _whole_sizes(shape):
-        return f"it gives an array the shape {_shown(shape)}, not whole sizes"
+        return f"it gives an array the shape {shown(shape)}, not whole sizes"
     if not isinstance(data, bytes | bytearray) or len(data) != math.prod(shape) * dtype.itemsize:
         return f"its array of shape {shape} does not hold that shape's bytes"
     return ""
@@ -244,11 +244,11 @@ def _space_state_problem(state: Any) -> str:
         return "state is not a table"
     shape, dtype = state.get("_shape"), state.get("dtype")
     if shape is not None and not _whole_sizes(shape):
-        return f"shape {_shown(shape)} is not whole sizes"
+        return f"shape {shown(shape)} is not whole sizes"
     if shape is not None and math.prod(shape) > MAX_SPACE_VALUES:
         return f"shape {shape} holds more values than any space of ours ({MAX_SPACE_VALUES:,})"
     if dtype is not None and not _numbers(dtype):
-        return f"dtype {_shown(dtype)} is not numeric"
+        return f"dtype {shown(dtype)} is not numeric"
     unknown = sorted(str(k)[:40] for k in set(state) - SPACE_STATE_KEYS)
     if unknown:  # gymnasium copies every key, renaming old ones (`shape`) after this check
         return f"state holds {unknown[0]!r}, which gymnasium's spaces do not"
@@ -280,7 +280,7 @@ def _check_keys(keys: list[Any]) -> None:
     for key in keys:
         if not (type(key) is str or key is None or type(key) is bool
                 or (type(key) is int and -MAX_KEY_INT < key < MAX_KEY_INT)):  # fmt: skip
-            raise Refused(f"it keys a table by {_shown(key, typed=True)}, which a smorphi-rl checkpoint "
+            raise Refused(f"it keys a table by {shown(key, typed=True)}, which a smorphi-rl checkpoint "
                           "never does")  # fmt: skip
 
 
@@ -298,6 +298,8 @@ class SafeUnpickler(_Unpickler):  # type: ignore[misc]
 
     def load_build(self) -> None:
         inst, state = self.stack[-2:]
+        if any(inst is allowed for allowed in _safe_globals().values()):  # shared by every load in the process
+            raise Refused("it sets the state of a class or function it names, which a smorphi-rl checkpoint never does")
         problem = _build_problem(inst, state)
         if not problem and isinstance(inst, Space):  # once: a space set again and again copied its state each time
             problem = "it sets a space's state twice" if id(inst) in self.built else ""

@@ -428,6 +428,15 @@ def test_a_refused_key_is_named_without_spelling_it_out(genuine, tmp_path):
     assert len(str(next(iter(pickle.loads(_wide_tuple_key(3, 4)))))) > 40
 
 
+def test_a_pickle_setting_the_state_of_what_it_names_is_refused_and_changes_nothing(genuine, tmp_path):
+    """BUILD on a marker renamed it for every later load of the process (and its refusal then spelt the name)."""
+    renamed = b"\x80\x02cnumpy\nndarray\n}X\x04\x00\x00\x00nameX\x03\x00\x00\x00XYZsb0N."
+    with pytest.raises(CheckpointError, match="it sets the state of a class or function it names"):
+        read_planted(genuine, tmp_path / "a", renamed)
+    with pytest.raises(CheckpointError, match="it constructs a ndarray itself"):
+        read_planted(genuine, tmp_path / "b", b"\x80\x02cnumpy\nndarray\n)R.")
+
+
 def _ctor_with_model_config(genuine: Path, model_config: object) -> bytes:
     ctor = pickle.loads((genuine / MODULE_SUBDIR / "class_and_ctor_args.pkl").read_bytes())  # our own test file
     kwargs = dict(ctor["ctor_args_and_kwargs"][1]) | {"model_config": model_config}

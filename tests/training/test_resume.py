@@ -13,7 +13,7 @@ import pytest
 from smorphi_rl.rundir import RunDirError
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import MODULE_SUBDIR, CheckpointError
-from smorphi_rl.training.resume import KEPT, STATE_FILE, finished, load_state, resume_point, set_aside
+from smorphi_rl.training.resume import ELAPSED, KEPT, STATE_FILE, finished, load_state, resume_point, set_aside
 from smorphi_rl.training.sweep import drop_unstarted, read_resume, set_aside_started, trial_dirname
 from smorphi_rl.training.sweep_config import STOP_METRICS, load_sweep
 from smorphi_rl.training.sweep_report import result_files, result_rows
@@ -167,6 +167,22 @@ def test_a_state_file_of_another_shape_is_refused(tmp_path, bad):
     (tmp_path / STATE_FILE).write_bytes(pickle.dumps(bad))
     with pytest.raises(CheckpointError, match=STATE_FILE):
         load_state(tmp_path)
+
+
+@pytest.mark.parametrize("field", ["training_iteration", "elapsed", "score", "env_steps"])
+def test_a_state_file_s_refused_value_is_named_in_a_short_line(tmp_path, field):
+    """A string of 100 KB shared 200 times (100 KB of pickle) made a refusal of 20 million characters."""
+    shared = ["x" * 100_000] * 200
+    bad = {
+        "training_iteration": {**state(1), "training_iteration": shared},
+        "score": {**state(1), KEPT: kept(score=shared)},
+        "env_steps": {**state(1), KEPT: kept(env_steps=shared)},
+    }
+    bad["elapsed"] = {**state(1), ELAPSED: shared}
+    (tmp_path / STATE_FILE).write_bytes(pickle.dumps(bad[field]))
+    with pytest.raises(CheckpointError, match="a list of 200 items") as refused:
+        load_state(tmp_path)
+    assert len(str(refused.value)) < len(str(tmp_path)) + 300
 
 
 def test_a_trial_without_a_state_file_starts_afresh(sweep, tmp_path):
