@@ -261,9 +261,8 @@ def design_map(
     `best` holds the shape and its scores under the designer's own weights (`path_term: per_area`)."""
     designer = load_designer(Path(policy) if policy is not None else SHIPPED_DESIGNER)
     env = designer_env(designer, str(map_path), start_xy)
-    frame = env.grid_map.frame_warning()  # before the design, which costs the whole frame: as the command says it
-    if frame:
-        warnings.warn(frame, UserWarning, stacklevel=2)
+    for text in env.grid_map.warnings():  # before the design, which costs the whole frame: as the command says it
+        warnings.warn(text, UserWarning, stacklevel=2)
     design = run_design(env, designer.logits, budget, seed=seed)
     for text in filter(None, design_warnings(designer, env, design.best)):
         warnings.warn(text, UserWarning, stacklevel=2)  # what the command prints on stderr

@@ -107,6 +107,8 @@ class Map:
     resolution_m: float
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = "map"
+    unknown_read_free: int = 0
+    """Cells of map_saver's unknown grey (205) that the map file's free_thresh reads as free (`unknown_warning`)."""
     counts: dict[Cell, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -167,6 +169,20 @@ class Map:
                 f"{self.width} x {self.height} frame, and the planner works on the whole frame: `smorphi-rl maps crop` "
                 "cuts it to the known area and plans many times faster (under the paper planner the tiles then start "
                 "at the crop's corner, so scores move a little)")  # fmt: skip
+
+    def unknown_warning(self) -> str | None:
+        """A warning when the map file's free_thresh reads map_saver's unknown grey as free (nav2's depot map: 0.25):
+        the planner then covers, and scores, floor no robot has seen."""
+        if not self.unknown_read_free:
+            return None
+        grey, p = SAVED_PIXEL[Cell.UNKNOWN], 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255
+        return (f"warning: {self.name}: {self.unknown_read_free:,} cells of grey {grey}, which map_saver writes for "
+                f"unknown space, read as free floor (its free_thresh is above {grey}'s p of {p:.5f}, as nav2 reads "
+                f"it); free_thresh: {SAVED_FREE_THRESH} in its YAML reads them as unknown")  # fmt: skip
+
+    def warnings(self) -> list[str]:
+        """What a command that plans on this map says first, on stderr (`frame_warning`, `unknown_warning`)."""
+        return [w for w in (self.frame_warning(), self.unknown_warning()) if w]
 
     def known_sides_m(self) -> tuple[float, float]:
         """(height, width) of `known_box` in metres."""
@@ -431,7 +447,10 @@ def load_map(yaml_path: str | Path) -> Map:
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
-    return Map(cells, resolution, origin_t, name=path.stem)
+    saved_unknown = max_value == 255 and mode is MapMode.TRINARY and not negate and alpha is None
+    unknown_free = np.flipud(gray == SAVED_PIXEL[Cell.UNKNOWN]) & (cells == Cell.FREE) if saved_unknown else None
+    return Map(cells, resolution, origin_t, name=path.stem,
+               unknown_read_free=0 if unknown_free is None else int(np.count_nonzero(unknown_free)))  # fmt: skip
 
 
 def as_map(source: str | Path | Map) -> Map:

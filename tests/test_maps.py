@@ -48,6 +48,23 @@ def test_trinary_thresholds_are_strict_like_nav2(tmp_path):
     assert m.cells[0].tolist() == [Cell.FREE, Cell.UNKNOWN, Cell.OCCUPIED, Cell.FREE]
 
 
+def test_map_saver_s_unknown_grey_read_as_free_is_counted_and_said(tmp_path, capsys):
+    """nav2's depot map (free_thresh 0.25) reads its 8,894 cells of grey 205 as free floor, as nav2 does, and nothing
+    said so: the planner covered and scored floor no robot had seen."""
+    from smorphi_rl.cli import main
+
+    pixels = np.full((20, 20), 254)
+    pixels[:3] = 205  # map_saver's unknown
+    pixels[5, :] = 0
+    m = load_map(write_map(tmp_path, pixels, free_thresh=0.25))
+    assert m.counts[Cell.FREE] == 380 and m.unknown_read_free == 60
+    assert m.warnings() == [m.unknown_warning()] and "60 cells of grey 205" in m.warnings()[0]
+    seen = load_map(write_map(tmp_path, pixels, name="saved", free_thresh=0.196))  # map_saver's own: unknown
+    assert seen.counts[Cell.UNKNOWN] == 60 and seen.unknown_read_free == 0 and seen.warnings() == []
+    assert main(["maps", "show", str(tmp_path / "m.yaml"), "--png", str(tmp_path / "m.png")]) == 0
+    assert "free_thresh: 0.196 in its YAML reads them as unknown" in capsys.readouterr().err
+
+
 def test_trinary_mode_averages_alpha_in_as_nav2_does(tmp_path):
     """A transparent white pixel: (3 x 255 + 0) / 4 = 191.25, p = 0.25, unknown under 0.65 / 0.196 (it read free)."""
     pixels = np.stack([np.array([[255, 255, 0]]), np.array([[0, 255, 255]])], axis=-1)

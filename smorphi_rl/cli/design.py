@@ -58,9 +58,8 @@ def cmd_design(args: argparse.Namespace) -> int:
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
     env = designer_env(designer, str(args.map), start)
-    frame = env.grid_map.frame_warning()  # said first: the design, and --exact's search above all, costs the frame
-    if frame:
-        print(one_line(frame), file=sys.stderr)
+    for warning in env.grid_map.warnings():  # said first: the design, and --exact's search above all, costs the frame
+        print(one_line(warning), file=sys.stderr)
     large = args.budget >= PROGRESS_FROM
     bar = progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if large else None
     result = run_design(env, designer.logits, args.budget, progress=bar)

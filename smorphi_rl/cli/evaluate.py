@@ -215,6 +215,8 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, args.block_side, whole_footprint=args.planner == Planner.FIT.value)  # it holds a robot
+    for warning in grid_map.warnings():  # on stderr: --json's stdout stays one object a line
+        print(warning, file=sys.stderr)
     if thetas is not None:
         from smorphi_rl.interrupts import stop_requests
 

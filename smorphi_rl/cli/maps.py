@@ -278,6 +278,8 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
             raise SmorphiError(f"the default drawing {png} is the image of map {owner}: give --png elsewhere")
         output_file(str(png), "the default drawing", (".png",), force=True)
     grid_map = load_map(args.map)
+    for warning in grid_map.warnings():
+        print(warning, file=sys.stderr)
     r = grid_map.resolution_m
     rows = [
         ("map", f"{args.map}"),

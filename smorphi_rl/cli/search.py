@@ -102,9 +102,8 @@ def cmd_search(args: argparse.Namespace) -> int:
     from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, planning.block_side_m, whole_footprint=planning.planner is Planner.FIT)
-    frame = grid_map.frame_warning()
-    if frame:
-        print(frame, file=sys.stderr)
+    for warning in grid_map.warnings():
+        print(warning, file=sys.stderr)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     address = getattr(args, "address", None)
     if address is not None:

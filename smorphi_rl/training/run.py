@@ -269,7 +269,7 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
             out.write(f"{grid_map.name}: {cfg.env.planning.describe(grid_map)}\n")
         weights = cfg.env.weights_on(grid_map)
         start = cfg.env.planning.start_warning(grid_map)  # separate rooms: every shape covers the start's alone
-        for line in (grid_map.frame_warning(), start):
+        for line in (*grid_map.warnings(), start):
             if line:
                 out.write(line + "\n")
         if grid_map.cells.size > OPTIMUM_MAX_CELLS:
