@@ -357,9 +357,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     @property
     def theta(self) -> tuple[float, float, float]:
-        step = self.config.angle_step_deg
+        step = self.config.angle_step_deg  # the top index times a step of 180/169 is 180.00000000000003: kept at 180
         i, j, k = self._idx
-        return (i * step, j * step, k * step)
+        return (min(i * step, 180.0), min(j * step, 180.0), min(k * step, 180.0))
 
     @property
     def grid_map(self) -> Map:
@@ -466,7 +466,7 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         if not self._started:  # gymnasium.make's wrapper refuses it too; a raw env played an episode of no reset
             raise gym.error.ResetNeeded("call reset() before step()")
         moves = action.tolist() if isinstance(action, np.ndarray) else list(action)
-        if len(moves) != 3 or any(m not in self._indices for m in moves):
+        if len(moves) != 3 or any(isinstance(m, bool | np.bool_) or m not in self._indices for m in moves):  # True == 1
             raise SmorphiError(f"action must be three values in 0..{2 * self._stay}, got {action!r}")
         moves = [int(m) for m in moves]  # 1.0 is the index 1
         self._steps += 1

@@ -67,7 +67,7 @@ def eval_starts(n: int = EVAL_STARTS, step_deg: float = 1.0, seed: int = EVAL_SE
         raise ValueError(f"evaluation starts must be a positive integer, got {n!r}")
     top = round(180 / step_deg)
     rng = np.random.default_rng(np.random.SeedSequence(seed))
-    return rng.integers(0, top + 1, size=(n, 3)).astype(np.float64) * step_deg
+    return np.minimum(rng.integers(0, top + 1, size=(n, 3)).astype(np.float64) * step_deg, 180.0)  # 180/169 * 169
 
 
 def settled_theta(history: Sequence[tuple[float, float, float]]) -> tuple[float, float, float]:

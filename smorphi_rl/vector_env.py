@@ -151,14 +151,29 @@ class MorphologyVectorEnv(VectorEnv):
         return infos if self.info_lists else self._info_columns(infos)
 
     def _info_columns(self, infos: list[dict[str, Any]]) -> dict[str, Any]:
-        """gymnasium's vector info: one object array per key (every sub-env reports every key)."""
-        columns: dict[str, Any] = {}
-        for key in infos[0]:
-            column = np.empty(self.num_envs, dtype=object)
-            for i, info in enumerate(infos):
-                column[i] = info[key]
-            columns[key] = column
-        return columns
+        """gymnasium's vector info, as its SyncVectorEnv lays it out: per key an array of the values' own type
+        (numbers as numbers, arrays stacked, anything else as objects; a table a table of such), and `_key`, which
+        sub-envs hold it (every one here)."""
+        return _columns(infos, self.num_envs)
+
+
+def _columns(infos: list[dict[str, Any]], n: int) -> dict[str, Any]:
+    """`_info_columns` of one level of the sub-envs' infos."""
+    columns: dict[str, Any] = {}
+    for key, first in infos[0].items():
+        values = [info[key] for info in infos]
+        if isinstance(first, dict):
+            columns[key] = _columns(values, n)
+        elif type(first) in (int, float, bool) or isinstance(first, np.number):
+            columns[key] = np.array(values, dtype=type(first))
+        elif isinstance(first, np.ndarray):
+            columns[key] = np.stack(values).astype(first.dtype, copy=False)
+        else:
+            columns[key] = np.empty(n, dtype=object)
+            for i, value in enumerate(values):
+                columns[key][i] = value
+        columns[f"_{key}"] = np.ones(n, dtype=np.bool_)
+    return columns
 
 
 def make_env(

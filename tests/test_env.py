@@ -211,8 +211,20 @@ def test_missing_map_file_is_a_clear_error(tmp_path):
 def test_bad_action():
     env = MorphologyEnv()
     env.reset(seed=0)
-    with pytest.raises(SmorphiError, match="action"):
-        env.step(np.array([3, 0, 0]))
+    for action in (np.array([3, 0, 0]), [True, 1, 1], [np.True_, 0, 0]):  # a boolean is no move's index
+        with pytest.raises(SmorphiError, match="action"):
+            env.step(action)
+
+
+def test_a_step_of_180_over_n_reaches_180_and_no_further():
+    """n times 180/n is 180.00000000000003 for 34 whole n up to 1,800: a shape at the top was refused as outside
+    [0, 180], and a reset there or a random start on it failed."""
+    from smorphi_rl.protocol import eval_starts
+
+    env = MorphologyEnv({"angle_step_deg": 180 / 169})
+    assert env.reset(seed=0, options={"theta": (180, 180, 180)})[1]["theta"] == (180.0, 180.0, 180.0)
+    assert env.step(np.array([2, 2, 2]))[4]["theta"] == (180.0, 180.0, 180.0)
+    assert eval_starts(2_000, 180 / 169).max() == 180.0
 
 
 def test_map_observation_is_uint8_fractions():

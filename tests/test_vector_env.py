@@ -138,3 +138,22 @@ def test_gymnasium_make_vec_builds_ours_seeded_as_gymnasiums_own():
     for bad in ({"num_envs": 0}, {"render_mode": "rgb_array"}):
         with pytest.raises(EnvConfigError):
             gymnasium.make_vec(smorphi_rl.ENV_ID, **({"num_envs": 2} | bad))
+
+
+def test_the_info_is_laid_out_as_gymnasium_s_own_vector_envs_lay_it_out():
+    """Every column was an object array, and the `_key` masks were missing: `np.exp(info["R1"])` failed, and code
+    written for gymnasium's vector envs read `info["_R1"]` in vain."""
+    import gymnasium
+
+    import smorphi_rl
+
+    ours = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=3)
+    sync = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=3, vectorization_mode="sync")
+    for vec in (ours, sync):
+        vec.reset(seed=4)
+    ours_info, sync_info = (vec.step(np.ones((3, 3), dtype=np.int64))[4] for vec in (ours, sync))
+    assert sorted(ours_info) == sorted(sync_info) and "_R1" in ours_info
+    for key, column in sync_info.items():
+        assert ours_info[key].dtype == column.dtype and ours_info[key].shape == column.shape, key
+        assert [repr(v) for v in ours_info[key]] == [repr(v) for v in column], key
+    assert np.exp(ours_info["R1"]).dtype == np.float64
