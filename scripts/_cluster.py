@@ -10,9 +10,10 @@ from pathlib import Path
 
 
 @contextmanager
-def local_ray_cluster(num_cpus: int) -> Iterator[str]:
-    """A Ray cluster of its own (`ray start --head` on a free loopback port, its own temp folder) for the block;
-    yields its address. Only its own processes are stopped afterwards (`ray stop` would stop every Ray here)."""
+def local_ray_cluster(num_cpus: int, nodes: int = 1) -> Iterator[str]:
+    """A Ray cluster of its own (`ray start --head` on a free loopback port, its own temp folder; `nodes` - 1 more
+    nodes joined to it, the CPUs shared out) for the block; yields its address. Only its own processes are stopped
+    afterwards (`ray stop` would stop every Ray here)."""
     import shutil
     import signal
     import socket
@@ -30,10 +31,15 @@ def local_ray_cluster(num_cpus: int) -> Iterator[str]:
     # Without auth, whatever token file a Ray on this machine may have left in ~/.ray (the client sets none).
     env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"} | {"RAY_AUTH_MODE": "disabled"}
     # On loopback alone: Ray would advertise the node on the host's routable address.
-    start = [ray, "start", "--head", "--node-ip-address=127.0.0.1", f"--num-cpus={num_cpus}", f"--port={port}",
-             "--include-dashboard=false", f"--ray-client-server-port={client_port}", "--disable-usage-stats",
-             f"--temp-dir={temp_dir}"]  # fmt: skip
+    each = num_cpus // nodes
+    start = [ray, "start", "--head", "--node-ip-address=127.0.0.1", f"--num-cpus={num_cpus - each * (nodes - 1)}",
+             f"--port={port}", "--include-dashboard=false", f"--ray-client-server-port={client_port}",
+             "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
     subprocess.run(start, check=True, capture_output=True, env=env, timeout=120)
+    for _ in range(nodes - 1):  # another node on this machine: the same files, its own raylet and object store
+        join = [ray, "start", f"--address=127.0.0.1:{port}", "--node-ip-address=127.0.0.1", f"--num-cpus={each}",
+                "--disable-usage-stats", f"--temp-dir={temp_dir}"]  # fmt: skip
+        subprocess.run(join, check=True, capture_output=True, env=env, timeout=120)
     try:
         yield f"127.0.0.1:{port}"
     finally:

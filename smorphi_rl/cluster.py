@@ -312,3 +312,52 @@ def check_capacity(cpus: float, env_runners: int, address: str | None, fix: str 
             f"{counted(env_runners, 'env runner')} {verb(env_runners, 'needs', 'need')} {cpus:g} CPUs (1 for the "
             f"trial, 0.5 per runner) and {where} has {have:g}: {fix}"
         )
+
+
+SHARED_CHECK_TIMEOUT_S = 60.0
+"""How long each node of a cluster may take to say whether it sees a run's folder (`check_shared_folder`)."""
+
+
+def _sees(path: str) -> bool:
+    """On a node: whether the file `path` is there."""
+    return os.path.isfile(path)
+
+
+def check_shared_folder(folder: Path, address: str | None) -> None:
+    """On a cluster of several machines, refuse in one line, before any trial starts, a run folder that some node
+    does not see at the same path: Tune saves a trial's checkpoints from the node it runs on (Ray 2.60 fails at the
+    first one, perhaps hours in) and its env runners record episodes there. Call it once connected."""
+    if address is None:
+        return
+    import uuid
+
+    import ray
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    nodes = [node for node in ray.nodes() if node.get("Alive")]
+    if len(nodes) < 2:
+        return
+    from smorphi_rl.rundir import write_text_atomic
+
+    marker = folder / f".seen-from-every-node-{uuid.uuid4().hex}"
+    write_text_atomic(marker, "")
+    try:
+        sees: Any = ray.remote(num_cpus=0)(_sees)
+        asked = {sees.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False))
+                 .remote(str(marker)): node for node in nodes}  # fmt: skip
+        answered, _ = ray.wait(list(asked), num_returns=len(asked), timeout=SHARED_CHECK_TIMEOUT_S)
+        blind = [asked[ref] for ref in asked if ref not in answered or not ray.get(ref)]
+    finally:
+        marker.unlink(missing_ok=True)
+    if blind:
+        raise ClusterError(unshared_line(folder, [str(n.get("NodeManagerAddress")) for n in blind], len(nodes)))
+
+
+def unshared_line(folder: Path, blind: list[str], n_nodes: int) -> str:
+    """What `check_shared_folder` says of a run folder the nodes at `blind` (addresses) do not see."""
+    from smorphi_rl.rundir import rel
+
+    return (f"{rel(folder)} is not seen from {counted(len(blind), 'node')} of the cluster's {n_nodes} "
+            f"({', '.join(sorted(blind)[:3])}{', ...' if len(blind) > 3 else ''}): on a cluster of several machines "
+            "each trial saves its checkpoints from the node it runs on, so --log-dir must be a folder every node "
+            "sees at the same path (NFS, a mounted bucket)")  # fmt: skip

@@ -260,8 +260,8 @@ def _ray_pool(
     """`workers` planner actors (default: one per CPU) on the Ray cluster at `address` (`search/on_ray.py`)."""
     from smorphi_rl.search.on_ray import RayTasks, ray_planners
 
-    with ray_planners(grid_map, planning, address, workers, step, weights) as actors:
-        yield RayTasks(actors), len(actors)
+    with ray_planners(grid_map, planning, address, workers, step, weights) as planners:
+        yield RayTasks(planners), len(planners.actors)
 
 
 def run_exhaustive(

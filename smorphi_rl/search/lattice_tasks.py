@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.planning import Evaluator
+from smorphi_rl.planning import Evaluator, Lattice
 
 
 def footprint_keys(evaluator: Evaluator, thetas: np.ndarray) -> np.ndarray:
@@ -19,7 +19,8 @@ def footprint_keys(evaluator: Evaluator, thetas: np.ndarray) -> np.ndarray:
     return k.footprint_keys(arr, evaluator.block_side_m, evaluator.grid_map.resolution_m, evaluator.footprint_side)
 
 
-def run_task(evaluator: Evaluator, lattice: np.ndarray, bound: np.ndarray, task: tuple[Any, ...]) -> tuple[Any, ...]:
+def run_task(evaluator: Evaluator, lattice: np.ndarray | Lattice, bound: np.ndarray,
+             task: tuple[Any, ...]) -> tuple[Any, ...]:  # fmt: skip
     """One task: ("keys", lo, hi): the footprint keys of lattice rows [lo, hi); ("plan", tag, rows, threshold): the
     metrics of those rows (one distinct footprint each), pruned where they cannot beat R1 `threshold` (`bound`:
     `Evaluator.prune_bound`, raised in place), and the best R1 this worker has planned."""

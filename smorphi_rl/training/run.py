@@ -456,6 +456,7 @@ def train(
         else:
             with cluster.ray_session(address):
                 cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
+                cluster.check_shared_folder(run_dir, address)
                 config = cfg.to_dict() | {"name": name, "address": address, "map_digests": digests}
                 write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
                 wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)

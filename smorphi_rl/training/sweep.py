@@ -416,6 +416,7 @@ def _fit(
     with cluster.ray_session(address):
         if address is not None:
             cluster.check_capacity(widest.cpus, widest.env_runners, address, _fewer_runners(sweep))
+            cluster.check_shared_folder(exp, address)
         from ray import tune
 
         from smorphi_rl.training.tensorboard import TensorBoardLogger

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from conftest import ray_cluster
 
+from smorphi_rl.errors import MapError, SmorphiError
 from smorphi_rl.score import Weights
 from smorphi_rl.search.results import load
 
@@ -34,11 +35,24 @@ def search(method: str, cwd: Path, *extra: str) -> subprocess.CompletedProcess[s
 def test_the_searches_on_a_ray_cluster_equal_the_local_ones(tmp_path):
     for method in RUNS:
         assert search(method, tmp_path, "--name", f"{method}-here").returncode == 0
-    with ray_cluster(2) as address:
+    with ray_cluster(2, nodes=2) as address:  # two nodes of a CPU each: the work crosses them
         for method in RUNS:
             there = search(method, tmp_path, "--name", f"{method}-there", "--address", address)
-            assert there.returncode == 0 and "Traceback" not in there.stderr, there.stderr[-3000:]
+            said = [line for line in there.stderr.splitlines() if line.strip()]  # progress lines alone: no Ray log
+            assert there.returncode == 0 and all(line.startswith(f"{method}: ") for line in said), there.stderr[-3000:]
             assert there.stdout.splitlines()[1] == f"on the Ray cluster at {address}"
+        env = {k: v for k, v in os.environ.items() if k != "RAY_ADDRESS"}
+        (tmp_path / "run").mkdir()
+        refused = subprocess.run([sys.executable, "-c", STARTS_REFUSED, address, MAP_1, str(tmp_path / "run")],
+                                 capture_output=True, text=True, timeout=300, env=env)  # fmt: skip
+        assert refused.returncode == 0 and refused.stdout.splitlines() == [
+            "2 nodes see the run folder",
+            "7 of 7 tasks answered by 1 planner, as here: True",
+            "1 of 3 planners did not start within 20 s (the cluster had 2 of its 2 CPUs free): other work holds its "
+            "CPUs",
+            "the Ray cluster's smorphi-rl plans with other code than this one's (its planner's source differs): "
+            "install the same version on every node",
+        ], refused.stdout + refused.stderr[-3000:]
     for method in RUNS:
         here, there = load(tmp_path / "logs" / f"{method}-here"), load(tmp_path / "logs" / f"{method}-there")
         if method == "optimum":  # which footprints are pruned depends on when each worker hears of a better R1
@@ -51,6 +65,41 @@ def test_the_searches_on_a_ray_cluster_equal_the_local_ones(tmp_path):
             assert np.array_equal(getattr(here, field), getattr(there, field)), (method, field)
         assert there.params["address"] == address and "address" not in here.params
     assert load(tmp_path / "logs" / "exhaustive-there").params["workers"] == 2  # one actor per CPU of the cluster
+
+
+STARTS_REFUSED = """
+import sys
+from smorphi_rl.cluster import ClusterError
+from smorphi_rl.maps import load_map
+from smorphi_rl.planning import Planning
+from smorphi_rl.search import on_ray
+from pathlib import Path
+import threading
+import numpy as np
+import ray
+from smorphi_rl.planning import lattice_thetas
+from smorphi_rl.search.lattice_tasks import footprint_keys
+from smorphi_rl import cluster
+address, grid_map, folder = sys.argv[1], load_map(sys.argv[2]), Path(sys.argv[3])
+with cluster.ray_session(address):
+    cluster.check_shared_folder(folder, address)  # one machine's two nodes share its files
+    print(len(ray.nodes()), "nodes see the run folder", *folder.iterdir())  # the marker removed
+with on_ray.ray_planners(grid_map, Planning(), address, None, step=30.0) as planners:
+    ray.kill(planners.actors[0], no_restart=True)  # as its node went: its work goes to the other
+    tasks = [("keys", lo, min(lo + 50, 343)) for lo in range(0, 343, 50)]
+    answers = list(on_ray.RayTasks(planners).run(iter(tasks), threading.Event()))
+    local = footprint_keys(Planning().evaluator(grid_map), lattice_thetas(30.0))
+    same = all(np.array_equal(keys, local[lo:hi]) for _, lo, hi, keys in answers)
+    print(len(answers), "of", len(tasks), "tasks answered by", len(planners.actors), "planner, as here:", same)
+on_ray.START_TIMEOUT_S = 20.0
+for workers, digest in ((3, on_ray.planner_digest), (None, lambda: "another version")):
+    on_ray.planner_digest = digest  # three actors on two CPUs: one never starts; then this side's code differs
+    try:
+        with on_ray.ray_planners(grid_map, Planning(), address, workers, step=30.0):
+            print("started")
+    except ClusterError as exc:
+        print(exc)
+"""
 
 
 def test_no_cluster_there_is_one_line_and_writes_nothing(tmp_path):
@@ -75,5 +124,28 @@ def test_a_cluster_that_goes_away_mid_search_is_said_in_one_line():
         with pytest.raises(ClusterError, match=said), cluster_lost():
             raise lost
     work = ray.exceptions.RayTaskError("plan", "Traceback ...", ValueError("a bad shape"))
-    with pytest.raises(ray.exceptions.RayTaskError), cluster_lost():  # the work's own error is not the cluster's
+    said = "a search worker on the cluster failed: ValueError: a bad shape"  # as a local worker's, not a traceback
+    with pytest.raises(SmorphiError, match=said), cluster_lost():  # the work's own error is not the cluster's
         raise work
+    ours = ray.exceptions.RayTaskError("plan", "Traceback ...", MapError("m.yaml: no free cell"))
+    with pytest.raises(MapError, match=r"^m\.yaml: no free cell$"), cluster_lost():
+        raise ours
+
+
+def test_a_run_folder_some_nodes_do_not_see_is_named_with_them(tmp_path):
+    from smorphi_rl.cluster import unshared_line
+
+    line = unshared_line(tmp_path / "logs" / "run", ["127.0.0.9", "127.0.0.2"], 3)
+    assert line.startswith(f"{tmp_path}/logs/run is not seen from 2 nodes of the cluster's 3 (127.0.0.2, 127.0.0.9): ")
+    assert line.endswith("--log-dir must be a folder every node sees at the same path (NFS, a mounted bucket)")
+
+
+def test_an_actor_makes_the_lattice_rows_it_is_sent_as_the_local_workers_hold_them():
+    """Each actor built the whole lattice: 1.1 GB at 0.5 degrees, one copy per CPU of the cluster."""
+    from smorphi_rl.planning import Lattice, lattice_thetas
+
+    for step in (1.0, 3.0, 7.0):
+        whole, made = lattice_thetas(step), Lattice(step)
+        rows = np.random.default_rng(int(step * 2)).integers(0, len(whole), 2_000)
+        assert len(made) == len(whole) and np.array_equal(made[rows], whole[rows])
+        assert np.array_equal(made[7:5000], whole[7:5000]) and np.array_equal(made[-3:], whole[-3:])
