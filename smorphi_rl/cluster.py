@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import os
@@ -337,7 +338,7 @@ def check_shared_folder(folder: Path, address: str | None) -> None:
     nodes = [node for node in ray.nodes() if node.get("Alive")]
     if len(nodes) < 2:
         return
-    from smorphi_rl.rundir import write_text_atomic
+    from smorphi_rl.rundir import rel, write_text_atomic
 
     marker = folder / f".seen-from-every-node-{uuid.uuid4().hex}"
     write_text_atomic(marker, "")
@@ -345,19 +346,41 @@ def check_shared_folder(folder: Path, address: str | None) -> None:
         sees: Any = ray.remote(num_cpus=0)(_sees)
         asked = {sees.options(scheduling_strategy=NodeAffinitySchedulingStrategy(node["NodeID"], soft=False))
                  .remote(str(marker)): node for node in nodes}  # fmt: skip
-        answered, _ = ray.wait(list(asked), num_returns=len(asked), timeout=SHARED_CHECK_TIMEOUT_S)
-        blind = [asked[ref] for ref in asked if ref not in answered or not ray.get(ref)]
+        answered, late = ray.wait(list(asked), num_returns=len(asked), timeout=SHARED_CHECK_TIMEOUT_S)
+        for ref in late:
+            with contextlib.suppress(Exception):
+                ray.cancel(ref, force=True)
+        blind, silent = [], [str(asked[ref].get("NodeManagerAddress")) for ref in late]
+        for ref in answered:
+            try:
+                seen = bool(ray.get(ref))
+            except ray.exceptions.RayError:  # a node gone since it was listed, or one that cannot run our code
+                silent.append(str(asked[ref].get("NodeManagerAddress")))
+                continue
+            if not seen:
+                blind.append(str(asked[ref].get("NodeManagerAddress")))
     finally:
         marker.unlink(missing_ok=True)
     if blind:
-        raise ClusterError(unshared_line(folder, [str(n.get("NodeManagerAddress")) for n in blind], len(nodes)))
+        raise ClusterError(unshared_line(folder, blind, len(nodes)))
+    if silent:
+        raise ClusterError(f"{_nodes(silent, len(nodes))} did not say within {SHARED_CHECK_TIMEOUT_S:.0f} s whether "
+                           f"{rel(folder)} is there (a node gone, or one without smorphi-rl); a run on several "
+                           "machines needs --log-dir seen from every node")  # fmt: skip
+
+
+def _nodes(addresses: list[str], n_nodes: int) -> str:
+    """`2 nodes of the cluster's 3 (127.0.0.2, 127.0.0.9)`: at most three addresses named."""
+    more = ", ..." if len(addresses) > 3 else ""
+    return f"{counted(len(addresses), 'node')} of the cluster's {n_nodes} ({', '.join(sorted(addresses)[:3])}{more})"
 
 
 def unshared_line(folder: Path, blind: list[str], n_nodes: int) -> str:
     """What `check_shared_folder` says of a run folder the nodes at `blind` (addresses) do not see."""
     from smorphi_rl.rundir import rel
 
-    return (f"{rel(folder)} is not seen from {counted(len(blind), 'node')} of the cluster's {n_nodes} "
-            f"({', '.join(sorted(blind)[:3])}{', ...' if len(blind) > 3 else ''}): on a cluster of several machines "
-            "each trial saves its checkpoints from the node it runs on, so --log-dir must be a folder every node "
-            "sees at the same path (NFS, a mounted bucket)")  # fmt: skip
+    return (
+        f"{rel(folder)} is not seen from {_nodes(blind, n_nodes)}: on a cluster of several machines each trial "
+        "saves its checkpoints from the node it runs on, so --log-dir must be a folder every node sees at the "
+        "same path (NFS, a mounted bucket)"
+    )

@@ -17,7 +17,6 @@ import threading
 from collections import deque
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -47,8 +46,12 @@ def planner_digest() -> str:
     digest = hashlib.sha256()
     for name in PLANNER_MODULES:
         spec = importlib.util.find_spec(name)
-        origin = spec.origin if spec is not None else None
-        digest.update(name.encode() + b"\0" + (Path(origin).read_bytes() if origin else b"") + b"\0")
+        loader: Any = spec.loader if spec is not None else None
+        try:  # the source, as a wheel, an editable install or a zip holds it (None where only bytecode is)
+            source = loader.get_source(name) if loader is not None else None
+        except (ImportError, OSError):
+            source = None
+        digest.update(name.encode() + b"\0" + (source or "").encode() + b"\0")
     return digest.hexdigest()[:16]
 
 
@@ -125,9 +128,14 @@ class Planners:
         self._turn = 0
 
     def drop(self, lost: Any, why: ClusterError) -> Any:
-        """Drop `lost` (once) and give the actor its work goes to next, in turn; `why` raised when none is left."""
+        """Drop `lost` (once; killed, should it be unreachable rather than gone) and give the actor its work goes to
+        next, in turn; `why` raised when none is left."""
+        import ray
+
         if lost in self.actors:
             self.actors.remove(lost)
+            with suppress(Exception):
+                ray.kill(lost)
         if not self.actors:
             raise why
         self._turn += 1
@@ -168,7 +176,7 @@ def cluster_lost() -> Iterator[None]:
             ConnectionError)  # fmt: skip  # not RayTaskError: an error of the work
     try:
         yield
-    except ray.exceptions.RayActorError as exc:
+    except (ray.exceptions.RayActorError, ray.exceptions.OutOfMemoryError) as exc:  # Ray's memory monitor's kill
         raise ActorLost(_lost_line(exc)) from None
     except ray.exceptions.RayTaskError as exc:
         cause = exc.cause if isinstance(getattr(exc, "cause", None), BaseException) else exc
@@ -204,10 +212,14 @@ class RayTasks:
         pending: dict[Any, tuple[Any, tuple[Any, ...]]] = {}
 
         def feed() -> None:
-            while idle and (task := next(tasks, None)) is not None:
+            while idle:
                 actor = idle.popleft()
-                if actor not in self.planners.actors:  # lost since: its places go with it
+                if actor not in self.planners.actors:  # dropped since: its places go with it
                     continue
+                task = next(tasks, None)
+                if task is None:
+                    idle.appendleft(actor)
+                    return
                 pending[actor.task.remote(task)] = (actor, task)
 
         feed()
@@ -226,7 +238,7 @@ class RayTasks:
                     with cluster_lost():
                         pending[other.task.remote(task)] = (other, task)
                     continue
-                idle.append(actor)
+                idle.append(actor)  # (one dropped as unreachable, yet answering, is skipped by `feed`)
                 yield answer
                 with cluster_lost():
                     feed()

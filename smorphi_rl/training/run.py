@@ -456,9 +456,9 @@ def train(
         else:
             with cluster.ray_session(address):
                 cluster.check_capacity(cfg.cpus, cfg.env_runners, address)
-                cluster.check_shared_folder(run_dir, address)
                 config = cfg.to_dict() | {"name": name, "address": address, "map_digests": digests}
                 write_text_atomic(run_dir / "config.json", jsontext.dumps(config, indent=2))
+                cluster.check_shared_folder(run_dir, address)  # a kill as it checks: a run that never reported
                 wall = _fit(cfg, name, run_dir, callbacks, progress, stopper, late, resumed)
                 held.enter_context(interrupts.stop_requests(late, again=True))  # Ray's shutdown, the outputs
         wall += 0.0 if resumed is None else resumed.elapsed_s  # a resumed run's time before its checkpoint too

@@ -149,3 +149,46 @@ def test_an_actor_makes_the_lattice_rows_it_is_sent_as_the_local_workers_hold_th
         rows = np.random.default_rng(int(step * 2)).integers(0, len(whole), 2_000)
         assert len(made) == len(whole) and np.array_equal(made[rows], whole[rows])
         assert np.array_equal(made[7:5000], whole[7:5000]) and np.array_equal(made[-3:], whole[-3:])
+
+
+def test_an_actor_dropped_as_unreachable_yet_answering_loses_no_task(monkeypatch):
+    """Ray's ActorUnavailableError (an actor out of reach for a moment) drops it; its other task may still answer,
+    which put it back among the idle: the next task drawn for it was thrown away, its shapes never keyed."""
+    import threading
+
+    import ray
+
+    from smorphi_rl.search.on_ray import Planners, RayTasks
+
+    class Ref:
+        def __init__(self, actor: str, task: tuple) -> None:
+            self.actor, self.task = actor, task
+
+    sent: list[Ref] = []
+
+    class Actor:
+        def __init__(self, name: str) -> None:
+            self.name = name
+            self.task = self  # `actor.task.remote(task)`
+
+        def remote(self, task: tuple) -> Ref:
+            sent.append(Ref(self.name, task))
+            return sent[-1]
+
+    def get(ref: Ref) -> tuple:
+        if ref.actor == "a" and ref.task == ("keys", 1):  # its second task: out of reach for a moment
+            raise ray.exceptions.RayActorError()
+        return ref.task
+
+    def wait(refs: list[Ref], num_returns: int, timeout: float) -> tuple[list[Ref], list[Ref]]:
+        order = sorted(refs, key=lambda r: (r.task != ("keys", 1), sent.index(r)))  # the failure first
+        return order[:1], order[1:]
+
+    monkeypatch.setattr(ray, "wait", wait)
+    monkeypatch.setattr(ray, "get", get)
+    monkeypatch.setattr(ray, "kill", lambda actor: None)
+    actors = iter([Actor("a"), Actor("b")])
+    planners = Planners(lambda: next(actors), 2)
+    answers = list(RayTasks(planners).run(iter([("keys", i) for i in range(10)]), threading.Event()))
+    assert sorted(answers) == [("keys", i) for i in range(10)]  # each once, none lost
+    assert [a.name for a in planners.actors] == ["b"]
