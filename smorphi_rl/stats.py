@@ -151,9 +151,15 @@ def _censored_distribution(samples: tuple[np.ndarray, ...], statistic: Any, seed
 
     if all(s.size < 2 or np.all(s == s[0]) for s in samples):
         return np.atleast_1d(np.asarray(statistic(*samples), dtype=float))
+    drawn = tuple(s for s in samples if s.size >= 2)  # a single value resamples to itself (scipy refuses it)
+
+    def of_drawn(*draws: np.ndarray, axis: int = -1) -> np.ndarray:
+        each = iter(draws)
+        return statistic(*(next(each) if s.size >= 2 else s for s in samples), axis=axis)
+
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore")  # scipy's own interval of a distribution holding inf; only its draws are used
-        res = bootstrap(samples, statistic, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
+        res = bootstrap(drawn, of_drawn, confidence_level=CONFIDENCE, n_resamples=RESAMPLES, method="percentile",
                         random_state=np.random.default_rng(seed))  # fmt: skip
     return np.asarray(res.bootstrap_distribution, dtype=float)
 

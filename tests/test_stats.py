@@ -38,6 +38,16 @@ def test_ratio_of_medians_of_runs_that_all_converged():
     assert math.isnan(censored_ratio_interval(([1.0], [1.0]), ([0.0], [0.0])).point)  # no ratio to a zero median
 
 
+def test_a_ratio_of_one_run_against_several_resamples_the_several_alone():
+    """A transfer stopped after seed 1's fine-tuning had 2 fine-tuned runs against 1 from scratch: scipy refused the
+    one-run sample, and the stopped job's table was a traceback."""
+    from smorphi_rl.stats import censored_ratio_interval
+
+    iv = censored_ratio_interval(([150_000.0], [150_000.0]), ([40_000.0, 20_000.0], [40_000.0, 20_000.0]))
+    assert iv.point == 5.0 and iv.n == 1 and iv.lo == 150_000 / 40_000 and iv.hi == 150_000 / 20_000
+    assert iv.text() == "5.00 (1 seed)"
+
+
 def test_a_run_that_never_converged_counts_past_the_budget_never_left_out():
     from smorphi_rl.stats import censored_median_interval
 

@@ -364,7 +364,7 @@ def write_transfer_report(job_dir: Path, runs: list[TransferRun]) -> dict[str, P
         'interval\'s end past the budget "inf". At equal env steps (a tenth of the budget, or the first evaluation '
         "if later): each run's greedy median gap to the optimum's R1 at its last evaluation by then. Every seed "
         "fine-tunes from the one pretrained checkpoint: the intervals are over the seeds of fine-tuning and of "
-        "scratch, not over pretrainings. "
+        "scratch, not over pretrainings; the ratio's resamples each mode's seeds on its own (unpaired). "
         + FEW_SEEDS_NOTE
         + (f" Runs cut short ({cut}; transfer.csv) are left out." if cut else ""),
         "",
