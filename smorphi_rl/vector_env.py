@@ -13,7 +13,7 @@ Seeds: given a run seed, sub-env i of env runner w draws from
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
 import gymnasium as gym
@@ -22,7 +22,7 @@ from gymnasium.vector import AutoresetMode, VectorEnv
 from gymnasium.vector.utils import batch_space
 
 from smorphi_rl.env import MorphologyEnv
-from smorphi_rl.env_config import EnvConfigError
+from smorphi_rl.env_config import EnvConfig, EnvConfigError
 
 RECORDING_KEY = "recording"
 """The env_config key that carries a RecordingConfig dict to the env runners (not an EnvConfig field)."""
@@ -206,7 +206,8 @@ def make_vector(
     if render_mode is not None:
         raise EnvConfigError("a vector env renders nothing: make one env (gymnasium.make) to render")
     cap = kwargs.pop("max_episode_steps", None)  # gymnasium's TimeLimit: a cap on the env's own max_steps
+    own = {**(env_config or {}), **kwargs} if isinstance(env_config, Mapping | None) else None  # else the env refuses
+    if cap is not None and own is not None and cap < EnvConfig.from_dict(own).max_steps:  # no maps loaded for it
+        kwargs["max_steps"] = cap
     first = MorphologyEnv(env_config, **kwargs)
-    if cap is not None and cap < first.config.max_steps:
-        first = MorphologyEnv(env_config, **(kwargs | {"max_steps": cap}))
     return MorphologyVectorEnv([first, *(first.sibling() for _ in range(int(num_envs) - 1))])
