@@ -79,7 +79,7 @@ from smorphi_rl.coverage import CoverageResult, Planner
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout, RewardMode
 from smorphi_rl.errors import MapError, MorphologyError, SmorphiError
 from smorphi_rl.floorplans import generate_floor
-from smorphi_rl.geometry import Morphology
+from smorphi_rl.geometry import Morphology, lattice_angle
 from smorphi_rl.map_sources import generators
 from smorphi_rl.maps import CELL_COLOURS, PATH_COLOUR, Cell, Map, check_fits, load_map
 from smorphi_rl.planning import Evaluator, Planning
@@ -357,9 +357,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     @property
     def theta(self) -> tuple[float, float, float]:
-        step = self.config.angle_step_deg  # the top index times a step of 180/169 is 180.00000000000003: kept at 180
+        step = self.config.angle_step_deg
         i, j, k = self._idx
-        return (min(i * step, 180.0), min(j * step, 180.0), min(k * step, 180.0))
+        return (lattice_angle(i, step), lattice_angle(j, step), lattice_angle(k, step))
 
     @property
     def grid_map(self) -> Map:

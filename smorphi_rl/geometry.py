@@ -236,3 +236,14 @@ def check_step(step_deg: float) -> float:
     if not math.isfinite(n) or not math.isclose(n, round(n), abs_tol=1e-9):  # 5e-324: 180 / step overflows
         raise SmorphiError(f"--step {step_deg:g} does not divide 180")
     return float(step_deg)
+
+
+def lattice_angle(index: int, step_deg: float) -> float:
+    """The `index`-th angle of the `step_deg` lattice, held at 180: 169 steps of 180/169 make 180.00000000000003,
+    an angle Morphology refuses."""
+    return min(index * step_deg, ANGLE_MAX_DEG)
+
+
+def lattice_axis(step_deg: float) -> np.ndarray:
+    """Every angle of the `step_deg` lattice of [0, 180], in order, the last held at 180 (`lattice_angle`)."""
+    return np.minimum(np.arange(round(ANGLE_MAX_DEG / step_deg) + 1) * step_deg, ANGLE_MAX_DEG)

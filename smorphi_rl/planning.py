@@ -29,7 +29,7 @@ from smorphi_rl.coverage import (
     result_dict,
 )
 from smorphi_rl.errors import MorphologyError, SmorphiError
-from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology
+from smorphi_rl.geometry import ANGLE_MAX_DEG, ANGLE_MIN_DEG, DEFAULT_BLOCK_SIDE_M, Morphology, lattice_axis
 from smorphi_rl.maps import Cell, Map, check_fits, load_map
 from smorphi_rl.score import Weights
 
@@ -416,7 +416,7 @@ PAPER_PLANNING = Planning()
 
 def lattice_thetas(step_deg: float) -> np.ndarray:
     """Every (t1, t2, t3) on the `step_deg` lattice of [0, 180]^3, as an (N, 3) array."""
-    g = np.arange(0.0, 180.0 + 1e-9, step_deg)
+    g = lattice_axis(step_deg)
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
@@ -425,7 +425,7 @@ class Lattice:
     for bit: a Ray actor of a 0.5-degree search held the whole lattice, 1.1 GB, one copy per CPU."""
 
     def __init__(self, step_deg: float) -> None:
-        self.axis = np.arange(0.0, 180.0 + 1e-9, step_deg)
+        self.axis = lattice_axis(step_deg)
 
     def __len__(self) -> int:
         return len(self.axis) ** 3

@@ -23,6 +23,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import lattice_axis
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
@@ -67,7 +68,7 @@ def eval_starts(n: int = EVAL_STARTS, step_deg: float = 1.0, seed: int = EVAL_SE
         raise ValueError(f"evaluation starts must be a positive integer, got {n!r}")
     top = round(180 / step_deg)
     rng = np.random.default_rng(np.random.SeedSequence(seed))
-    return np.minimum(rng.integers(0, top + 1, size=(n, 3)).astype(np.float64) * step_deg, 180.0)  # 180/169 * 169
+    return lattice_axis(step_deg)[rng.integers(0, top + 1, size=(n, 3))]
 
 
 def settled_theta(history: Sequence[tuple[float, float, float]]) -> tuple[float, float, float]:

@@ -35,6 +35,7 @@ import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import RewardMode
+from smorphi_rl.geometry import lattice_angle
 from smorphi_rl.protocol import EVAL_STARTS, Outcome, eval_starts, settled_theta
 from smorphi_rl.search.results import SearchResult
 
@@ -68,7 +69,7 @@ class _Budgeted:
 
     def snap(self, angle: float) -> float:
         """The lattice angle nearest `angle`, held in [0, 180]: one key per shape, whatever the step."""
-        return min(max(round(angle / self.step), 0), self.n) * self.step
+        return lattice_angle(min(max(round(angle / self.step), 0), self.n), self.step)
 
     def r1(self, theta: Theta) -> float | None:
         if theta in self.seen:
@@ -92,7 +93,7 @@ class _Budgeted:
 
     def random_theta(self, rng: np.random.Generator) -> Theta:
         i, j, k = (int(v) for v in rng.integers(0, self.n + 1, size=3))
-        return (i * self.step, j * self.step, k * self.step)
+        return (lattice_angle(i, self.step), lattice_angle(j, self.step), lattice_angle(k, self.step))
 
     def best(self) -> Theta:
         return max(self.seen, key=lambda t: self.seen[t])

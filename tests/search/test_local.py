@@ -171,6 +171,20 @@ def test_moves_land_on_the_lattice_whatever_the_step():
     assert space.moved(theta, (-1, 1, -1)) == (2 * step, 6 * step, 5 * step)
 
 
+def test_the_top_of_a_180_over_n_lattice_is_180_in_every_search():
+    """169 steps of 180/169 made 180.00000000000003: a compass search reaching the edge, or a random restart on it,
+    failed the whole design, and `search exhaustive` at that step failed after its keying pass."""
+    from smorphi_rl.planning import Lattice, lattice_thetas
+    from smorphi_rl.search.local import _Budgeted
+
+    step = 180 / 169
+    space = _Budgeted(MorphologyEnv({"angle_step_deg": step}), 10)
+    assert space.snap(180.0) == space.moved((180.0, 0.0, 90.0), (1, 0, 0))[0] == 180.0
+    assert max(max(space.random_theta(np.random.default_rng(s))) for s in range(300)) == 180.0
+    assert space.r1(space.moved((179.0, 179.0, 179.0), (1, 1, 1))) is not None  # scored, not refused
+    assert lattice_thetas(step).max() == Lattice(step)[-1:].max() == 180.0
+
+
 def test_pattern_hands_the_climbs_whole_path_to_its_restart():
     from smorphi_rl.search.local import _Budgeted, pattern
 

@@ -89,6 +89,17 @@ def test_a_large_design_reports_its_progress_through_both_phases_and_ends_at_its
     assert design.refined > 0 and design.evaluations == 1_500
 
 
+def test_a_budget_past_a_coarse_lattice_counts_as_the_lattice(policy, tmp_path):
+    """On a 30-degree lattice (343 shapes) a budget of 1,000 gave the policy's roll-outs 600 shapes to find: they
+    spun through 1,057 roll-outs (50 steps an evaluation) before the compass search took over."""
+    meta = meta_of(policy)
+    meta["model_config"]["env_config"] |= {"angle_step_deg": 30.0, "moves": [1, 2, 4]}
+    designer = load_designer(policy_with(policy, tmp_path / "coarse", meta))
+    env = designer_env(designer, str(FLOOR))
+    design = run_design(env, designer.logits, 1_000)
+    assert design.evaluations == 343 and design.rollouts < 400
+
+
 def test_design_prints_the_shape_its_cost_and_the_gap(policy, capsys, tmp_path):
     code, out, err = run(capsys, "design", "--map", str(FLOOR), "--policy", str(policy), "--budget", "50",
                          "--exact", "--log-dir", str(tmp_path), "--plot", str(tmp_path / "d.png"))  # fmt: skip
