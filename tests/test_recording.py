@@ -25,6 +25,7 @@ from smorphi_rl.recording import (
     read_episode,
     step_record,
 )
+from smorphi_rl.recording.messages import foxglove_schema
 from smorphi_rl.training.config import make_env
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,6 +92,38 @@ def test_every_message_validates_against_its_schema(tmp_path):
         schema = json.loads((ROOT / "smorphi_rl" / "schemas" / f"{name}.json").read_text())
         assert schema["title"] == f"foxglove.{name}"
         jsonschema.Draft202012Validator.check_schema(schema)
+
+
+def foxglove_refuses(schema: dict, path: str = "") -> list[str]:
+    """The fields Foxglove's JSON-schema reader (parseJsonSchema) cannot type: its `type` must be one of six names,
+    never a union (["number", "null"]) or absent (a `$ref` to another file, which a recording does not carry)."""
+    refused = []
+    for name, field in schema.get("properties", {}).items():
+        where = f"{path}.{name}".lstrip(".")
+        if isinstance(field.get("oneOf"), list) and all("const" in a for a in field["oneOf"]):
+            continue  # an enum
+        kind = field.get("type")
+        if kind == "object":
+            refused += foxglove_refuses(field, where)
+        elif kind == "array":
+            item = field.get("items", {})
+            if item.get("type") == "object":
+                refused += foxglove_refuses(item, where)
+            elif item.get("type") not in ("boolean", "integer", "number", "string"):
+                refused.append(f"{where}[]: {item.get('type')!r}")
+        elif kind not in ("boolean", "integer", "number", "string"):
+            refused.append(f"{where}: {kind!r}")
+    return refused
+
+
+def test_foxglove_can_type_every_field_of_every_channel():
+    """The step's action, reward and R2 were typed ["number", "null"], and the Grid's and SceneUpdate's lineage a
+    `$ref` to a file no recording holds: Foxglove's reader refused the channel whole."""
+    from smorphi_rl.recording.messages import STEP_SCHEMA
+
+    schemas = {name: json.loads(foxglove_schema(name)) for name in ("Grid", "SceneUpdate", "Log")}
+    for name, schema in {**schemas, "Step": STEP_SCHEMA}.items():
+        assert schema["type"] == "object" and foxglove_refuses(schema) == [], name
 
 
 def test_a_scene_holds_four_blocks_and_the_coverage_path(tmp_path):
@@ -433,6 +466,31 @@ def test_replay_of_a_folder_without_recordings_and_of_a_missing_file(tmp_path, c
     assert "no such file" in capsys.readouterr().err
 
 
+def test_a_listing_goes_on_past_a_file_it_may_not_read_and_finds_one_finished_since(tmp_path, capsys, monkeypatch):
+    """A file without read permission ended the whole listing in a PermissionError line; a .part renamed to .mcap
+    once listed was "unreadable: no such file", and a rename between the reader's two opens a traceback."""
+    env = recorded_env(tmp_path, every=1)
+    for seed in (1, 2):
+        play(env, seed, np.random.default_rng(seed), steps=3)
+    env.reset(seed=3)  # the third episode's file is a .part until it ends
+    first, second = (p for p in episode_files(tmp_path / "episodes") if p.name.endswith(".mcap"))
+    opened = Path.open
+
+    def refusing(self, *args, **kwargs):
+        if self == second:
+            raise PermissionError(13, "Permission denied", str(self))
+        return opened(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "open", refusing)
+    assert main(["replay", str(tmp_path / "episodes")]) == 0
+    out = capsys.readouterr().out
+    assert "unreadable: cannot be read (Permission denied)" in out and out.count(first.name) == 1
+    monkeypatch.undo()
+    (part,) = (p for p in episode_files(tmp_path / "episodes") if p.name.endswith(PART_SUFFIX))
+    env.close()  # finished: renamed to .mcap after the listing named it .part
+    assert not part.exists() and len(read_episode(part).steps) == 1
+
+
 def test_recording_config_is_validated():
     with pytest.raises(RecordingError, match="'every' must be a positive integer"):
         RecordingConfig("/tmp/x", every=0)
@@ -488,6 +546,22 @@ def test_a_recording_whose_steps_lack_fields_is_one_line(tmp_path, capsys):
     code = main(["replay", str(path)])
     err = capsys.readouterr().err
     assert code == 1 and "step message 0 lacks" in err and err.count("\n") == 1
+
+
+def test_a_recording_whose_reset_state_holds_nulls_and_one_whose_step_lacks_its_action(tmp_path, capsys):
+    """Recordings before 2026-12-07 wrote step 0's action, reward and R2 as null: they still replay. A later step
+    without its action is named."""
+    env = recorded_env(tmp_path, max_steps=5)
+    play(env, 0, np.random.default_rng(0))
+    (source,) = episode_files(tmp_path / "episodes")
+    nulls = _tampered(source, tmp_path / "old.mcap", "/smorphi/step",
+                      lambda m: m if m["step"] else m | {"action": None, "reward": None, "R2": None})  # fmt: skip
+    assert main(["replay", str(nulls), "--steps"]) == 0
+    assert re.search(r"^ +0 .* - +- ", capsys.readouterr().out, re.M)  # step 0: no action, no reward
+    lacking = _tampered(source, tmp_path / "bad.mcap", "/smorphi/step",
+                        lambda m: {k: v for k, v in m.items() if k != "action"})  # fmt: skip
+    assert main(["replay", str(lacking)]) == 1
+    assert "step message 1 lacks action" in capsys.readouterr().err
 
 
 def _tampered(source: Path, target: Path, topic: str, edit) -> Path:

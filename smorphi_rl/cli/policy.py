@@ -217,8 +217,8 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if args.steps:
         print(f"\n{'step':>5}  {'theta':<18} {'action':<9} {'reward':>8} {'R1':>7} {'P_c %':>7} {'P_len':>5}  feasible")
         for st in steps:
-            action = "-" if st["action"] is None else ",".join(str(a) for a in st["action"])
-            reward = "-" if st["reward"] is None else f"{st['reward']:.2f}"
+            action = "-" if st.get("action") is None else ",".join(str(a) for a in st["action"])
+            reward = "-" if st.get("reward") is None else f"{st['reward']:.2f}"
             print(f"{st['step']:>5}  {angles_text(st['theta']):<18} {action:<9} {reward:>8} {st['R1']:>7.2f} "
                   f"{st['P_c']:>7.2f} {st['P_len']:>5}  {'yes' if st['feasible'] else 'no'}")  # fmt: skip
     if args.png or args.gif:

@@ -38,17 +38,20 @@ PATH_CACHE_SIZE = 2048
 MAX_MOVE = 2 * MAX_MOVE_SIZES
 """The largest move index a step can record: a hinge picks one of 2 K + 1 moves, K step sizes (env `moves`)."""
 
+ACTED = ("action", "reward", "R2")
+"""A step's fields that step 0, the reset state, has none of: it leaves them out (Foxglove's schema reader takes
+one type a field, never ["number", "null"])."""
 STEP_SCHEMA: dict[str, Any] = {
     "title": "smorphi_rl.Step",
-    "description": "One env step of a morphology-design episode (step 0 is the reset state: no action or reward)",
+    "description": "One env step of a morphology-design episode (step 0 is the reset state: no action, reward or R2)",
     "type": "object",
     "properties": {
         "step": {"type": "integer", "minimum": 0},
         "theta": {"type": "array", "items": {"type": "number"}, "minItems": 3, "maxItems": 3},
-        "action": {"type": ["array", "null"], "items": {"type": "integer", "minimum": 0, "maximum": MAX_MOVE}},
-        "reward": {"type": ["number", "null"], "description": "the env's reward, in the run's reward mode"},
+        "action": {"type": "array", "items": {"type": "integer", "minimum": 0, "maximum": MAX_MOVE}},
+        "reward": {"type": "number", "description": "the env's reward, in the run's reward mode"},
         "R1": {"type": "number", "description": "w1 * P_c - w2 * P_len"},
-        "R2": {"type": ["number", "null"], "description": "reward - R1: under reward `paper` the paper's R2, -beta "
+        "R2": {"type": "number", "description": "reward - R1: under reward `paper` the paper's R2, -beta "
                "when the action left the shape unchanged, else 0"},
         "P_c": {"type": "number"},
         "P_len": {"type": "integer"},
@@ -56,8 +59,7 @@ STEP_SCHEMA: dict[str, Any] = {
         "feasible": {"type": "boolean"},
         "map": {"type": "string"},
     },
-    "required": ["step", "theta", "action", "reward", "R1", "R2", "P_c", "P_len", "coverage_free_pct", "feasible",
-                 "map"],
+    "required": ["step", "theta", "R1", "P_c", "P_len", "coverage_free_pct", "feasible", "map"],
 }  # fmt: skip
 
 
@@ -156,15 +158,15 @@ def log_message(text: str, ns: int, level: int = 2) -> dict[str, Any]:
 
 
 def step_record(step: int, info: dict[str, Any], action: Any = None, reward: float | None = None) -> dict[str, Any]:
-    """The /smorphi/step message of one step, from the env's info (step 0: the reset state)."""
+    """The /smorphi/step message of one step, from the env's info (step 0, the reset state, without `ACTED`)."""
     r1 = float(info["R1"])
+    acted = {} if reward is None else {"action": [int(a) for a in np.asarray(action).ravel()],
+                                       "reward": float(reward), "R2": float(reward) - r1}  # fmt: skip
     return {
         "step": step,
         "theta": [float(t) for t in info["theta"]],
-        "action": None if action is None else [int(a) for a in np.asarray(action).ravel()],
-        "reward": None if reward is None else float(reward),
+        **acted,
         "R1": r1,
-        "R2": None if reward is None else float(reward) - r1,
         "P_c": float(info["P_c"]),
         "P_len": int(info["P_len"]),
         "coverage_free_pct": float(info["coverage_free_pct"]),

@@ -20,6 +20,7 @@ from smorphi_rl.geometry import Morphology
 from smorphi_rl.inputs import check_not_special, is_finite_number
 from smorphi_rl.maps import MAX_ORIGIN_M, MAX_RESOLUTION_M, MIN_RESOLUTION_M, Cell, Map
 from smorphi_rl.recording.messages import (
+    ACTED,
     LOG_CUT,
     LOG_ENDED,
     MAX_MOVE,
@@ -161,7 +162,7 @@ class Episode:
 
     @property
     def episode_return(self) -> float:
-        return float(sum(s["reward"] for s in self.steps if s["reward"] is not None))
+        return float(sum(s["reward"] for s in self.steps if s.get("reward") is not None))
 
 
 BLOCKS = 4
@@ -260,14 +261,17 @@ def read_episode(path: str | Path) -> Episode:
         raise RecordingError(f"{path}: not a recording's name (smorphi-rl records NAME{SUFFIX}, NAME{PART_SUFFIX} "
                              "while it is written)")  # fmt: skip
     check_not_special(file, "recording", RecordingError)
+    finished = file.with_name(file.name.removesuffix(PART_SUFFIX) + SUFFIX)
+    if file.name.endswith(PART_SUFFIX) and not file.exists() and finished.exists():
+        file = finished  # listed while written, finished since: the same recording, whole
     try:
-        with file.open("rb") as fh:
-            if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-                raise RecordingError(f"{path}: not an MCAP file")
+        fh = file.open("rb")  # one handle for the whole read: a rename between two opens cannot part them
     except FileNotFoundError:
         raise RecordingError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise RecordingError(f"{path}: is a directory") from None
+    except OSError as exc:  # no permission: one line, and a listing goes on to the next file
+        raise RecordingError(f"{path}: cannot be read ({exc.strerror or exc})") from None
     topics: dict[int, str] = {}
     meta: dict[str, str] = {}
     by_topic: dict[str, list[dict[str, Any]]] = {t: [] for t in OUR_TOPICS}
@@ -278,7 +282,10 @@ def read_episode(path: str | Path) -> Episode:
         for record in StreamReader(fh, emit_chunks=True, record_size_limit=MAX_CHUNK_BYTES).records:
             yield from _chunk_records(record, budget, file) if isinstance(record, Chunk) else (record,)
 
-    with file.open("rb") as fh:
+    with fh:
+        if fh.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise RecordingError(f"{path}: not an MCAP file")
+        fh.seek(0)
         try:
             for record in records(fh):
                 if isinstance(record, Channel):
@@ -308,13 +315,15 @@ def read_episode(path: str | Path) -> Episode:
     steps = by_topic[TOPIC_STEP]
     if not steps:
         raise RecordingError(f"{path}: no step could be recovered" + ("" if complete else " (the file is cut short)"))
-    required = STEP_SCHEMA["required"]
     largest = _largest_move(meta)
     for i, st in enumerate(steps):  # a step another writer made, or damaged: named, never a KeyError later
-        missing = [k for k in required if k not in st] if isinstance(st, dict) else required
+        required = STEP_SCHEMA["required"]
+        missing = [k for k in required if k not in st] if isinstance(st, dict) else list(required)
+        problem = _step_problem(st, largest) if not missing else None
+        if not missing and not problem and st["step"]:  # every step after the reset state acted
+            missing = [k for k in ACTED if k not in st]
         if missing:
             raise RecordingError(f"{path}: step message {i} lacks {', '.join(missing[:3])} (not a smorphi-rl step)")
-        problem = _step_problem(st, largest)
         if problem:
             raise RecordingError(f"{path}: step message {i} is damaged ({problem})")
         if i and st["step"] <= steps[i - 1]["step"]:  # an episode's steps are numbered 0, 1, 2, ... as they ran
@@ -358,8 +367,8 @@ def _step_problem(st: dict[str, Any], largest: int = MAX_MOVE) -> str | None:
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if not 0 <= st["P_c"] <= 100 or not 0 <= st["coverage_free_pct"] <= 100:
         return "a coverage outside [0, 100] %"
-    for key in ("reward", "R2"):
-        if st[key] is not None and not is_finite_number(st[key]):
+    for key in ("reward", "R2"):  # step 0 has none (a recording of before 2026-12-07 holds nulls there)
+        if st.get(key) is not None and not is_finite_number(st[key]):
             return f"{key} {str(st[key])[:20]} is not a finite number"
     if type(st["P_len"]) is not int or st["P_len"] < 0 or type(st["step"]) is not int or st["step"] < 0:
         return "P_len or step is not a whole number >= 0"
@@ -367,7 +376,7 @@ def _step_problem(st: dict[str, Any], largest: int = MAX_MOVE) -> str | None:
         return f"P_len {str(st['P_len'])[:24]} beyond any coverage path's {MAX_P_LEN:,} tile moves"
     if st["step"] > MAX_EPISODE_STEPS:
         return f"step {str(st['step'])[:24]} beyond any episode's {MAX_EPISODE_STEPS:,}"
-    action = st["action"]
+    action = st.get("action")
     if action is not None and not (isinstance(action, list) and len(action) == 3
                                    and all(type(a) is int and 0 <= a <= largest for a in action)):  # fmt: skip
         return f"action {str(action)[:20]} is not three moves in 0..{largest}"
