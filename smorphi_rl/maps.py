@@ -86,6 +86,15 @@ CLASSIFYING_HINT = (f"map_saver writes negate: 0, occupied_thresh: {SAVED_OCCUPI
                     f"free_thresh: {SAVED_FREE_THRESH}")  # fmt: skip
 """Said when `negate`, `occupied_thresh` or `free_thresh` is missing: they decide which grey is free, occupied or
 unknown, so they are required, as ROS's map_server and nav2 require them."""
+UNKNOWN_READ_FREE = {
+    "free_thresh": ("its free_thresh is above the grey's p of {p:.5f}",
+                    f"free_thresh: {SAVED_FREE_THRESH} in its YAML reads them as unknown"),
+    "alpha": ("its image's alpha channel is averaged into the grey, which then reads under free_thresh",
+              "the image saved without its alpha channel reads them as unknown"),
+    "scale": ("mode scale reads the grey as 0 % occupied, which is free",
+              f"mode: trinary and free_thresh: {SAVED_FREE_THRESH} in its YAML read them as unknown"),
+}  # fmt: skip
+"""Why a map file reads map_saver's unknown grey as free, as nav2 reads it, and what in the file would not."""
 IMAGE_SUFFIXES = (".pgm", ".png")
 MAX_ORIGIN_M = 1_000_000.0
 """A map frame's origin lies within 1,000 km of its zero (ROS maps: metres to a few km)."""
@@ -108,7 +117,9 @@ class Map:
     origin: tuple[float, float, float] = (0.0, 0.0, 0.0)
     name: str = "map"
     unknown_read_free: int = 0
-    """Cells of map_saver's unknown grey (205) that the map file's free_thresh reads as free (`unknown_warning`)."""
+    """Cells of map_saver's unknown grey (205) that the map file reads as free (`unknown_warning`)."""
+    unknown_read_by: str = "free_thresh"
+    """Which part of the map file reads them as free: a key of UNKNOWN_READ_FREE."""
     counts: dict[Cell, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -171,14 +182,15 @@ class Map:
                 "at the crop's corner, so scores move a little)")  # fmt: skip
 
     def unknown_warning(self) -> str | None:
-        """A warning when the map file's free_thresh reads map_saver's unknown grey as free (nav2's depot map: 0.25):
-        the planner then covers, and scores, floor no robot has seen."""
+        """A warning when the map file reads map_saver's unknown grey as free (nav2's depot map: its free_thresh of
+        0.25; an image given an opaque alpha channel by an editor; mode scale): the planner then covers, and scores,
+        floor no robot has seen."""
         if not self.unknown_read_free:
             return None
         grey, p = SAVED_PIXEL[Cell.UNKNOWN], 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255
+        why, fix = UNKNOWN_READ_FREE[self.unknown_read_by]
         return (f"warning: {self.name}: {self.unknown_read_free:,} cells of grey {grey}, which map_saver writes for "
-                f"unknown space, read as free floor (its free_thresh is above {grey}'s p of {p:.5f}, as nav2 reads "
-                f"it); free_thresh: {SAVED_FREE_THRESH} in its YAML reads them as unknown")  # fmt: skip
+                f"unknown space, read as free floor ({why.format(p=p)}, as nav2 reads it); {fix}")  # fmt: skip
 
     def warnings(self) -> list[str]:
         """What a command that plans on this map says first, on stderr (`frame_warning`, `unknown_warning`)."""
@@ -447,9 +459,10 @@ def load_map(yaml_path: str | Path) -> Map:
     gray, alpha, max_value = _read_image(path.parent / image)
     cells = cells_from_image(gray, alpha, max_value, mode, bool(negate), occupied_thresh, free_thresh)
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
-    saved_unknown = max_value == 255 and mode is MapMode.TRINARY and not negate and alpha is None
+    saved_unknown = max_value == 255 and mode is not MapMode.RAW and not negate  # map_saver's images
     unknown_free = np.flipud(gray == SAVED_PIXEL[Cell.UNKNOWN]) & (cells == Cell.FREE) if saved_unknown else None
-    return Map(cells, resolution, origin_t, name=path.stem,
+    by = "scale" if mode is MapMode.SCALE else "free_thresh" if alpha is None else "alpha"
+    return Map(cells, resolution, origin_t, name=path.stem, unknown_read_by=by,
                unknown_read_free=0 if unknown_free is None else int(np.count_nonzero(unknown_free)))  # fmt: skip
 
 

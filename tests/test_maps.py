@@ -15,6 +15,7 @@ from smorphi_rl.maps import Cell, Map, check_fits, generate_map, load_map, save_
 
 MAPS = Path(__file__).resolve().parent.parent / "maps"
 THRESHOLDS = {"negate": 0, "occupied_thresh": 0.65, "free_thresh": 0.25}
+DESIGNER = Path(__file__).resolve().parents[1] / "smorphi_rl" / "policies" / "designer"
 
 
 def write_map(tmp_path: Path, pixels: np.ndarray, name: str = "m", suffix: str = "pgm", **meta) -> Path:
@@ -63,6 +64,38 @@ def test_map_saver_s_unknown_grey_read_as_free_is_counted_and_said(tmp_path, cap
     assert seen.counts[Cell.UNKNOWN] == 60 and seen.unknown_read_free == 0 and seen.warnings() == []
     assert main(["maps", "show", str(tmp_path / "m.yaml"), "--png", str(tmp_path / "m.png")]) == 0
     assert "free_thresh: 0.196 in its YAML reads them as unknown" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("alpha", "meta", "fix"), [
+    (True, {}, "the image saved without its alpha channel reads them as unknown"),
+    (False, {"mode": "scale"}, "mode: trinary and free_thresh: 0.196 in its YAML read them as unknown"),
+])  # fmt: skip
+def test_unknown_grey_read_as_free_through_an_opaque_alpha_or_scale_mode_is_said(tmp_path, alpha, meta, fix):
+    """A map given an opaque alpha channel by an image editor averages 205 up to 217.5 (free under 0.196), and mode
+    scale reads 205 as 0 % occupied: as nav2 does, unknown space became free floor, and nothing said so."""
+    pixels = np.full((10, 10), 254)
+    pixels[:2] = 205
+    image = np.stack([pixels, np.full_like(pixels, 255)], axis=-1) if alpha else pixels
+    m = load_map(write_map(tmp_path, image, suffix="png", **meta))
+    assert m.counts[Cell.FREE] == 100 and m.unknown_read_free == 20
+    assert m.warnings() == [m.unknown_warning()] and m.warnings()[0].endswith(fix)
+
+
+@pytest.mark.parametrize("command", [
+    ["maps", "crop", "{map}", "--out", "{tmp}/out/c.yaml"],
+    ["evaluate-policy", "--checkpoint", str(DESIGNER), "--map", "{map}"],
+    ["evaluate", "--map", "{map}", "--angles", "90", "90", "90"],
+])  # fmt: skip
+def test_commands_that_read_a_map_say_its_unknown_grey_reads_as_free(tmp_path, capsys, command):
+    """`maps crop` (whose map then reads the grey as free in silence) and `evaluate-policy` said nothing."""
+    from smorphi_rl.cli import main
+
+    pixels = np.full((80, 80), 254)
+    pixels[:10] = 205
+    pixels[[10, -1], :] = pixels[:, [0, -1]] = 0
+    path = write_map(tmp_path, pixels, free_thresh=0.25)
+    assert main([a.format(map=path, tmp=tmp_path) for a in command]) == 0
+    assert "cells of grey 205, which map_saver writes for unknown space" in capsys.readouterr().err
 
 
 def test_trinary_mode_averages_alpha_in_as_nav2_does(tmp_path):

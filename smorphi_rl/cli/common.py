@@ -200,6 +200,13 @@ def padded(text: str, width: int) -> str:
     return text + " " * max(0, width - columns(text))
 
 
+def say_warnings(grid_map: Map) -> None:
+    """A map's warnings (`Map.warnings`: a sparse frame, unknown space read as free), each one line on stderr, said
+    before the work they concern (stdout stays the command's report, or its JSON)."""
+    for warning in grid_map.warnings():
+        print(one_line(warning), file=sys.stderr)
+
+
 def clipped(value: object, limit: int = 80) -> str:
     """A recorded value as text of at most about `limit` characters: a long one (a 10,000-character run name) keeps
     its start and end, and says how long it was, so one field cannot fill the screen."""

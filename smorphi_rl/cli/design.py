@@ -13,7 +13,7 @@ from pathlib import Path
 from typing import Any
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, clipped, nonempty, one_line, start_option
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, clipped, nonempty, one_line, say_warnings, start_option
 from smorphi_rl.design import DEFAULT_BUDGET, PROGRESS_FROM
 from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import FORCE_HELP, output_file
@@ -58,8 +58,7 @@ def cmd_design(args: argparse.Namespace) -> int:
     designer = load_designer(Path(args.policy) if args.policy else SHIPPED_DESIGNER)
     start = None if args.start_xy is None else (float(args.start_xy[0]), float(args.start_xy[1]))
     env = designer_env(designer, str(args.map), start)
-    for warning in env.grid_map.warnings():  # said first: the design, and --exact's search above all, costs the frame
-        print(one_line(warning), file=sys.stderr)
+    say_warnings(env.grid_map)  # said first: the design, and --exact's search above all, costs the frame
     large = args.budget >= PROGRESS_FROM
     bar = progress_line(f"design of {env.grid_map.name}", "a smaller --budget") if large else None
     result = run_design(env, designer.logits, args.budget, progress=bar)

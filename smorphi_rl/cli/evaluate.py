@@ -16,7 +16,16 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl import jsontext
-from smorphi_rl.cli.common import DEFAULT_MAP, clipped, number, planner_option, start_option, weight_options, weights
+from smorphi_rl.cli.common import (
+    DEFAULT_MAP,
+    clipped,
+    number,
+    planner_option,
+    say_warnings,
+    start_option,
+    weight_options,
+    weights,
+)
 from smorphi_rl.cli.fields import finite_arg, option
 from smorphi_rl.coverage import AUTO_START, CoverageResult, Planner, Start
 from smorphi_rl.env_config import EnvConfig
@@ -215,8 +224,7 @@ def cmd_evaluate(args: argparse.Namespace) -> int:
     from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, args.block_side, whole_footprint=args.planner == Planner.FIT.value)  # it holds a robot
-    for warning in grid_map.warnings():  # on stderr: --json's stdout stays one object a line
-        print(warning, file=sys.stderr)
+    say_warnings(grid_map)  # on stderr: --json's stdout stays one object a line
     if thetas is not None:
         from smorphi_rl.interrupts import stop_requests
 

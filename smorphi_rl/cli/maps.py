@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, seed_arg
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, say_warnings, seed_arg
 from smorphi_rl.cli.fields import finite_arg, param_default
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.floorplans import FloorKind
@@ -241,6 +241,7 @@ def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None,
     if not args.force and taken is not None:
         raise SmorphiError(f"{taken} exists; pass --force to overwrite it")
     source = load_map(args.map)
+    say_warnings(source)  # the new map reads such cells as the source does, and no longer says so
     transformed = transform(source)
     grid_map, islands = drop_islands(transformed, args.min_island)
     if check is not None:
@@ -278,8 +279,7 @@ def cmd_maps_show(args: argparse.Namespace) -> int:
             raise SmorphiError(f"the default drawing {png} is the image of map {owner}: give --png elsewhere")
         output_file(str(png), "the default drawing", (".png",), force=True)
     grid_map = load_map(args.map)
-    for warning in grid_map.warnings():
-        print(warning, file=sys.stderr)
+    say_warnings(grid_map)
     r = grid_map.resolution_m
     rows = [
         ("map", f"{args.map}"),

@@ -20,6 +20,7 @@ from smorphi_rl.cli.common import (
     nonempty,
     one_line,
     padded,
+    say_warnings,
     scored_text,
     seed_arg,
 )
@@ -290,6 +291,8 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
         inputs = tuple(p for m in map_files(config.maps) for p in map_inputs(m))
         output_file(args.plot, "--plot", (".png",), inputs, args.force)
     base = MorphologyEnv(config.to_dict())
+    for path in map_files(config.maps):
+        say_warnings(load_map(path))
     check_fits(module, base)
     trained = env_config_of(module, None)
     if (unseen := unseen_warning(trained, config)) is not None:  # on stderr: --json's stdout stays JSON lines

@@ -19,6 +19,7 @@ from smorphi_rl.cli.common import (
     planner_option,
     planning_of,
     run_options,
+    say_warnings,
     seed_arg,
     weight_options,
     weights,
@@ -102,8 +103,7 @@ def cmd_search(args: argparse.Namespace) -> int:
     from smorphi_rl.maps import check_fits
 
     check_fits(grid_map, planning.block_side_m, whole_footprint=planning.planner is Planner.FIT)
-    for warning in grid_map.warnings():
-        print(warning, file=sys.stderr)
+    say_warnings(grid_map)
     options = {k: getattr(args, k) for k in METHOD_FIELDS[args.method]}
     address = getattr(args, "address", None)
     if address is not None:
@@ -247,6 +247,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         if any(d.resolve() == earlier.resolve() for earlier in dirs[:i]):
             raise SmorphiError(f"{d} is given twice: the report would list it twice")
     grid_map = load_map(args.map)
+    say_warnings(grid_map)  # before the exact front, which may search the whole lattice
     name = args.name or safe_name(f"compare-{grid_map.name}")
     check_run_dir(args.log_dir, name)  # a name taken is said before the runs are read and planned again
     given = {**{str(d): TRAINING_RUN for d in args.runs or []}, **{str(d): ("nsga2",) for d in args.nsga2 or []},
