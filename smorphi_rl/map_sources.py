@@ -108,9 +108,11 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
 
 
 def _absolute(path: str | Path) -> str:
-    """A map file's absolute path, links resolved; one line where it cannot be (a symlink loop)."""
+    """A map file's absolute path: its folder's links resolved, its own name kept (a linked YAML's image is looked
+    for beside the link, as nav2 and every other command look); one line where it cannot be (a symlink loop)."""
     try:
-        return str(resolved(Path(path), "map"))
+        resolved(Path(path), "map")  # a loop is named here
+        return str(resolved(Path(path).parent, "map") / Path(path).name)
     except InputError as exc:
         raise MapSourceError(str(exc)) from None
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import itertools
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -70,6 +71,17 @@ def test_map_entries_resolve_folders_globs_and_generators(tmp_path):
     assert [Path(p).name for p in found[:3]] == ["val-1.yaml", "val-2.yaml", "val-3.yaml"]
     assert found[3] == "generate:hall:5-9"
     assert len(resolve([str(ROOT / "maps" / "designer" / "validation")])) == 8
+
+
+def test_a_linked_map_is_read_beside_the_link_as_every_command_reads_it(tmp_path):
+    """`train`, `sweep` and `evaluate-policy` followed a linked YAML to its target and read the target's image,
+    while `evaluate`, `design` and nav2 read the image beside the link: two floors under one name."""
+    (tmp_path / "real").mkdir()
+    (tmp_path / "link").mkdir()
+    shutil.copy(ROOT / "maps" / "map-1.yaml", tmp_path / "real" / "floor.yaml")
+    (tmp_path / "link" / "current.yaml").symlink_to(tmp_path / "real" / "floor.yaml")
+    (found,) = resolve([str(tmp_path / "link" / "current.yaml")])
+    assert Path(found) == (tmp_path / "link" / "current.yaml").absolute()
 
 
 @pytest.mark.parametrize(("entry", "message"), [
