@@ -64,6 +64,8 @@ class Design:
     """Shapes the compass search scored after the policy's roll-outs."""
     walks: list[list[tuple[float, float, float]]] = field(default_factory=list)
     """Every roll-out's shapes, in order (for plots)."""
+    budget: int = 0
+    """The budget it ran with: the one asked for, or the lattice's size where that is smaller."""
 
 
 def design_starts(n: int = DESIGN_STARTS, step_deg: float = 1.0) -> np.ndarray:
@@ -166,4 +168,4 @@ def run_design(
     if progress is not None:
         progress(budget, budget)
     return Design(best, len(scored), env.planner_calls - calls0, rollouts, time.perf_counter() - t0,
-                  refined=len(refined), walks=walks)  # fmt: skip
+                  refined=len(refined), walks=walks, budget=budget)  # fmt: skip

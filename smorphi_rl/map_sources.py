@@ -93,9 +93,9 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
             found = sorted(p for p in glob.glob(text) if p.endswith((".yaml", ".yml")))
             if not found:
                 raise MapSourceError(f"map glob {text!r} matches no map YAML")
-            out.extend(_absolute(p) for p in found)
+            out.extend(absolute_map(p) for p in found)
         elif Path(text).is_dir():
-            found = sorted(_absolute(p) for p in Path(text).iterdir() if p.suffix in (".yaml", ".yml"))
+            found = sorted(absolute_map(p) for p in Path(text).iterdir() if p.suffix in (".yaml", ".yml"))
             if not found:
                 raise MapSourceError(f"map folder {text} holds no map YAML")
             out.extend(found)
@@ -103,11 +103,11 @@ def resolve(entries: list[str] | tuple[str, ...]) -> tuple[str, ...]:
             hint = shipped_hint(Path(text)) if not Path(text).exists() else ""
             if hint:  # `maps/...` away from the clone: said here, before the path is made absolute
                 raise MapSourceError(f"map file not found: {text}{hint}")
-            out.append(_absolute(text))
+            out.append(absolute_map(text))
     return tuple(out)
 
 
-def _absolute(path: str | Path) -> str:
+def absolute_map(path: str | Path) -> str:
     """A map file's absolute path: its folder's links resolved, its own name kept (a linked YAML's image is looked
     for beside the link, as nav2 and every other command look); one line where it cannot be (a symlink loop)."""
     try:
@@ -144,6 +144,6 @@ def name_clash(files: tuple[str, ...], key: Callable[[str], str] | None = None) 
     for file in files:
         name = key(file) if key is not None else Path(file).stem
         other = named.setdefault(name, file)
-        if _absolute(other) != _absolute(file):
+        if absolute_map(other) != absolute_map(file):
             return other, file
     return None

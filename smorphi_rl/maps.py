@@ -87,14 +87,13 @@ CLASSIFYING_HINT = (f"map_saver writes negate: 0, occupied_thresh: {SAVED_OCCUPI
 """Said when `negate`, `occupied_thresh` or `free_thresh` is missing: they decide which grey is free, occupied or
 unknown, so they are required, as ROS's map_server and nav2 require them."""
 UNKNOWN_READ_FREE = {
+    "scale": ("mode scale reads the grey as 0 % occupied", "mode: trinary in its YAML"),
     "free_thresh": ("its free_thresh is above the grey's p of {p:.5f}",
-                    f"free_thresh: {SAVED_FREE_THRESH} in its YAML reads them as unknown"),
-    "alpha": ("its image's alpha channel is averaged into the grey, which then reads under free_thresh",
-              "the image saved without its alpha channel reads them as unknown"),
-    "scale": ("mode scale reads the grey as 0 % occupied, which is free",
-              f"mode: trinary and free_thresh: {SAVED_FREE_THRESH} in its YAML read them as unknown"),
+                    f"free_thresh: {SAVED_FREE_THRESH} in its YAML"),
+    "alpha": ("its image has an opaque alpha channel, which trinary mode averages into the grey",
+              "the image saved without its alpha channel"),
 }  # fmt: skip
-"""Why a map file reads map_saver's unknown grey as free, as nav2 reads it, and what in the file would not."""
+"""Each part of a map file that reads map_saver's unknown grey as free, as nav2 reads it: why, and the fix."""
 IMAGE_SUFFIXES = (".pgm", ".png")
 MAX_ORIGIN_M = 1_000_000.0
 """A map frame's origin lies within 1,000 km of its zero (ROS maps: metres to a few km)."""
@@ -118,8 +117,8 @@ class Map:
     name: str = "map"
     unknown_read_free: int = 0
     """Cells of map_saver's unknown grey (205) that the map file reads as free (`unknown_warning`)."""
-    unknown_read_by: str = "free_thresh"
-    """Which part of the map file reads them as free: a key of UNKNOWN_READ_FREE."""
+    unknown_read_by: tuple[str, ...] = ("free_thresh",)
+    """The parts of the map file that read them as free: keys of UNKNOWN_READ_FREE."""
     counts: dict[Cell, int] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -188,9 +187,11 @@ class Map:
         if not self.unknown_read_free:
             return None
         grey, p = SAVED_PIXEL[Cell.UNKNOWN], 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255
-        why, fix = UNKNOWN_READ_FREE[self.unknown_read_by]
+        why = "; ".join(UNKNOWN_READ_FREE[k][0].format(p=p) for k in self.unknown_read_by)
+        fix = " and ".join(UNKNOWN_READ_FREE[k][1] for k in self.unknown_read_by)
         return (f"warning: {self.name}: {self.unknown_read_free:,} cells of grey {grey}, which map_saver writes for "
-                f"unknown space, read as free floor ({why.format(p=p)}, as nav2 reads it); {fix}")  # fmt: skip
+                f"unknown space, read as free floor ({why}, as nav2 reads it); {fix} "
+                f"read{'s' if len(self.unknown_read_by) == 1 else ''} them as unknown")  # fmt: skip
 
     def warnings(self) -> list[str]:
         """What a command that plans on this map says first, on stderr (`frame_warning`, `unknown_warning`)."""
@@ -461,7 +462,12 @@ def load_map(yaml_path: str | Path) -> Map:
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
     saved_unknown = max_value == 255 and mode is not MapMode.RAW and not negate  # map_saver's images
     unknown_free = np.flipud(gray == SAVED_PIXEL[Cell.UNKNOWN]) & (cells == Cell.FREE) if saved_unknown else None
-    by = "scale" if mode is MapMode.SCALE else "free_thresh" if alpha is None else "alpha"
+    p_unknown = 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255  # nav2's own arithmetic: 0.19607843...
+    by = (
+        (("scale",) if mode is MapMode.SCALE else ())
+        + (("free_thresh",) if free_thresh > p_unknown else ())
+        + (("alpha",) if alpha is not None else ())
+    )  # each a fix the others need: trinary mode averages alpha in
     return Map(cells, resolution, origin_t, name=path.stem, unknown_read_by=by,
                unknown_read_free=0 if unknown_free is None else int(np.count_nonzero(unknown_free)))  # fmt: skip
 

@@ -67,8 +67,9 @@ def test_map_saver_s_unknown_grey_read_as_free_is_counted_and_said(tmp_path, cap
 
 
 @pytest.mark.parametrize(("alpha", "meta", "fix"), [
-    (True, {}, "the image saved without its alpha channel reads them as unknown"),
-    (False, {"mode": "scale"}, "mode: trinary and free_thresh: 0.196 in its YAML read them as unknown"),
+    (True, {"free_thresh": 0.196}, "; the image saved without its alpha channel reads them as unknown"),
+    (False, {"mode": "scale", "free_thresh": 0.196}, "; mode: trinary in its YAML reads them as unknown"),
+    (True, {}, "; free_thresh: 0.196 in its YAML and the image saved without its alpha channel read them as unknown"),
 ])  # fmt: skip
 def test_unknown_grey_read_as_free_through_an_opaque_alpha_or_scale_mode_is_said(tmp_path, alpha, meta, fix):
     """A map given an opaque alpha channel by an image editor averages 205 up to 217.5 (free under 0.196), and mode

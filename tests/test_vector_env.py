@@ -140,6 +140,26 @@ def test_gymnasium_make_vec_builds_ours_seeded_as_gymnasiums_own():
             gymnasium.make_vec(smorphi_rl.ENV_ID, **({"num_envs": 2} | bad))
 
 
+def test_a_capped_vector_env_builds_its_maps_once(monkeypatch):
+    """With gymnasium's max_episode_steps under the env's own max_steps, the first env was built twice, maps and
+    all (a real map's load and planner set-up, thrown away)."""
+    import gymnasium
+
+    import smorphi_rl
+    from smorphi_rl import vector_env
+
+    built: list[int] = []
+
+    class Counted(MorphologyEnv):
+        def __init__(self, *args, **kwargs):
+            built.append(1)
+            super().__init__(*args, **kwargs)
+
+    monkeypatch.setattr(vector_env, "MorphologyEnv", Counted)
+    vec = gymnasium.make_vec(smorphi_rl.ENV_ID, num_envs=2, env_config={"max_steps": 50}, max_episode_steps=7)
+    assert len(built) == 1 and vec.envs[0].config.max_steps == 7
+
+
 def test_the_info_is_laid_out_as_gymnasium_s_own_vector_envs_lay_it_out():
     """Every column was an object array, and the `_key` masks were missing: `np.exp(info["R1"])` failed, and code
     written for gymnasium's vector envs read `info["_R1"]` in vain."""

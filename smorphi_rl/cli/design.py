@@ -68,7 +68,7 @@ def cmd_design(args: argparse.Namespace) -> int:
         "coverage_free_pct": best.coverage_free_pct, "P_len": best.P_len, "R1": best.R1,
         "weights": env.floor.weights.formula(), "evaluations": result.evaluations,
         "planner_calls": result.planner_calls, "rollouts": result.rollouts, "refined": result.refined,
-        "budget": args.budget, "planner": env.config.planning.planner.value,
+        "budget": result.budget, "planner": env.config.planning.planner.value,
     }  # fmt: skip
     if start is not None:
         record["start_xy"] = list(start)
@@ -83,18 +83,19 @@ def cmd_design(args: argparse.Namespace) -> int:
         ("policy", f"{'the shipped designer' if args.policy is None else rel(designer.path)} ({about})"),
         ("design", f"{angles_text(best.theta)}  P_c {best.P_c:.2f} %, P_len {best.P_len}, R1 {best.R1:.2f} "
                    f"({record['weights']}; planner {record['planner']})"),
-        ("cost", f"{counted(result.evaluations, 'planner evaluation')} of {args.budget:,} "
+        ("cost", f"{counted(result.evaluations, 'planner evaluation')} of {result.budget:,} "
                  f"({counted(result.planner_calls, 'footprint')} planned): {counted(result.rollouts, 'roll-out')} of "
                  f"the policy ({counted(walked, 'shape')}), {counted(result.refined, 'shape')} of compass search"),
     ]  # fmt: skip
     if not args.json:  # the design before --exact's search: a stop during that search keeps it on the screen
         _print(lines)
     if args.exact:
+        from smorphi_rl.map_sources import absolute_map
         from smorphi_rl.progress import optimum_progress
         from smorphi_rl.protocol import exact_optimum, gaps_to
 
         show = optimum_progress(env.floor.grid_map.name)
-        opt = exact_optimum(str(Path(args.map).resolve()), env.floor.weights, env.config.planning, cache, show)
+        opt = exact_optimum(absolute_map(args.map), env.floor.weights, env.config.planning, cache, show)
         gap = float(gaps_to(opt.R1, best.R1))
         record["exact"] = {"theta": list(opt.theta), "R1": opt.R1, "P_c": opt.P_c, "P_len": opt.P_len, "gap": gap,
                            "gap_pct": 100 * gap / abs(opt.R1) if opt.R1 else float("nan")}  # fmt: skip

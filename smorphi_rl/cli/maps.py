@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, say_warnings, seed_arg
+from smorphi_rl.cli.common import DEFAULT_LOG_DIR, Parser, name_choices, one_line, say_warnings, seed_arg
 from smorphi_rl.cli.fields import finite_arg, param_default
 from smorphi_rl.errors import Interrupted, SmorphiError
 from smorphi_rl.floorplans import FloorKind
@@ -241,7 +241,8 @@ def _write_prepared(args: argparse.Namespace, transform: Any, check: Any = None,
     if not args.force and taken is not None:
         raise SmorphiError(f"{taken} exists; pass --force to overwrite it")
     source = load_map(args.map)
-    say_warnings(source)  # the new map reads such cells as the source does, and no longer says so
+    if (unknown := source.unknown_warning()) is not None:  # the new map reads them as free too, and no longer says so
+        print(one_line(unknown), file=sys.stderr)
     transformed = transform(source)
     grid_map, islands = drop_islands(transformed, args.min_island)
     if check is not None:

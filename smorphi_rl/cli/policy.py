@@ -280,7 +280,7 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     checkpoint = find_checkpoint(args.checkpoint)
     maps = list(resolve(map_paths(args.map))) if args.map is not None else None  # folders and globs expanded
     for path in map_files(tuple(maps or ())):
-        load_map(path)
+        say_warnings(load_map(path))  # a bad map fails here, before the policy loads
     from smorphi_rl.env import MorphologyEnv
     from smorphi_rl.training.checkpoints import load_module
     from smorphi_rl.training.policy import check_fits, env_config_of, unseen_warning
@@ -290,9 +290,9 @@ def cmd_evaluate_policy(args: argparse.Namespace) -> int:
     if args.plot is not None:  # the maps it rolls out on, given or the policy's own: a plot never replaces their images
         inputs = tuple(p for m in map_files(config.maps) for p in map_inputs(m))
         output_file(args.plot, "--plot", (".png",), inputs, args.force)
-    base = MorphologyEnv(config.to_dict())
-    for path in map_files(config.maps):
+    for path in map_files(config.maps) if maps is None else ():  # the policy's own maps
         say_warnings(load_map(path))
+    base = MorphologyEnv(config.to_dict())
     check_fits(module, base)
     trained = env_config_of(module, None)
     if (unseen := unseen_warning(trained, config)) is not None:  # on stderr: --json's stdout stays JSON lines

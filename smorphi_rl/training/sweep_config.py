@@ -476,7 +476,7 @@ def _resolve_checkpoint(entry: str, file: Path, fail: Any) -> str:
 def _resolve(entry: str, file: Path, key: str, fail: Any) -> str:
     """A map entry as the env takes it: a generator spec, or a file, folder or glob found in the working
     directory or next to the sweep file (made absolute)."""
-    from smorphi_rl.map_sources import MapSourceError, is_generator, parse_generator
+    from smorphi_rl.map_sources import MapSourceError, absolute_map, is_generator, parse_generator
 
     if is_generator(entry):
         try:
@@ -484,7 +484,12 @@ def _resolve(entry: str, file: Path, key: str, fail: Any) -> str:
         except MapSourceError as exc:
             raise fail(key, str(exc)) from None
     for base in (Path(entry), file.parent / entry):
-        if base.is_file() or base.is_dir() or (any(ch in entry for ch in "*?[") and base.parent.is_dir()):
+        if base.is_file():  # a linked map keeps its own name, as every command reads it (`absolute_map`)
+            try:
+                return absolute_map(base)
+            except MapSourceError as exc:
+                raise fail(key, str(exc)) from None
+        if base.is_dir() or (any(ch in entry for ch in "*?[") and base.parent.is_dir()):
             return str(base.resolve()) if not any(ch in entry for ch in "*?[") else str(base.parent.resolve() /
                                                                                         base.name)  # fmt: skip
     raise fail(key, f"map file '{entry}' not found (looked in the working directory and next to the sweep file)")

@@ -97,7 +97,7 @@ def test_a_budget_past_a_coarse_lattice_counts_as_the_lattice(policy, tmp_path):
     designer = load_designer(policy_with(policy, tmp_path / "coarse", meta))
     env = designer_env(designer, str(FLOOR))
     design = run_design(env, designer.logits, 1_000)
-    assert design.evaluations == 343 and design.rollouts < 400
+    assert design.evaluations == design.budget == 343 and design.rollouts < 400
 
 
 def test_design_prints_the_shape_its_cost_and_the_gap(policy, capsys, tmp_path):

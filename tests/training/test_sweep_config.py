@@ -83,6 +83,9 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
     monkeypatch.chdir(ROOT / "scripts")  # not where the map is
     cfg = load_sweep(write(tmp_path, "algorithms: [ppo]\nmaps: [m/map-1.yaml]\nseeds: [1]\n"))
     assert cfg.map_sets == ((str((tmp_path / "m" / "map-1.yaml").resolve()),),)
+    (tmp_path / "m" / "current.yaml").symlink_to(tmp_path / "m" / "map-1.yaml")  # read as itself, as nav2 reads it
+    cfg = load_sweep(write(tmp_path, "algorithms: [ppo]\nmaps: [m/current.yaml]\nseeds: [1]\n"))
+    assert cfg.map_sets == ((str((tmp_path / "m").resolve() / "current.yaml"),),)
 
 
 @pytest.mark.parametrize(
