@@ -316,11 +316,12 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     def sibling(self) -> MorphologyEnv:
         """A fresh env of the same configuration that shares this one's maps, observations and caches
-        (an env runner's sub-envs share them, so a shape scored by one is free for all); unseeded."""
+        (an env runner's sub-envs share them, so a shape scored by one is free for all); its random stream its own,
+        from fresh entropy, as an env never seeded draws it."""
         twin = copy.copy(self)
         twin._idx, twin._steps, twin._last, twin._best = (0, 0, 0), 0, UNSCORED, UNSCORED
         twin._started = False
-        twin._np_random, twin._np_random_seed = None, None
+        twin.np_random = np.random.default_rng()  # its own stream (a copy shared this env's), until seeded by reset
         return twin
 
     # -- helpers ---------------------------------------------------------------------------

@@ -55,7 +55,7 @@ EVAL_STARTS = 20
 EVAL_SEED = 20_231_101
 """The starts' own seed: independent of every training seed."""
 SELECT_SEED = EVAL_SEED + 1
-"""Seeds the start shapes on which a run chooses its final policy: never the protocol's own starts."""
+"""Seeds the start shapes on which a run chooses its final policy (`selection_starts`)."""
 SETTLE_WINDOW = 20
 """The settled shape is the one held most often over the last this many steps."""
 WITHIN = 0.01
@@ -69,6 +69,24 @@ def eval_starts(n: int = EVAL_STARTS, step_deg: float = 1.0, seed: int = EVAL_SE
     top = round(180 / step_deg)
     rng = np.random.default_rng(np.random.SeedSequence(seed))
     return lattice_axis(step_deg)[rng.integers(0, top + 1, size=(n, 3))]
+
+
+def selection_starts(n: int, step_deg: float, protocol: np.ndarray) -> np.ndarray:
+    """(n, 3) start shapes from SELECT_SEED's stream, none of them one of the `protocol`'s starts (a run reported on
+    those would otherwise be chosen on them too: 3 of 20 at a 45-degree step) while the lattice has a shape to spare;
+    at the default 1-degree step none collides, and these are the stream's first n."""
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"selection starts must be a positive integer, got {n!r}")
+    axis = lattice_axis(step_deg)
+    taken = {tuple(t) for t in protocol.tolist()}
+    spare = len(axis) ** 3 > len(taken)  # one shape the protocol left is enough: starts may repeat, as its own do
+    rng = np.random.default_rng(np.random.SeedSequence(SELECT_SEED))
+    out: list[np.ndarray] = []
+    while len(out) < n:
+        theta = axis[rng.integers(0, len(axis), size=3)]
+        if not spare or tuple(theta.tolist()) not in taken:
+            out.append(theta)
+    return np.array(out)
 
 
 def settled_theta(history: Sequence[tuple[float, float, float]]) -> tuple[float, float, float]:

@@ -138,6 +138,15 @@ def latest_learner_state(learner: Any) -> Any | None:
     return state
 
 
+def time_major(tensor: Any, trajectory_len: int, seq_lens: Any = None) -> Any:
+    """A [B * T] tensor laid out [T, B] by the helper RLlib's v-trace losses lay their own tensors out with
+    (`vtrace_torch_v2.make_time_major`, an unannotated function, not public API): the learnable-steps mask and the
+    frozen critic's values line up with the loss's tensors whatever layout RLlib picks."""
+    from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import make_time_major
+
+    return make_time_major(tensor, trajectory_len=trajectory_len, recurrent_seq_len=seq_lens)
+
+
 def tensor_norms(tensors: list[Any]) -> Any:
     """The L2 norm of each tensor, in one fused call (torch's `_foreach_norm`: no public multi-tensor norm)."""
     import torch

@@ -46,13 +46,17 @@ def _own_names(trees: dict[Path, ast.Module]) -> set[str]:
         for node in ast.walk(tree):
             if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
                 own.add(node.name)
-            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store):
-                own.add(node.attr)
+            elif isinstance(node, ast.Attribute) and isinstance(node.ctx, ast.Store) and _on_self(node):
+                own.add(node.attr)  # `self._x = ...`: `other._x = ...` writes what may be another package's
             elif isinstance(node, ast.Name) and isinstance(node.ctx, ast.Store):
                 own.add(node.id)
             elif _registers_buffer(node):  # self.register_buffer("_freqs", ...): our own attribute
                 own.add(node.args[0].value)  # type: ignore[attr-defined]
     return {name for name in own if _private(name)} | DOCUMENTED
+
+
+def _on_self(node: ast.Attribute) -> bool:
+    return isinstance(node.value, ast.Name) and node.value.id in ("self", "cls")
 
 
 def _registers_buffer(node: ast.AST) -> bool:
@@ -128,13 +132,13 @@ def test_the_scan_sees_a_private_read_an_import_and_leaves_our_own_names_alone()
     tree = ast.parse(
         "from ray._private import services\nimport torch._dynamo\nlearner._params\nself._mine\nself._mine = 1\n"
         "import inspect\nfrom ray.rllib.utils import torch_utils\nm = inspect.getmodule(f)\nm.batch = g\n"
-        "torch_utils.clip_gradients = g\nwrapper.__class__ = Other\nself.batch = g\n"
+        "torch_utils.clip_gradients = g\nwrapper.__class__ = Other\nself.batch = g\nenv._np_random = None\n"
     )
     uses = sorted(
         use.split(" ", 1)[1] for use in _uses(PACKAGE / "x.py", tree, own=_own_names({PACKAGE / "x.py": tree}))
     )
     assert uses == [
-        "._params", "__class__ swapped", "m.batch assigned", "ray._private: _private", "torch._dynamo",
+        "._np_random", "._params", "__class__ swapped", "m.batch assigned", "ray._private: _private", "torch._dynamo",
         "torch_utils.clip_gradients assigned",
     ]  # fmt: skip
 

@@ -38,6 +38,20 @@ def test_starts_are_fixed_on_the_lattice_and_their_own_stream():
         eval_starts(0)
 
 
+def test_the_selection_starts_are_never_the_protocols_own():
+    """Drawn from an independent seed, 3 of 20 selection starts were protocol starts at a 45-degree step: the policy
+    was partly chosen on the starts it is reported on. At 1 degree nothing collides and nothing moved."""
+    from smorphi_rl.protocol import SELECT_SEED, selection_starts
+
+    for step in (45.0, 30.0, 90.0):
+        protocol = eval_starts(20, step)
+        chosen = selection_starts(20, step, protocol)
+        assert chosen.shape == (20, 3) and not {tuple(t) for t in chosen} & {tuple(t) for t in protocol}
+    assert np.array_equal(selection_starts(20, 1.0, eval_starts(20)), eval_starts(20, 1.0, SELECT_SEED))
+    few = selection_starts(5, 180.0, eval_starts(40, 180.0))  # 8 shapes, all 8 taken: none to spare
+    assert few.shape == (5, 3)
+
+
 def test_settled_is_the_most_held_shape_of_the_last_steps():
     a, b, c = (1.0, 1.0, 1.0), (2.0, 2.0, 2.0), (3.0, 3.0, 3.0)
     assert settled_theta([c] * 50 + [a] * 12 + [b] * 8) == a

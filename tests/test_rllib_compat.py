@@ -133,6 +133,19 @@ def test_the_normalised_losses_are_rllibs_own_with_the_normalising_vtrace():
         assert theirs.compute_loss_for_module.__globals__["vtrace_torch"] is not normalised_vtrace  # RLlib's intact
 
 
+def test_the_time_major_layout_is_the_one_rllibs_vtrace_losses_use():
+    """Our mask and frozen values go through RLlib's own helper, which its IMPALA and APPO losses call by keyword."""
+    from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
+    from ray.rllib.algorithms.impala.torch import vtrace_torch_v2
+    from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
+
+    for learner in (IMPALATorchLearner, APPOTorchLearner):
+        assert "make_time_major" in learner.compute_loss_for_module.__code__.co_names
+    keywords = inspect.signature(vtrace_torch_v2.make_time_major).parameters
+    assert keywords["trajectory_len"].kind is keywords["recurrent_seq_len"].kind is inspect.Parameter.KEYWORD_ONLY
+    assert rllib_compat.time_major(torch.arange(6.0), 3).tolist() == [[0.0, 3.0], [1.0, 4.0], [2.0, 5.0]]
+
+
 def test_torchs_fused_norms_scaling_and_version_counter():
     tensors = [torch.tensor([3.0, 4.0]), torch.tensor([1.0])]
     assert torch.equal(rllib_compat.tensor_norms(tensors), torch.tensor([5.0, 1.0]))

@@ -7,6 +7,8 @@ Runs inside the env runners (`on_episode_end`) and the trial process (`on_algori
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import replace
 from typing import Any
 
@@ -310,6 +312,15 @@ def diverged(module: Any) -> str:
 def _on_learner_itself(algorithm: Any, call: Any) -> Any:
     (first, *_) = list(algorithm.learner_group.foreach_learner(call))
     return first.get()
+
+
+@contextmanager
+def updates_paused(algorithm: Any) -> Iterator[None]:
+    """No optimizer step of the learner while the block runs (an asynchronous learner's thread waits at its next
+    one): a checkpoint written inside holds the weights and optimizer state of one update. The learner is the
+    driver's own (`num_learners=0`, training/config.py), so the lock itself comes back to be held here."""
+    with _on_learner_itself(algorithm, update_lock):
+        yield
 
 
 def selection_score(evaluations: list[Any]) -> tuple[int, float]:

@@ -34,7 +34,6 @@ from typing import Any
 import torch
 from ray.rllib.algorithms.appo.torch.appo_torch_learner import APPOTorchLearner
 from ray.rllib.algorithms.impala.torch.impala_torch_learner import IMPALATorchLearner
-from ray.rllib.algorithms.impala.torch.vtrace_torch_v2 import make_time_major
 from ray.rllib.algorithms.ppo.torch.ppo_torch_learner import PPOTorchLearner
 from ray.rllib.connectors.connector_v2 import ConnectorV2
 from ray.rllib.core.columns import Columns
@@ -145,14 +144,13 @@ def with_trace_settings(loss: Callable[..., Any]) -> Callable[..., Any]:
         lambda_, pg_lambda = float(settings.get(TRACE_LAMBDA_KEY, 1.0)), float(settings.get(PG_LAMBDA_KEY, 1.0))
         mask = learnable_steps(batch[Columns.LOSS_MASK])
         batch = {**batch, Columns.LOSS_MASK: mask}
-        time_major = make_time_major(mask.float(), trajectory_len=config.get_rollout_fragment_length(),
-                                     recurrent_seq_len=batch.get("seq_lens"))  # fmt: skip
+        steps = config.get_rollout_fragment_length()
+        by_time = rllib_compat.time_major(mask.float(), steps, batch.get("seq_lens"))
         frozen = getattr(self, "frozen_values", None)
         values = frozen(module_id, batch) if frozen is not None and settings.get(FROZEN_CRITIC_KEY) else None
         if values is not None:
-            values = make_time_major(values, trajectory_len=config.get_rollout_fragment_length(),
-                                     recurrent_seq_len=batch.get("seq_lens"))  # fmt: skip
-        token = _TRACE.set(TraceSettings(lambda_, pg_lambda, mask=time_major, values=values))
+            values = rllib_compat.time_major(values, steps, batch.get("seq_lens"))
+        token = _TRACE.set(TraceSettings(lambda_, pg_lambda, mask=by_time, values=values))
         try:
             return loss(self, module_id=module_id, config=config, batch=batch, fwd_out=fwd_out)
         finally:

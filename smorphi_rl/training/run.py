@@ -32,7 +32,6 @@ from smorphi_rl.protocol import (
     EVAL_KEY,
     NO_OPTIMUM,
     OPTIMUM_MAX_CELLS,
-    SELECT_SEED,
     TRAINED_KEY,
     Optimum,
     cached_optimum,
@@ -40,6 +39,7 @@ from smorphi_rl.protocol import (
     exact_optimum,
     make_cache,
     optimum_cache,
+    selection_starts,
 )
 from smorphi_rl.quiet import quiet
 from smorphi_rl.rundir import (
@@ -313,7 +313,7 @@ def trial_callbacks(cfg: TrainConfig, optima: dict[str, Optimum], base: type | N
         return base
     step = cfg.env.angle_step_deg
     starts = eval_starts(cfg.eval_starts, step)
-    selection = eval_starts(cfg.select_starts, step, SELECT_SEED) if cfg.select_starts else ()
+    selection = selection_starts(cfg.select_starts, step, starts) if cfg.select_starts else ()
     return with_evaluation(base, cfg.eval_every, starts, optima, cfg.timesteps, selection, cfg.evaluation_maps,
                            cfg.design_budget)  # fmt: skip
 

@@ -81,7 +81,7 @@ def run_trial(
     from ray.rllib.core import DEFAULT_MODULE_ID
     from ray.tune.result import AUTO_RESULT_KEYS
 
-    from smorphi_rl.training.callbacks import end_run, kept_policy, restore_kept
+    from smorphi_rl.training.callbacks import end_run, kept_policy, restore_kept, updates_paused
 
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
@@ -119,9 +119,10 @@ def run_trial(
             metrics[keys.TRIAL_DONE] = done
             if done or algo.iteration % cfg.checkpoint_every == 0:
                 with tempfile.TemporaryDirectory(prefix=STAGING_PREFIX, dir=trial_dir) as path:
-                    algo.save_to_path(path)
-                    if resumable:
-                        save_state(algo, Path(path), elapsed, kept_policy(algo))
+                    with updates_paused(algo):  # IMPALA's and APPO's thread: both files of one update
+                        algo.save_to_path(path)
+                        if resumable:
+                            save_state(algo, Path(path), elapsed, kept_policy(algo))
                     tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
             else:
                 tune.report(metrics)

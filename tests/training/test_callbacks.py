@@ -121,6 +121,68 @@ def test_evaluation_snapshots_are_never_torn_by_a_learner_thread_stepping_the_op
     assert twin is not module and not torn(twin.state_dict())
 
 
+def test_no_optimizer_step_lands_while_a_checkpoint_is_written():
+    """A checkpoint of IMPALA or APPO read the learner's weights and Adam state from the driver while the learner
+    thread stepped: two updates' weights in one checkpoint, the state file of a third."""
+    import threading
+    import time
+
+    import torch
+    from ray.rllib.core import DEFAULT_MODULE_ID
+    from ray.rllib.utils.actor_manager import RemoteCallResults, ResultOrError
+
+    from smorphi_rl.training.callbacks import updates_paused
+    from smorphi_rl.training.snapshot import update_lock
+
+    module = torch.nn.Linear(4, 2)
+    optimizer = torch.optim.SGD(module.parameters(), lr=0.1)
+
+    class Learner:  # the learner's two parts the lock reads; RLlib's local LearnerGroup hands it to the call
+        def __init__(self):
+            self.module = {DEFAULT_MODULE_ID: module}
+
+        def get_optimizers_for_module(self, module_id):
+            return [("default_optimizer", optimizer)]
+
+    class LocalGroup:
+        def __init__(self, learner):
+            self.learner = learner
+
+        def foreach_learner(self, call):  # as LearnerGroup.foreach_learner with num_learners=0
+            results = RemoteCallResults()
+            results.add_result(None, ResultOrError(result=call(self.learner)), None)
+            return results
+
+    class Algorithm:
+        learner_group = LocalGroup(Learner())
+
+    update_lock(Algorithm.learner_group.learner)
+    steps, stop = [0], threading.Event()
+
+    def learn() -> None:
+        while not stop.is_set():
+            optimizer.step()
+            steps[0] += 1
+            time.sleep(0.001)
+
+    thread = threading.Thread(target=learn, daemon=True)
+    thread.start()
+    try:
+        deadline = time.monotonic() + 60
+        while steps[0] < 5 and time.monotonic() < deadline:
+            time.sleep(0.001)
+        with updates_paused(Algorithm):
+            paused = steps[0]
+            time.sleep(0.2)  # a checkpoint being written
+            during = steps[0] - paused
+        while steps[0] < paused + 5 and time.monotonic() < deadline:
+            time.sleep(0.001)
+    finally:
+        stop.set()
+        thread.join()
+    assert during <= 1 and steps[0] >= paused + 5  # at most the step already past its lock; learning went on after
+
+
 def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_convergence(monkeypatch):
     """Evaluations 20 %, 100 %, 20 %, 20 % of the starts within 1 %: the run ends on the 100 % policy, whose
     figures its last row reports, but the curves (and so convergence) read the policy training ended with."""
