@@ -506,7 +506,7 @@ def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run
     from smorphi_rl.training.checkpoints import checkpoints_under
 
     logs, name = cached_optimum, "killed"
-    argv = ["train", "--timesteps", "20000", "--checkpoint-every", "2", "--env-runners", "1", "--envs-per-runner",
+    argv = ["train", "--timesteps", "12000", "--checkpoint-every", "2", "--env-runners", "1", "--envs-per-runner",
             "4", "--eval-every", "2", "--eval-starts", "4", "--select-starts", "0", "--record-every", "0", "--name",
             name, "--log-dir", str(logs)]  # fmt: skip
     proc = subprocess.Popen([sys.executable, "-m", "smorphi_rl.cli", *argv], env=own_cache() | PROMPT_ROWS,
@@ -529,8 +529,8 @@ def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run
     assert run.returncode == 0, run.stderr[-3000:]
     assert "resuming killed from its checkpoint of " in run.stderr
     summary = json.loads((logs / name / "summary.json").read_text())
-    assert summary["env_steps"] >= 20000 and 0 < summary["resumed_at"] < 20000 and not summary["interrupted"]
-    assert summary["iterations"] == 10  # the iterations before the checkpoint and after it, each once
+    assert summary["env_steps"] >= 12000 and 0 < summary["resumed_at"] < 12000 and not summary["interrupted"]
+    assert summary["iterations"] == 6  # the iterations before the checkpoint and after it, each once
     (trial,) = (logs / name).glob("ppo-*")  # the same trial's folder, the earlier files set aside in it
     assert (trial / "before-resume-1" / "result.json").is_file() and "resumed at" in run.stdout
     assert main(["train", *argv[1:], "--resume"]) == 1  # finished: nothing to continue
@@ -539,5 +539,5 @@ def test_a_killed_run_resumes_from_its_last_checkpoint_and_reports_the_whole_run
                            capture_output=True, text=True, timeout=300)  # fmt: skip
     assert again.returncode == 0, again.stderr[-3000:]
     rewritten = json.loads((logs / name / "summary.json").read_text())
-    assert (rewritten["env_steps"], rewritten["iterations"]) == (summary["env_steps"], 10)  # not one iteration more
+    assert (rewritten["env_steps"], rewritten["iterations"]) == (summary["env_steps"], 6)  # not one iteration more
     assert not (trial / "before-resume-2").exists()
