@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
+from smorphi_rl.geometry import lattice_size
 from smorphi_rl.score import Scored
 
 DESIGN_STARTS = 64
@@ -116,8 +117,7 @@ def run_design(
     """Roll-outs of the policy on `env` (a MorphologyEnv of one map) until `budget` distinct shapes are scored
     (module docstring); the best shape scored is the design. `progress(done, budget)` hears of every
     PROGRESS_EVERY shapes scored."""
-    lattice = (round(180 / env.config.angle_step_deg) + 1) ** 3
-    budget = min(check_budget(budget), lattice)  # past the lattice's size, sampled roll-outs would spin on it
+    budget = min(check_budget(budget), lattice_size(env.config.angle_step_deg))  # past it, roll-outs would spin
     policy_budget = max(1, budget - int(REFINE_SHARE * budget))
     starts = design_starts(step_deg=env.config.angle_step_deg) if starts is None else starts
     nvec = [int(n) for n in env.action_space.nvec]

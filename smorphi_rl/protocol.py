@@ -23,7 +23,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import lattice_axis
+from smorphi_rl.geometry import lattice_axis, lattice_size
 from smorphi_rl.score import Weights
 
 if TYPE_CHECKING:
@@ -79,7 +79,7 @@ def selection_starts(n: int, step_deg: float, protocol: np.ndarray) -> np.ndarra
         raise ValueError(f"selection starts must be a positive integer, got {n!r}")
     axis = lattice_axis(step_deg)
     taken = {tuple(t) for t in protocol.tolist()}
-    spare = len(axis) ** 3 > len(taken)  # one shape the protocol left is enough: starts may repeat, as its own do
+    spare = lattice_size(step_deg) > len(taken)  # one shape left is enough: starts may repeat, as its own do
     rng = np.random.default_rng(np.random.SeedSequence(SELECT_SEED))
     out: list[np.ndarray] = []
     while len(out) < n:

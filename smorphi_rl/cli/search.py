@@ -26,7 +26,7 @@ from smorphi_rl.cli.common import (
 )
 from smorphi_rl.cli.fields import UNSET, option
 from smorphi_rl.errors import Interrupted, SmorphiError
-from smorphi_rl.geometry import angles_text, check_step
+from smorphi_rl.geometry import angles_text, check_step, lattice_size
 from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import load_map
 from smorphi_rl.progress import progress_line
@@ -193,7 +193,7 @@ def format_search(
     )
     if result.method == "optimum":
         p = result.params
-        n_lattice = (round(180 / p["step_deg"]) + 1) ** 3
+        n_lattice = lattice_size(p["step_deg"])
         lines = [f"optimum on {result.map_name}: the best R1 of {n_lattice:,} shapes ({p['step_deg']:g}-degree "
                  f"lattice) in {result.wall_s:.1f} s: {extra:,} distinct footprints, {p['planned_footprints']:,} "
                  f"planned, {p['pruned_footprints']:,} pruned by the bound",

@@ -11,7 +11,7 @@ from pathlib import Path
 from smorphi_rl.coverage import Planner
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import check_step
+from smorphi_rl.geometry import check_step, lattice_size
 from smorphi_rl.planning import PAPER_PLANNING, Planning
 from smorphi_rl.protocol import EVAL_STARTS
 from smorphi_rl.search.results import MAX_EVALUATIONS, SearchResult
@@ -110,7 +110,7 @@ class SearchConfig:
     def evaluations(self) -> int:
         """The shapes the run scores at most."""
         if self.method in LATTICE_METHODS:
-            return (round(180 / self.step) + 1) ** 3
+            return lattice_size(self.step)
         if self.method == "random":
             return self.samples
         if self.method in LOCAL_METHODS:

@@ -26,7 +26,7 @@ import numpy as np
 from smorphi_rl._kernels import NO_PRUNE
 from smorphi_rl.cluster import usable_cpus
 from smorphi_rl.errors import Interrupted, SmorphiError
-from smorphi_rl.geometry import angles_text, check_step
+from smorphi_rl.geometry import angles_text, check_step, lattice_size
 from smorphi_rl.interrupts import stop_requests
 from smorphi_rl.maps import Map, as_map
 from smorphi_rl.planning import PAPER_PLANNING, Evaluator, Planning, lattice_thetas
@@ -69,7 +69,7 @@ def _init(grid_map: Map, planning: Planning, parent: int, step: float, weights: 
     global _worker, _lattice, _bound
     import signal
 
-    if _lattice is None or len(_lattice) != (round(180 / step) + 1) ** 3:  # a spawned worker builds its own
+    if _lattice is None or len(_lattice) != lattice_size(step):  # a spawned worker builds its own
         _lattice = lattice_thetas(step)
     die_with_parent(parent)
     # Ctrl-C and SIGTERM are the parent's to handle, also when sent to the whole process group (a terminal,

@@ -35,7 +35,7 @@ import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import RewardMode
-from smorphi_rl.geometry import lattice_angle
+from smorphi_rl.geometry import lattice_angle, lattice_size
 from smorphi_rl.protocol import EVAL_STARTS, Outcome, eval_starts, settled_theta
 from smorphi_rl.search.results import SearchResult
 
@@ -57,7 +57,7 @@ class _Budgeted:
         """Told the count of shapes scored after each new one (a design's progress)."""
         self.step = env.config.angle_step_deg
         self.n = round(180 / self.step)
-        self.lattice = (self.n + 1) ** 3
+        self.lattice = lattice_size(self.step)
         self.env, self.budget = env, min(budget, self.lattice)  # a budget past the lattice counts as the lattice
         self.seen: dict[Theta, float] = {}
         self.metrics: dict[Theta, tuple[float, int, bool]] = {}

@@ -14,7 +14,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import check_step
+from smorphi_rl.geometry import check_step, lattice_size
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
@@ -189,7 +189,7 @@ def load(run_dir: str | Path) -> SearchResult:
             whole = isinstance(step, int | float) and check_step(float(step)) > 0
         except (SmorphiError, OverflowError):  # OverflowError: an integer of hundreds of digits
             whole = False
-        if not whole or n != (round(180 / step) + 1) ** 3:
+        if not whole or n != lattice_size(step):
             raise bad(f"an exhaustive run whose step {step!r} does not divide 180 or does not match its {n:,} shapes")
     return SearchResult(
         summary["method"], summary["map"], thetas.astype(np.float64), p_c.astype(np.float64), p_len.astype(np.int64),
