@@ -455,7 +455,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
                 Morphology.of(start)
             except (SmorphiError, TypeError, ValueError) as exc:
                 raise EnvConfigError(f"reset option 'theta': {exc}") from None
-            i, j, k = (min(round(t / self.config.angle_step_deg), self._lattice_max) for t in start)
+            step = self.config.angle_step_deg  # a tie to 9 places is a tie: 0.35 / 0.1 is 3.4999999999999996
+            i, j, k = (min(round(round(t / step, 9)), self._lattice_max) for t in start)
         else:
             i, j, k = (int(v) for v in self.np_random.integers(0, self._lattice_max + 1, size=3))
         self._idx = (i, j, k)

@@ -144,6 +144,15 @@ def test_angle_step_and_lattice_start():
     assert info["theta"] == expected
 
 
+def test_a_start_halfway_between_two_lattice_angles_rounds_half_to_even():
+    """0.35 / 0.1 is 3.4999999999999996 in floats: (0.35, 0.15, 179.95) started at (0.3, 0.1, 179.9), where the spec's
+    half to even gives (0.4, 0.2, 180)."""
+    env = MorphologyEnv({"angle_step_deg": 0.1})
+    theta = env.reset(seed=0, options={"theta": (0.35, 0.15, 179.95)})[1]["theta"]
+    assert np.allclose(theta, (0.4, 0.2, 180.0)) and theta[2] == 180.0
+    assert MorphologyEnv({"angle_step_deg": 2}).reset(seed=0, options={"theta": (3, 5, 1)})[1]["theta"] == (4, 4, 0)
+
+
 def test_truncation_and_threshold_termination():
     env = MorphologyEnv({"max_steps": 4})
     env.reset(seed=0)
