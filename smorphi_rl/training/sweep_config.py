@@ -29,7 +29,7 @@ from smorphi_rl.inputs import (
     is_finite_number,
     strict_yaml,
 )
-from smorphi_rl.map_sources import map_set_label, name_clash
+from smorphi_rl.map_sources import is_generator, map_set_label, name_clash
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.config import INTEGER_HYPERPARAMETERS, TrainConfig
 from smorphi_rl.training.presets import ALGORITHMS, PRESETS
@@ -280,6 +280,11 @@ def load_sweep(path: str | Path) -> SweepConfig:
             if said.startswith("env_config 'maps'"):  # an entry of this set, not an env override
                 raise fail(f"maps[{i}]", said.removeprefix("env_config 'maps'").lstrip(": ")) from None
             raise fail(sweep_key(said, doc.env, "env"), said) from None
+    named: dict[str, str] = {}
+    for k in map(str, doc.search):  # lambda and lambda_ are one setting: both given, one would vanish unsaid
+        other = named.setdefault(ALIASES.get(k, k), k)
+        if other != k:
+            raise fail(f"search.{k}", f"{other} and {k} are one setting: give one")
     spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in doc.search.items()}
     for k, space in spaces.items():  # num_epochs: {grid: [1e1, 2e1]}, whole numbers YAML read as floats
         if k in INTEGER_HYPERPARAMETERS and space.kind in ("constant", "grid", "choice"):
@@ -307,6 +312,10 @@ def load_sweep(path: str | Path) -> SweepConfig:
         env_runners=doc.env_runners,
         envs_per_runner=doc.envs_per_runner,
     )
+    layout = spaces.get("policy_angle_frequencies")
+    if cfg.pretrained is not None and layout is not None and len(set(layout.examples())) > 1:
+        raise fail("search.policy_angle_frequencies", "a pretrained policy is fine-tuned in the layout it was "
+                   "trained with: its trials would be one trial under several labels")  # fmt: skip
     if cfg.num_samples > 1 and all(s.kind in ("grid", "constant") for s in spaces.values()):
         raise fail("num_samples", f"{cfg.num_samples} samples of a search with no random part would repeat the same "
                    "trials: give more seeds, or a choice, uniform or loguniform part")  # fmt: skip
@@ -339,14 +348,34 @@ def load_sweep(path: str | Path) -> SweepConfig:
     if clash is not None:  # groups, tables, optima and the resume's digests are keyed by a map's name
         raise fail("maps", f"{clash[0]} and {clash[1]} share the name {Path(clash[1]).stem!r}, which names the "
                    "trials, the groups of the tables and the optima: rename one")  # fmt: skip
-    for algo in cfg.algorithms:  # every value of every space must suit every algorithm
-        for key, space in spaces.items():
+    firsts = {k: space.examples()[0] for k, space in spaces.items()}
+    for algo in cfg.algorithms:  # every value of every space must suit every algorithm, the others' first beside it
+        for key, space in spaces.items():  # (lr_knee_at is refused without the lr_knee it places)
             for value in space.examples():
                 try:
-                    cfg.base_config(algo, map_sets[0], cfg.seeds[0], {key: value})
+                    cfg.base_config(algo, map_sets[0], cfg.seeds[0], firsts | {key: value})
                 except SmorphiError as exc:
                     raise fail(f"search.{key}", str(exc)) from None
+    _check_combinations(cfg, map_sets[0], fail)
     return cfg
+
+
+def _check_combinations(cfg: SweepConfig, maps: tuple[str, ...], fail: Any) -> None:
+    """Each trial's values together, before Ray starts: a minibatch_size and a train_batch_size that each suit the
+    algorithm alone may not suit each other, and the trial would fail hours in."""
+    if len(cfg.search) < 2:
+        return
+    checked: set[tuple[str, tuple[tuple[str, Any], ...]]] = set()
+    for trial in cfg.trials():
+        key = (trial["algo"], tuple(sorted(trial["hp"].items())))
+        if key in checked:  # the same values under another seed or map set
+            continue
+        checked.add(key)
+        try:
+            cfg.base_config(trial["algo"], maps, cfg.seeds[0], trial["hp"])
+        except SmorphiError as exc:
+            shown = ", ".join(f"{k}={v:g}" if isinstance(v, float) else f"{k}={v}" for k, v in key[1])
+            raise fail("search", f"trial {trial['index']} ({trial['algo']}, {shown}): {exc}") from None
 
 
 def trial_dirname(trial: dict[str, Any]) -> str:
@@ -455,11 +484,13 @@ def _map_set(item: Any, key: str, file: Path, fail: Any) -> tuple[str, ...]:
     items = item if isinstance(item, list) else [item]
     if not items:
         raise fail(key, "expected a map path or a non-empty list of them")
-    out = []
+    out: list[str] = []
     for p in items:
         if not isinstance(p, str):
             raise fail(key, f"expected a map path, got {p!r}")
         out.append(_resolve(p, file, key, fail))
+        if out[-1] in out[:-1] and not is_generator(out[-1]):  # a floor generator given twice weighs it
+            raise fail(key, f"{p} is given twice in one set: each of its evaluation starts would count twice")
     return tuple(out)
 
 

@@ -157,6 +157,26 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         ("- just\n- a list\n", "expected a mapping of keys"),
         ("algorithms: [ppo\n", "not valid YAML at line"),
         (base("pretrained: /no/such/ckpt\n"), "key 'pretrained': checkpoint '/no/such/ckpt' not found"),
+        (
+            base("search:\n  minibatch_size: {grid: [250, 1000]}\n  train_batch_size: {grid: [500, 4000]}\n"),
+            "key 'search.minibatch_size': minibatch_size (1000) must not exceed train_batch_size (500)",
+        ),
+        (
+            base("search:\n  minibatch_size: {grid: [250, 1000]}\n  train_batch_size: {grid: [4000, 500]}\n"),
+            "key 'search': trial 3 (ppo, minibatch_size=1000, train_batch_size=500): minibatch_size (1000) must not",
+        ),
+        (base("search:\n  lambda: 0.5\n  lambda_: 0.9\n"), "key 'search.lambda_': lambda and lambda_ are one"),
+        (
+            base(
+                f"pretrained: {ROOT / 'smorphi_rl' / 'policies' / 'designer'}\n"
+                "search:\n  policy_angle_frequencies: {grid: [0, 8]}\n"
+            ),
+            "key 'search.policy_angle_frequencies': a pretrained policy is fine-tuned in the layout it was",
+        ),
+        (
+            base("maps: [[" + MAP_1 + ", " + MAP_1 + "]]\n").replace(f"maps: [{MAP_1}]\n", ""),
+            "key 'maps[0]': " + MAP_1 + " is given twice in one set",
+        ),
     ],
 )
 def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
@@ -165,6 +185,12 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
         load_sweep(path)
     assert str(info.value).startswith(f"{path}: ")
     assert message in str(info.value)
+
+
+def test_a_setting_that_needs_another_searched_beside_it_loads(tmp_path):
+    """lr_knee_at was checked alone, and refused as placing an lr_knee not set, though the file set both."""
+    cfg = load_sweep(write(tmp_path, base("search:\n  lr_knee: 0.0001\n  lr_knee_at: {grid: [0.3, 0.6]}\n")))
+    assert [t["hp"]["lr_knee_at"] for t in cfg.trials()] == [0.3, 0.6]
 
 
 def test_numbers_with_an_exponent_are_numbers(tmp_path):
