@@ -120,14 +120,20 @@ def reproduce(
 ) -> Path:
     """Run every experiment of `budget_name`; returns the report's path. `stamped`: `name` is one the command made
     from the time, so a job started in the same second takes `<name>-2`. A stop request names the job's folder."""
-    from smorphi_rl.rundir import prepare_run_dir, prepare_stamped_run_dir
+    from smorphi_rl import cluster
+    from smorphi_rl.rundir import MARKER, discard_run_dir, prepare_run_dir, prepare_stamped_run_dir
 
     if budget_name not in BUDGETS:
         raise SmorphiError(f"unknown budget '{budget_name}' (choose from {', '.join(BUDGETS)})")
     b = BUDGETS[budget_name]
+    cluster.check_reachable(None, client=False)  # a local Ray that cannot start (its temp folder): one line, no folder
     root = (prepare_stamped_run_dir if stamped else prepare_run_dir)(log_dir, name)
     try:
         return _run_job(b, budget_name, root, log_dir, out)
+    except cluster.ClusterError:  # Ray did not start: nothing ran, and the name stays free
+        if all(p.name == MARKER for p in root.iterdir()):
+            discard_run_dir(root)
+        raise
     except KeyboardInterrupt as exc:  # Ctrl-C, or a run a stop request cut short: what was written stays
         if isinstance(exc, ReportWhole) or not root.is_dir():  # a run's own word is not the job's
             raise

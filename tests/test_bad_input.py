@@ -913,3 +913,28 @@ def test_a_plain_pgm_with_a_stray_token_is_judged_as_before(tmp_path, capsys):
             assert code == 0 and "2 x 2 cells" in out, err
         else:
             assert code == 1 and err.count("\n") == 1 and message in err, err
+
+
+def test_a_sweep_or_a_transfer_resume_whose_ray_cannot_start_leaves_nothing_behind(tmp_path, monkeypatch, capsys):
+    """Ray failing to start (a temp folder under /proc) left the sweep's folder, so the same command, once Ray could
+    start, was refused as a name taken; a transfer --resume recorded the seed it added, so the next --resume
+    without it was refused as leaving out a seed the job had never run."""
+    import json
+
+    from smorphi_rl.training.transfer import JOB_FILE
+
+    config = tmp_path / "s.yaml"
+    config.write_text(f"name: rayfail\nalgorithms: [ppo]\nmaps: [{MAP_1}]\nseeds: [0]\ntimesteps: 2000\n")
+    monkeypatch.setenv("RAY_TMPDIR", "/proc/nope")
+    code, _, err = run(capsys, "sweep", str(config), "--log-dir", str(tmp_path / "logs"))
+    assert code == 1 and "cannot start or reach a local Ray" in err and not (tmp_path / "logs" / "rayfail").exists()
+    job = tmp_path / "logs" / "job"
+    job.mkdir()
+    designer, val_1 = ROOT / "smorphi_rl" / "policies" / "designer", str(ROOT / "maps" / "val-1.yaml")
+    recorded = json.dumps({"pretrained": str(designer), "maps": [val_1], "seeds": [0]})
+    (job / JOB_FILE).write_text(recorded)
+    code, _, err = run(capsys, "transfer", "--pretrained", str(designer), "--maps", val_1, "--seeds", "0", "7",
+                       "--timesteps", "2000", "--name", "job", "--log-dir", str(tmp_path / "logs"),
+                       "--resume")  # fmt: skip
+    assert code == 1 and "cannot start or reach a local Ray" in err, err
+    assert (job / JOB_FILE).read_text() == recorded

@@ -214,11 +214,13 @@ def test_the_usable_cores_are_within_the_machines_and_the_quota(monkeypatch):
         ({"TMPDIR": "/" + "t" * 39}, "socket paths under /tttt"),
     ],
 )
+@pytest.mark.parametrize("job", [["train", "--timesteps", "2000"], ["reproduce", "--budget", "tiny"]])
 def test_a_temp_folder_a_local_ray_cannot_start_in_is_one_line_before_anything_is_written(
-    env, said, tmp_path, monkeypatch, capsys
+    env, said, job, tmp_path, monkeypatch, capsys
 ):
     """An empty TMPDIR (a batch script's unset variable) timed out Ray's start-up after 30 s in a 34-line
-    traceback and left a `ray` folder in the current one; one too long failed as Ray started, after the optimum."""
+    traceback and left a `ray` folder in the current one; one too long failed as Ray started, after the optimum.
+    `reproduce` did not look: it made its folder, waited 30 s and left Ray's folder in the current one."""
     from smorphi_rl.cli import main
 
     for name in ("RAY_TMPDIR", "TMPDIR"):
@@ -226,7 +228,7 @@ def test_a_temp_folder_a_local_ray_cannot_start_in_is_one_line_before_anything_i
     for name, value in env.items():
         monkeypatch.setenv(name, value)
     monkeypatch.chdir(tmp_path)
-    assert main(["train", "--timesteps", "2000", "--log-dir", "logs"]) != 0
+    assert main([*job, "--log-dir", "logs"]) != 0
     err = capsys.readouterr().err
     assert said in err and len(err.splitlines()) == 1 and not list(tmp_path.iterdir())
 

@@ -383,6 +383,11 @@ def run_sweep(
                 raise
             discard_run_dir(exp)  # stopped before any trial reported: nothing to resume, the name stays free
             raise Interrupted(nothing_kept(exp, "sweep")) from None
+        except cluster.ClusterError:  # Ray did not start, or the cluster cannot take the trials: none ran
+            held.close()
+            if not resume:
+                discard_run_dir(exp)  # the name stays free for the same command once Ray can start
+            raise
     wall = time.monotonic() - t0
     progress.finish()
     with interrupts.results_held(late, held):

@@ -280,9 +280,9 @@ def load_sweep(path: str | Path) -> SweepConfig:
             if said.startswith("env_config 'maps'"):  # an entry of this set, not an env override
                 raise fail(f"maps[{i}]", said.removeprefix("env_config 'maps'").lstrip(": ")) from None
             raise fail(sweep_key(said, doc.env, "env"), said) from None
-    named: dict[str, str] = {}
+    spelt: dict[str, str] = {}
     for k in map(str, doc.search):  # lambda and lambda_ are one setting: both given, one would vanish unsaid
-        other = named.setdefault(ALIASES.get(k, k), k)
+        other = spelt.setdefault(ALIASES.get(k, k), k)
         if other != k:
             raise fail(f"search.{k}", f"{other} and {k} are one setting: give one")
     spaces = {ALIASES.get(str(k), str(k)): _space(v, f"search.{k}", fail) for k, v in doc.search.items()}

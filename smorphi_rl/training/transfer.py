@@ -208,8 +208,10 @@ def run_transfer(
             raise
     else:
         claim_again(job_dir)  # refused while the process that ran it still runs
-    write_text_atomic(job_dir / JOB_FILE, jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
-                                                      "seeds": list(job.seeds)}, indent=2))  # fmt: skip
+    record = jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps), "seeds": list(job.seeds)},
+                            indent=2)  # fmt: skip
+    if not resume:  # a resume records what it adds once a run of it starts: one refused or stopped before adds none
+        write_text_atomic(job_dir / JOB_FILE, record)
     done: dict[str, TransferRun] = {}
 
     def reported() -> list[TransferRun]:  # in the job's order: the runs so far and those of earlier calls
@@ -224,6 +226,8 @@ def run_transfer(
                 go_on = cut.exists() and can_continue(cut, run_cfg.algo)
                 if cut.exists() and not go_on:
                     rename_cut_run(cut)
+                if resume and not same_text(job_dir / JOB_FILE, record):
+                    write_text_atomic(job_dir / JOB_FILE, record)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{run_cfg.algo.upper()} {run_name} (run {number} of {len(planned)})",
                                 optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir,
@@ -261,6 +265,14 @@ def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
                                "--log-dir of the job to continue)")  # fmt: skip
     refuse_links(job_dir)  # its runs would be written through them
     return job_dir
+
+
+def same_text(path: Path, text: str) -> bool:
+    """Whether the file at `path` holds `text` (False where it is missing or cannot be read)."""
+    try:
+        return path.read_text(encoding="utf-8") == text
+    except (OSError, UnicodeDecodeError):
+        return False
 
 
 def check_nothing_left_out(job_dir: Path, job: TransferJob) -> None:
