@@ -43,7 +43,7 @@ from ray.rllib.utils.torch_utils import clip_gradients
 
 from smorphi_rl import rllib_compat
 from smorphi_rl.training.module import MAP_KEY, pack_maps
-from smorphi_rl.training.snapshot import update_lock, updates_held
+from smorphi_rl.training.snapshot import release_after_failure, update_lock, updates_held
 
 ADVANTAGE_EPS = 1e-8
 TRACE_LAMBDA_KEY = "vtrace_lambda"
@@ -289,6 +289,7 @@ class GuardedLearnerThread:
             try:
                 return update(**kwargs)
             except Exception as exc:  # kept, and raised in the trial's thread
+                release_after_failure(self)  # a step that raised keeps its lock: checkpoints would wait for it
                 self._thread_error = exc
                 return None
 

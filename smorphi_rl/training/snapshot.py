@@ -20,6 +20,7 @@ from typing import Any
 from ray.rllib.core import DEFAULT_MODULE_ID
 
 _LOCKS: weakref.WeakKeyDictionary[Any, threading.RLock] = weakref.WeakKeyDictionary()
+_HOLDS: weakref.WeakKeyDictionary[Any, list[threading.local]] = weakref.WeakKeyDictionary()
 _HELD: weakref.WeakSet[Any] = weakref.WeakSet()
 
 
@@ -30,8 +31,10 @@ def update_lock(learner: Any) -> threading.RLock:
     if lock is not None:
         return lock
     lock = _LOCKS[learner] = threading.RLock()  # re-entered by a step taken under it (`FusedStep`)
+    holds = _HOLDS[learner] = []
     for _, optimizer in learner.get_optimizers_for_module(DEFAULT_MODULE_ID):
         held = threading.local()
+        holds.append(held)
 
         def before(*_: Any, held: Any = held) -> None:
             lock.acquire()
@@ -45,6 +48,16 @@ def update_lock(learner: Any) -> threading.RLock:
         optimizer.register_step_pre_hook(before)
         optimizer.register_step_post_hook(after)
     return lock
+
+
+def release_after_failure(learner: Any) -> None:
+    """Release the update lock a step that raised in this thread still holds: torch runs no post-hook then, and a
+    checkpoint or snapshot waiting on the lock would wait for ever (the learner thread goes on, draining)."""
+    lock = _LOCKS.get(learner)
+    for held in _HOLDS.get(learner, ()):
+        if lock is not None and getattr(held, "on", False):
+            held.on = False
+            lock.release()
 
 
 def snapshot_state(learner: Any) -> dict[str, Any]:

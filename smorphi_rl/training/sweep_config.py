@@ -349,13 +349,16 @@ def load_sweep(path: str | Path) -> SweepConfig:
         raise fail("maps", f"{clash[0]} and {clash[1]} share the name {Path(clash[1]).stem!r}, which names the "
                    "trials, the groups of the tables and the optima: rename one")  # fmt: skip
     firsts = {k: space.examples()[0] for k, space in spaces.items()}
-    for algo in cfg.algorithms:  # every value of every space must suit every algorithm, the others' first beside it
-        for key, space in spaces.items():  # (lr_knee_at is refused without the lr_knee it places)
+    for algo in cfg.algorithms:  # every value of every space must suit every algorithm
+        for key, space in spaces.items():
             for value in space.examples():
                 try:
-                    cfg.base_config(algo, map_sets[0], cfg.seeds[0], firsts | {key: value})
+                    cfg.base_config(algo, map_sets[0], cfg.seeds[0], {key: value})
                 except SmorphiError as exc:
-                    raise fail(f"search.{key}", str(exc)) from None
+                    try:  # one that needs another beside it (lr_knee_at, the lr_knee it places) is not refused
+                        cfg.base_config(algo, map_sets[0], cfg.seeds[0], firsts | {key: value})
+                    except SmorphiError:
+                        raise fail(f"search.{key}", str(exc)) from None
     _check_combinations(cfg, map_sets[0], fail)
     return cfg
 

@@ -18,7 +18,7 @@ from typing import Any
 from smorphi_rl import jsontext
 from smorphi_rl.env_config import EnvConfig
 from smorphi_rl.inputs import first_repeat
-from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_text_atomic
+from smorphi_rl.rundir import DEFAULT_LOG_DIR, atomic_text, safe_name, write_atomic, write_text_atomic
 from smorphi_rl.stats import (
     FEW_SEEDS_NOTE,
     VERDICT_SEEDS,
@@ -208,10 +208,10 @@ def run_transfer(
             raise
     else:
         claim_again(job_dir)  # refused while the process that ran it still runs
-    record = jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps), "seeds": list(job.seeds)},
-                            indent=2)  # fmt: skip
-    if not resume:  # a resume records what it adds once a run of it starts: one refused or stopped before adds none
-        write_text_atomic(job_dir / JOB_FILE, record)
+    before = (job_dir / JOB_FILE).read_bytes() if resume and (job_dir / JOB_FILE).is_file() else None
+    there = {n for *_, n in planned if (job_dir / n).exists()}  # the runs earlier calls left, finished or cut
+    write_text_atomic(job_dir / JOB_FILE, jsontext.dumps({"pretrained": str(checkpoint), "maps": list(job.maps),
+                                                          "seeds": list(job.seeds)}, indent=2))  # fmt: skip
     done: dict[str, TransferRun] = {}
 
     def reported() -> list[TransferRun]:  # in the job's order: the runs so far and those of earlier calls
@@ -226,8 +226,6 @@ def run_transfer(
                 go_on = cut.exists() and can_continue(cut, run_cfg.algo)
                 if cut.exists() and not go_on:
                     rename_cut_run(cut)
-                if resume and not same_text(job_dir / JOB_FILE, record):
-                    write_text_atomic(job_dir / JOB_FILE, record)
                 trained = train(run_cfg, name=run_name, log_dir=job_dir, address=address, out=out or sys.stderr,
                                 label=f"{run_cfg.algo.upper()} {run_name} (run {number} of {len(planned)})",
                                 optima_log_dir=log_dir if optima_log_dir is None else optima_log_dir,
@@ -238,6 +236,8 @@ def run_transfer(
                 if trained.interrupted:
                     break  # a stop request ends the job: what finished is reported, marked as such
     except BaseException as exc:
+        if before is not None and not any((job_dir / n).exists() for *_, n in planned if n not in there):
+            write_atomic(job_dir / JOB_FILE, before)  # no run of the maps or seeds it added is left: it added none
         if not (resume or any((job_dir / n).exists() for *_, n in planned)):
             discard_run_dir(job_dir)  # nothing trained: the name stays free
         elif isinstance(exc, KeyboardInterrupt):  # what finished is kept, to report and to resume
@@ -265,14 +265,6 @@ def resumed_job_dir(log_dir: str | Path, name: str) -> Path:
                                "--log-dir of the job to continue)")  # fmt: skip
     refuse_links(job_dir)  # its runs would be written through them
     return job_dir
-
-
-def same_text(path: Path, text: str) -> bool:
-    """Whether the file at `path` holds `text` (False where it is missing or cannot be read)."""
-    try:
-        return path.read_text(encoding="utf-8") == text
-    except (OSError, UnicodeDecodeError):
-        return False
 
 
 def check_nothing_left_out(job_dir: Path, job: TransferJob) -> None:

@@ -183,6 +183,48 @@ def test_no_optimizer_step_lands_while_a_checkpoint_is_written():
     assert during <= 1 and steps[0] >= paused + 5  # at most the step already past its lock; learning went on after
 
 
+def test_a_step_that_raises_in_the_learner_thread_leaves_the_lock_free():
+    """torch runs no post-hook when a step raises: the learner thread kept the update lock, and the next checkpoint
+    (or evaluation snapshot) waited on it for ever while the thread went on draining its queue."""
+    import threading
+
+    import torch
+    from ray.rllib.core import DEFAULT_MODULE_ID
+
+    from smorphi_rl.training.snapshot import release_after_failure, update_lock
+
+    class Failing(torch.optim.SGD):
+        def step(self, closure=None):
+            raise FloatingPointError("a step that fails")
+
+    class Learner:
+        def __init__(self):
+            self.module = {DEFAULT_MODULE_ID: torch.nn.Linear(2, 2)}
+            self.optimizer = Failing(self.module[DEFAULT_MODULE_ID].parameters(), lr=0.1)
+
+        def get_optimizers_for_module(self, module_id):
+            return [("default_optimizer", self.optimizer)]
+
+    for release in (False, True):
+        learner = Learner()
+        lock = update_lock(learner)
+
+        def learn(learner=learner, release=release) -> None:
+            try:
+                learner.optimizer.step()
+            except FloatingPointError:
+                if release:
+                    release_after_failure(learner)
+
+        thread = threading.Thread(target=learn)
+        thread.start()
+        thread.join()
+        free = lock.acquire(timeout=0.5)
+        if free:
+            lock.release()
+        assert free is release  # held for ever without the release: the test can fail
+
+
 def test_a_run_that_ends_on_an_earlier_policy_keeps_its_trained_curve_for_convergence(monkeypatch):
     """Evaluations 20 %, 100 %, 20 %, 20 % of the starts within 1 %: the run ends on the 100 % policy, whose
     figures its last row reports, but the curves (and so convergence) read the policy training ended with."""

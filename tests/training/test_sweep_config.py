@@ -159,7 +159,7 @@ def test_map_paths_resolve_next_to_the_sweep_file(tmp_path, monkeypatch):
         (base("pretrained: /no/such/ckpt\n"), "key 'pretrained': checkpoint '/no/such/ckpt' not found"),
         (
             base("search:\n  minibatch_size: {grid: [250, 1000]}\n  train_batch_size: {grid: [500, 4000]}\n"),
-            "key 'search.minibatch_size': minibatch_size (1000) must not exceed train_batch_size (500)",
+            "key 'search': trial 2 (ppo, minibatch_size=1000, train_batch_size=500): minibatch_size (1000) must not",
         ),
         (
             base("search:\n  minibatch_size: {grid: [250, 1000]}\n  train_batch_size: {grid: [4000, 500]}\n"),
@@ -188,9 +188,13 @@ def test_mistakes_name_the_file_and_the_key(tmp_path, text, message):
 
 
 def test_a_setting_that_needs_another_searched_beside_it_loads(tmp_path):
-    """lr_knee_at was checked alone, and refused as placing an lr_knee not set, though the file set both."""
+    """lr_knee_at was checked alone, and refused as placing an lr_knee not set, though the file set both; values
+    that do not suit each other but that no trial draws together are no trial's problem."""
     cfg = load_sweep(write(tmp_path, base("search:\n  lr_knee: 0.0001\n  lr_knee_at: {grid: [0.3, 0.6]}\n")))
     assert [t["hp"]["lr_knee_at"] for t in cfg.trials()] == [0.3, 0.6]
+    text = "search:\n  minibatch_size: {choice: [128, 1500]}\n  train_batch_size: {choice: [1000, 8000]}\n"
+    (trial,) = load_sweep(write(tmp_path, base(text))).trials()
+    assert trial["hp"]["minibatch_size"] <= trial["hp"]["train_batch_size"]
 
 
 def test_numbers_with_an_exponent_are_numbers(tmp_path):
