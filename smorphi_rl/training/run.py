@@ -263,6 +263,9 @@ def training_optima(cfg: TrainConfig, log_dir: str | Path, out: Any) -> dict[str
     maps = {path: load_map(path) for path in cfg.evaluation_maps}
     if any(m.cells.size <= OPTIMUM_MAX_CELLS for m in maps.values()):
         make_cache(cache)  # a folder that cannot be made: one line, before any line saying an optimum is computed
+    for path in cfg.env.map_files:  # a training map the protocol does not evaluate on (--eval-maps): said too
+        for said in () if path in maps else load_map(path).warnings():
+            out.write(said + "\n")
     optima: dict[str, Optimum] = {}
     for path, grid_map in maps.items():
         if not cfg.env.planning.is_paper_default:

@@ -121,3 +121,24 @@ def test_a_terminal_sees_the_run_starting_before_its_first_bar():
         _Progress(TrainConfig(timesteps=4000), out).starting()
         said = out.getvalue()
         assert said.startswith("\rPPO starting: the trial, 2 env runners, their floors") if shown else said == ""
+
+
+def test_a_training_map_left_out_of_the_evaluation_still_has_its_warnings_said(tmp_path):
+    """Only the evaluated maps' warnings were said: a training map outside --eval-maps read unknown space as free
+    floor in silence."""
+    import numpy as np
+    import yaml
+    from PIL import Image
+
+    pixels = np.full((60, 60), 254, dtype=np.uint8)
+    pixels[:8] = 205  # map_saver's unknown, read as free under free_thresh 0.25
+    pixels[[8, -1], :] = pixels[:, [0, -1]] = 0
+    Image.fromarray(pixels).save(tmp_path / "grey.pgm")
+    meta = {"image": "grey.pgm", "resolution": 0.1, "origin": [0, 0, 0], "negate": 0, "occupied_thresh": 0.65,
+            "free_thresh": 0.25}  # fmt: skip
+    (tmp_path / "grey.yaml").write_text(yaml.safe_dump(meta))
+    map_1 = str(Path(__file__).resolve().parents[2] / "maps" / "map-1.yaml")
+    cfg = TrainConfig(env=EnvConfig(maps=(str(tmp_path / "grey.yaml"), map_1)), eval_maps=(map_1,))
+    out = io.StringIO()
+    training_optima(cfg, tmp_path / "logs", out)
+    assert "grey: 464 cells of grey 205, which map_saver writes for unknown space" in out.getvalue()
