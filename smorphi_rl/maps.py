@@ -82,6 +82,8 @@ class MapMode(enum.Enum):
 SAVED_PIXEL = {Cell.FREE: 254, Cell.OCCUPIED: 0, Cell.UNKNOWN: 205}
 SAVED_OCCUPIED_THRESH = 0.65
 SAVED_FREE_THRESH = 0.196
+SAVED_UNKNOWN_P = 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255
+"""The p of map_saver's unknown grey, in nav2's own arithmetic: 0.19607843..."""
 CLASSIFYING_HINT = (f"map_saver writes negate: 0, occupied_thresh: {SAVED_OCCUPIED_THRESH}, "
                     f"free_thresh: {SAVED_FREE_THRESH}")  # fmt: skip
 """Said when `negate`, `occupied_thresh` or `free_thresh` is missing: they decide which grey is free, occupied or
@@ -186,8 +188,8 @@ class Map:
         floor no robot has seen."""
         if not self.unknown_read_free:
             return None
-        grey, p = SAVED_PIXEL[Cell.UNKNOWN], 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255
-        why = "; ".join(UNKNOWN_READ_FREE[k][0].format(p=p) for k in self.unknown_read_by)
+        grey = SAVED_PIXEL[Cell.UNKNOWN]
+        why = "; ".join(UNKNOWN_READ_FREE[k][0].format(p=SAVED_UNKNOWN_P) for k in self.unknown_read_by)
         fix = " and ".join(UNKNOWN_READ_FREE[k][1] for k in self.unknown_read_by)
         return (f"warning: {self.name}: {self.unknown_read_free:,} cells of grey {grey}, which map_saver writes for "
                 f"unknown space, read as free floor ({why}, as nav2 reads it); {fix} "
@@ -462,10 +464,9 @@ def load_map(yaml_path: str | Path) -> Map:
     origin_t = (float(origin[0]), float(origin[1]), float(origin[2]))
     saved_unknown = max_value == 255 and mode is not MapMode.RAW and not negate  # map_saver's images
     unknown_free = np.flipud(gray == SAVED_PIXEL[Cell.UNKNOWN]) & (cells == Cell.FREE) if saved_unknown else None
-    p_unknown = 1 - SAVED_PIXEL[Cell.UNKNOWN] / 255  # nav2's own arithmetic: 0.19607843...
     by = (
         (("scale",) if mode is MapMode.SCALE else ())
-        + (("free_thresh",) if free_thresh > p_unknown else ())
+        + (("free_thresh",) if free_thresh > SAVED_UNKNOWN_P else ())
         + (("alpha",) if alpha is not None else ())
     )  # each a fix the others need: trinary mode averages alpha in
     return Map(cells, resolution, origin_t, name=path.stem, unknown_read_by=by,
