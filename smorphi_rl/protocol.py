@@ -66,9 +66,9 @@ def eval_starts(n: int = EVAL_STARTS, step_deg: float = 1.0, seed: int = EVAL_SE
     """(n, 3) start shapes, uniform on the `step_deg` lattice, from their own seeded stream."""
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise ValueError(f"evaluation starts must be a positive integer, got {n!r}")
-    top = round(180 / step_deg)
+    axis = lattice_axis(step_deg)
     rng = np.random.default_rng(np.random.SeedSequence(seed))
-    return lattice_axis(step_deg)[rng.integers(0, top + 1, size=(n, 3))]
+    return axis[rng.integers(0, len(axis), size=(n, 3))]
 
 
 def selection_starts(n: int, step_deg: float, protocol: np.ndarray) -> np.ndarray:

@@ -35,7 +35,7 @@ import numpy as np
 
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.env_config import RewardMode
-from smorphi_rl.geometry import lattice_angle, lattice_size
+from smorphi_rl.geometry import lattice_axis, lattice_size
 from smorphi_rl.protocol import EVAL_STARTS, Outcome, eval_starts, settled_theta
 from smorphi_rl.search.results import SearchResult
 
@@ -56,7 +56,8 @@ class _Budgeted:
         self.on_score = on_score
         """Told the count of shapes scored after each new one (a design's progress)."""
         self.step = env.config.angle_step_deg
-        self.n = round(180 / self.step)
+        self.angles: tuple[float, ...] = tuple(lattice_axis(self.step).tolist())
+        self.n = len(self.angles) - 1
         self.lattice = lattice_size(self.step)
         self.env, self.budget = env, min(budget, self.lattice)  # a budget past the lattice counts as the lattice
         self.seen: dict[Theta, float] = {}
@@ -69,7 +70,7 @@ class _Budgeted:
 
     def snap(self, angle: float) -> float:
         """The lattice angle nearest `angle`, held in [0, 180]: one key per shape, whatever the step."""
-        return lattice_angle(min(max(round(angle / self.step), 0), self.n), self.step)
+        return self.angles[min(max(round(angle / self.step), 0), self.n)]
 
     def r1(self, theta: Theta) -> float | None:
         if theta in self.seen:
@@ -93,7 +94,7 @@ class _Budgeted:
 
     def random_theta(self, rng: np.random.Generator) -> Theta:
         i, j, k = (int(v) for v in rng.integers(0, self.n + 1, size=3))
-        return (lattice_angle(i, self.step), lattice_angle(j, self.step), lattice_angle(k, self.step))
+        return (self.angles[i], self.angles[j], self.angles[k])
 
     def best(self) -> Theta:
         return max(self.seen, key=lambda t: self.seen[t])
