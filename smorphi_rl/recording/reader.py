@@ -315,9 +315,8 @@ def read_episode(path: str | Path) -> Episode:
     steps = by_topic[TOPIC_STEP]
     if not steps:
         raise RecordingError(f"{path}: no step could be recovered" + ("" if complete else " (the file is cut short)"))
-    largest = _largest_move(meta)
+    largest, required = _largest_move(meta), STEP_SCHEMA["required"]
     for i, st in enumerate(steps):  # a step another writer made, or damaged: named, never a KeyError later
-        required = STEP_SCHEMA["required"]
         missing = [k for k in required if k not in st] if isinstance(st, dict) else list(required)
         problem = _step_problem(st, largest) if not missing else None
         if not missing and not problem and st["step"]:  # every step after the reset state acted
