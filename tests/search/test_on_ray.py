@@ -91,6 +91,11 @@ with on_ray.ray_planners(grid_map, Planning(), address, None, step=30.0) as plan
     local = footprint_keys(Planning().evaluator(grid_map), lattice_thetas(30.0))
     same = all(np.array_equal(keys, local[lo:hi]) for _, lo, hi, keys in answers)
     print(len(answers), "of", len(tasks), "tasks answered by", len(planners.actors), "planner, as here:", same)
+import time
+with cluster.ray_session(address):  # a killed actor's CPU comes back a moment later: the next block counts both
+    deadline = time.monotonic() + 60
+    while ray.available_resources().get("CPU", 0) < 2 and time.monotonic() < deadline:
+        time.sleep(0.1)
 on_ray.START_TIMEOUT_S = 20.0
 for workers, digest in ((3, on_ray.planner_digest), (None, lambda: "another version")):
     on_ray.planner_digest = digest  # three actors on two CPUs: one never starts; then this side's code differs
