@@ -62,6 +62,9 @@ class MorphologyCallbacks(RLlibCallback):
     evaluated so far (after a resume: its evaluation None and figures empty, rolled out again if it is put back)."""
     _ended: bool = False
     """Whether the run's last iteration has been evaluated (by its budget, or `end_run`)."""
+    _trained: Any = None
+    """The module state the learner trained to, where the run's end put the kept policy back in its place (a run
+    stopped early goes on from it when resumed, not from the policy it ended on); None otherwise."""
     _snapshot: Any = None
     """((iteration, env steps), (evaluations, weights)) of the latest evaluation: `end_run` on an iteration just
     evaluated reuses it where no learner thread has stepped since."""
@@ -219,6 +222,7 @@ class MorphologyCallbacks(RLlibCallback):
             return protocol, steps, design
         if not last:
             return protocol, steps, design
+        self._trained = state
         _on_live_learner(algorithm, lambda module: module.load_state_dict(kept[2]))
         push_module_to_runners(algorithm)  # the checkpoint's runners hold the policy its learner holds
         evaluation, kept_design = kept[3], kept[4]
@@ -236,6 +240,13 @@ class MorphologyCallbacks(RLlibCallback):
         (within, gap), steps, state, *_ = self._kept
         weights = {name: value.detach().cpu().numpy() for name, value in state.items()}
         return {"score": [int(within), float(gap)], "env_steps": int(steps), "weights": weights}
+
+    def trained_weights(self) -> dict[str, Any] | None:
+        """The weights the learner trained to, as numpy arrays, where the run's end put the kept policy in their
+        place (a resumable state file holds them as the learner's); None where the learner holds them still."""
+        if self._trained is None:
+            return None
+        return {name: value.detach().cpu().numpy() for name, value in self._trained.items()}
 
     def restore_kept(self, kept: dict[str, Any]) -> None:
         """Keep the policy `kept_policy` gave before a resume, as if this run had evaluated it."""
@@ -269,6 +280,12 @@ def end_run(algorithm: Any, result: dict[str, Any]) -> None:
 def kept_policy(algorithm: Any) -> dict[str, Any] | None:
     """The policy the run keeps so far, as a resumable state file holds it (`MorphologyCallbacks.kept_policy`)."""
     return next((k for c in ours(algorithm) if (k := c.kept_policy()) is not None), None)
+
+
+def trained_weights(algorithm: Any) -> dict[str, Any] | None:
+    """The weights the run trained to where its end put the kept policy back (`MorphologyCallbacks.trained_weights`);
+    None where the learner holds them."""
+    return next((w for c in ours(algorithm) if (w := c.trained_weights()) is not None), None)
 
 
 def restore_kept(algorithm: Any, kept: dict[str, Any] | None) -> None:

@@ -60,11 +60,18 @@ def _plain(obj: Any) -> Any:
     return obj
 
 
-def save_state(algo: Any, folder: Path, elapsed_s: float, kept_policy: dict[str, Any] | None = None) -> None:
+def save_state(
+    algo: Any, folder: Path, elapsed_s: float, kept_policy: dict[str, Any] | None = None,
+    trained: dict[str, Any] | None = None,
+) -> None:  # fmt: skip
     """Write the algorithm's resumable state (module docstring), and the run's kept policy if it has one, into
-    checkpoint `folder`."""
+    checkpoint `folder`. `trained`: the weights the learner trained to, where the run's end put the kept policy in
+    their place; the file holds them as the learner's, so a run stopped early goes on from them (and from the
+    optimiser moments that go with them), as a killed one does."""
     state = algo.get_state(not_components=list(LEFT_OUT))
     kept = {k: _plain(state[k]) for k in STATE_KEYS}
+    if trained is not None:
+        kept["learner_group"]["learner"]["rl_module"]["default_policy"] = _plain(trained)
     kept[ELAPSED] = float(elapsed_s)
     if kept_policy is not None:
         kept[KEPT] = _plain(kept_policy)

@@ -81,7 +81,7 @@ def run_trial(
     from ray.rllib.core import DEFAULT_MODULE_ID
     from ray.tune.result import AUTO_RESULT_KEYS
 
-    from smorphi_rl.training.callbacks import end_run, kept_policy, restore_kept, updates_paused
+    from smorphi_rl.training.callbacks import end_run, kept_policy, restore_kept, trained_weights, updates_paused
 
     register_env()
     trial_dir = Path(tune.get_context().get_trial_dir())
@@ -122,7 +122,7 @@ def run_trial(
                     with updates_paused(algo):  # IMPALA's and APPO's thread: both files of one update
                         algo.save_to_path(path)
                         if resumable:
-                            save_state(algo, Path(path), elapsed, kept_policy(algo))
+                            save_state(algo, Path(path), elapsed, kept_policy(algo), trained_weights(algo))
                     tune.report(metrics, checkpoint=tune.Checkpoint.from_directory(path))
             else:
                 tune.report(metrics)

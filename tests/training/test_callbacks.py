@@ -367,6 +367,46 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
         assert "design_median_gap_pct" not in last
 
 
+def test_a_run_that_ends_on_its_kept_policy_sets_the_weights_it_trained_aside_for_a_resume(monkeypatch):
+    """Evaluations 100 %, then 20 % at the end: the learner is given the kept policy's weights, and the weights it
+    trained to stay at hand (`trained_weights`), for the state file a stopped run resumes from; a run whose last
+    policy is its best has none set aside."""
+    from types import SimpleNamespace
+
+    import torch
+
+    from smorphi_rl.training import callbacks
+
+    poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
+    loaded = []
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "_on_live_learner",
+                        lambda algorithm, call: call(SimpleNamespace(load_state_dict=loaded.append)))  # fmt: skip
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    starts = [(0.0, 0.0, 0.0)] * 5
+    evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 2000,
+                                           selection=starts)  # fmt: skip
+
+    def run(shares):
+        def on_snapshot(algorithm, calls):
+            return [_evaluation(*shares[0], *shares.pop(0))], {"w": torch.tensor([float(len(shares))])}
+
+        monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
+        hooks = evaluating()
+        hooks._evaluation = object()
+        for i in (1, 2):
+            hooks.on_train_result(algorithm=SimpleNamespace(iteration=i),
+                                  result={"num_env_steps_sampled_lifetime": 1000 * i, "env_runners": {}})  # fmt: skip
+        return hooks
+
+    ended = run([good, poor])
+    assert [w["w"].tolist() for w in loaded] == [[1.0]]  # the kept policy, into the learner
+    assert ended.trained_weights()["w"].tolist() == [0.0]  # the last trained weights, set aside
+    algorithm = SimpleNamespace(callbacks=[ended])
+    assert callbacks.trained_weights(algorithm)["w"].tolist() == [0.0]
+    assert run([poor, good]).trained_weights() is None and len(loaded) == 1
+
+
 def test_a_run_ending_early_on_an_evaluated_iteration_is_not_rolled_out_twice(monkeypatch):
     """A stop criterion met on an iteration the protocol has just evaluated: `end_run` chooses the policy on that
     evaluation (a learner that steps only inside `train()` has not changed since), rolling nothing out again."""

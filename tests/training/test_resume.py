@@ -153,6 +153,27 @@ def test_a_state_file_with_the_run_s_kept_policy_loads(tmp_path):
     assert load_state(tmp_path)[KEPT]["env_steps"] == 4000
 
 
+def test_a_run_ended_on_its_kept_policy_resumes_from_the_weights_it_trained(tmp_path):
+    """The run's end puts the kept policy in the learner (its checkpoint's policy), but a run stopped early (Ctrl-C,
+    a scheduler's SIGTERM) went on from that policy when resumed, with the trained weights' optimiser moments: the
+    state file now holds the trained weights as the learner's, and the kept policy beside them."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.training.resume import save_state
+
+    ending = state(2)  # the learner holds the kept policy (ones) after the run's end
+    ending["learner_group"]["learner"]["rl_module"]["default_policy"] = {"w": np.ones(3, np.float32)}
+    algo = SimpleNamespace(get_state=lambda not_components: {**ending, "env_runner": {}})
+    trained = {"w": np.full(3, 2.0, np.float32)}
+    save_state(algo, tmp_path, 1.5, kept(), trained)
+    loaded = load_state(tmp_path)
+    assert loaded["learner_group"]["learner"]["rl_module"]["default_policy"]["w"].tolist() == [2.0] * 3
+    assert loaded[KEPT]["weights"]["w"].tolist() == [1.0] * 3 and loaded["learner_group"]["learner"]["optimizer"]
+    assert ending["learner_group"]["learner"]["rl_module"]["default_policy"]["w"].tolist() == [1.0] * 3  # untouched
+    save_state(algo, tmp_path, 1.5, kept())  # no trained weights set aside: the learner's own
+    assert load_state(tmp_path)["learner_group"]["learner"]["rl_module"]["default_policy"]["w"].tolist() == [1.0] * 3
+
+
 @pytest.mark.parametrize("bad", [[1, 2], {**state(1), "extra": 1}, {**state(1), "training_iteration": 0},
                                  {**state(1), "learner_group": [1]}, {**state(1), KEPT: [1]},
                                  {**state(1), KEPT: kept(score=[True, 0.0])},
