@@ -204,11 +204,15 @@ def ray_session(address: str | None) -> Iterator[None]:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
     # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
     # cluster started without a token aborts the process inside Ray's C++ core.
+    # Ray puts the driver's working folder first on every worker's sys.path unless the job has a working_dir: a
+    # `tensorflow.py` in the folder a run starts from ran in every env runner. An empty one is packed instead (its
+    # zip is taken at init, so the folder goes at once); the workers start in Ray's unpacked copy of it.
+    empty = tempfile.TemporaryDirectory(prefix="smorphi-rl-ray-")
     kwargs: dict[str, Any] = {
         "include_dashboard": False,
         "log_to_driver": False,
         "logging_level": logging.ERROR,
-        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.quiet.quiet"},
+        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.quiet.quiet", "working_dir": empty.name},
     }
     if address is None:
         kwargs["num_cpus"] = local_cpus()
@@ -231,6 +235,8 @@ def ray_session(address: str | None) -> Iterator[None]:
             if exc.code != signal.SIGTERM:
                 raise
             sigterm = True  # SIGTERM reached Ray's own start-up handler
+        finally:
+            empty.cleanup()
     interrupts.install()  # Ray's init replaced our SIGTERM handler with its exit(15)
     if stop.is_set() or sigterm:
         ray.shutdown()

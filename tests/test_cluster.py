@@ -149,13 +149,27 @@ def test_a_version_mismatch_with_a_cluster_is_one_line_naming_both_versions():
     assert ray_error_line(RuntimeError("first\nsecond")) == "first" and ray_error_line(RuntimeError()) == "RuntimeError"
 
 
-def test_a_session_inside_one_of_the_same_address_shares_its_ray(monkeypatch):
+def test_a_session_inside_one_of_the_same_address_shares_its_ray(monkeypatch, tmp_path):
     """A job of many runs starts Ray once: a run's session inside it neither starts nor stops Ray. Without --address
     the run's Ray is its own even where RAY_ADDRESS (or a `ray start` of this machine) names another: Ray's default
-    attached to that one, and a dead one refused the run ("num_cpus and num_gpus must not be provided")."""
+    attached to that one, and a dead one refused the run ("num_cpus and num_gpus must not be provided").
+    A module in the folder a run starts from is not the workers' to import: Ray put that folder first on their
+    sys.path, and a `tensorflow.py` there ran in every env runner (RLlib tries that import)."""
     monkeypatch.setenv("RAY_ADDRESS", "127.0.0.1:1")
+    (tmp_path / "smorphi_planted.py").write_text(f"open({str(tmp_path / 'ran')!r}, 'w').close()\n")
+    monkeypatch.chdir(tmp_path)
     with cluster.ray_session(None):
         node = ray.get_runtime_context().get_node_id()
+
+        @ray.remote
+        def planted() -> tuple[bool, list[str]]:
+            import importlib.util
+            import sys
+
+            return importlib.util.find_spec("smorphi_planted") is not None, sys.path
+
+        found, path = ray.get(planted.remote())
+        assert not found and str(tmp_path) not in path
         # the socket paths `check_local_ray` foresees: fails when Ray names them longer
         sockets = list(Path(cluster.ray_temp_dir()).glob(f"session_*_{os.getpid()}/sockets/*"))
         assert sockets and max(len(os.fsencode(p)) for p in sockets) - len(os.fsencode(cluster.ray_temp_dir())) <= (
