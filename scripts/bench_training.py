@@ -143,6 +143,7 @@ def main() -> None:
 
     with tempfile.TemporaryDirectory(prefix="bench-training-") as tmp:
         rates: dict[str, float] = {}
+        relative: dict[str, float] = {}  # each run's rate over the bare env measured around it
         layouts: list[tuple[str, tuple[int, int] | None]] = [(algo, None) for algo in args.algos]
         if "ppo" in args.algos:  # the other layout beside the default: sampling in the trial process
             layouts.insert(args.algos.index("ppo") + 1, ("ppo", (0, 32)))
@@ -158,7 +159,7 @@ def main() -> None:
             mem = peak_memory(cfg, tmp, f"{name}-memory")
             bare = env_step_rate(base.env.to_dict())
             rate = summary.env_steps / summary.wall_s  # type: ignore[attr-defined]
-            rates[name] = rate
+            rates[name], relative[name] = rate, rate / yardstick
             ev = summary.evaluation  # type: ignore[attr-defined]
             gib = mem.peak_pss / 2**30
             told = "the default layout" if layout is None else "the other layout"
@@ -185,9 +186,10 @@ def main() -> None:
                     f"  greedy policy at the end: mean settled R1 {ev['settled_R1_mean']:.2f}, median gap "
                     f"{ev['median_gap']:.2f}, {ev['share_within_1pct']:.0%} of {ev['starts']} starts within 1 %"
                 )
-        if "ppo" in rates and "impala" in rates:
-            ok = "met" if rates["impala"] >= rates["ppo"] else "MISSED"
-            print(f"\nIMPALA / PPO env steps/s: {rates['impala'] / rates['ppo']:.2f} (target >= 1: {ok})")
+        if "ppo" in rates and "impala" in rates:  # judged on each run's own yardstick: the machine's speed drifts
+            ratio = relative["impala"] / relative["ppo"]
+            print(f"\nIMPALA / PPO env steps/s, each over the bare env around its run: {ratio:.2f} (target >= 1: "
+                  f"{'met' if ratio >= 1 else 'MISSED'}); raw {rates['impala'] / rates['ppo']:.2f}")  # fmt: skip
         if args.compare_layouts:
             compare_layouts(base, args.compare_steps, args.seed, tmp)
     if args.recording_cost:
@@ -209,8 +211,11 @@ def compare_layouts(base: TrainConfig, steps: int, seed: int, tmp: str) -> None:
 
 
 def recording_cost(cfg: TrainConfig, steps: int = 20_000, rounds: int = 2) -> None:
-    """Sampling rate with every episode recorded to MCAP against none (the yardstick), alternately."""
+    """Sampling rate with every episode recorded to MCAP against none (the yardstick), alternately, in the trial
+    process's env runner (the default layout's runners are remote, and the local one then holds no env)."""
     from smorphi_rl.recording import episode_files
+
+    cfg = replace(cfg, num_env_runners=0)
 
     rates: dict[bool, list[float]] = {False: [], True: []}
     with tempfile.TemporaryDirectory(prefix="bench-recording-") as tmp, cluster.ray_session(None):
