@@ -35,6 +35,7 @@ from smorphi_rl import jsontext
 from smorphi_rl.design import run_design
 from smorphi_rl.designer import designer_env, load_designer
 from smorphi_rl.env import MorphologyEnv
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map, save_map
 from smorphi_rl.policy_file import SHIPPED_DESIGNER
 from smorphi_rl.protocol import eval_starts, exact_optimum
@@ -164,11 +165,17 @@ def main() -> None:
     parser.add_argument("--record", action="store_true", help="write designer 1's held-out figures into its "
                         "policy.json (`held_out`), beside the command that trained it")  # fmt: skip
     args = parser.parse_args()
+    for name, value, least in (("--budget", args.budget, 1), ("--seeds", args.seeds, 1), ("--floors", args.floors, 0),
+                               ("--ppo-maps", args.ppo_maps, 0), ("--ppo-steps", args.ppo_steps, 1),
+                               ("--train-steps", args.train_steps, 0),
+                               *(("--budgets", b, 1) for b in args.budgets)):  # fmt: skip
+        if value < least:
+            raise SmorphiError(f"{name} {value}: at least {least}")
     t_start = time.perf_counter()
+    designers = [load_designer(Path(p)) for p in args.policy]  # before anything is written
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     budgets = sorted(set(args.budgets) | {args.budget})
-    designers = [load_designer(Path(p)) for p in args.policy]
     env_config = designers[0].env_config
     floors = sorted(str(p) for p in HELD_OUT.glob("*.yaml"))
     floors = floors[: args.floors] if args.floors else floors
@@ -302,12 +309,13 @@ def training_cost(steps: int, log_dir: Path) -> list[str]:
         summary = whole(train(cfg, name="designer-cost", log_dir=log_dir, out=quiet))
     wall = time.perf_counter() - t0
     rate = summary.env_steps / summary.wall_s
-    full = 2_000_000 / rate / 60
+    full = sweep.timesteps / rate / 60
     print(f"designer training: {summary.env_steps:,} env steps in {summary.wall_s:.0f} s of training ({wall:.0f} s "
           f"end to end), {rate:,.0f} env steps/s, peak PSS {mem.peak_pss / 2**30:.2f} GiB")  # fmt: skip
     return [
         f"Designer training (`tune_configs/designer.yaml`'s trial, seed 0, {summary.env_steps:,} env steps on "
-        f"2 env runners): {rate:,.0f} env steps/s ({full:.0f} min for its 2,000,000), {wall:.0f} s end to end, "
+        f"{cfg.env_runners} env runners): {rate:,.0f} env steps/s ({full:.0f} min for its {sweep.timesteps:,}), "
+        f"{wall:.0f} s end to end, "
         f"peak memory {mem.peak_pss / 2**30:.2f} GiB (PSS of the process tree, Ray's processes included)."
     ]
 
@@ -363,3 +371,6 @@ if __name__ == "__main__":
         main()
     except KeyboardInterrupt:  # Ctrl-C, SIGTERM, or a training run `whole` found cut short: nothing written
         stop_interrupted()
+    except SmorphiError as exc:  # a bad option or input: one line, as the CLI gives it
+        print(f"{Path(sys.argv[0]).name}: error: {exc}", file=sys.stderr)
+        raise SystemExit(1) from None

@@ -23,6 +23,7 @@ from _benchdocs import run_documented
 
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.coverage_reference import evaluate_reference
+from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 from smorphi_rl.planning import Evaluator
@@ -50,6 +51,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--planner", choices=PLANNERS, default="paper")
     args = parser.parse_args()
+    for name, value, least in (("--n", args.n, 1), ("--n-plain", args.n_plain, 1), ("--repeats", args.repeats, 1)):
+        if value < least:
+            raise SmorphiError(f"{name} {value}: at least {least}")
     planner = Planner(args.planner)
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})

@@ -125,7 +125,8 @@ def main() -> None:
     overrides = parse_overrides(args.set)
     layout = (args.env_runners, args.envs_per_runner)
     for algo, reward, map_path in itertools.product(args.algos, args.rewards, args.maps):  # checked before writing
-        run_config(algo, reward, 0, map_path, args.timesteps, overrides, layout)
+        budget = args.timesteps if algo == "ppo" else args.async_timesteps
+        run_config(algo, reward, 0, map_path, budget, overrides, layout)
     names = {m: load_map(m).name for m in args.maps}  # a missing map is named before anything is written
     try:
         out = prepare_run_dir(Path(args.log_dir), args.out or f"bench-learning-{time.strftime('%Y%m%d-%H%M%S')}")

@@ -24,6 +24,7 @@ import math
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 from _benchdocs import run_documented, whole
@@ -83,6 +84,12 @@ def main() -> None:
     args = parser.parse_args()
     if args.resume and not args.keep:
         parser.error("--resume continues a job kept with --keep DIR: give that DIR")
+    if args.floors < 0:
+        parser.error(f"--floors {args.floors}: at least 0")
+    held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)
+    # the job's own checks (seeds, budget, maps) before the pretraining, not minutes into it
+    job = TransferJob(Path(args.pretrained or "pretrain"), tuple(held_out), tuple(args.seeds), args.steps,
+                      record_every=0)  # fmt: skip
     root = Path(args.keep) if args.keep else Path(tempfile.mkdtemp(prefix="bench-transfer-"))
     t0 = time.perf_counter()
     env = EnvConfig.from_dict({"maps": [str(MAPS / "map-1.yaml"), str(MAPS / "map-2.yaml")]})
@@ -102,8 +109,7 @@ def main() -> None:
         pre = whole(train(pre_cfg, name="pretrain", log_dir=root, out=sys.stderr, label="PPO pretrain"))
         pretrained = pre.run_dir
         print(f"pretrained PPO on map-1 + map-2: {pre.env_steps:,} env steps in {pre.wall_s:.0f} s")
-    held_out = [str(MAPS / f"val-{i}.yaml") for i in (1, 2, 3)] + held_out_floors(args.floors)
-    job = TransferJob(pretrained, tuple(held_out), tuple(args.seeds), args.steps, record_every=0)
+    job = replace(job, pretrained=pretrained)
     resume = args.resume and (root / "transfer").exists()  # a job stopped in its pretraining has no runs yet
     job_dir, runs = run_transfer(job, name="transfer", log_dir=root, out=sys.stderr, resume=resume)
     files = write_transfer_report(job_dir, runs)
