@@ -252,6 +252,28 @@ def test_a_results_archive_larger_than_its_summary_says_is_refused_before_it_is_
     assert code == 1 and "more than its summary's" in err and err.count("\n") == 1, err
 
 
+def test_a_results_archive_that_unpacks_far_beyond_its_size_is_refused_whatever_its_summary_claims(
+    searches, tmp_path, capsys
+):  # fmt: skip
+    """A 1.2 MB results.npz of zeros under a summary claiming its 50 million rows took `compare` to 3.35 GB: the
+    summary's count bounds nothing a crafted folder does not choose, so the archive's own size bounds it too."""
+    import json
+    import shutil
+
+    run = tmp_path / "random"
+    shutil.copytree(searches / "random-map-1-seed0", run)
+    n = 1_000_000
+    np.savez_compressed(run / "results.npz", thetas=np.zeros((n, 3), np.float32), P_c=np.zeros(n),
+                        P_len=np.zeros(n, np.int32), feasible=np.zeros(n, bool))  # fmt: skip
+    summary = json.loads((run / "summary.json").read_text())
+    (run / "summary.json").write_text(json.dumps(summary | {"distinct_shapes": n, "evaluations": n}))
+    capsys.readouterr()
+    code = main(["compare", "--random", str(run), "--step", "30", "--log-dir", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 1 and "which no search's figures compress to" in err and err.count("\n") == 1, err
+    assert not (tmp_path / "out").exists()
+
+
 @pytest.mark.parametrize("kind", ["training", "exhaustive"])
 def test_a_best_shape_whose_recorded_figures_the_planner_does_not_give_is_refused(searches, capsys, tmp_path, kind):
     """compare read P_c and P_len from a run's files: a hand-edited row (here 100 % coverage on a path of 1)

@@ -25,6 +25,9 @@ MAX_EVALUATIONS = 50_000_000
 1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster. A results file
 claiming more is not one a search wrote."""
 MAX_WALL_S = 1e9
+MAX_INFLATION = 64
+"""A results archive unpacks to at most this many times its size: the whole 1-degree lattice with one P_c and P_len
+everywhere (the most regular figures a search can give) unpacks 10.3x, random figures 2.2x."""
 """A search's recorded wall time is at most this (31 years)."""
 
 
@@ -123,6 +126,10 @@ def check_archive(path: Path, rows: Any) -> None:
         inflated = sum(info.file_size for info in entries)
         if not (isinstance(rows, int) and 0 <= rows <= MAX_EVALUATIONS and inflated <= 32 * rows + (1 << 16)):
             raise ValueError(f"its arrays unpack to {inflated:,} bytes, more than its summary's {rows!r} shapes hold")
+        packed = path.stat().st_size
+        if inflated > max(MAX_INFLATION * packed, 1 << 20):  # a summary may claim any count: the file's own size too
+            raise ValueError(f"its arrays unpack to {inflated:,} bytes from {packed:,}: more than {MAX_INFLATION}x, "
+                             "which no search's figures compress to")  # fmt: skip
         for info in entries:
             with archive.open(info) as member:
                 read = header_readers.get(np.lib.format.read_magic(member))  # `save` writes 1.0 (2.0: long headers)
