@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from smorphi_rl.inputs import InputError
+from smorphi_rl.inputs import InputError, is_finite_number
 from smorphi_rl.rundir import write_atomic
 from smorphi_rl.training import result_keys as keys
 from smorphi_rl.training.checkpoints import checkpoints_under
@@ -327,6 +327,11 @@ def continue_train_run(
     state = load_state(point)
     iteration, elapsed = state["training_iteration"], float(state[ELAPSED])
     rows = [r for r in result_rows(*result_files(trial)) if int(r.get(keys.ALGO_ITERATION) or 0) <= iteration]
+    for r in rows:  # the resumed run counts on from them, and its report reads each (Infinity: an OverflowError)
+        if not _whole_steps(r.get(keys.STEPS, 0)):
+            raise TrainConfigError(f"--resume: {rel(trial)}: its results' env steps at iteration "
+                                   f"{r.get(keys.ALGO_ITERATION)} read {shown(r.get(keys.STEPS))}, not what "
+                                   "smorphi-rl writes; start it again with another --name")  # fmt: skip
     steps = int(rows[-1].get(keys.STEPS) or 0) if rows else 0
     cap = wanted.get("max_iterations")
     budget_spent = steps >= int(wanted["timesteps"]) or (isinstance(cap, int) and iteration >= cap)
@@ -337,6 +342,11 @@ def continue_train_run(
     checkpoint = set_aside_from(trial, point)
     assert checkpoint is not None
     return ResumedTrial(trial, checkpoint, rows, elapsed, said=tuple(said))
+
+
+def _whole_steps(value: Any) -> bool:
+    """Whether `value` is an env-step count as a result row holds it: a whole, non-negative, finite number."""
+    return is_finite_number(value) and value >= 0 and float(value).is_integer()
 
 
 def can_continue(run_dir: Path, algo: str) -> bool:

@@ -267,10 +267,12 @@ def test_a_newest_state_file_cut_short_is_passed_over_for_the_one_before(sweep, 
 
 
 def test_result_lines_that_are_no_rows_of_ours_are_skipped(tmp_path):
+    """Among them a row of empty lists (3 bytes of text each, some 60 in memory: a 67 MB file took 2.1 GB)."""
     path = tmp_path / "result.json"
     path.write_text("\n".join([json.dumps(row(1)), "garbage", "{not json", "[1, 2, 3]", '"str"',
                                json.dumps({keys.ALGO_ITERATION: "2"}), "[" * 20000 + "]" * 20000,
-                               json.dumps(row(2))]) + "\n")  # fmt: skip
+                               json.dumps(row(4) | {"x": [[]] * 10_000}),
+                               json.dumps(row(2) | {keys.STEPS: 4000})]) + "\n")  # fmt: skip
     assert [r[keys.ALGO_ITERATION] for r in result_rows(path)] == [1, 2]
 
 
@@ -538,6 +540,14 @@ def test_train_resume_refuses_what_it_cannot_continue_in_one_line(tmp_path):
     (run / "ppo-1").rmdir()
     with pytest.raises(TrainConfigError, match="holds no trial folder of ppo: nothing to continue from"):
         (run / "summary.json").unlink()
+        continue_train_run(run, cfg.to_dict(), "ppo")
+    # a row whose env steps read Infinity: the resume ended in an OverflowError
+    trial = run / "ppo-1"
+    (trial / "checkpoint_000000" / MODULE_SUBDIR).mkdir(parents=True)
+    (trial / "checkpoint_000000" / STATE_FILE).write_bytes(pickle.dumps(state(2)))
+    rows = [row(1) | {keys.STEPS: 2000}, row(2) | {keys.STEPS: float("inf")}]
+    (trial / "result.json").write_text("".join(json.dumps(r) + "\n" for r in rows))
+    with pytest.raises(TrainConfigError, match=r"env steps at iteration 2 read inf, not what smorphi-rl writes"):
         continue_train_run(run, cfg.to_dict(), "ppo")
 
 
