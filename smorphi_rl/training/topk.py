@@ -154,11 +154,18 @@ def write_csv(rows: list[Found], csv_path: Path) -> None:
                              f"{f.R1:.4f}", f.env_steps, f.variants])  # fmt: skip
 
 
+MAX_CSV_BYTES = 1 << 24
+"""The largest morphologies.csv read (16 MiB, 200,000 rows): a 55 MB crafted one took `compare --runs` to 1 GB."""
+
+
 def read_csv(csv_path: Path) -> list[Found]:
     """Rows written by `write_csv` (for `compare`), checked: angles in 0-180, P_c in 0-100, P_len and counts
     whole and not negative; anything else is refused in one line naming the file and the row."""
     rows: list[Found] = []
     try:
+        if csv_path.stat().st_size > MAX_CSV_BYTES:  # rows are some 80 bytes: a run writes top_k of them a map
+            raise SmorphiError(f"{csv_path}: {csv_path.stat().st_size:,} bytes, more than a table smorphi-rl writes "
+                               f"({MAX_CSV_BYTES:,} at most)")  # fmt: skip
         with csv_path.open(newline="") as fh:
             for i, row in enumerate(csv.DictReader(fh), 2):
                 if None in row or None in row.values():  # more fields than the header, or fewer

@@ -72,6 +72,20 @@ def test_a_row_with_a_field_missing_or_extra_is_refused_by_line(tmp_path):
             read_csv(tmp_path / "t.csv")
 
 
+def test_a_table_larger_than_any_run_writes_is_refused_before_it_is_read(tmp_path, monkeypatch):
+    """A 55 MB crafted morphologies.csv took `compare --runs` to 1 GB: its size is checked first."""
+    from smorphi_rl.errors import SmorphiError
+    from smorphi_rl.training import topk
+
+    top = TopMorphologies()
+    top.add_episode_bests("ppo", _bests([["m", 95, 59, 103, 98.5, 99, 88.6]]), env_steps=3000)
+    write_tables(top.top(3), tmp_path / "t.csv", tmp_path / "t.md")
+    assert len(topk.read_csv(tmp_path / "t.csv")) == 1
+    monkeypatch.setattr(topk, "MAX_CSV_BYTES", (tmp_path / "t.csv").stat().st_size - 1)
+    with pytest.raises(SmorphiError, match="more than a table smorphi-rl writes"):
+        topk.read_csv(tmp_path / "t.csv")
+
+
 def test_episode_bests_round_trip_and_drop_what_is_not_one():
     best = EpisodeBest("map-1", (135.0, 56.0, 125.0), 97.1, 66, 90.5)
     encoded = encode_bests([best.to_row(), float("nan"), ["too", "short"]])
