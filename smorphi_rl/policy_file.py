@@ -123,6 +123,8 @@ def read_policy(path: str | Path) -> PolicyFile:
         raise PolicyFileError(f"{folder}: holds no smorphi-rl policy ({POLICY_JSON} and {WEIGHTS_NPZ}){hint}")
     meta_file, weights_file = folder / POLICY_JSON, folder / WEIGHTS_NPZ
     for file, limit in ((meta_file, MAX_JSON_BYTES), (weights_file, MAX_WEIGHTS_BYTES)):
+        if file.is_symlink():  # read from wherever it points, yet reported as this folder's policy
+            raise PolicyFileError(f"{file}: a link, refused (export-policy writes both files in the folder)")
         if file.stat().st_size > limit:
             raise PolicyFileError(f"{file}: {file.stat().st_size:,} bytes, more than a policy holds ({limit:,})")
     try:

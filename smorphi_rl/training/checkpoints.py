@@ -87,11 +87,24 @@ def find_checkpoint(path: str | Path) -> Path:
         if inside is not None:  # learner_group/..., a part of one checkpoint: the checkpoint is what loads
             raise CheckpointError(f"{root}: a part of the checkpoint {inside}; give that folder")
         raise CheckpointError(f"{root}: holds no RLlib checkpoint of ours (no {MODULE_SUBDIR.as_posix()} below it)")
+    linked = next((q for p in found if (q := _link_below(p, root)) is not None), None)
+    if linked is not None:  # its files would be read from wherever the link points, reported as this folder's
+        raise CheckpointError(f"{linked}: a link, refused (a run's checkpoints and folders are never links)")
     trials = sorted({_trial_of(p, root) for p in found}, key=lambda t: (t == root, str(t)))
     if len(trials) > 1:  # the newest of several trials would be a choice by clock, not by the user
         raise CheckpointError(f"{root}: holds the checkpoints of {len(trials)} trials (a sweep, or a job of several "
                               f"runs); give one trial's folder, such as {trials[0]}")  # fmt: skip
     return found[-1]
+
+
+def _link_below(path: Path, root: Path) -> Path | None:
+    """The first link on the way up from `path` to `root` (the folder the user named, which may be one), or None."""
+    for folder in (path, *path.parents):
+        if folder == root:
+            return None
+        if folder.is_symlink():
+            return folder
+    return None
 
 
 def _trial_of(checkpoint: Path, root: Path) -> Path:

@@ -343,6 +343,36 @@ def test_a_linked_module_folder_is_refused(genuine, tmp_path):
         load_module(checkpoint)
 
 
+def test_a_run_folder_holding_a_linked_checkpoint_is_refused(genuine, tmp_path):
+    """A run folder whose checkpoint is a link had the policy it points at loaded and reported as the run's own;
+    the folder the user names may itself be a link."""
+    from smorphi_rl.training.checkpoints import find_checkpoint
+
+    run, elsewhere = tmp_path / "run", tmp_path / "elsewhere"
+    shutil.copytree(genuine, elsewhere / "ppo-1" / "checkpoint_000001")
+    (run / "ppo-1").mkdir(parents=True)
+    (run / "ppo-1" / "checkpoint_000001").symlink_to(elsewhere / "ppo-1" / "checkpoint_000001")
+    with pytest.raises(CheckpointError, match="ppo-1/checkpoint_000001: a link, refused"):
+        find_checkpoint(run)
+    (tmp_path / "named").symlink_to(elsewhere)
+    assert find_checkpoint(tmp_path / "named") == tmp_path / "named" / "ppo-1" / "checkpoint_000001"
+
+
+def test_an_exported_policy_whose_file_is_a_link_is_refused(tmp_path):
+    from smorphi_rl.policy_file import POLICY_JSON, SHIPPED_DESIGNER, WEIGHTS_NPZ, PolicyFileError, read_policy
+
+    for name in (POLICY_JSON, WEIGHTS_NPZ):
+        folder = tmp_path / name.replace(".", "-")
+        folder.mkdir()
+        for other in (POLICY_JSON, WEIGHTS_NPZ):
+            if other == name:
+                (folder / other).symlink_to(SHIPPED_DESIGNER / other)
+            else:
+                shutil.copy(SHIPPED_DESIGNER / other, folder / other)
+        with pytest.raises(PolicyFileError, match=f"{name}: a link, refused"):
+            read_policy(folder)
+
+
 def test_weights_of_another_layout_are_refused(genuine, tmp_path):
     state = dict(safe_unpickle(genuine / MODULE_SUBDIR / "module_state.pkl"))
     state["_pi.mlp.0.weight"] = np.zeros((128, 70), dtype=np.float32)
