@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import angles_text
+from smorphi_rl.geometry import angles_text, lattice_axis
 from smorphi_rl.inputs import is_finite_number, read_json_object
 from smorphi_rl.protocol import gaps_to, within_band
 from smorphi_rl.rundir import write_text_atomic
@@ -244,6 +244,24 @@ def settled_under(
             points = (*points[:5], None)
         kept.append(points)
     return kept, notes
+
+
+def off_lattice(runs: list[Points], exact: SearchResult) -> list[str]:
+    """A note naming the runs whose shapes lie off the exact front's lattice: their gaps are to a coarser lattice's
+    optimum (below 0 where they beat it) and their hypervolume may pass 1."""
+    step = exact.params.get("step_deg")
+    if not isinstance(step, int | float) or step <= 0:
+        return []
+    axis = np.round(lattice_axis(float(step)), 6)
+    off = [(p[0], next(t for t in p[2] if not np.isin(np.round(t, 6), axis).all())) for p in runs
+           if len(p[2]) and not np.isin(np.round(p[2], 6), axis).all()]  # fmt: skip
+    if not off:
+        return []
+    named = "; ".join(f"{label}: {angles_text(tuple(float(a) for a in t))}" for label, t in off)
+    return [f"The exact front is the {step:g}-degree lattice's, and shapes of {len(off)} "
+            f"{'run lie' if len(off) == 1 else 'runs lie'} off it ({named}): their gaps are to that lattice's "
+            "optimum, below 0 where they beat it, and their hypervolume may pass 1; compare on the runs' own "
+            "lattice (--step 1 for whole degrees) to measure them against theirs."]
 
 
 TRAINING_RUN = ("a training run",)

@@ -227,6 +227,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
         check_comparable,
         check_exact_front,
         exact_front_under,
+        off_lattice,
         points_of_run,
         report_lines,
         score_methods,
@@ -286,6 +287,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
                 progress=progress_line(("exact front: shapes keyed by footprint", "exact front: shapes settled")),
             )
         runs, notes = settled_under(runs, dirs, on_map, grid_map)
+        notes += off_lattice(runs, exact)
         exact_score, methods = score_methods(exact, runs, on_map)
         planned = planning.describe(grid_map)
         files = write_report(exact_score, methods, grid_map.name, on_map, planned, run_dir, notes)
