@@ -258,10 +258,12 @@ def off_lattice(runs: list[Points], exact: SearchResult) -> list[str]:
     if not off:
         return []
     named = "; ".join(f"{label}: {angles_text(tuple(float(a) for a in t))}" for label, t in off)
-    return [f"The exact front is the {step:g}-degree lattice's, and shapes of {len(off)} "
-            f"{'run lie' if len(off) == 1 else 'runs lie'} off it ({named}): their gaps are to that lattice's "
-            "optimum, below 0 where they beat it, and their hypervolume may pass 1; compare on the runs' own "
-            "lattice (--step 1 for whole degrees) to measure them against theirs."]
+    return [
+        f"The exact front is the {step:g}-degree lattice's, and shapes of {len(off)} "
+        f"{'run lie' if len(off) == 1 else 'runs lie'} off it ({named}): their gaps are to that lattice's "
+        "optimum, below 0 where they beat it, and their hypervolume may pass 1; compare on the runs' own "
+        "lattice (--step 1 for whole degrees) to measure them against theirs."
+    ]
 
 
 TRAINING_RUN = ("a training run",)

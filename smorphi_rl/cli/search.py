@@ -141,6 +141,8 @@ def cmd_search(args: argparse.Namespace) -> int:
         try:
             title = f"{result.method} on {result.map_name}: {result.evaluations:,} evaluations, front of "
             title += str(len(front_rows))
+            if cfg.method == "optimum":  # it planned only the footprints its bound could not rule out
+                title += " among them (not the lattice's: `search exhaustive`)"
             files["plot"] = plot_pareto(
                 {result.method: (np.array([r["P_len"] for r in front_rows]), np.array([r["P_c"] for r in front_rows]))},
                 run_dir / "pareto.png", title, best={result.method: (float(result.P_len[b]), float(result.P_c[b]))},
@@ -154,8 +156,11 @@ def cmd_search(args: argparse.Namespace) -> int:
                               "(`compare` reads them), only its plot is missing") from None  # fmt: skip
     from smorphi_rl.score import degenerate_warning
 
-    if args.json:
-        for row in front_rows:
+    if args.json:  # an optimum's planned shapes hold the optimum, not the lattice's front: the optimum alone
+        optimum = {"theta": [float(t) for t in result.thetas[b]], "P_c": float(result.P_c[b]),
+                   "P_len": int(result.P_len[b])}  # fmt: skip
+        rows = [optimum] if cfg.method == "optimum" else front_rows
+        for row in rows:
             print(jsontext.dumps({"theta": row["theta"], "P_c": row["P_c"], "P_len": row["P_len"]}))
         print(f"results: {rel(run_dir)}", file=sys.stderr)  # stdout stays the front's JSON lines
     else:

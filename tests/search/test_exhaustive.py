@@ -3,6 +3,7 @@ planned once, and the best R1 found by the bound equal to the best of every shap
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -129,6 +130,11 @@ def test_optimum_command_reports_the_best_and_what_the_bound_saved(tmp_path, cap
     full = run_exhaustive(MAP_1, 6.0, FIT, workers=2)
     i = full.best(Weights(1.0, 0.1))
     assert f"P_c {full.P_c[i]:.2f} %, P_len {full.P_len[i]}" in out
+    # --json: the optimum alone (its planned shapes' front is dominated by shapes of the lattice it never planned)
+    assert main([*argv, "--name", "again", "--json"]) == 0
+    (line,) = capsys.readouterr().out.splitlines()
+    assert json.loads(line) == {"theta": [float(t) for t in full.thetas[i]], "P_c": float(full.P_c[i]),
+                                "P_len": int(full.P_len[i])}  # fmt: skip
 
 
 def test_a_stop_as_the_workers_fork_stops_the_search(monkeypatch):
