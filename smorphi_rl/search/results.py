@@ -14,7 +14,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import check_step, lattice_size
+from smorphi_rl.geometry import check_step, lattice_axis, lattice_size
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
@@ -140,6 +140,22 @@ def check_archive(path: Path, rows: Any) -> None:
                 raise ValueError(f"{info.filename} declares {math.prod(shape):,} values for {rows:,} shapes")
 
 
+def _on_lattice(thetas: np.ndarray, step: Any) -> np.ndarray:
+    """`thetas` as float64; those of a lattice search (its `step`) as the lattice's own angles. The file holds float32,
+    which for a step such as 0.9 or 180/31 rounds a few shapes onto another footprint: planned again, they scored
+    otherwise than recorded, and `compare` took the run for a hand-edited one."""
+    wide = thetas.astype(np.float64)
+    try:
+        step = check_step(float(step)) if isinstance(step, int | float) and not isinstance(step, bool) else None
+    except (SmorphiError, OverflowError):
+        step = None
+    if step is None or 180 / step > 10_000:  # no lattice, or one finer than any search holds
+        return wide
+    axis = lattice_axis(step)
+    snapped = axis[np.clip(np.rint(wide / step), 0, len(axis) - 1).astype(np.intp)]
+    return snapped if np.abs(snapped - wide).max() <= 1e-3 else wide
+
+
 def load(run_dir: str | Path) -> SearchResult:
     """A search run written by `save` (for `compare`), checked: a summary of the right types, arrays of one length
     with finite angles in [0, 180], coverage in [0, 100] and non-negative path lengths."""
@@ -199,7 +215,8 @@ def load(run_dir: str | Path) -> SearchResult:
         if not whole or n != lattice_size(step):
             raise bad(f"an exhaustive run whose step {step!r} does not divide 180 or does not match its {n:,} shapes")
     return SearchResult(
-        summary["method"], summary["map"], thetas.astype(np.float64), p_c.astype(np.float64), p_len.astype(np.int64),
+        summary["method"], summary["map"], _on_lattice(thetas, params.get("step_deg")), p_c.astype(np.float64),
+        p_len.astype(np.int64),
         feasible.astype(bool), int(summary["evaluations"]), float(summary["wall_s"]), summary.get("params", {}),
         digest if isinstance(digest := summary.get("map_digest"), str) else None,
     )  # fmt: skip

@@ -203,3 +203,20 @@ def test_a_search_stopped_as_it_plans_says_the_best_shape_it_settled():
     empty = SearchStopped(10, 100, np.zeros((0, 3)), np.zeros(0), np.zeros(0, dtype=np.int32))
     none_yet = "stopped with 10 % of the shapes settled, none planned yet; nothing was written"
     assert empty.best_so_far(weights) == none_yet
+
+
+def test_a_lattice_search_reads_back_the_lattice_s_own_angles(tmp_path):
+    """results.npz holds float32 angles: at a step of 180/31, one shape of the 32,768 read back onto another
+    footprint (P_c 98.72 recorded, 99.04 planned again), so `compare` took a genuine run for a hand-edited one. A
+    lattice search's angles read back as its lattice's."""
+    from smorphi_rl.search.results import load, save
+
+    step = 180 / 31
+    result = run_exhaustive(MAP_1, step, FIT, workers=1)
+    save(result, tmp_path, Weights(1.0, 0.1))
+    back = load(tmp_path)
+    assert np.array_equal(back.thetas, lattice_thetas(step)) and back.thetas.dtype == np.float64
+    assert not np.array_equal(back.thetas, lattice_thetas(step).astype(np.float32))  # what the file holds
+    evaluator = FIT.evaluator(load_map(MAP_1), cache=False)
+    worst = np.abs(evaluator.evaluate_many(back.thetas).P_c - back.P_c).max()
+    assert worst == 0, worst
