@@ -189,8 +189,11 @@ def format_search(
     the free floor it covers and its coverable bound, given `cover`) and where the files are."""
     extra = result.params.get("distinct_footprints")
     footprints = f", {extra:,} distinct footprints" if extra is not None else ""
-    feasible = int(np.count_nonzero(result.feasible))
-    shapes = len(result.feasible)  # a local search keeps a shape scored twice once: then fewer than its evaluations
+    from smorphi_rl.search.results import distinct_rows
+
+    distinct = distinct_rows(result)  # a local search keeps a shape scored twice once; random and NSGA-II repeat it
+    feasible = int(np.count_nonzero(result.feasible[distinct]))
+    shapes = len(distinct)
     said = (
         f"{feasible:,} feasible"
         if shapes == result.evaluations

@@ -92,7 +92,8 @@ def save(result: SearchResult, run_dir: Path, weights: Weights, best_extra: dict
         **({} if result.map_digest is None else {"map_digest": result.map_digest}),
         "params": result.params,
         "evaluations": result.evaluations,
-        "distinct_shapes": len(result.thetas),
+        "rows": len(result.thetas),
+        "distinct_shapes": len(distinct_rows(result)),
         "wall_s": round(result.wall_s, 3),
         "weights": {"w1": weights.w1, "w2": weights.w2},
         "best": {"theta": [float(t) for t in result.thetas[b]], "P_c": float(result.P_c[b]),
@@ -102,6 +103,18 @@ def save(result: SearchResult, run_dir: Path, weights: Weights, best_extra: dict
     }  # fmt: skip
     write_text_atomic(files["summary"], jsontext.dumps(summary, indent=2))
     return files
+
+
+REPEATING = ("random", "nsga2")
+"""The methods whose rows may hold a shape twice (a random draw repeated, an NSGA-II child equal to a parent): every
+other keeps one row a shape (a local search scores a shape once; exhaustive and optimum, a lattice)."""
+
+
+def distinct_rows(result: SearchResult) -> np.ndarray:
+    """The row of each different shape `result` scored, its first (every row, but for the methods that repeat)."""
+    if result.method not in REPEATING or len(result.thetas) == 0:
+        return np.arange(len(result.thetas))
+    return np.sort(np.unique(np.asarray(result.thetas, dtype=np.float64), axis=0, return_index=True)[1])
 
 
 def _npz(arrays: dict[str, np.ndarray]) -> bytes:
@@ -168,7 +181,7 @@ def load(run_dir: str | Path) -> SearchResult:
 
     try:
         summary = read_json_object(root / "summary.json", "search summary")
-        rows = summary.get("distinct_shapes", summary.get("evaluations"))
+        rows = summary.get("rows", summary.get("distinct_shapes", summary.get("evaluations")))  # older: no "rows"
         check_archive(root / RESULTS_FILE, rows)
         with np.load(root / RESULTS_FILE, allow_pickle=False) as data:
             arrays = {k: data[k] for k in ("thetas", "P_c", "P_len", "feasible")}

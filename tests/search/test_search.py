@@ -271,6 +271,16 @@ def test_a_search_that_scores_a_shape_twice_counts_its_shapes_apart_from_its_eva
     assert said is not None, first
     shapes = np.load(next(tmp_path.glob("anneal-*")) / "results.npz")["thetas"]
     assert said[1] == said[2] == f"{len(shapes):,}" and len(np.unique(shapes, axis=0)) == len(shapes) < 4_000
+    # NSGA-II keeps a row per evaluation, a child equal to a parent too: it said "(2,000 feasible)" and its summary
+    # "distinct_shapes": 2000 of 1,961
+    assert main(["search", "nsga2", "--map", MAP_1, "--log-dir", str(tmp_path)]) == 0
+    first = capsys.readouterr().out.splitlines()[0]
+    run = next(tmp_path.glob("nsga2-*"))
+    rows = np.load(run / "results.npz")["thetas"]
+    distinct = len(np.unique(rows, axis=0))
+    assert distinct < len(rows) == 2_000 and f"({distinct:,} distinct shapes, {distinct:,} feasible)" in first
+    summary = json.loads((run / "summary.json").read_text())
+    assert summary["distinct_shapes"] == distinct and summary["rows"] == 2_000 and load(run).evaluations == 2_000
 
 
 def test_a_stop_as_the_plot_is_drawn_is_not_lost_in_a_garbage_collector_callback(tmp_path, capsys, monkeypatch):
