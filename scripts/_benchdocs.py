@@ -4,6 +4,7 @@ of the file as it was."""
 
 from __future__ import annotations
 
+import fcntl
 import os
 import platform
 import shlex
@@ -42,15 +43,25 @@ def write_section(name: str, body: str) -> Path:
     command = " ".join(shlex.quote(a) for a in [".venv/bin/python", *sys.argv])
     stamp = datetime.now(timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
     section = f"{begin}\n{body.rstrip()}\n\n_Written by `{command}` on {stamp}, {machine()}._\n{end}"
-    text = DOCS.read_text() if DOCS.exists() else HEADER
-    if begin in text and end in text:
-        head, rest = text.split(begin, 1)
-        text = head + section + rest.split(end, 1)[1]
-    else:
-        text = text.rstrip() + "\n\n" + section + "\n"
-    tmp = DOCS.with_name(f".{DOCS.name}.{os.getpid()}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, DOCS)
+    folder = os.open(DOCS.parent, os.O_RDONLY)
+    try:
+        fcntl.flock(folder, fcntl.LOCK_EX)  # two benchmarks ending together: each reads what the other wrote
+        text = DOCS.read_text() if DOCS.exists() else HEADER
+        if begin in text:
+            head, rest = text.split(begin, 1)
+            if end not in rest:  # appending would leave two sections, and the next rewrite swallow those between
+                raise SystemExit(f"{DOCS}: its '{begin}' has no '{end}' after it; mend the file, then write again")
+            text = head + section + rest.split(end, 1)[1]
+        else:
+            text = text.rstrip() + "\n\n" + section + "\n"
+        tmp = DOCS.with_name(f".{DOCS.name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_text(text)
+            os.replace(tmp, DOCS)
+        finally:
+            tmp.unlink(missing_ok=True)
+    finally:
+        os.close(folder)  # the lock goes with it
     return DOCS
 
 

@@ -29,6 +29,19 @@ def test_a_section_is_rewritten_in_place_and_the_others_kept(docs):
     assert text.count("<!-- BEGIN a -->") == 1 and "_Written by `" in text and "cores" in text
 
 
+def test_a_section_whose_end_marker_is_lost_is_refused_and_the_file_kept(docs):
+    """Its BEGIN without an END after it was appended to as a second section; an END before its BEGIN raised an
+    IndexError. Either is named, the file kept, no temporary file left."""
+    _benchdocs.write_section("a", "## A\n\nfirst")
+    _benchdocs.write_section("b", "## B\n\nsecond")
+    for damaged in (docs.read_text().replace("<!-- END a -->", ""),
+                    "<!-- END a -->\n" + docs.read_text().replace("<!-- END a -->", "")):  # fmt: skip
+        docs.write_text(damaged)
+        with pytest.raises(SystemExit, match="BEGIN a -->' has no '<!-- END a -->' after it"):
+            _benchdocs.write_section("a", "## A\n\nagain")
+        assert docs.read_text() == damaged and list(docs.parent.iterdir()) == [docs]
+
+
 def test_run_documented_writes_what_the_benchmark_printed(docs, monkeypatch, capsys):
     monkeypatch.setattr(sys, "argv", ["bench_x.py", "--write-docs", "--n", "3"])
     seen = []
