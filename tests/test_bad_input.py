@@ -295,7 +295,7 @@ def test_budgets_beyond_reason_are_refused_before_any_work(capsys, tmp_path, arg
     (lambda run: (run / "summary.json").write_text("[" * 100_000 + "]" * 100_000), "RecursionError"),
     (lambda run: _resummarise(run, evaluations=10**400), "out of range"),
     (lambda run: _repack(run, zipfile.ZIP_BZIP2), "packed otherwise than `save` packs them"),  # 2.7 KB -> 2.5 GB
-    (lambda run: _resummarise(run, distinct_shapes=10**12), "more than its summary's 1000000000000 shapes hold"),
+    (lambda run: _resummarise(run, rows=10**12), "more than its summary's 1000000000000 shapes hold"),
     (lambda run: _huge_header(run), "P_c.npy declares 1,000,000,000,000 values for 50 shapes"),
 ])  # fmt: skip
 def test_compare_refuses_damaged_search_results(tmp_path, capsys, damage, message):

@@ -10,6 +10,7 @@ import pytest
 
 from smorphi_rl.cli import main
 from smorphi_rl.compare import hypervolume
+from smorphi_rl.search.results import load
 
 ROOT = Path(__file__).resolve().parent.parent
 MAP_1 = str(ROOT / "maps" / "map-1.yaml")
@@ -255,6 +256,19 @@ def test_a_results_archive_larger_than_its_summary_says_is_refused_before_it_is_
     assert code == 1 and "more than its summary's" in err and err.count("\n") == 1, err
 
 
+def test_a_search_written_before_its_summary_counted_rows_still_loads(searches, tmp_path):
+    """Summaries before 2026-12-07 held `distinct_shapes` as the row count, and no `rows`."""
+    import json
+    import shutil
+
+    run = tmp_path / "random"
+    shutil.copytree(searches / "random-map-1-seed0", run)
+    summary = json.loads((run / "summary.json").read_text())
+    rows = summary.pop("rows")
+    (run / "summary.json").write_text(json.dumps(summary | {"distinct_shapes": rows}))
+    assert len(load(run).thetas) == rows == 200
+
+
 def test_a_results_archive_that_unpacks_far_beyond_its_size_is_refused_whatever_its_summary_claims(
     searches, tmp_path, capsys
 ):  # fmt: skip
@@ -269,7 +283,7 @@ def test_a_results_archive_that_unpacks_far_beyond_its_size_is_refused_whatever_
     np.savez_compressed(run / "results.npz", thetas=np.zeros((n, 3), np.float32), P_c=np.zeros(n),
                         P_len=np.zeros(n, np.int32), feasible=np.zeros(n, bool))  # fmt: skip
     summary = json.loads((run / "summary.json").read_text())
-    (run / "summary.json").write_text(json.dumps(summary | {"distinct_shapes": n, "evaluations": n}))
+    (run / "summary.json").write_text(json.dumps(summary | {"rows": n, "distinct_shapes": n, "evaluations": n}))
     capsys.readouterr()
     code = main(["compare", "--random", str(run), "--step", "30", "--log-dir", str(tmp_path / "out")])
     err = capsys.readouterr().err
