@@ -204,15 +204,15 @@ def ray_session(address: str | None) -> Iterator[None]:
         os.environ.setdefault("RAY_AUTH_MODE", "disabled")  # a private, local-only Ray
     # Attaching leaves RAY_AUTH_MODE / RAY_AUTH_TOKEN to the user: forcing token mode against a
     # cluster started without a token aborts the process inside Ray's C++ core.
-    # Ray puts the driver's working folder first on every worker's sys.path unless the job has a working_dir: a
-    # `tensorflow.py` in the folder a run starts from ran in every env runner. An empty one is packed instead (its
-    # zip is taken at init, so the folder goes at once); the workers start in Ray's unpacked copy of it.
-    empty = tempfile.TemporaryDirectory(prefix="smorphi-rl-ray-")
+    empty = _empty_working_dir()
+    runtime_env: dict[str, Any] = {"worker_process_setup_hook": "smorphi_rl.quiet.quiet"}
+    if empty is not None:
+        runtime_env["working_dir"] = empty.name
     kwargs: dict[str, Any] = {
         "include_dashboard": False,
         "log_to_driver": False,
         "logging_level": logging.ERROR,
-        "runtime_env": {"worker_process_setup_hook": "smorphi_rl.quiet.quiet", "working_dir": empty.name},
+        "runtime_env": runtime_env,
     }
     if address is None:
         kwargs["num_cpus"] = local_cpus()
@@ -236,7 +236,8 @@ def ray_session(address: str | None) -> Iterator[None]:
                 raise
             sigterm = True  # SIGTERM reached Ray's own start-up handler
         finally:
-            empty.cleanup()
+            if empty is not None:
+                empty.cleanup()
     interrupts.install()  # Ray's init replaced our SIGTERM handler with its exit(15)
     if stop.is_set() or sigterm:
         ray.shutdown()
@@ -247,6 +248,21 @@ def ray_session(address: str | None) -> Iterator[None]:
     finally:
         _OPEN.pop()
         ray.shutdown()
+
+
+def _empty_working_dir() -> tempfile.TemporaryDirectory[str] | None:
+    """An empty folder for the job's runtime env to name as its working_dir, or None for a job submitted with its
+    own (Ray refuses two). Without one Ray puts the driver's working folder first on every worker's sys.path: a
+    `tensorflow.py` in the folder a run starts from ran in every env runner. Ray packs it at `ray.init`, so it goes
+    at once after; the workers start in Ray's unpacked copy."""
+    from smorphi_rl import rllib_compat
+
+    if rllib_compat.submitted_with_working_dir():
+        return None
+    try:
+        return tempfile.TemporaryDirectory(prefix="smorphi-rl-ray-")
+    except OSError as exc:
+        raise ClusterError(f"cannot make the empty folder Ray's workers start in: {exc}") from None
 
 
 def ray_error_line(exc: BaseException) -> str:

@@ -196,6 +196,23 @@ def daemons_in_their_own_session() -> Iterator[None]:
         services.ConsolePopen = original  # type: ignore[misc]
 
 
+def submitted_with_working_dir() -> bool:
+    """Whether this driver runs as a `ray job submit` job whose runtime env has a working_dir. Ray hands a job its
+    config in an environment variable named only in `ray._private`, and merges `ray.init`'s runtime env into it,
+    refusing a second working_dir ("Failed to merge the Job's runtime env")."""
+    import json
+    import os
+
+    from ray._private.runtime_env.constants import RAY_JOB_CONFIG_JSON_ENV_VAR
+
+    try:
+        config = json.loads(os.environ.get(RAY_JOB_CONFIG_JSON_ENV_VAR) or "null")
+    except ValueError:
+        return False
+    runtime_env = config.get("runtime_env") if isinstance(config, dict) else None
+    return isinstance(runtime_env, dict) and bool(runtime_env.get("working_dir"))
+
+
 def tune_trial_writer(callback: Any, trial: Any) -> Any:
     """The tensorboardX SummaryWriter Tune's `TBXLoggerCallback` keeps for `trial` (opened by its public
     `log_trial_start` if none is yet); Tune keeps the writers private."""

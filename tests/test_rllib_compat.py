@@ -222,3 +222,22 @@ def test_the_python_unpickler_dispatches_build_to_a_method_a_subclass_can_check(
 
     assert Peek(io.BytesIO(pickle.dumps({"a": 1, "b": 2}, protocol=4))).load() == {"a": 1, "b": 2}
     assert seen == [["a", 1, "b", 2]]
+
+
+def test_a_job_submitted_with_a_working_dir_is_told_from_one_without(monkeypatch):
+    """`ray job submit --working-dir` hands its driver the job's config in the variable Ray names; a second
+    working_dir in `ray.init` then fails ("Failed to merge the Job's runtime env"), so `ray_session` adds none."""
+    import json
+
+    from ray._private.worker import RAY_JOB_CONFIG_JSON_ENV_VAR  # where Ray's init reads it
+
+    from smorphi_rl import cluster
+
+    monkeypatch.delenv(RAY_JOB_CONFIG_JSON_ENV_VAR, raising=False)
+    assert not rllib_compat.submitted_with_working_dir()
+    assert cluster._empty_working_dir() is not None
+    for config, submitted in (({"runtime_env": {"working_dir": "gcs://_ray_pkg_1.zip"}}, True),
+                              ({"runtime_env": {"pip": ["x"]}}, False), ("not json{", False)):  # fmt: skip
+        monkeypatch.setenv(RAY_JOB_CONFIG_JSON_ENV_VAR, config if isinstance(config, str) else json.dumps(config))
+        assert rllib_compat.submitted_with_working_dir() is submitted
+        assert (cluster._empty_working_dir() is None) is submitted
