@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import angles_text, lattice_axis
+from smorphi_rl.geometry import angles_text
 from smorphi_rl.inputs import is_finite_number, read_json_object
 from smorphi_rl.protocol import gaps_to, within_band
 from smorphi_rl.rundir import write_text_atomic
@@ -252,9 +252,13 @@ def off_lattice(runs: list[Points], exact: SearchResult) -> list[str]:
     step = exact.params.get("step_deg")
     if not isinstance(step, int | float) or step <= 0:
         return []
-    axis = np.round(lattice_axis(float(step)), 6)
-    off = [(p[0], next(t for t in p[2] if not np.isin(np.round(t, 6), axis).all())) for p in runs
-           if len(p[2]) and not np.isin(np.round(p[2], 6), axis).all()]  # fmt: skip
+
+    def away(thetas: np.ndarray) -> np.ndarray:
+        """Per shape, whether a hinge lies over a thousandth of a degree off the lattice (a training run's table
+        holds angles to 6 significant digits)."""
+        return np.asarray((np.abs(thetas / step - np.rint(thetas / step)) * step > 1e-3).any(axis=1))
+
+    off = [(p[0], p[2][np.argmax(away(p[2]))]) for p in runs if len(p[2]) and away(p[2]).any()]
     if not off:
         return []
     named = "; ".join(f"{label}: {angles_text(tuple(float(a) for a in t))}" for label, t in off)
