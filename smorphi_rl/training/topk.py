@@ -154,8 +154,10 @@ def write_csv(rows: list[Found], csv_path: Path) -> None:
                              f"{f.R1:.4f}", f.env_steps, f.variants])  # fmt: skip
 
 
-MAX_CSV_BYTES = 1 << 24
-"""The largest morphologies.csv read (16 MiB, 200,000 rows): a 55 MB crafted one took `compare --runs` to 1 GB."""
+MAX_CSV_BYTES = 1 << 26
+"""The largest morphologies.csv read (64 MiB, some 800,000 rows of 80 bytes): the table holds every distinct shape
+a run's episodes ended on, so the designer's 2,000,000 steps on a fresh floor an episode write about 42,000; a
+crafted table's size bounds its memory (55 MB took `compare --runs` to 1 GB)."""
 
 
 def read_csv(csv_path: Path) -> list[Found]:
@@ -163,7 +165,7 @@ def read_csv(csv_path: Path) -> list[Found]:
     whole and not negative; anything else is refused in one line naming the file and the row."""
     rows: list[Found] = []
     try:
-        if csv_path.stat().st_size > MAX_CSV_BYTES:  # rows are some 80 bytes: a run writes top_k of them a map
+        if csv_path.stat().st_size > MAX_CSV_BYTES:
             raise SmorphiError(f"{csv_path}: {csv_path.stat().st_size:,} bytes, more than a table smorphi-rl writes "
                                f"({MAX_CSV_BYTES:,} at most)")  # fmt: skip
         with csv_path.open(newline="") as fh:
