@@ -309,12 +309,12 @@ def training_cost(steps: int, log_dir: Path) -> list[str]:
         summary = whole(train(cfg, name="designer-cost", log_dir=log_dir, out=quiet))
     wall = time.perf_counter() - t0
     rate = summary.env_steps / summary.wall_s
-    full = sweep.timesteps / rate / 60
+    full = sweep.step_budget / rate / 60
     print(f"designer training: {summary.env_steps:,} env steps in {summary.wall_s:.0f} s of training ({wall:.0f} s "
           f"end to end), {rate:,.0f} env steps/s, peak PSS {mem.peak_pss / 2**30:.2f} GiB")  # fmt: skip
     return [
         f"Designer training (`tune_configs/designer.yaml`'s trial, seed 0, {summary.env_steps:,} env steps on "
-        f"{cfg.env_runners} env runners): {rate:,.0f} env steps/s ({full:.0f} min for its {sweep.timesteps:,}), "
+        f"{cfg.env_runners} env runners): {rate:,.0f} env steps/s ({full:.0f} min for its {sweep.step_budget:,}), "
         f"{wall:.0f} s end to end, "
         f"peak memory {mem.peak_pss / 2**30:.2f} GiB (PSS of the process tree, Ray's processes included)."
     ]

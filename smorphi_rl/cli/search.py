@@ -44,7 +44,8 @@ def register(sub: Any) -> None:
         m = se_sub.add_parser(method, help=text)
         m.add_argument("--map", default=None, help=f"map_server YAML (default: {DEFAULT_MAP})")
         run_options(m)
-        m.add_argument("--json", action="store_true", help="print the front as JSON lines (theta, P_c, P_len)")
+        printed = "its optimum as a JSON line" if method == "optimum" else "the front as JSON lines"
+        m.add_argument("--json", action="store_true", help=f"print {printed} (theta, P_c, P_len)")
         weight_options(m)
         planner_option(m)
         for name in METHOD_FIELDS[method]:

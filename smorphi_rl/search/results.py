@@ -25,10 +25,10 @@ MAX_EVALUATIONS = 50_000_000
 1-degree lattice is 5,929,741); beyond it the run is a typo or a job for `--address` and a cluster. A results file
 claiming more is not one a search wrote."""
 MAX_WALL_S = 1e9
+"""A search's recorded wall time is at most this (31 years)."""
 MAX_INFLATION = 64
 """A results archive unpacks to at most this many times its size: the whole 1-degree lattice with one P_c and P_len
 everywhere (the most regular figures a search can give) unpacks 10.3x, random figures 2.2x."""
-"""A search's recorded wall time is at most this (31 years)."""
 
 
 @dataclass(frozen=True)
