@@ -135,6 +135,7 @@ def main() -> None:
     quiet()
 
     base = TrainConfig(record_every=0).with_env(maps=(str(Path(args.map).resolve()),))
+    env_step_rate(base.env.to_dict(), 2_000)  # the process's first steps load its code: 22,410/s, then 40,000
     bare = env_step_rate(base.env.to_dict())
     print(f"yardstick: the bare env steps {bare:,.0f} env steps/s with random actions in this process")
     ray_s = ray_overhead()
