@@ -9,6 +9,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import re
 from collections import Counter
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -92,6 +93,8 @@ def result_files(trial_dir: Path) -> list[Path]:
 
 MAX_RESULT_LINE = 1 << 24
 """The longest line of a result.json read (16 MiB; a row of ours is some 7 KB): a longer one is no row of ours."""
+_JSON_STRING = re.compile(r'"(?:[^"\\]|\\.)*"')
+"""A JSON string, escapes and all."""
 MIN_BYTES_PER_CONTAINER = 16
 """A row of ours opens a list or an object every 140-160 bytes; a line denser in them is no row of ours (a 67 MB
 result.json of empty lists, `[[],[],...]`, took a resume to 2.1 GB: each list 3 bytes of text, some 60 in memory)."""
@@ -127,7 +130,8 @@ def result_rows(*result_json: Path) -> list[dict[str, Any]]:
 def _rows_of(path: Path) -> Iterator[tuple[int, dict[str, Any]]]:
     """(iteration, row) of each result row in one result.json (any other line is not a result row of ours)."""
     for line in _result_lines(path):
-        if (line.count("[") + line.count("{")) * MIN_BYTES_PER_CONTAINER > len(line) + 64:
+        structure = _JSON_STRING.sub("", line)  # brackets inside strings open nothing
+        if (structure.count("[") + structure.count("{")) * MIN_BYTES_PER_CONTAINER > len(line) + 64:
             continue
         try:
             row = json.loads(line)
