@@ -28,6 +28,21 @@ def _without_a_learner(monkeypatch, on_snapshot) -> None:
     monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
 
 
+def _loading_learner(monkeypatch) -> list:
+    """The callbacks' learner calls answered with no learner, but for the live module's `load_state_dict`: what it
+    is given is appended to the returned list (the policy a run's end puts back)."""
+    from types import SimpleNamespace
+
+    from smorphi_rl.training import callbacks
+
+    loaded: list = []
+    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
+    monkeypatch.setattr(callbacks, "_on_live_learner",
+                        lambda algorithm, call: call(SimpleNamespace(load_state_dict=loaded.append)))  # fmt: skip
+    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    return loaded
+
+
 def _train_results(hooks, iterations) -> list[dict]:
     """The result rows of `iterations`, 1,000 env steps each, as the callbacks leave them."""
     from types import SimpleNamespace
@@ -334,12 +349,8 @@ def test_a_resumed_run_still_ends_on_the_policy_it_kept_before_the_interruption(
         design = [{"design_median_gap_pct": 1.0 if shares[0] is good else 3.0}] if len(calls) == 2 else []
         return [_evaluation(*shares[0], *shares.pop(0)), *design], {"w": torch.tensor([float(len(shares))])}
 
-    loaded = []
+    loaded = _loading_learner(monkeypatch)
     monkeypatch.setattr(callbacks, "_on_snapshot", on_snapshot)
-    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "_on_live_learner",
-                        lambda algorithm, call: call(SimpleNamespace(load_state_dict=loaded.append)))  # fmt: skip
-    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
     starts = [(0.0, 0.0, 0.0)] * 5
     evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 4000,
                                            selection=starts, design_budget=design_budget)  # fmt: skip
@@ -378,11 +389,7 @@ def test_a_run_that_ends_on_its_kept_policy_sets_the_weights_it_trained_aside_fo
     from smorphi_rl.training import callbacks
 
     poor, good = (80.0, 80.0, 80.0, 80.0, 89.9), (89.9, 89.9, 89.9, 89.9, 89.9)
-    loaded = []
-    monkeypatch.setattr(callbacks, "_on_learner_itself", lambda algorithm, call: None)
-    monkeypatch.setattr(callbacks, "_on_live_learner",
-                        lambda algorithm, call: call(SimpleNamespace(load_state_dict=loaded.append)))  # fmt: skip
-    monkeypatch.setattr(callbacks, "push_module_to_runners", lambda algorithm: None)
+    loaded = _loading_learner(monkeypatch)
     starts = [(0.0, 0.0, 0.0)] * 5
     evaluating = callbacks.with_evaluation(callbacks.MorphologyCallbacks, 1, starts, {"map-1": OPTIMUM}, 2000,
                                            selection=starts)  # fmt: skip
