@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import angles_text
+from smorphi_rl.geometry import LATTICE_TOLERANCE_DEG, angles_text, nearest_on_lattice
 from smorphi_rl.inputs import is_finite_number, read_json_object
 from smorphi_rl.protocol import gaps_to, within_band
 from smorphi_rl.rundir import write_text_atomic
@@ -254,9 +254,8 @@ def off_lattice(runs: list[Points], exact: SearchResult) -> list[str]:
         return []
 
     def away(thetas: np.ndarray) -> np.ndarray:
-        """Per shape, whether a hinge lies over a thousandth of a degree off the lattice (a training run's table
-        holds angles to 6 significant digits)."""
-        return np.asarray((np.abs(thetas / step - np.rint(thetas / step)) * step > 1e-3).any(axis=1))
+        """Per shape, whether a hinge lies off the lattice (beyond what a file's rounding moves an angle)."""
+        return np.asarray((np.abs(nearest_on_lattice(thetas, step) - thetas) > LATTICE_TOLERANCE_DEG).any(axis=1))
 
     off = [(p[0], p[2][np.argmax(away(p[2]))]) for p in runs if len(p[2]) and away(p[2]).any()]
     if not off:

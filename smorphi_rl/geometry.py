@@ -247,3 +247,15 @@ def lattice_axis(step_deg: float) -> np.ndarray:
     """Every angle of the `step_deg` lattice of [0, 180], in order (index i: i x step), the last held at 180: 169
     steps of 180/169 make 180.00000000000003, an angle Morphology refuses. The one place an index becomes an angle."""
     return np.minimum(np.arange(round(ANGLE_MAX_DEG / step_deg) + 1) * step_deg, ANGLE_MAX_DEG)
+
+
+LATTICE_TOLERANCE_DEG = 1e-3
+"""How far an angle read back from a file (float32 arrays, a table's 6 significant digits) may lie from the lattice
+angle it was."""
+
+
+def nearest_on_lattice(thetas: np.ndarray, step_deg: float) -> np.ndarray:
+    """Each angle's nearest angle of the `step_deg` lattice, as `lattice_axis` gives it (float64)."""
+    axis = lattice_axis(step_deg)
+    index = np.clip(np.rint(np.asarray(thetas, dtype=np.float64) / step_deg), 0, len(axis) - 1)
+    return axis[index.astype(np.intp)]

@@ -176,3 +176,14 @@ def test_the_o_and_the_i_rasterise_to_full_rectangles_of_cells_along_their_sides
     for angles, shape in (((0, 180, 0), (o, o)), ((0, 0, 0), (i1, i4)), ((180, 180, 180), (i4, i1))):
         f = footprint_matrix(Morphology(*angles), resolution)
         assert f.shape == shape and f.all()
+
+
+def test_an_angle_read_back_rounded_finds_its_lattice_angle():
+    """float32 and a table's 6 significant digits move a lattice angle by far less than a step; the nearest lattice
+    angle is `lattice_axis`'s own value, 180 held at 180, and nothing falls outside [0, 180]."""
+    from smorphi_rl.geometry import lattice_axis, nearest_on_lattice
+
+    step = 180 / 31
+    axis = lattice_axis(step)
+    rounded = np.array([axis[5].astype(np.float32), float(f"{axis[17]:g}"), 180.0004, -0.0002])
+    assert nearest_on_lattice(rounded, step).tolist() == [axis[5], axis[17], 180.0, 0.0]

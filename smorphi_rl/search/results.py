@@ -14,7 +14,7 @@ import numpy as np
 
 from smorphi_rl import jsontext
 from smorphi_rl.errors import SmorphiError
-from smorphi_rl.geometry import check_step, lattice_axis, lattice_size
+from smorphi_rl.geometry import LATTICE_TOLERANCE_DEG, check_step, lattice_size, nearest_on_lattice
 from smorphi_rl.rundir import atomic_text, write_atomic, write_text_atomic
 from smorphi_rl.score import MAX_P_LEN, Weights
 from smorphi_rl.search.pareto import pareto_front
@@ -164,9 +164,8 @@ def _on_lattice(thetas: np.ndarray, step: Any) -> np.ndarray:
         step = None
     if step is None or 180 / step > 10_000:  # no lattice, or one finer than any search holds
         return wide
-    axis = lattice_axis(step)
-    snapped = axis[np.clip(np.rint(wide / step), 0, len(axis) - 1).astype(np.intp)]
-    return snapped if np.abs(snapped - wide).max() <= 1e-3 else wide
+    snapped = nearest_on_lattice(wide, step)
+    return snapped if np.abs(snapped - wide).max() <= LATTICE_TOLERANCE_DEG else wide
 
 
 def load(run_dir: str | Path) -> SearchResult:
