@@ -238,15 +238,12 @@ class MorphologyCallbacks(RLlibCallback):
         if self._kept is None or not math.isfinite(self._kept[0][1]):  # a NaN never ranks: nothing to keep
             return None
         (within, gap), steps, state, *_ = self._kept
-        weights = {name: value.detach().cpu().numpy() for name, value in state.items()}
-        return {"score": [int(within), float(gap)], "env_steps": int(steps), "weights": weights}
+        return {"score": [int(within), float(gap)], "env_steps": int(steps), "weights": _as_arrays(state)}
 
     def trained_weights(self) -> dict[str, Any] | None:
         """The weights the learner trained to, as numpy arrays, where the run's end put the kept policy in their
         place (a resumable state file holds them as the learner's); None where the learner holds them still."""
-        if self._trained is None:
-            return None
-        return {name: value.detach().cpu().numpy() for name, value in self._trained.items()}
+        return None if self._trained is None else _as_arrays(self._trained)
 
     def restore_kept(self, kept: dict[str, Any]) -> None:
         """Keep the policy `kept_policy` gave before a resume, as if this run had evaluated it."""
@@ -255,6 +252,11 @@ class MorphologyCallbacks(RLlibCallback):
         within, gap = kept["score"]
         weights = {name: torch.from_numpy(value.copy()) for name, value in kept["weights"].items()}
         self._kept = ((int(within), float(gap)), int(kept["env_steps"]), weights, None, [])
+
+
+def _as_arrays(state: dict[str, Any]) -> dict[str, Any]:
+    """A module state's tensors as numpy arrays, by name (what a resumable state file holds)."""
+    return {name: value.detach().cpu().numpy() for name, value in state.items()}
 
 
 def _is_async(algorithm: Any) -> bool:
