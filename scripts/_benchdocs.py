@@ -94,6 +94,16 @@ def stop_interrupted() -> NoReturn:
     raise SystemExit(130)
 
 
+def check_at_least(*limits: tuple[str, int, int]) -> None:
+    """Refuse in one line (a SmorphiError, as the CLI's) the first option whose value is under its least: each limit
+    is (option, value, least), checked before anything runs or is written."""
+    from smorphi_rl.errors import SmorphiError
+
+    for name, value, least in limits:
+        if value < least:
+            raise SmorphiError(f"{name} {value}: at least {least}")
+
+
 def run_documented(name: str, title: str, main: object) -> None:
     """Run a benchmark's `main()`; with `--write-docs` on the command line, its printed report becomes the
     section `name` of docs/benchmarks.md (the flag is taken off before the script parses its own)."""

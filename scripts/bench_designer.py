@@ -29,7 +29,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import stop_interrupted, whole, write_section
+from _benchdocs import check_at_least, stop_interrupted, whole, write_section
 
 from smorphi_rl import jsontext
 from smorphi_rl.design import run_design
@@ -165,12 +165,9 @@ def main() -> None:
     parser.add_argument("--record", action="store_true", help="write designer 1's held-out figures into its "
                         "policy.json (`held_out`), beside the command that trained it")  # fmt: skip
     args = parser.parse_args()
-    for name, value, least in (("--budget", args.budget, 1), ("--seeds", args.seeds, 1), ("--floors", args.floors, 0),
-                               ("--ppo-maps", args.ppo_maps, 0), ("--ppo-steps", args.ppo_steps, 1),
-                               ("--train-steps", args.train_steps, 0),
-                               *(("--budgets", b, 1) for b in args.budgets)):  # fmt: skip
-        if value < least:
-            raise SmorphiError(f"{name} {value}: at least {least}")
+    check_at_least(("--budget", args.budget, 1), ("--seeds", args.seeds, 1), ("--floors", args.floors, 0),
+                   ("--ppo-maps", args.ppo_maps, 0), ("--ppo-steps", args.ppo_steps, 1),
+                   ("--train-steps", args.train_steps, 0), *(("--budgets", b, 1) for b in args.budgets))  # fmt: skip
     t_start = time.perf_counter()
     designers = [load_designer(Path(p)) for p in args.policy]  # before anything is written
     out = Path(args.out)

@@ -19,11 +19,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _benchdocs import run_documented
+from _benchdocs import check_at_least, run_documented
 
 from smorphi_rl.coverage import PLANNERS, Planner
 from smorphi_rl.coverage_reference import evaluate_reference
-from smorphi_rl.errors import SmorphiError
 from smorphi_rl.geometry import Morphology
 from smorphi_rl.maps import load_map
 from smorphi_rl.planning import Evaluator
@@ -51,9 +50,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--planner", choices=PLANNERS, default="paper")
     args = parser.parse_args()
-    for name, value, least in (("--n", args.n, 1), ("--n-plain", args.n_plain, 1), ("--repeats", args.repeats, 1)):
-        if value < least:
-            raise SmorphiError(f"{name} {value}: at least {least}")
+    check_at_least(("--n", args.n, 1), ("--n-plain", args.n_plain, 1), ("--repeats", args.repeats, 1))
     planner = Planner(args.planner)
     if hasattr(os, "sched_setaffinity"):
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
