@@ -23,7 +23,7 @@ from smorphi_rl.protocol import gaps_to, within_band
 from smorphi_rl.rundir import write_text_atomic
 from smorphi_rl.score import Weights
 from smorphi_rl.search.pareto import pareto_front
-from smorphi_rl.search.results import SearchResult, load
+from smorphi_rl.search.results import SearchResult, distinct_rows, load
 from smorphi_rl.stats import cell
 from smorphi_rl.training.topk import FOUND_CSV, read_csv
 
@@ -346,8 +346,16 @@ def points_of_run(run_dir: Path, map_name: str, methods: tuple[str, ...] = (), d
     if settled is not None and not (isinstance(settled, list) and all(is_finite_number(v) for v in settled)):
         raise SmorphiError(f"{run_dir / 'summary.json'}: its settled_R1 is not what smorphi-rl writes (a list of "
                            "numbers, one a start)")  # fmt: skip
-    return (f"{result.method} ({run_dir.name})", f"{result.evaluations:,} FBCPP evaluations", result.thetas[ok],
-            result.P_c[ok], result.P_len[ok], settled)  # fmt: skip
+    return (f"{result.method} ({run_dir.name})", search_budget(result), result.thetas[ok], result.P_c[ok],
+            result.P_len[ok], settled)  # fmt: skip
+
+
+def search_budget(result: SearchResult) -> str:
+    """The evaluations a search paid for, and the distinct shapes among them where it drew a shape twice (random
+    search, NSGA-II): a local search's budget counts distinct shapes, so the two read alike only side by side."""
+    distinct = len(distinct_rows(result))
+    repeats = f" ({distinct:,} distinct shapes)" if distinct < result.evaluations else ""
+    return f"{result.evaluations:,} FBCPP evaluations{repeats}"
 
 
 PC_TOLERANCE = 1e-4
