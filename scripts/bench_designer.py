@@ -33,7 +33,7 @@ from _benchdocs import check_at_least, stop_interrupted, whole, write_section
 
 from smorphi_rl import jsontext
 from smorphi_rl.design import run_design
-from smorphi_rl.designer import designer_env, load_designer
+from smorphi_rl.designer import Designer, designer_env, load_designer
 from smorphi_rl.env import MorphologyEnv
 from smorphi_rl.errors import SmorphiError
 from smorphi_rl.maps import load_map, save_map
@@ -217,6 +217,7 @@ def main() -> None:
     lines = [f"Held-out floors: {len(held)} ({len(held) - len(SHIPPED_VAL)} generated with seeds that training never "
              f"draws, and the {len(SHIPPED_VAL)} shipped val-* maps); each search's gap is its median over "
              f"{args.seeds} seeded runs on a floor; [95 % bootstrap interval] across floors.", "",
+             *provenance(designer_names, designers), "",
              f"| method ({args.budget} planner evaluations) | median gap | 90th percentile | floors within 1 % | "
              + " | ".join(f"{d} better by (median of per-floor differences)" for d in designer_names) + " |",
              "|---|---:|---:|---:|" + "---:|" * len(designer_names)]  # fmt: skip
@@ -287,6 +288,17 @@ def main() -> None:
         record_figures(designers[0].path, report, args)
     if args.write_docs:
         print(f"docs:    {write_section('designer', '## Designer (`scripts/bench_designer.py`)' + chr(10) * 2 + text)}")
+
+
+def provenance(names: list[str], designers: list[Designer]) -> list[str]:
+    """A line a designer: its folder, what it was trained on and the command its export recorded (a seed's)."""
+    lines = []
+    for name, d in zip(names, designers, strict=True):
+        command = d.policy.meta.get("command")
+        folder = d.path.resolve()
+        shown = folder.relative_to(ROOT) if folder.is_relative_to(ROOT) else folder
+        lines.append(f"- {name}: `{shown}` ({d.summary}{f'; {command}' if isinstance(command, str) else ''})")
+    return lines
 
 
 def training_cost(steps: int, log_dir: Path) -> list[str]:
